@@ -1,0 +1,273 @@
+"""RappAgent: the SPADE agent every RAPP agent derives from.
+
+What it adds to spade.agent.Agent:
+- connects to `settings.host:port` whatever the JID domain is, and start() has a time limit;
+- every message sent or received is traced (agents/tracing.py) with its delivery path; a setting
+  (`force_xmpp`) makes even in-process messages go through the XMPP server;
+- FIPA-Request initiator: `await agent.request(to, action_model)` returns the inform content or
+  raises RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (agents/errors.py);
+  answers are routed to the waiting call by conversation id, no behaviour needed;
+- named behaviour activation (`activate`, `deactivate`, `active_behaviours`) traced as structure;
+- nothing is dropped silently: a request no active behaviour takes is answered (refuse when the
+  action is known but not served now, not-understood when unknown), other unmatched messages go to
+  `on_unhandled`.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Any
+
+from spade.agent import Agent
+from spade.behaviour import CyclicBehaviour, FSMBehaviour
+from spade.message import Message
+
+from ontology import acl
+from ontology.acl import Performative
+from ontology.common import Reason
+from ontology.registry import Action, Content, ContentError, lookup, parse_json, validate
+from xmpp_server.settings import XmppSettings
+
+from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
+                     RequestTimeout)
+from .messages import AclInfo, bare, copy_message, make_message, reply_to
+from .tracing import cap, tracer_for
+
+log = logging.getLogger("rapp.agent")
+
+
+class _RoutingContainer:
+    """Stands in for SPADE's Container on one agent, so every send passes through the agent."""
+
+    def __init__(self, real, agent: "RappAgent"):
+        self._real, self._agent = real, agent
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+    async def send(self, msg: Message, behaviour=None) -> None:
+        await self._agent.send(msg)
+
+
+class RappAgent(Agent):
+    def __init__(self, name: str, settings: XmppSettings | None = None, password: str | None = None):
+        self.settings = settings or XmppSettings.from_env()
+        super().__init__(self.settings.jid(name), password or self.settings.password,
+                         port=self.settings.port, verify_security=self.settings.verify_tls)
+        self._container_real = self.container
+        self.container = _RoutingContainer(self.container, self)
+        self.tracer = tracer_for(self.settings.trace_file)
+        self._pending: dict[str, asyncio.Queue] = {}
+        self._named: dict[str, Any] = {}
+        self.unhandled: list[Message] = []  # kept, not dropped, for inspection
+
+    # -- identity and lifecycle -------------------------------------------------------------
+    @property
+    def address(self) -> str:
+        return str(self.jid.bare)
+
+    async def start(self, auto_register: bool | None = None) -> None:
+        reg = self.settings.auto_register if auto_register is None else auto_register
+        try:
+            await asyncio.wait_for(super().start(auto_register=reg), self.settings.start_timeout)
+        except asyncio.TimeoutError:
+            self.tracer.record("agent", event="start-failed", agent=self.address, reason="timeout")
+            await self._abort_connection()
+            raise AgentStartError(
+                f"{self.address} could not log in to {self.settings.host}:{self.settings.port} "
+                f"within {self.settings.start_timeout:.0f}s (is the XMPP server running?)") from None
+        except Exception as e:
+            self.tracer.record("agent", event="start-failed", agent=self.address, reason=str(e))
+            await self._abort_connection()
+            raise AgentStartError(f"{self.address} could not start: {type(e).__name__}: {e}") from e
+        if self.settings.web:
+            self.web.start(hostname="127.0.0.1", port=0)
+        self.tracer.record("agent", event="started", agent=self.address, cls=type(self).__name__)
+
+    async def _abort_connection(self) -> None:
+        if self.client is not None:
+            try:
+                self.client.disconnect()
+            except Exception:  # noqa: BLE001 - best effort on a half-open connection
+                pass
+        self._container_real.unregister(str(self.jid))
+
+    async def _async_connect(self) -> None:
+        connect = self.client.connect
+        host, port = self.settings.host, self.settings.port
+        self.client.connect = lambda *a, **kw: connect(host=host, port=port)
+        await super()._async_connect()
+
+    async def stop(self) -> None:
+        for q in self._pending.values():
+            q.put_nowait(None)  # wake waiting requests; they fail as timeouts
+        await super().stop()
+        self._container_real.unregister(str(self.jid))
+        self.tracer.record("agent", event="stopped", agent=self.address, cls=type(self).__name__)
+
+    # -- sending ----------------------------------------------------------------------------
+    async def send(self, msg: Message) -> None:
+        if msg.empty_sender():
+            msg.sender = str(self.jid)
+        to = str(msg.to)
+        local = None if self.settings.force_xmpp else self._local_agent(to)
+        self._trace_message("send", msg, "direct" if local else "xmpp")
+        if local is not None:
+            local.dispatch(copy_message(msg))
+        else:
+            if self.client is None:
+                raise RuntimeError(f"{self.address} is not connected")
+            msg.prepare(self.client).send()
+
+    def _local_agent(self, to: str):
+        real = self._container_real
+        for key in (to, bare(to)):
+            if real.has_agent(key):
+                agent = real.get_agent(key)
+                if agent.is_alive():
+                    return agent
+        return None
+
+    # -- receiving --------------------------------------------------------------------------
+    def _message_received(self, node):
+        msg = Message.from_node(node)
+        return self._route(msg, "xmpp")
+
+    def dispatch(self, msg: Message):
+        return self._route(msg, "direct")
+
+    def _route(self, msg: Message, path: str):
+        self._trace_message("recv", msg, path)
+        info = AclInfo.of(msg)
+        if info.performative in {p.value for p in acl.ANSWERS} and info.conversation_id in self._pending:
+            self._pending[info.conversation_id].put_nowait(msg)
+            return []
+        tasks = []
+        for behaviour in self.behaviours:
+            if behaviour.is_running and not behaviour.is_killed() and behaviour.match(msg):
+                tasks.append(self.submit(behaviour.enqueue(msg)))
+        if not tasks:
+            tasks.append(self.submit(self._unhandled(msg, info)))
+        return tasks
+
+    async def _unhandled(self, msg: Message, info: AclInfo) -> None:
+        if info.performative in {p.value for p in acl.OPENING}:
+            try:
+                lookup(info.ontology, info.action)
+            except ContentError as e:
+                await self.send(reply_to(msg, Reason(reason=str(e), code="unknown-action"),
+                                         Performative.NOT_UNDERSTOOD))
+                return
+            reason = self.not_serving_reason(info)
+            await self.send(reply_to(msg, Reason(reason=reason, code="not-serving"), Performative.REFUSE))
+            return
+        await self.on_unhandled(msg, info)
+
+    def not_serving_reason(self, info: AclInfo) -> str:
+        """Why a known action is refused when no active behaviour serves it (override to explain)."""
+        return f"{self.address} does not serve {info.ontology}/{info.action} now"
+
+    async def on_unhandled(self, msg: Message, info: AclInfo) -> None:
+        """A non-request message no behaviour took (late answer, chat text). Kept, logged."""
+        self.unhandled.append(msg)
+        del self.unhandled[:-200]
+        self.tracer.record("dropped", agent=self.address, sender=bare(msg.sender),
+                           performative=info.performative, conversation_id=info.conversation_id,
+                           reason="no behaviour matched")
+
+    # -- FIPA-Request initiator -------------------------------------------------------------
+    async def request(self, to: str, content: Action, *, timeout: float = 10.0,
+                      performative: Performative = Performative.REQUEST) -> Content:
+        """Send a request and wait for the final answer; agree extends nothing, it is noted."""
+        msg = make_message(to, content, performative=performative)
+        conv = msg.get_metadata(acl.CONVERSATION_ID)
+        queue: asyncio.Queue = asyncio.Queue()
+        self._pending[conv] = queue
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        name = content.action_name
+        try:
+            await self.send(msg)
+            while True:
+                remaining = deadline - loop.time()
+                if remaining <= 0:
+                    raise asyncio.TimeoutError
+                answer = await asyncio.wait_for(queue.get(), remaining)
+                if answer is None:
+                    raise RequestFailed(f"{self.address} stopped while waiting for {name}",
+                                        code="stopped", peer=to, action=name)
+                perf = answer.get_metadata(acl.PERFORMATIVE)
+                if perf == Performative.AGREE.value:
+                    continue
+                if perf == Performative.INFORM.value:
+                    try:
+                        return validate(content.reply_model or Content, parse_json(answer.body))
+                    except ContentError as e:
+                        raise RequestFailed(f"{to} answered {name} with bad content: {e}",
+                                            code="bad-reply", peer=to, action=name) from None
+                reason = _reason_of(answer)
+                err = {Performative.REFUSE.value: RequestRefused,
+                       Performative.NOT_UNDERSTOOD.value: NotUnderstood}.get(perf, RequestFailed)
+                raise err(reason.reason, code=reason.code, peer=to, action=name)
+        except asyncio.TimeoutError:
+            self.tracer.record("timeout", agent=self.address, peer=to, action=name,
+                               conversation_id=conv, timeout_s=timeout)
+            raise RequestTimeout(f"{to} did not answer {name} within {timeout:g}s",
+                                 code="timeout", peer=to, action=name) from None
+        finally:
+            self._pending.pop(conv, None)
+
+    async def notify(self, to: str, content: Content, *, ontology: str, action: str,
+                     performative: Performative = Performative.INFORM) -> None:
+        """One-way message (no answer expected)."""
+        await self.send(make_message(to, content, performative=performative, ontology=ontology,
+                                     action=action, protocol=acl.Protocol.NOTIFY.value))
+
+    # -- behaviour activation (supervision moves by these) ----------------------------------
+    def activate(self, name: str, behaviour, template=None) -> None:
+        if name in self._named:
+            return
+        self._named[name] = behaviour
+        self.add_behaviour(behaviour, template)
+        self.tracer.record("behaviour", event="activated", agent=self.address, behaviour=name)
+
+    def deactivate(self, name: str) -> None:
+        behaviour = self._named.pop(name, None)
+        if behaviour is None:
+            return
+        if self.has_behaviour(behaviour):
+            self.remove_behaviour(behaviour)
+        self.tracer.record("behaviour", event="deactivated", agent=self.address, behaviour=name)
+        # requests already queued to it are re-routed, not lost
+        queue = getattr(behaviour, "queue", None)
+        while queue is not None and not queue.empty():
+            msg = queue.get_nowait()
+            self.submit(self._unhandled(msg, AclInfo.of(msg)))
+
+    def active_behaviours(self) -> set[str]:
+        return {n for n, b in self._named.items() if not b.is_killed()}
+
+    def record_structure(self, event: str, **fields) -> None:
+        self.tracer.record("structure", event=event, agent=self.address, **fields)
+
+    # -- tracing ----------------------------------------------------------------------------
+    def _trace_message(self, direction: str, msg: Message, path: str) -> None:
+        if not self.tracer.enabled:
+            return
+        info = AclInfo.of(msg)
+        self.tracer.record(
+            "message", dir=direction, agent=self.address, sender=bare(msg.sender),
+            receiver=bare(msg.to), performative=info.performative or "chat",
+            conversation_id=info.conversation_id, ontology=info.ontology, action=info.action,
+            message_id=info.reply_with, in_reply_to=info.in_reply_to, path=path,
+            size=len(msg.body or ""), content=cap(msg.body))
+
+
+def _reason_of(msg: Message) -> Reason:
+    try:
+        return Reason.model_validate(parse_json(msg.body))
+    except Exception:  # noqa: BLE001 - a peer's malformed error still becomes an error
+        return Reason(reason=(msg.body or "no reason given")[:500], code="unknown")
+
+
+__all__ = ["RappAgent", "CyclicBehaviour", "FSMBehaviour"]

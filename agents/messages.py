@@ -1,0 +1,80 @@
+"""Building and reading ACL messages (SPADE Message + FIPA metadata + pydantic content)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from spade.message import Message
+
+from ontology import acl
+from ontology.acl import Performative
+from ontology.registry import Action, Content, encode
+
+
+def make_message(to: str, content: Content | None, *, performative: Performative | str,
+                 ontology: str = "", action: str = "", conversation_id: str | None = None,
+                 in_reply_to: str | None = None, protocol: str = acl.Protocol.REQUEST.value) -> Message:
+    if isinstance(content, Action):
+        ontology = ontology or content.ontology_name
+        action = action or content.action_name
+    meta = {
+        acl.PERFORMATIVE: Performative(performative).value,
+        acl.LANGUAGE_KEY: acl.LANGUAGE,
+        acl.PROTOCOL: protocol,
+        acl.CONVERSATION_ID: conversation_id or acl.new_id(),
+        acl.REPLY_WITH: acl.new_id("m"),
+    }
+    if ontology:
+        meta[acl.ONTOLOGY] = ontology
+    if action:
+        meta[acl.ACTION] = action
+    if in_reply_to:
+        meta[acl.IN_REPLY_TO] = in_reply_to
+    return Message(to=str(to), body=encode(content), thread=meta[acl.CONVERSATION_ID], metadata=meta)
+
+
+def reply_to(msg: Message, content: Content | None, performative: Performative | str) -> Message:
+    """A reply in the same conversation, same ontology and action, addressed to the sender."""
+    info = AclInfo.of(msg)
+    return make_message(
+        str(msg.sender), content, performative=performative, ontology=info.ontology,
+        action=info.action, conversation_id=info.conversation_id or None,
+        in_reply_to=info.reply_with or None, protocol=info.protocol or acl.Protocol.REQUEST.value,
+    )
+
+
+@dataclass(frozen=True)
+class AclInfo:
+    performative: str
+    ontology: str
+    action: str
+    conversation_id: str
+    reply_with: str
+    in_reply_to: str
+    protocol: str
+
+    @classmethod
+    def of(cls, msg: Message) -> "AclInfo":
+        g = msg.get_metadata
+        return cls(
+            performative=g(acl.PERFORMATIVE) or "",
+            ontology=g(acl.ONTOLOGY) or "",
+            action=g(acl.ACTION) or "",
+            conversation_id=g(acl.CONVERSATION_ID) or msg.thread or "",
+            reply_with=g(acl.REPLY_WITH) or "",
+            in_reply_to=g(acl.IN_REPLY_TO) or "",
+            protocol=g(acl.PROTOCOL) or "",
+        )
+
+    @property
+    def is_acl(self) -> bool:
+        return bool(self.performative)
+
+
+def copy_message(msg: Message) -> Message:
+    """SPADE's in-process path hands the sender's own object over; receivers get a copy."""
+    return msg.make_reply().make_reply()  # make_reply swaps to/sender and copies metadata
+
+
+def bare(jid) -> str:
+    s = str(jid)
+    return s.split("/", 1)[0]

@@ -1,0 +1,111 @@
+"""FIPA-Request responder: turns async handlers `(request model, ctx) -> reply model` into a behaviour.
+
+    responder = Responder("robot", {"say": handle_say}, agree=False)
+    agent.activate("command-server", responder, responder.make_template())
+
+For each request: the content is validated against the registered model (malformed JSON, unknown
+action or invalid fields -> not-understood naming the problem); `check` may refuse (supervision,
+tokens); optionally `agree` is sent first; then the handler's reply goes back as inform. A handler
+raising Refusal answers refuse, Failure or any other exception answers failure with the reason.
+The behaviour survives every bad input.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass
+from typing import Awaitable, Callable
+
+from spade.behaviour import CyclicBehaviour
+from spade.message import Message
+from spade.template import Template
+
+from ontology.acl import Performative
+from ontology.common import Reason
+from ontology.registry import Action, Content, ContentError, decode_request
+
+from .errors import Failure, Refusal
+from .messages import AclInfo, bare, reply_to
+
+log = logging.getLogger("rapp.responder")
+
+
+@dataclass
+class RequestContext:
+    sender: str  # bare JID of the requester
+    info: AclInfo
+    message: Message
+
+
+Handler = Callable[[Action, RequestContext], Awaitable[Content | None]]
+Check = Callable[[Action, RequestContext], Awaitable[None] | None]
+
+
+class Responder(CyclicBehaviour):
+    def __init__(self, ontology: str, handlers: dict[str, Handler], *, agree: bool = False,
+                 concurrent: bool = True, check: Check | None = None):
+        super().__init__()
+        self.ontology = ontology
+        self.handlers = dict(handlers)
+        self.agree = agree
+        self.concurrent = concurrent
+        self.check = check
+        self._tasks: set[asyncio.Task] = set()
+
+    def make_template(self) -> Template:
+        # constructor metadata: assigning template.metadata later matches everything (spade 4.1.4)
+        return Template(metadata={"ontology": self.ontology, "performative": Performative.REQUEST.value})
+
+    async def run(self) -> None:
+        msg = await self.receive(timeout=0.5)
+        if msg is None:
+            return
+        if self.concurrent:
+            task = asyncio.create_task(self.serve(msg))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+        else:
+            await self.serve(msg)
+
+    async def serve(self, msg: Message) -> None:
+        info = AclInfo.of(msg)
+        ctx = RequestContext(sender=bare(msg.sender), info=info, message=msg)
+        try:
+            request = decode_request(info.ontology, info.action, msg.body)
+            handler = self.handlers.get(info.action)
+            if handler is None:
+                raise ContentError(f"action {info.action!r} is not served by {self.agent.address}")
+        except ContentError as e:
+            await self._answer(msg, Performative.NOT_UNDERSTOOD, Reason(reason=str(e), code="not-understood"))
+            return
+        try:
+            if self.check is not None:
+                res = self.check(request, ctx)
+                if asyncio.iscoroutine(res):
+                    await res
+            if self.agree:
+                await self._answer(msg, Performative.AGREE, None)
+            result = await handler(request, ctx)
+        except Refusal as e:
+            await self._answer(msg, Performative.REFUSE, Reason(reason=e.reason, code=e.code))
+            return
+        except Failure as e:
+            await self._answer(msg, Performative.FAILURE, Reason(reason=e.reason, code=e.code))
+            return
+        except asyncio.CancelledError:
+            await self._answer(msg, Performative.FAILURE, Reason(reason="cancelled", code="cancelled"))
+            raise
+        except Exception as e:  # noqa: BLE001 - any handler bug becomes a failure, the agent lives on
+            log.exception("handler for %s failed", info.action)
+            code = getattr(e, "code", "error")
+            await self._answer(msg, Performative.FAILURE,
+                               Reason(reason=f"{type(e).__name__}: {e}", code=str(code)))
+            return
+        await self._answer(msg, Performative.INFORM, result)
+
+    async def _answer(self, msg: Message, performative: Performative, content: Content | None) -> None:
+        await self.agent.send(reply_to(msg, content, performative))
+
+    async def on_end(self) -> None:
+        for t in list(self._tasks):
+            t.cancel()

@@ -1,0 +1,452 @@
+"""Persistent repository of the RAPP Store: owners, robots and published RApp packages.
+
+Storage (all under ``data_dir``): SQLite ``store.db`` in WAL mode holding metadata, and the
+package archives as content-addressed blobs ``blobs/<sha256[:2]>/<sha256>``. Everything survives
+a restart (open a new `StoreRepository` on the same directory). Methods are synchronous, short
+and thread-safe (one connection guarded by a lock), meant to be called via ``asyncio.to_thread``.
+Every refusal raises `StoreError` with a ``code``: "not_found", "duplicate", "forbidden",
+"invalid_package", "invalid" (bad argument) or "corrupt" (blob damaged on disk).
+
+"Latest" always means the highest ``MAJOR.MINOR.PATCH``, not the most recent upload.
+"""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import os
+import sqlite3
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from pydantic import BaseModel
+
+from rapps.manifest import ROBOT_TYPES, Manifest, version_key
+from rapps.package import (DEFAULT_MAX_SIZE, Package, PackageError, load_public_key, public_key_b64,
+                           read_package, sha256_hex)
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS owners (
+    name TEXT PRIMARY KEY,
+    password_hash TEXT,
+    public_key TEXT,
+    created_at REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS robots (
+    robot_id TEXT PRIMARY KEY,
+    robot_type TEXT NOT NULL,
+    owner TEXT NOT NULL REFERENCES owners(name),
+    registered_at REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS packages (
+    name TEXT PRIMARY KEY,
+    owner TEXT NOT NULL REFERENCES owners(name),
+    created_at REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS versions (
+    name TEXT NOT NULL REFERENCES packages(name),
+    version TEXT NOT NULL,
+    major INTEGER NOT NULL, minor INTEGER NOT NULL, patch INTEGER NOT NULL,
+    description TEXT NOT NULL,
+    robot_types TEXT NOT NULL,
+    keywords TEXT NOT NULL,
+    phrases TEXT NOT NULL,
+    manifest TEXT NOT NULL,
+    sha256 TEXT NOT NULL,
+    size INTEGER NOT NULL,
+    signer_key_id TEXT,
+    signer_public_key TEXT,
+    published_by TEXT NOT NULL,
+    published_at REAL NOT NULL,
+    downloads INTEGER NOT NULL DEFAULT 0,
+    PRIMARY KEY (name, version)
+);
+CREATE INDEX IF NOT EXISTS versions_sha ON versions(sha256);
+"""
+_VERSION_COLS = ("name, version, description, robot_types, keywords, phrases, manifest, sha256, size, "
+                 "signer_key_id, signer_public_key, published_by, published_at, downloads")
+_ORDER = "major DESC, minor DESC, patch DESC"
+
+
+class StoreError(Exception):
+    """A Store operation was refused; ``code`` is the machine-readable reason."""
+
+    def __init__(self, message: str, code: str = "invalid") -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class Owner(BaseModel):
+    """A registered owner / developer (no secrets exposed)."""
+
+    name: str
+    public_key: str | None = None
+    has_password: bool = False
+
+
+class Robot(BaseModel):
+    """A registered robot."""
+
+    robot_id: str
+    robot_type: str
+    owner: str
+
+
+class PackageSummary(BaseModel):
+    """One line of `list`/`search`: a package at one (usually its latest) version."""
+
+    name: str
+    version: str
+    description: str
+    robot_types: list[str]
+    keywords: list[str]
+    phrases: list[str]
+    sha256: str
+    size: int
+
+
+class PackageInfo(PackageSummary):
+    """Full details of one published version (`info`)."""
+
+    owner: str
+    manifest: dict[str, Any]
+    signer_key_id: str | None = None
+    signer_public_key: str | None = None
+    published_at: float
+    downloads: int = 0
+    versions: list[str] = []
+
+
+class Download(NamedTuple):
+    """Result of `download`."""
+
+    manifest: Manifest
+    data: bytes
+    sha256: str
+
+
+def hash_password(password: str, *, salt: bytes | None = None) -> str:
+    """``scrypt$<salt hex>$<hash hex>`` of a password (for `register_owner`)."""
+    salt = salt if salt is not None else os.urandom(16)
+    digest = hashlib.scrypt(password.encode(), salt=salt, n=2**14, r=8, p=1, dklen=32)
+    return f"scrypt${salt.hex()}${digest.hex()}"
+
+
+def _check_password(password: str, stored: str) -> bool:
+    try:
+        scheme, salt_hex, _ = stored.split("$")
+        if scheme != "scrypt":
+            return False
+        return hmac.compare_digest(hash_password(password, salt=bytes.fromhex(salt_hex)), stored)
+    except ValueError:
+        return False
+
+
+class StoreRepository:
+    """Persistent Store repository rooted at ``data_dir`` (created if missing)."""
+
+    def __init__(self, data_dir: str | os.PathLike, *, max_package_size: int = DEFAULT_MAX_SIZE,
+                 require_signature: bool = False) -> None:
+        self.data_dir = Path(data_dir)
+        self.blob_dir = self.data_dir / "blobs"
+        self.blob_dir.mkdir(parents=True, exist_ok=True)
+        self.max_package_size = max_package_size
+        self.require_signature = require_signature
+        self._lock = threading.RLock()
+        self._db = sqlite3.connect(self.data_dir / "store.db", check_same_thread=False,
+                                   isolation_level=None, timeout=10)
+        self._db.row_factory = sqlite3.Row
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        self._db.execute("PRAGMA foreign_keys=ON")
+        with self._tx() as db:
+            for statement in _SCHEMA.split(";"):
+                if statement.strip():
+                    db.execute(statement)
+
+    # ------------------------------------------------------------------ plumbing
+    def close(self) -> None:
+        """Close the database (the repository is unusable afterwards)."""
+        with self._lock:
+            self._db.close()
+
+    def __enter__(self) -> "StoreRepository":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @contextmanager
+    def _tx(self) -> Iterator[sqlite3.Connection]:
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                yield self._db
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._db.execute("COMMIT")
+
+    def _query(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
+        with self._lock:
+            return self._db.execute(sql, args).fetchall()
+
+    def blob_path(self, sha256: str) -> Path:
+        """Where the blob with this sha256 lives."""
+        return self.blob_dir / sha256[:2] / sha256
+
+    def _write_blob(self, sha256: str, data: bytes) -> None:
+        path = self.blob_path(sha256)
+        if path.exists() and path.stat().st_size == len(data):
+            return
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    def _drop_blob_if_unreferenced(self, sha256: str) -> None:
+        with self._lock:
+            if not self._query("SELECT 1 FROM versions WHERE sha256=? LIMIT 1", (sha256,)):
+                self.blob_path(sha256).unlink(missing_ok=True)
+
+    # ------------------------------------------------------------------ owners and robots
+    def register_owner(self, name: str, *, password: str | None = None, password_hash: str | None = None,
+                       public_key: str | None = None) -> Owner:
+        """Register an owner/developer with a password (hashed here), a precomputed hash and/or
+        an ed25519 public key (base64 raw). An owner with a public key may only publish packages
+        signed by that key. "duplicate" if the name is taken."""
+        if not isinstance(name, str) or not name.strip() or len(name) > 128:
+            raise StoreError(f"invalid owner name {name!r}", "invalid")
+        if password is not None:
+            password_hash = hash_password(password)
+        if public_key is not None:
+            try:
+                public_key = public_key_b64(load_public_key(public_key))
+            except ValueError as exc:
+                raise StoreError(str(exc), "invalid") from None
+        with self._tx() as db:
+            if db.execute("SELECT 1 FROM owners WHERE name=?", (name,)).fetchone():
+                raise StoreError(f"owner {name!r} already registered", "duplicate")
+            db.execute("INSERT INTO owners VALUES (?,?,?,?)", (name, password_hash, public_key, time.time()))
+        return Owner(name=name, public_key=public_key, has_password=password_hash is not None)
+
+    def get_owner(self, name: str) -> Owner:
+        """The owner record; "not_found" if unknown."""
+        rows = self._query("SELECT * FROM owners WHERE name=?", (name,))
+        if not rows:
+            raise StoreError(f"owner {name!r} is not registered", "not_found")
+        r = rows[0]
+        return Owner(name=r["name"], public_key=r["public_key"], has_password=r["password_hash"] is not None)
+
+    def verify_owner(self, name: str, password: str) -> bool:
+        """True iff the owner exists and the password matches its stored hash."""
+        rows = self._query("SELECT password_hash FROM owners WHERE name=?", (name,))
+        return bool(rows) and rows[0][0] is not None and _check_password(password, rows[0][0])
+
+    def register_robot(self, robot_id: str, robot_type: str, owner: str) -> Robot:
+        """Register (or re-register, idempotently) a robot of a known type for a registered owner.
+        "forbidden" if the robot id belongs to another owner."""
+        if not isinstance(robot_id, str) or not robot_id.strip() or len(robot_id) > 256:
+            raise StoreError(f"invalid robot id {robot_id!r}", "invalid")
+        if robot_type not in ROBOT_TYPES:
+            raise StoreError(f"unknown robot type {robot_type!r}; known: {sorted(ROBOT_TYPES)}", "invalid")
+        with self._tx() as db:
+            if not db.execute("SELECT 1 FROM owners WHERE name=?", (owner,)).fetchone():
+                raise StoreError(f"owner {owner!r} is not registered", "not_found")
+            row = db.execute("SELECT owner FROM robots WHERE robot_id=?", (robot_id,)).fetchone()
+            if row and row[0] != owner:
+                raise StoreError(f"robot {robot_id!r} is registered to another owner", "forbidden")
+            db.execute("INSERT OR REPLACE INTO robots VALUES (?,?,?,?)",
+                       (robot_id, robot_type, owner, time.time()))
+        return Robot(robot_id=robot_id, robot_type=robot_type, owner=owner)
+
+    def get_robot(self, robot_id: str) -> Robot:
+        """The robot record; "not_found" if unknown."""
+        rows = self._query("SELECT robot_id, robot_type, owner FROM robots WHERE robot_id=?", (robot_id,))
+        if not rows:
+            raise StoreError(f"robot {robot_id!r} is not registered", "not_found")
+        return Robot(**dict(rows[0]))
+
+    def robots(self, owner: str | None = None) -> list[Robot]:
+        """Registered robots, optionally of one owner, sorted by id."""
+        sql = "SELECT robot_id, robot_type, owner FROM robots"
+        rows = self._query(sql + (" WHERE owner=?" if owner else "") + " ORDER BY robot_id",
+                           (owner,) if owner else ())
+        return [Robot(**dict(r)) for r in rows]
+
+    # ------------------------------------------------------------------ packages
+    def publish(self, owner: str, package_bytes: bytes) -> PackageInfo:
+        """Validate and store a package for ``owner``.
+
+        Refusals: "forbidden" (unknown owner, name owned by someone else, owner has a public key
+        and the package is not signed by it), "invalid_package" (any `PackageError`, message kept),
+        "duplicate" (this name and version already published). The signer's key is recorded.
+        """
+        try:
+            pkg = read_package(package_bytes, max_size=self.max_package_size,
+                               require_signature=self.require_signature)
+        except (PackageError, TypeError) as exc:
+            raise StoreError(f"invalid package: {exc}", "invalid_package") from None
+        m = pkg.manifest
+        rows = self._query("SELECT public_key FROM owners WHERE name=?", (owner,))
+        if not rows:
+            raise StoreError(f"owner {owner!r} is not registered", "forbidden")
+        owner_key = rows[0][0]
+        if owner_key is not None and pkg.public_key != owner_key:
+            raise StoreError(f"owner {owner!r} must publish packages signed with its registered key", "forbidden")
+        with self._lock:
+            self._write_blob(pkg.sha256, bytes(package_bytes))
+            try:
+                self._insert_version(owner, pkg)
+            except BaseException:
+                self._drop_blob_if_unreferenced(pkg.sha256)
+                raise
+        return self.info(m.name, m.version)
+
+    def _insert_version(self, owner: str, pkg: Package) -> None:
+        m, now = pkg.manifest, time.time()
+        with self._tx() as db:
+            row = db.execute("SELECT owner FROM packages WHERE name=?", (m.name,)).fetchone()
+            if row is None:
+                db.execute("INSERT INTO packages VALUES (?,?,?)", (m.name, owner, now))
+            elif row[0] != owner:
+                raise StoreError(f"package {m.name!r} belongs to another owner", "forbidden")
+            if db.execute("SELECT 1 FROM versions WHERE name=? AND version=?",
+                          (m.name, m.version)).fetchone():
+                raise StoreError(f"{m.name} {m.version} is already published", "duplicate")
+            major, minor, patch = m.version_tuple
+            db.execute(
+                f"INSERT INTO versions ({_VERSION_COLS}, major, minor, patch) "
+                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                (m.name, m.version, m.description, json.dumps(m.robot_types), json.dumps(m.keywords),
+                 json.dumps(m.phrases), m.model_dump_json(), pkg.sha256, pkg.size, pkg.key_id,
+                 pkg.public_key, owner, now, 0, major, minor, patch))
+
+    @staticmethod
+    def _summary(row: sqlite3.Row) -> PackageSummary:
+        return PackageSummary(name=row["name"], version=row["version"], description=row["description"],
+                              robot_types=json.loads(row["robot_types"]), keywords=json.loads(row["keywords"]),
+                              phrases=json.loads(row["phrases"]), sha256=row["sha256"], size=row["size"])
+
+    def _latest_rows(self, robot_type: str | None = None) -> list[sqlite3.Row]:
+        where, args = "", ()
+        if robot_type is not None:
+            where = "WHERE EXISTS (SELECT 1 FROM json_each(v.robot_types) WHERE value=?)"
+            args = (robot_type,)
+        sql = (f"SELECT * FROM (SELECT v.*, ROW_NUMBER() OVER (PARTITION BY name ORDER BY {_ORDER}) AS rn "
+               f"FROM versions v {where}) WHERE rn=1 ORDER BY name")
+        return self._query(sql, args)
+
+    def list(self, robot_type: str | None = None) -> list[PackageSummary]:
+        """Latest version of every package, sorted by name. With ``robot_type``: for each package,
+        its latest version supporting that robot type (packages never supporting it are omitted)."""
+        if robot_type is not None and robot_type not in ROBOT_TYPES:
+            raise StoreError(f"unknown robot type {robot_type!r}; known: {sorted(ROBOT_TYPES)}", "invalid")
+        return [self._summary(r) for r in self._latest_rows(robot_type)]
+
+    def search(self, keyword: str, robot_type: str | None = None) -> list[PackageSummary]:
+        """Latest versions whose name, keywords, phrases or description contain ``keyword``
+        (case-insensitive). Exact name/keyword matches come first, then by name."""
+        needle = (keyword or "").strip().lower()
+        if not needle:
+            raise StoreError("empty search keyword", "invalid")
+        exact, partial = [], []
+        for s in self.list(robot_type):
+            if needle == s.name or needle in s.keywords:
+                exact.append(s)
+            elif any(needle in t.lower() for t in [s.name, s.description, *s.keywords, *s.phrases]):
+                partial.append(s)
+        return exact + partial
+
+    def vocabulary(self, robot_type: str | None = None) -> dict[str, str]:
+        """Isolated-command vocabulary for the Core: keyword -> package name (latest versions;
+        on a clash the alphabetically first package wins)."""
+        vocab: dict[str, str] = {}
+        for s in self.list(robot_type):
+            for k in s.keywords:
+                vocab.setdefault(k, s.name)
+        return vocab
+
+    def _version_row(self, name: str, version: str | None) -> sqlite3.Row:
+        if version is None:
+            rows = self._query(f"SELECT * FROM versions WHERE name=? ORDER BY {_ORDER} LIMIT 1", (name,))
+            if not rows:
+                raise StoreError(f"no package named {name!r}", "not_found")
+        else:
+            rows = self._query("SELECT * FROM versions WHERE name=? AND version=?", (name, version))
+            if not rows:
+                raise StoreError(f"package {name!r} has no version {version!r}", "not_found")
+        return rows[0]
+
+    def versions(self, name: str) -> list[str]:
+        """Published versions of ``name``, newest first; "not_found" if none."""
+        rows = self._query(f"SELECT version FROM versions WHERE name=? ORDER BY {_ORDER}", (name,))
+        if not rows:
+            raise StoreError(f"no package named {name!r}", "not_found")
+        return [r[0] for r in rows]
+
+    def info(self, name: str, version: str | None = None) -> PackageInfo:
+        """Details of one version (latest by default); "not_found" if absent."""
+        row = self._version_row(name, version)
+        owner = self._query("SELECT owner FROM packages WHERE name=?", (name,))[0][0]
+        return PackageInfo(**self._summary(row).model_dump(), owner=owner, manifest=json.loads(row["manifest"]),
+                           signer_key_id=row["signer_key_id"], signer_public_key=row["signer_public_key"],
+                           published_at=row["published_at"], downloads=row["downloads"],
+                           versions=self.versions(name))
+
+    def download(self, name: str, version: str | None = None) -> Download:
+        """Manifest, archive bytes and sha256 of a version (latest by default); counts the download.
+        "not_found" if absent, "corrupt" if the stored blob is missing or damaged."""
+        row = self._version_row(name, version)
+        sha = row["sha256"]
+        try:
+            data = self.blob_path(sha).read_bytes()
+        except OSError:
+            raise StoreError(f"blob of {name} {row['version']} is missing", "corrupt") from None
+        if sha256_hex(data) != sha:
+            raise StoreError(f"blob of {name} {row['version']} is damaged (sha256 mismatch)", "corrupt")
+        with self._tx() as db:
+            db.execute("UPDATE versions SET downloads = downloads + 1 WHERE name=? AND version=?",
+                       (name, row["version"]))
+        return Download(Manifest.model_validate_json(row["manifest"]), data, sha)
+
+    def delete(self, name: str, version: str | None = None, *, owner: str) -> list[str]:
+        """Delete one version (or all with ``version=None``) of a package; only its owner may.
+        Returns the deleted versions. Blobs no longer referenced are removed. "not_found" if
+        absent, "forbidden" for anyone but the owner."""
+        with self._tx() as db:
+            row = db.execute("SELECT owner FROM packages WHERE name=?", (name,)).fetchone()
+            if row is None:
+                raise StoreError(f"no package named {name!r}", "not_found")
+            if row[0] != owner:
+                raise StoreError(f"only the owner of {name!r} may delete it", "forbidden")
+            if version is None:
+                rows = db.execute("SELECT version, sha256 FROM versions WHERE name=?", (name,)).fetchall()
+            else:
+                rows = db.execute("SELECT version, sha256 FROM versions WHERE name=? AND version=?",
+                                  (name, version)).fetchall()
+                if not rows:
+                    raise StoreError(f"package {name!r} has no version {version!r}", "not_found")
+            for r in rows:
+                db.execute("DELETE FROM versions WHERE name=? AND version=?", (name, r[0]))
+            if not db.execute("SELECT 1 FROM versions WHERE name=? LIMIT 1", (name,)).fetchone():
+                db.execute("DELETE FROM packages WHERE name=?", (name,))
+        for sha in {r[1] for r in rows}:
+            self._drop_blob_if_unreferenced(sha)
+        return sorted((r[0] for r in rows), key=version_key, reverse=True)
+
+
+__all__ = ["StoreRepository", "StoreError", "Owner", "Robot", "PackageSummary", "PackageInfo", "Download",
+           "hash_password"]

@@ -1,0 +1,60 @@
+"""FIPA-ACL conventions on SPADE message metadata.
+
+An ACL message is a SPADE message whose metadata carries the FIPA fields below and whose body is
+the JSON of a pydantic model. Metadata values must be strings (SPADE sends them as an XEP-0004 form).
+"""
+from __future__ import annotations
+
+import uuid
+from enum import Enum
+
+LANGUAGE = "json"
+
+
+class Performative(str, Enum):
+    REQUEST = "request"
+    AGREE = "agree"
+    REFUSE = "refuse"
+    INFORM = "inform"
+    FAILURE = "failure"
+    NOT_UNDERSTOOD = "not-understood"
+    CANCEL = "cancel"
+    QUERY_REF = "query-ref"
+    SUBSCRIBE = "subscribe"
+    CONFIRM = "confirm"
+    PROPAGATE = "propagate"
+
+
+class Protocol(str, Enum):
+    REQUEST = "fipa-request"
+    QUERY = "fipa-query"
+    SUBSCRIBE = "fipa-subscribe"
+    NOTIFY = "rapp-notify"  # one-way typed notification (paper 003), no reply expected
+
+
+# metadata keys
+PERFORMATIVE = "performative"
+ONTOLOGY = "ontology"
+ACTION = "action"
+CONVERSATION_ID = "conversation_id"
+REPLY_WITH = "reply_with"
+IN_REPLY_TO = "in_reply_to"
+PROTOCOL = "protocol"
+LANGUAGE_KEY = "language"
+REPLY_BY = "reply_by"
+
+# performatives that open a conversation (the receiver must answer them)
+OPENING = {Performative.REQUEST, Performative.QUERY_REF, Performative.SUBSCRIBE}
+# performatives that may close or advance one (routed to the waiting initiator)
+ANSWERS = {
+    Performative.AGREE,
+    Performative.REFUSE,
+    Performative.INFORM,
+    Performative.FAILURE,
+    Performative.NOT_UNDERSTOOD,
+    Performative.CONFIRM,
+}
+
+
+def new_id(prefix: str = "c") -> str:
+    return f"{prefix}-{uuid.uuid4().hex[:16]}"

@@ -1,0 +1,17 @@
+"""Replies shared by every ontology: FIPA error performatives carry one of these."""
+from __future__ import annotations
+
+from .registry import Content
+
+
+class Reason(Content):
+    """Content of refuse, failure and not-understood: a human-readable reason and a short code."""
+
+    reason: str
+    code: str = "error"
+
+
+class Agreed(Content):
+    """Content of agree: the responder accepted and will inform later."""
+
+    eta_s: float | None = None

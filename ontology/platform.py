@@ -1,0 +1,78 @@
+"""Platform Agent messages: users and tokens, service discovery, Cloud Agent lifecycle.
+
+Every service request carries a token (`ServiceRequest.token`); the Platform refuses a missing,
+wrong or expired one before the service runs.
+"""
+from __future__ import annotations
+
+from pydantic import Field
+
+from .registry import Action, Content, Done, action
+
+ONTOLOGY = "platform"
+
+
+class ServiceRequest(Action):
+    """Base of every Platform service request."""
+
+    token: str = ""
+
+
+class TokenReply(Content):
+    token: str
+    expires_at: float  # unix time
+    user: str
+
+
+@action("register_user", ontology=ONTOLOGY, reply=Done, group="users")
+class RegisterUser(Action):
+    user: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    password: str = Field(min_length=1, max_length=256)
+
+
+@action("login", ontology=ONTOLOGY, reply=TokenReply, group="users")
+class Login(Action):
+    user: str
+    password: str
+    ttl_s: float = Field(default=3600.0, gt=0, le=7 * 24 * 3600)
+
+
+class ServiceInfo(Content):
+    name: str
+    group: str
+    request_schema: dict
+    reply_schema: dict | None = None
+
+
+class ServiceList(Content):
+    services: list[ServiceInfo]
+
+
+@action("list_services", ontology=ONTOLOGY, reply=ServiceList, group="discovery")
+class ListServices(Action):
+    group: str | None = None
+
+
+class CloudAgentReply(Content):
+    jid: str
+    rapp: str
+    version: str
+
+
+@action("start_cloud_agent", ontology=ONTOLOGY, reply=CloudAgentReply, group="cloud")
+class StartCloudAgent(ServiceRequest):
+    rapp: str
+    version: str | None = None
+    owner_jid: str = ""  # the Dynamic Agent the Cloud Agent lives and dies with
+
+
+@action("stop_cloud_agent", ontology=ONTOLOGY, reply=Done, group="cloud")
+class StopCloudAgent(ServiceRequest):
+    jid: str
+
+
+@action("register_robot", ontology=ONTOLOGY, reply=Done, group="robots")
+class RegisterRobot(Action):
+    robot_id: str
+    robot_type: str
+    core_jid: str

@@ -1,0 +1,1 @@
+"""Example RApp ``hello``: its task class lives in `hello.task`."""

@@ -1,0 +1,197 @@
+"""FIPA-Request over the real embedded XMPP server: happy path, bad input, timeouts, traces."""
+from __future__ import annotations
+
+import asyncio
+import json
+
+import pytest
+from pydantic import Field
+
+from agents.base import RappAgent
+from agents.errors import NotUnderstood, RequestFailed, RequestRefused, RequestTimeout, Refusal
+from agents.messages import make_message
+from agents.responder import Responder
+from agents.tracing import read_trace
+from ontology.acl import Performative
+from ontology.registry import Action, Content, action
+from xmpp_server import EmbeddedServer
+
+
+class Sum(Content):
+    total: int
+
+
+@action("add", ontology="test-math", reply=Sum)
+class Add(Action):
+    a: int
+    b: int = Field(ge=0)
+
+
+@action("divide", ontology="test-math", reply=Sum)
+class Divide(Action):
+    a: int
+    b: int
+
+
+@action("secret", ontology="test-math", reply=Sum)
+class Secret(Action):
+    pass
+
+
+async def _add(req: Add, ctx) -> Sum:
+    return Sum(total=req.a + req.b)
+
+
+async def _divide(req: Divide, ctx) -> Sum:
+    return Sum(total=req.a // req.b)
+
+
+async def _secret(req: Secret, ctx) -> Sum:
+    raise Refusal(f"{ctx.sender} may not ask for the secret", code="forbidden")
+
+
+async def start_pair(settings, unique, agree=True):
+    server = RappAgent(unique("calc"), settings)
+    client = RappAgent(unique("user"), settings)
+    await server.start()
+    await client.start()
+    responder = Responder("test-math", {"add": _add, "divide": _divide, "secret": _secret}, agree=agree)
+    server.activate("math", responder, responder.make_template())
+    return server, client
+
+
+def messages(trace, conversation=None):
+    return [r for r in trace if r["kind"] == "message"
+            and (conversation is None or r["conversation_id"] == conversation)]
+
+
+async def test_request_agree_inform_and_trace(settings, unique, trace_file):
+    server, client = await start_pair(settings, unique)
+    try:
+        reply = await client.request(server.address, Add(a=2, b=3), timeout=5)
+        assert reply == Sum(total=5)
+        sends = [r for r in messages(read_trace(trace_file)) if r["dir"] == "send"]
+        assert [r["performative"] for r in sends] == ["request", "agree", "inform"]
+        assert len({r["conversation_id"] for r in sends}) == 1
+        assert {r["path"] for r in sends} == {"direct"}  # same process: SPADE's shortcut, traced
+    finally:
+        await client.stop()
+        await server.stop()
+
+
+async def test_forced_xmpp_delivery_is_traced_in_order(xmpp_server, unique, trace_file):
+    settings = xmpp_server.settings(trace_file=trace_file, force_xmpp=True)
+    server, client = await start_pair(settings, unique)
+    try:
+        for i in range(3):
+            assert (await client.request(server.address, Add(a=i, b=1), timeout=5)).total == i + 1
+        trace = read_trace(trace_file)
+        recvs = [r for r in messages(trace) if r["dir"] == "recv"]
+        assert recvs and {r["path"] for r in recvs} == {"xmpp"}
+        convs = []
+        for r in messages(trace):
+            if r["conversation_id"] not in convs:
+                convs.append(r["conversation_id"])
+        assert len(convs) == 3
+        for conv in convs:
+            recs = messages(trace, conv)
+            for direction in ("send", "recv"):
+                assert [r["performative"] for r in recs if r["dir"] == direction] == \
+                    ["request", "agree", "inform"]
+            # every message is received after it was sent
+            for perf in ("request", "agree", "inform"):
+                sent = next(r["t"] for r in recs if r["dir"] == "send" and r["performative"] == perf)
+                got = next(r["t"] for r in recs if r["dir"] == "recv" and r["performative"] == perf)
+                assert sent <= got
+    finally:
+        await client.stop()
+        await server.stop()
+
+
+async def test_bad_content_and_unknown_action_get_not_understood(settings, unique):
+    server, client = await start_pair(settings, unique, agree=False)
+    try:
+        raw = make_message(server.address, None, performative=Performative.REQUEST,
+                           ontology="test-math", action="add")
+        raw.body = "{not json"
+        with pytest.raises(NotUnderstood, match="malformed JSON"):
+            await _raw_request(client, raw)
+        with pytest.raises(NotUnderstood, match=r"b: Input should be greater than or equal to 0"):
+            await client.request(server.address, Add.model_construct(a=1, b=-4), timeout=5)
+        unknown = make_message(server.address, None, performative=Performative.REQUEST,
+                               ontology="test-math", action="multiply")
+        unknown.body = json.dumps({"a": 1})
+        with pytest.raises(NotUnderstood, match="unknown action 'multiply'"):
+            await _raw_request(client, unknown)
+        with pytest.raises(RequestFailed, match="ZeroDivisionError"):
+            await client.request(server.address, Divide(a=1, b=0), timeout=5)
+        with pytest.raises(RequestRefused, match="may not ask"):
+            await client.request(server.address, Secret(), timeout=5)
+        # still alive and answering
+        assert (await client.request(server.address, Add(a=40, b=2), timeout=5)).total == 42
+    finally:
+        await client.stop()
+        await server.stop()
+
+
+async def _raw_request(client: RappAgent, msg):
+    """Send a hand-made request and interpret the answer the way request() does."""
+    from ontology import acl
+    conv = msg.get_metadata(acl.CONVERSATION_ID)
+    q: asyncio.Queue = asyncio.Queue()
+    client._pending[conv] = q
+    try:
+        await client.send(msg)
+        answer = await asyncio.wait_for(q.get(), 5)
+        body = json.loads(answer.body)
+        perf = answer.get_metadata("performative")
+        if perf == "not-understood":
+            raise NotUnderstood(body["reason"])
+        return answer
+    finally:
+        client._pending.pop(conv, None)
+
+
+async def test_request_to_silent_agent_times_out(settings, unique):
+    silent = RappAgent(unique("silent"), settings)
+    client = RappAgent(unique("user"), settings)
+    await silent.start()
+    await client.start()
+    silent.on_unhandled = lambda *a: asyncio.sleep(0)  # never answers anything
+    silent._unhandled = lambda msg, info: asyncio.sleep(0)
+    try:
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        with pytest.raises(RequestTimeout, match="did not answer add within 0.5s"):
+            await client.request(silent.address, Add(a=1, b=1), timeout=0.5)
+        assert 0.45 <= loop.time() - t0 < 1.5
+    finally:
+        await client.stop()
+        await silent.stop()
+
+
+async def test_known_action_without_active_responder_is_refused(settings, unique):
+    server, client = await start_pair(settings, unique)
+    try:
+        server.deactivate("math")
+        assert "math" not in server.active_behaviours()
+        with pytest.raises(RequestRefused, match="does not serve test-math/add"):
+            await client.request(server.address, Add(a=1, b=1), timeout=5)
+    finally:
+        await client.stop()
+        await server.stop()
+
+
+async def test_second_server_starts_in_same_session():
+    async with EmbeddedServer() as second:
+        settings = second.settings()
+        a = RappAgent("a", settings)
+        b = RappAgent("b", settings)
+        await a.start()
+        await b.start()
+        responder = Responder("test-math", {"add": _add})
+        a.activate("math", responder, responder.make_template())
+        assert (await b.request(a.address, Add(a=1, b=2), timeout=5)).total == 3
+        await a.stop()
+        await b.stop()
+    assert not second.running()

@@ -1,0 +1,39 @@
+"""`python -m xmpp_server`: the embedded server as a process of its own (used by `rapp server`)."""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+from .embedded import serve
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m xmpp_server")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=5222)
+    p.add_argument("--s2s-port", type=int, default=0, help="server-to-server port (0: none chosen, a free one)")
+    p.add_argument("--domain", default="localhost")
+    p.add_argument("--db", default=None, help="SQLite file (default: in memory, see --memory)")
+    p.add_argument("--verbose", action="store_true")
+    a = p.parse_args(argv)
+    if a.s2s_port == 0:
+        from .ports import free_port
+        a.s2s_port = free_port(a.host)
+
+    def ready() -> None:
+        print(f"READY {a.host}:{a.port} domain={a.domain}", flush=True)
+
+    try:
+        asyncio.run(serve(bind_host=a.host, port=a.port, s2s_port=a.s2s_port, domain=a.domain,
+                          db_path=a.db, ready_callback=ready, verbose=a.verbose))
+    except (KeyboardInterrupt, SystemExit):
+        pass
+    except RuntimeError as e:
+        print(f"error: {e}", file=sys.stderr, flush=True)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

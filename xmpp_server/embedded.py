@@ -1,0 +1,145 @@
+"""Run pyjabber (SPADE's embedded XMPP server) bound to one host only, admin API off.
+
+pyjabber binds its auto-detected LAN address next to the given host and serves an unauthenticated
+admin API on port 9090 when the HTTP-upload plugin is on; both are switched off here. It also cannot
+be restarted in one process (global queues bound to the first loop), so `rapp server` and the tests
+run it in a process of its own (see process.py).
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+from pathlib import Path
+
+
+
+def cert_dir(domain: str) -> Path:
+    """A directory holding a self-signed certificate for `domain`, made once and cached."""
+    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rapp" / "certs"
+    base.mkdir(parents=True, exist_ok=True)
+    if not (base / f"{domain}_cert.pem").exists():
+        _write_self_signed(base, domain)
+    return base
+
+
+def _write_self_signed(base: Path, domain: str) -> None:
+    import datetime
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, domain)])
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (
+        x509.CertificateBuilder().subject_name(name).issuer_name(name)
+        .public_key(key.public_key()).serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(days=1))
+        .not_valid_after(now + datetime.timedelta(days=3650))
+        .add_extension(x509.SubjectAlternativeName([x509.DNSName(domain)]), critical=False)
+        .sign(key, hashes.SHA256())
+    )
+    tmp_key, tmp_cert = base / f".{domain}_key.{os.getpid()}", base / f".{domain}_cert.{os.getpid()}"
+    tmp_key.write_bytes(key.private_bytes(serialization.Encoding.PEM,
+                                          serialization.PrivateFormat.TraditionalOpenSSL,
+                                          serialization.NoEncryption()))
+    tmp_cert.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    os.replace(tmp_key, base / f"{domain}_key.pem")  # atomic: concurrent servers may race here
+    os.replace(tmp_cert, base / f"{domain}_cert.pem")
+
+
+_held: dict[int, list[bytes]] = {}
+
+
+def _patch_starttls_race() -> None:
+    """Hold client bytes that arrive while pyjabber upgrades a stream to TLS.
+
+    pyjabber resets its XML stack only after `loop.start_tls` returns, but the client's new
+    <stream:stream> can arrive (and be parsed into the old stack) before that: the login then
+    hangs. Bytes received during the upgrade are replayed once the reset has happened.
+    """
+    from pyjabber.network.protocols.XMLProtocol import XMLProtocol
+    from pyjabber.stream.negotiators.StreamNegotiator import StreamNegotiator
+
+    if getattr(StreamNegotiator, "_rapp_patched", False):
+        return
+    original_received = XMLProtocol.data_received
+    original_tls = StreamNegotiator._handle_tls
+
+    def data_received(self, data):
+        held = _held.get(id(self))
+        if held is not None:
+            held.append(data)
+            return
+        original_received(self, data)
+
+    async def handle_tls(self, element):
+        protocol = self._protocol
+        _held[id(protocol)] = []
+        try:
+            return await original_tls(self, element)
+        finally:
+            held = _held.pop(id(protocol), [])
+            if held:  # after the caller's stack reset, which runs before the loop turns again
+                asyncio.get_running_loop().call_soon(
+                    lambda: [original_received(protocol, d) for d in held])
+
+    XMLProtocol.data_received = data_received
+    StreamNegotiator._handle_tls = handle_tls
+    StreamNegotiator._rapp_patched = True
+
+
+def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
+                 db_path: str | None, verbose: bool = False):
+    """A pyjabber Server for `domain` listening on bind_host:port only."""
+    from loguru import logger as loguru_logger
+    import pyjabber.server as pjs
+    from pyjabber.server_parameters import Parameters
+
+    loguru_logger.remove()
+    if verbose:
+        import sys
+        loguru_logger.add(sys.stderr, level=os.environ.get("RAPP_XMPP_LOG_LEVEL", "INFO"))
+    logging.getLogger("sqlalchemy").setLevel(logging.WARNING)
+
+    pjs.setup_query_local_ip = lambda: None  # no extra LAN listener
+    _patch_starttls_race()
+    defaults = Parameters()
+    params = Parameters(
+        host=domain,
+        client_port=port,
+        server_port=s2s_port,
+        database_path=db_path or ":memory:",
+        database_in_memory=db_path is None,
+        database_purge=False,
+        cert_path=str(cert_dir(domain)),
+        message_persistence=True,
+        verbose=verbose,
+        # pyjabber's stanza routing breaks when the upload plugin or item is removed, so both stay
+        # and only its HTTP server (admin API + uploads on port 9090) is never started
+        plugins=defaults.plugins,
+        items=defaults.items,
+    )
+    server = pjs.Server(params)
+    server._http_server = None  # unauthenticated admin API: off
+    server._host = bind_host  # pyjabber binds its domain name; bind the configured address instead
+    return server
+
+
+async def serve(*, bind_host: str, port: int, s2s_port: int, domain: str, db_path: str | None,
+                ready_callback=None, verbose: bool = False) -> None:
+    """Run until cancelled or SIGINT/SIGTERM; call ready_callback once listening."""
+    server = build_server(bind_host=bind_host, port=port, s2s_port=s2s_port, domain=domain,
+                          db_path=db_path, verbose=verbose)
+    task = asyncio.create_task(server.start())
+    ready = asyncio.create_task(server.ready.wait())
+    done, _ = await asyncio.wait({task, ready}, return_when=asyncio.FIRST_COMPLETED)
+    if task in done:
+        ready.cancel()
+        raise RuntimeError(f"XMPP server failed to start on {bind_host}:{port}")
+    if ready_callback:
+        ready_callback()
+    await task

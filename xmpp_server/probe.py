@@ -1,0 +1,73 @@
+"""A real XMPP login: register (in-band) if needed, authenticate, start a session, disconnect.
+
+Used to wait until a server really accepts logins and by `rapp doctor`.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import ssl
+import uuid
+
+from slixmpp import ClientXMPP
+from slixmpp.exceptions import IqError, IqTimeout
+
+
+class LoginError(RuntimeError):
+    pass
+
+
+class _ProbeClient(ClientXMPP):
+    def __init__(self, jid: str, password: str, register: bool):
+        super().__init__(jid, password)
+        self.enable_direct_tls = False
+        self.ssl_context.check_hostname = False
+        self.ssl_context.verify_mode = ssl.CERT_NONE
+        self.done: asyncio.Future = asyncio.get_running_loop().create_future()
+        self.add_event_handler("session_start", self._on_session)
+        self.add_event_handler("failed_all_auth", self._on_fail)
+        self.add_event_handler("disconnected", self._on_disconnect)
+        if register:
+            self.register_plugin("xep_0077")
+            self.add_event_handler("register", self._register)
+
+    async def _register(self, _):
+        iq = self.Iq()
+        iq["type"] = "set"
+        iq["register"]["username"] = self.boundjid.user
+        iq["register"]["password"] = self.password
+        try:
+            await iq.send()
+        except (IqError, IqTimeout):
+            pass  # exists already; the login decides
+
+    def _on_session(self, _):
+        if not self.done.done():
+            self.done.set_result(True)
+
+    def _on_fail(self, _):
+        if not self.done.done():
+            self.done.set_exception(LoginError(f"authentication failed for {self.boundjid.bare}"))
+
+    def _on_disconnect(self, _):
+        if not self.done.done():
+            self.done.set_exception(LoginError("disconnected before the session started"))
+
+
+async def probe_login(host: str, port: int, domain: str, *, user: str | None = None,
+                      password: str = "probe", register: bool = True, timeout: float = 5.0) -> float:
+    """Log in once; return the seconds it took. Raises LoginError on failure or timeout."""
+    logging.getLogger("slixmpp").setLevel(logging.CRITICAL)
+    user = user or f"probe-{uuid.uuid4().hex[:8]}"
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    client = _ProbeClient(f"{user}@{domain}", password, register)
+    client.connect(host=host, port=port)
+    try:
+        await asyncio.wait_for(client.done, timeout)
+    except asyncio.TimeoutError:
+        raise LoginError(f"no XMPP session with {host}:{port} (domain {domain}) within {timeout:.1f}s") from None
+    finally:
+        client.disconnect()
+        await asyncio.sleep(0)
+    return loop.time() - t0

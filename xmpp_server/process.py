@@ -1,0 +1,138 @@
+"""The embedded XMPP server as a child process: start on free ports, wait for a real login, stop.
+
+    with EmbeddedServer() as srv:          # or: async with / await srv.astart()
+        settings = srv.settings()          # XmppSettings pointing at it
+
+The database is a fresh SQLite file per run (pyjabber's in-memory database is wiped when a client
+disconnects mid-query), so it lives in a temporary directory unless `db` is given.
+"""
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .ports import free_port
+from .probe import LoginError, probe_login
+from .settings import XmppSettings
+
+
+class ServerStartError(RuntimeError):
+    pass
+
+
+class EmbeddedServer:
+    def __init__(self, host: str = "127.0.0.1", port: int | None = None, domain: str = "localhost",
+                 db: str | Path | None = None, memory: bool = False, verbose: bool = False,
+                 start_timeout: float = 20.0):
+        self.host = host
+        self.port = port or free_port(host)
+        self.domain = domain
+        self.memory = memory
+        self._tmp = None if (db or memory) else tempfile.TemporaryDirectory(prefix="rapp-xmpp-")
+        self.db = None if memory else str(db or Path(self._tmp.name) / "server.db")
+        self.verbose = verbose
+        self.start_timeout = start_timeout
+        self.proc: subprocess.Popen | None = None
+
+    def command(self) -> list[str]:
+        cmd = [sys.executable, "-m", "xmpp_server", "--host", self.host, "--port", str(self.port),
+               "--domain", self.domain]
+        if self.db:
+            cmd += ["--db", self.db]
+        if self.verbose:
+            cmd.append("--verbose")
+        return cmd
+
+    def settings(self, **overrides) -> XmppSettings:
+        return XmppSettings.from_env(host=self.host, port=self.port, domain=self.domain, **overrides)
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def _spawn(self) -> None:
+        env = dict(os.environ)
+        root = str(Path(__file__).resolve().parent.parent)
+        env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+        self.proc = subprocess.Popen(self.command(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, env=env, start_new_session=True)
+
+    async def astart(self) -> "EmbeddedServer":
+        self._spawn()
+        deadline = time.monotonic() + self.start_timeout
+        line = await asyncio.to_thread(self._read_ready_line, deadline)
+        if not line.startswith("READY"):
+            self.stop()
+            raise ServerStartError(f"embedded XMPP server did not start: {line}")
+        last: Exception | None = None
+        while time.monotonic() < deadline:
+            try:
+                await probe_login(self.host, self.port, self.domain, timeout=min(2.0, max(0.5, deadline - time.monotonic())))
+                return self
+            except LoginError as e:
+                last = e
+                await asyncio.sleep(0.05)
+        self.stop()
+        raise ServerStartError(f"embedded XMPP server on {self.host}:{self.port} accepts no login: {last}")
+
+    def _read_ready_line(self, deadline: float) -> str:
+        assert self.proc and self.proc.stdout
+        line = self.proc.stdout.readline().strip()  # the child prints READY once listening
+        if not line:
+            err = self.proc.stderr.read() if self.proc.poll() is not None else ""
+            return f"process exited ({self.proc.poll()}): {err.strip()[-2000:]}"
+        return line
+
+    def start(self) -> "EmbeddedServer":
+        return asyncio.run(self.astart()) if not _loop_running() else _raise_in_loop()
+
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self, timeout: float = 5.0) -> None:
+        if self.proc is None:
+            return
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        for stream in (self.proc.stdout, self.proc.stderr):
+            if stream:
+                stream.close()
+        self.proc = None
+
+    def close(self) -> None:
+        self.stop()
+        if self._tmp:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    async def __aenter__(self):
+        return await self.astart()
+
+    async def __aexit__(self, *exc):
+        await asyncio.to_thread(self.close)
+
+
+def _loop_running() -> bool:
+    try:
+        asyncio.get_running_loop()
+        return True
+    except RuntimeError:
+        return False
+
+
+def _raise_in_loop():
+    raise RuntimeError("EmbeddedServer.start() inside an event loop: use `await server.astart()`")

@@ -1,0 +1,70 @@
+"""Where agents connect, decided in one place.
+
+Fields come from keyword arguments first, then environment variables, then defaults, so the same
+agents run against the embedded server, Prosody or ejabberd by configuration alone:
+
+| field          | env var                 | default     |
+|----------------|-------------------------|-------------|
+| host           | RAPP_XMPP_HOST          | 127.0.0.1   | address the client connects to
+| port           | RAPP_XMPP_PORT          | 5222        |
+| domain         | RAPP_XMPP_DOMAIN        | localhost   | JID domain (user@domain)
+| password       | RAPP_XMPP_PASSWORD      | rapp-secret | agent account password
+| auto_register  | RAPP_XMPP_AUTO_REGISTER | true        | create accounts by in-band registration
+| verify_tls     | RAPP_XMPP_VERIFY_TLS    | false       |
+| force_xmpp     | RAPP_FORCE_XMPP         | false       | never use SPADE's in-process shortcut
+| trace_file     | RAPP_TRACE_FILE         | (none)      | JSON Lines trace of every message
+| start_timeout  | RAPP_START_TIMEOUT      | 20          | seconds an agent may take to log in
+| web            | RAPP_AGENT_WEB          | false       | serve SPADE's agent web page (loopback)
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pydantic import BaseModel, Field
+
+_ENV = {
+    "host": "RAPP_XMPP_HOST",
+    "port": "RAPP_XMPP_PORT",
+    "domain": "RAPP_XMPP_DOMAIN",
+    "password": "RAPP_XMPP_PASSWORD",
+    "auto_register": "RAPP_XMPP_AUTO_REGISTER",
+    "verify_tls": "RAPP_XMPP_VERIFY_TLS",
+    "force_xmpp": "RAPP_FORCE_XMPP",
+    "trace_file": "RAPP_TRACE_FILE",
+    "start_timeout": "RAPP_START_TIMEOUT",
+    "web": "RAPP_AGENT_WEB",
+}
+
+
+class XmppSettings(BaseModel):
+    host: str = "127.0.0.1"
+    port: int = Field(default=5222, ge=1, le=65535)
+    domain: str = "localhost"
+    password: str = "rapp-secret"
+    auto_register: bool = True
+    verify_tls: bool = False
+    force_xmpp: bool = False
+    trace_file: Path | None = None
+    start_timeout: float = Field(default=20.0, gt=0)
+    web: bool = False
+
+    @classmethod
+    def from_env(cls, env: dict[str, str] | None = None, **overrides) -> "XmppSettings":
+        env = os.environ if env is None else env
+        values = {f: env[v] for f, v in _ENV.items() if env.get(v, "") != ""}
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        return cls.model_validate(values)
+
+    def jid(self, name: str) -> str:
+        return name if "@" in name else f"{name}@{self.domain}"
+
+    def to_env(self) -> dict[str, str]:
+        """Environment that makes a child process connect the same way."""
+        out = {}
+        for f, var in _ENV.items():
+            v = getattr(self, f)
+            if v is None:
+                continue
+            out[var] = str(v).lower() if isinstance(v, bool) else str(v)
+        return out
