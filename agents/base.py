@@ -244,6 +244,11 @@ class RappAgent(Agent):
             msg = queue.get_nowait()
             self.submit(self._unhandled(msg, AclInfo.of(msg)))
 
+    def remove_behaviour(self, behaviour) -> None:
+        # idempotent: SPADE removes a finished one-shot behaviour itself, after we may have
+        if self.has_behaviour(behaviour):
+            super().remove_behaviour(behaviour)
+
     def active_behaviours(self) -> set[str]:
         return {n for n, b in self._named.items() if not b.is_killed()}
 

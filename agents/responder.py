@@ -35,6 +35,7 @@ class RequestContext:
     sender: str  # bare JID of the requester
     info: AclInfo
     message: Message
+    user: str = ""  # set by a check that authenticates the request (Platform tokens)
 
 
 Handler = Callable[[Action, RequestContext], Awaitable[Content | None]]

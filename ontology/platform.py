@@ -50,7 +50,7 @@ class ServiceList(Content):
 
 @action("list_services", ontology=ONTOLOGY, reply=ServiceList, group="discovery")
 class ListServices(Action):
-    group: str | None = None
+    in_group: str | None = None
 
 
 class CloudAgentReply(Content):
@@ -71,8 +71,32 @@ class StopCloudAgent(ServiceRequest):
     jid: str
 
 
+@action("release_cloud_agents", ontology=ONTOLOGY, reply=Done, group="cloud")
+class ReleaseCloudAgents(ServiceRequest):
+    """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy)."""
+
+    owner_jid: str
+
+
+@action("cloud_ready", ontology=ONTOLOGY, reply=Done, group="cloud")
+class CloudReady(Action):
+    """Sent by a Cloud Agent once it serves requests."""
+
+    jid: str
+
+
 @action("register_robot", ontology=ONTOLOGY, reply=Done, group="robots")
 class RegisterRobot(Action):
     robot_id: str
     robot_type: str
     core_jid: str
+
+
+class Pong(Content):
+    user: str
+    t: float
+
+
+@action("ping", ontology=ONTOLOGY, reply=Pong, group="diagnostics")
+class Ping(ServiceRequest):
+    """The cheapest service: checks the token and answers (round-trip measurements)."""

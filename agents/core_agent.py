@@ -1,0 +1,342 @@
+"""Core Agent: one per robot; owns its virtual effectors and receptors (a robots.api.RobotAPI),
+talks to its user, and hands supervision to a Dynamic Agent and back (paper 000 sec. 5.1).
+
+Behaviours and when they are active (see `active_behaviours()`):
+  supervisor      always   the FSM of fig. 5 (agents/core_fsm.py)
+  core-service    always   task status / heartbeats / reports of the current Dynamic Agent
+  user-listener   while the Core supervises: user chat -> command queue
+  command-server  while a Dynamic Agent supervises: its robot-API requests (fig. 5, s8/s9)
+  busy-chat       while a Dynamic Agent supervises: answers the user, "stop" cancels the task
+"""
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import re
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from spade.behaviour import CyclicBehaviour
+from spade.message import Message
+
+import ontology.robot  # noqa: F401 - registers the robot-API models the command server serves
+from behaviours import BehaviourHost
+from ontology import core as C
+from ontology import platform as P
+from ontology import store as S
+from ontology.registry import Done, actions
+from rapps.manifest import Manifest
+from rapps.package import Package, read_package, unpack_package
+
+from .base import RappAgent
+from .core_fsm import build_core_fsm
+from .errors import Refusal, RequestError
+from .messages import AclInfo, bare
+from .process import AgentProcess, Limits
+from .responder import Responder
+from .store_client import download_package
+
+log = logging.getLogger("rapp.core")
+HEARTBEAT_TIMEOUT_S = 2.0
+STOP_WORDS = {"stop", "cancel", "abort", "halt"}
+
+
+@dataclass
+class DynamicSession:
+    """The running Dynamic Agent: who it is, its process, and what it said last."""
+
+    jid: str
+    rapp: str
+    version: str
+    manifest: Manifest
+    workdir: Path
+    process: AgentProcess | None = None
+    state: str = "Spawned"
+    detail: str = ""
+    last_beat: float = field(default_factory=time.monotonic)
+    ended: asyncio.Event = field(default_factory=asyncio.Event)
+    ready: asyncio.Event = field(default_factory=asyncio.Event)
+    end_reason: str = ""
+
+
+class _UserChat(CyclicBehaviour):
+    """Takes plain chat (no ACL performative) from the robot's owner."""
+
+    def __init__(self, owner: str, on_text):
+        super().__init__()
+        self.owner, self.on_text = owner, on_text
+
+    def match(self, message: Message) -> bool:
+        return not AclInfo.of(message).is_acl and bare(message.sender) == self.owner
+
+    async def run(self) -> None:
+        msg = await self.receive(timeout=0.5)
+        if msg is not None and (msg.body or "").strip():
+            await self.on_text(msg.body.strip())
+
+
+class CoreAgent(RappAgent):
+    def __init__(self, name: str, *, robot_id: str, robot_type: str, robot_api, owner: str,
+                 platform: str, store: str, user: str, password: str, settings=None,
+                 workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
+                 limits: Limits = Limits(), say_reports: bool = True):
+        super().__init__(name, settings)
+        self.robot_id, self.robot_type, self.robot = robot_id, robot_type, robot_api
+        self.owner = self.settings.jid(owner)
+        self.platform, self.store = self.settings.jid(platform), self.settings.jid(store)
+        self.user, self.password = user, password
+        self.token = ""
+        self.workdir = Path(workdir or tempfile.mkdtemp(prefix=f"rapp-core-{robot_id}-"))
+        self.trusted_keys, self.require_signature = trusted_keys, require_signature
+        self.limits, self.say_reports = limits, say_reports
+        self.memory: dict = {}
+        self.vocabulary: dict[str, str] = {}
+        self.catalogue: list[S.PackageSummary] = []
+        self.commands: asyncio.Queue[str] = asyncio.Queue()
+        self.dynamic: DynamicSession | None = None
+        self.told: list[str] = []  # everything said to the user, in order
+        self.supervisor: BehaviourHost | None = None
+        self._serial = itertools.count(1)
+
+    # -- setup and behaviours ------------------------------------------------------------
+    async def setup(self) -> None:
+        service = Responder(C.ONTOLOGY, {"task_status": self._on_status, "report": self._on_report,
+                                         "heartbeat": self._on_heartbeat, "get_state": self._on_get_state})
+        self.activate("core-service", service, service.make_template())
+        self.activate("user-listener", _UserChat(self.owner, self._command_heard))
+        self.supervisor = BehaviourHost(build_core_fsm(), self.memory)
+        self.activate("supervisor", self.supervisor)
+
+    def _command_server(self) -> Responder:
+        handlers = {name: self._robot_call for name in actions("robot")}
+        return Responder("robot", handlers, check=self._only_supervisor)
+
+    async def _command_heard(self, text: str) -> None:
+        self.record_structure("command", text=text[:200])
+        await self.commands.put(text)
+
+    async def next_command(self) -> str:
+        return await self.commands.get()
+
+    def hear(self, text: str) -> None:
+        """The robot's microphone heard the user (scenario scripts and tests call this)."""
+        self.commands.put_nowait(text)
+
+    # -- s1, s2 ------------------------------------------------------------------------
+    async def register_everywhere(self) -> None:
+        try:
+            await self.request(self.platform, P.RegisterUser(user=self.user, password=self.password))
+        except RequestError as e:
+            if e.code != "duplicate":
+                raise
+        login = await self.request(self.platform, P.Login(user=self.user, password=self.password))
+        self.token = login.token
+        await self.request(self.platform, P.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
+                                                          core_jid=self.address))
+        await self.request(self.store, S.RegisterOwner(owner=self.user, password=self.password))
+        await self.request(self.store, S.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
+                                                       owner=self.user))
+        self.record_structure("register", robot=self.robot_id, platform=self.platform, store=self.store)
+
+    def set_catalogue(self, packages: list[S.PackageSummary]) -> None:
+        self.catalogue = list(packages)
+        self.vocabulary = {kw.lower(): p.name for p in packages for kw in p.keywords}
+        self.record_structure("vocabulary", rapps=[p.name for p in packages],
+                              keywords=sorted(self.vocabulary))
+
+    # -- s4 ------------------------------------------------------------------------------
+    async def interpret(self, text: str) -> tuple[str, dict]:
+        words = re.findall(r"[\w'-]+", text.lower())
+        if len(words) == 1 and words[0] in self.vocabulary:
+            return self.vocabulary[words[0]], {}
+        import ontology.services  # noqa: F401 - registers interpret_command
+        from ontology.registry import lookup
+        model = lookup(P.ONTOLOGY, "interpret_command")
+        rapps = [{"name": p.name, "keywords": p.keywords, "phrases": p.phrases,
+                  "robot_types": p.robot_types} for p in self.catalogue]
+        reply = await self.request(self.platform, model(token=self.token, text=text,
+                                                        robot_type=self.robot_type, rapps=rapps))
+        return reply.rapp, dict(reply.params)
+
+    # -- s5 ------------------------------------------------------------------------------
+    async def fetch_package(self, rapp: str) -> tuple[Package, bytes]:
+        info, data = await download_package(self, self.store, rapp)
+        package = await asyncio.to_thread(read_package, data, trusted_keys=self.trusted_keys,
+                                          require_signature=self.require_signature)
+        if self.robot_type not in package.manifest.robot_types:
+            raise RuntimeError(f"{rapp} {package.manifest.version} does not support a {self.robot_type} robot")
+        self.record_structure("download", rapp=rapp, version=info.version, size=info.size,
+                              sha256=info.sha256, signature=package.signature.value)
+        return package, data
+
+    # -- s6: spawn and hand over ----------------------------------------------------------
+    async def start_dynamic(self, package_and_bytes, params: dict) -> None:
+        package, data = package_and_bytes
+        m = package.manifest
+        n = next(self._serial)
+        name = f"dyn-{self.robot_id}-{m.name}-{n}".replace("_", "-")
+        workdir = self.workdir / f"{n:04d}-{m.name}"
+        pkg_dir = workdir / "package"
+        await asyncio.to_thread(unpack_package, data, pkg_dir, trusted_keys=self.trusted_keys,
+                                require_signature=self.require_signature)
+        session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
+                                 manifest=m, workdir=workdir)
+        self.dynamic = session
+        spec = {"kind": "dynamic", "name": name, "package_dir": str(pkg_dir), "core": self.address,
+                "platform": self.platform, "token": self.token, "params": params}
+        (workdir / "spec.json").write_text(__import__("json").dumps(spec))
+        session.process = AgentProcess(name, "agents.runtime", [str(workdir / "spec.json")], workdir,
+                                       env=self.settings.to_env(), limits=self.limits)
+        await session.process.start()
+        self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
+                              pid=session.process.pid)
+        watcher = asyncio.create_task(self._watch_process(session))
+        try:
+            await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)
+        except asyncio.TimeoutError:
+            raise RuntimeError(f"{name} did not report Init in time: {session.process.stderr_tail(500)}") from None
+        if session.ended.is_set():
+            raise RuntimeError(f"{name} ended at start: {session.end_reason}")
+        self._handoff()
+        del watcher
+
+    def _handoff(self) -> None:
+        self.deactivate("user-listener")
+        server = self._command_server()
+        self.activate("command-server", server, server.make_template())
+        self.activate("busy-chat", _UserChat(self.owner, self._busy_chat))
+        self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
+
+    def _resume(self) -> None:
+        self.deactivate("command-server")
+        self.deactivate("busy-chat")
+        self.activate("user-listener", _UserChat(self.owner, self._command_heard))
+        self.record_structure("resume", robot=self.robot_id)
+
+    async def _watch_process(self, session: DynamicSession) -> None:
+        code = await session.process.wait()
+        self._end(session, f"process exited with code {code}" if session.state not in
+                  ("Finished", "Error") else session.detail)
+
+    def _end(self, session: DynamicSession, reason: str) -> None:
+        if not session.ended.is_set():
+            session.end_reason = reason
+            session.ended.set()
+            session.ready.set()
+
+    # -- s8: serve until the Dynamic Agent ends --------------------------------------------
+    async def serve_until_done(self) -> str:
+        session = self.dynamic
+        limit = session.manifest.time_limit_s
+        start = time.monotonic()
+        while not session.ended.is_set():
+            now = time.monotonic()
+            if now - session.last_beat > HEARTBEAT_TIMEOUT_S and session.state != "Finished":
+                self._end(session, f"no heartbeat for {now - session.last_beat:.1f}s (hung?)")
+            elif now - start > limit:
+                self._end(session, f"time limit of {limit:g}s exceeded")
+            try:
+                await asyncio.wait_for(session.ended.wait(), 0.25)
+            except asyncio.TimeoutError:
+                pass
+        return session.end_reason
+
+    # -- s10: destroy and resume ------------------------------------------------------------
+    async def destroy_dynamic(self) -> None:
+        session, self.dynamic = self.dynamic, None
+        if session is None:
+            self._resume_if_needed()
+            return
+        if "command-server" in self.active_behaviours():
+            self.deactivate("command-server")  # no more robot commands from it, from now on
+        await self._stop_robot()
+        if session.process is not None:
+            await session.process.stop(grace=1.0)
+        try:
+            await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),
+                               timeout=5.0)
+        except RequestError as e:
+            log.info("no cloud agent to stop for %s: %s", session.jid, e)
+        self.record_structure("destroy", dynamic=session.jid, rapp=session.rapp, state=session.state,
+                              reason=session.end_reason, exit_code=session.process.returncode
+                              if session.process else None)
+        shutil.rmtree(session.workdir / "package", ignore_errors=True)
+        self._resume_if_needed()  # listening again before the user hears the task is over
+        if session.state == "Finished":
+            await self.tell_user(f"{session.rapp} finished.")
+        else:
+            await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}")
+
+    def _resume_if_needed(self) -> None:
+        if "user-listener" not in self.active_behaviours():
+            self._resume()
+
+    async def _stop_robot(self) -> None:
+        try:
+            await self.robot.handle(ontology.robot.MoveStop())
+        except Exception as e:  # noqa: BLE001 - stopping must not fail the destroy
+            log.warning("move_stop failed: %s", e)
+
+    # -- services to the Dynamic Agent ------------------------------------------------------
+    def _only_supervisor(self, req, ctx) -> None:
+        d = self.dynamic
+        if d is None or ctx.sender != bare(d.jid) or d.ended.is_set():
+            raise Refusal(f"{ctx.sender} is not the current supervisor of {self.robot_id}", "not-supervisor")
+
+    async def _robot_call(self, req, ctx):
+        return await self.robot.handle(req)
+
+    def _from_dynamic(self, ctx) -> DynamicSession:
+        d = self.dynamic
+        if d is None or ctx.sender != bare(d.jid):
+            raise Refusal(f"{ctx.sender} is not the current Dynamic Agent", "not-supervisor")
+        return d
+
+    async def _on_status(self, req: C.TaskStatus, ctx) -> Done:
+        d = self._from_dynamic(ctx)
+        d.state, d.detail, d.last_beat = req.state.value, req.detail, time.monotonic()
+        self.record_structure("status", dynamic=d.jid, state=d.state, detail=req.detail[:200])
+        if req.state == C.TaskState.INIT:
+            d.ready.set()
+        elif req.state in (C.TaskState.FINISHED, C.TaskState.ERROR):
+            self._end(d, req.detail or req.state.value)
+        return Done()
+
+    async def _on_heartbeat(self, req: C.Heartbeat, ctx) -> Done:
+        d = self.dynamic
+        if d is not None and ctx.sender == bare(d.jid):
+            d.last_beat = time.monotonic()
+        return Done()
+
+    async def _on_report(self, req: C.Report, ctx) -> Done:
+        self._from_dynamic(ctx)
+        await self.tell_user(req.text)
+        return Done()
+
+    async def _on_get_state(self, req: C.GetState, ctx) -> C.CoreState:
+        d = self.dynamic
+        return C.CoreState(state=self.supervisor.behaviour.current or "" if self.supervisor else "",
+                           active_behaviours=sorted(self.active_behaviours()),
+                           dynamic_agent=d.jid if d else None, rapp=d.rapp if d else None)
+
+    # -- talking to the user ----------------------------------------------------------------
+    async def tell_user(self, text: str) -> None:
+        self.told.append(text)
+        await self.send(Message(to=self.owner, body=text))
+        if self.say_reports:
+            try:
+                await self.robot.handle(ontology.robot.Say(text=text))
+            except Exception:  # noqa: BLE001 - a robot without speech still gets the chat
+                pass
+
+    async def _busy_chat(self, text: str) -> None:
+        d = self.dynamic
+        if text.lower().strip(" .!") in STOP_WORDS and d is not None:
+            await self._stop_robot()
+            self._end(d, "stopped by the user")
+            return
+        await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}; say \"stop\" to cancel it.")

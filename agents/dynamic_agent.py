@@ -1,0 +1,79 @@
+"""Dynamic Agent: runs a RApp's task FSM with its own XMPP identity (paper 000 sec. 5.2).
+
+Lifecycle: log in -> task_status Init to the Core -> build the task -> Working -> run the FSM
+(heartbeats to the Core meanwhile) -> stop its Cloud Agent -> Finished or Error -> log out.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+from pathlib import Path
+
+from spade.behaviour import PeriodicBehaviour
+
+from behaviours import BehaviourHost, Outcome
+from ontology import core as C
+from rapps.manifest import Manifest
+
+from .base import RappAgent
+from .errors import RequestError
+from .runtime import load_entry_point
+
+log = logging.getLogger("rapp.dynamic")
+HEARTBEAT_S = 0.5
+
+
+class _Heartbeat(PeriodicBehaviour):
+    async def run(self) -> None:
+        self.agent.beats += 1
+        await self.agent.notify(self.agent.core, C.Heartbeat(seq=self.agent.beats),
+                                ontology=C.ONTOLOGY, action="heartbeat")
+
+
+class DynamicAgent(RappAgent):
+    def __init__(self, name: str, *, manifest: Manifest, package_dir: str | Path, core: str,
+                 platform: str, token: str = "", params: dict | None = None, settings=None):
+        super().__init__(name, settings)
+        self.manifest = manifest
+        self.package_dir = Path(package_dir)
+        self.core, self.platform, self.token = core, platform, token
+        self.params = {**manifest.params, **(params or {})}
+        self.beats = 0
+        self.task = None
+        self.memory: dict = {}
+
+    async def _status(self, state: C.TaskState, detail: str = "") -> None:
+        try:
+            await self.request(self.core, C.TaskStatus(state=state, detail=detail[:2000]), timeout=10.0)
+        except RequestError as e:
+            log.warning("status %s not acknowledged: %s", state.value, e)
+
+    async def run_to_end(self) -> int:
+        """Start, run the task to its end, report, stop. Returns the process exit code."""
+        await self.start()
+        self.activate("heartbeat", _Heartbeat(period=HEARTBEAT_S))
+        await self._status(C.TaskState.INIT)
+        outcome = await self._run_task()
+        if self.task is not None:
+            try:
+                await self.task.cloud.stop()
+            except RequestError as e:
+                log.warning("cloud agent stop failed: %s", e)
+        state = C.TaskState.FINISHED if outcome.ok else C.TaskState.ERROR
+        await self._status(state, outcome.reason)
+        await self.stop()
+        return 0 if outcome.ok else 1
+
+    async def _run_task(self) -> Outcome:
+        try:
+            cls = load_entry_point(self.package_dir, self.manifest.entry_point)
+            self.task = cls(self)
+            behaviour = self.task.build()
+        except Exception as e:  # noqa: BLE001 - a broken RApp is reported, not crashed on
+            return Outcome(False, f"task could not be built: {type(e).__name__}: {e}")
+        await self._status(C.TaskState.WORKING)
+        host = BehaviourHost(behaviour, self.memory)
+        self.activate("task", host)
+        outcome = await host.outcome
+        self.deactivate("task")
+        return outcome

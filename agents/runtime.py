@@ -1,0 +1,84 @@
+"""Generic runtime of Dynamic and Cloud Agents: load a RApp's entry point from its unpacked
+package and run it as an agent with its own XMPP identity, in this process.
+
+    python -m agents.runtime SPEC.json      (what the Core / Platform spawn)
+
+SPEC.json: {"kind": "dynamic"|"cloud", "name": ..., "package_dir": ..., "entry_point": "m:C",
+"core": ..., "platform": ..., "token": ..., "params": {...}, "owner": ...}. XMPP settings come from
+the environment (XmppSettings.to_env of the parent).
+"""
+from __future__ import annotations
+
+import asyncio
+import importlib
+import json
+import logging
+import sys
+from pathlib import Path
+
+from rapps.manifest import load_manifest
+
+
+class EntryPointError(RuntimeError):
+    pass
+
+
+def load_entry_point(package_dir: str | Path, entry_point: str):
+    """Import `module:Class` from the unpacked package directory."""
+    module_name, _, class_name = entry_point.partition(":")
+    root = str(Path(package_dir).resolve())
+    if root not in sys.path:
+        sys.path.insert(0, root)
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as e:  # noqa: BLE001 - any import failure of RApp code is reported as such
+        raise EntryPointError(f"cannot import {module_name!r} from the package: {type(e).__name__}: {e}") from e
+    cls = getattr(module, class_name, None)
+    if cls is None:
+        raise EntryPointError(f"module {module_name!r} has no {class_name!r}")
+    return cls
+
+
+async def run_spec(spec: dict) -> int:
+    from xmpp_server.settings import XmppSettings
+
+    settings = XmppSettings.from_env()
+    manifest = load_manifest(Path(spec["package_dir"]) / "manifest.yaml")
+    if spec["kind"] == "dynamic":
+        from .dynamic_agent import DynamicAgent
+        agent = DynamicAgent(spec["name"], manifest=manifest, package_dir=spec["package_dir"],
+                             core=spec["core"], platform=spec["platform"], token=spec.get("token", ""),
+                             params=spec.get("params", {}), settings=settings)
+    elif spec["kind"] == "cloud":
+        from .cloud_agent import CloudAgent
+        agent = CloudAgent(spec["name"], manifest=manifest, package_dir=spec["package_dir"],
+                           owner=spec.get("owner", ""), token=spec.get("token", ""), settings=settings)
+    else:
+        raise SystemExit(f"unknown agent kind {spec['kind']!r}")
+    import signal
+
+    loop = asyncio.get_running_loop()
+    main_task = asyncio.current_task()
+    # SIGTERM from the Core/Platform: log out cleanly (presence unavailable), then exit
+    loop.add_signal_handler(signal.SIGTERM, main_task.cancel)
+    try:
+        if spec["kind"] == "cloud":
+            return await agent.run_to_end(spec["platform"])
+        return await agent.run_to_end()
+    except asyncio.CancelledError:
+        await asyncio.wait_for(agent.stop(), 2.0)
+        return 143
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 1:
+        print("usage: python -m agents.runtime SPEC.json", file=sys.stderr)
+        return 2
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    spec = json.loads(Path(argv[0]).read_text())
+    return asyncio.run(run_spec(spec))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

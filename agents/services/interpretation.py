@@ -1,0 +1,86 @@
+"""Keyword / phrase / synonym matching of a spoken command against the RApps' manifests.
+
+Score of a RApp = 3 per manifest phrase contained in the text + 1 per keyword whose concept (via the
+synonym table) occurs in the text. The best-scoring RApp available for the robot type wins; ties and
+zero scores are refused with a reason the Core can say to the user. Parameters: `city` (after "in" /
+"for", or a known city name).
+"""
+from __future__ import annotations
+
+import json
+import re
+from functools import lru_cache
+
+from ontology.services.interpretation import InterpretCommand, Interpretation
+
+from .context import DATA_DIR, ServiceContext
+from .errors import ServiceError
+
+
+@lru_cache(maxsize=1)
+def synonyms() -> dict[str, str]:
+    """word -> concept."""
+    table = json.loads((DATA_DIR / "synonyms.json").read_text())
+    return {w: concept for concept, words in table.items() for w in words + [concept]}
+
+
+@lru_cache(maxsize=1)
+def known_cities() -> dict[str, str]:
+    data = json.loads((DATA_DIR / "weather.json").read_text())
+    return {k: v["city"] for k, v in data.items()}
+
+
+def normalize(text: str) -> str:
+    t = text.lower().replace("e-mail", "email").replace("’", "'")
+    return " ".join(re.findall(r"[a-z0-9']+", t))
+
+
+def concepts(words: list[str]) -> set[str]:
+    syn = synonyms()
+    return {syn.get(w, w) for w in words} | set(words)
+
+
+def extract_city(text: str) -> str | None:
+    for k, city in known_cities().items():
+        if re.search(rf"\b{k}\b", text.lower()):
+            return city
+    m = re.search(r"\b(?:in|for|at)\s+([A-Z][\w-]+(?:\s+[A-Z][\w-]+)?)", text)
+    return m.group(1) if m else None
+
+
+def interpret(text: str, robot_type: str, rapps) -> Interpretation:
+    norm = normalize(text)
+    words = norm.split()
+    have = concepts(words)
+    scored = []
+    for r in rapps:
+        if r.robot_types and robot_type and robot_type not in r.robot_types:
+            continue
+        matched, score = [], 0.0
+        for p in r.phrases:
+            if normalize(p) and f" {normalize(p)} " in f" {norm} ":
+                matched.append(p)
+                score += 3
+        for k in r.keywords:
+            kw = normalize(k)
+            if kw and (kw in have or synonyms().get(kw, kw) in have):
+                matched.append(k)
+                score += 1
+        scored.append((score, r.name, matched))
+    if not scored:
+        raise ServiceError(f"no application is available for robot type {robot_type!r}", "no_rapp")
+    scored.sort(key=lambda s: -s[0])
+    best = scored[0]
+    if best[0] == 0:
+        raise ServiceError(f"I did not understand '{text}': it matches no application", "not_understood")
+    if len(scored) > 1 and scored[1][0] == best[0]:
+        raise ServiceError(f"'{text}' could mean {best[1]} or {scored[1][1]}; please say it differently", "ambiguous")
+    params = {}
+    city = extract_city(text)
+    if city:
+        params["city"] = city
+    return Interpretation(rapp=best[1], parameters=params, score=best[0], matched=best[2])
+
+
+def interpret_command(req: InterpretCommand, ctx: ServiceContext) -> Interpretation:
+    return interpret(req.text, req.robot_type, req.rapps)

@@ -1,0 +1,125 @@
+"""Face / human detection (OpenCV Haar cascade / HOG people detector when the OpenCV build has them)
+and per-user object learning and recognition (ORB features, BFMatcher, RANSAC homography).
+
+OpenCV 5's main package moved CascadeClassifier and HOGDescriptor out of objdetect; with such a
+build face and human detection raise ServiceError(code="unavailable").
+"""
+from __future__ import annotations
+
+import os
+import threading
+
+import cv2
+import numpy as np
+
+from ontology.registry import Done
+from ontology.services.vision import (
+    Box, ClearObjects, Detections, FaceDetect, FindObjects, FoundObject, FoundObjects, HumanDetect, LearnObject,
+)
+
+from .context import ServiceContext
+from .errors import ServiceError
+from .images import decode_image
+
+_local = threading.local()  # OpenCV detectors are not shared between threads
+
+
+def _cascade_path() -> str | None:
+    base = getattr(getattr(cv2, "data", None), "haarcascades", "") or ""
+    path = os.path.join(base, "haarcascade_frontalface_default.xml")
+    return path if os.path.isfile(path) else None
+
+
+def face_detector():
+    if not hasattr(cv2, "CascadeClassifier") or _cascade_path() is None:
+        raise ServiceError("face detection is unavailable: this OpenCV build has no Haar cascades", "unavailable")
+    if not hasattr(_local, "face"):
+        _local.face = cv2.CascadeClassifier(_cascade_path())
+    return _local.face
+
+
+def people_detector():
+    if not hasattr(cv2, "HOGDescriptor"):
+        raise ServiceError("human detection is unavailable: this OpenCV build has no HOG detector", "unavailable")
+    if not hasattr(_local, "hog"):
+        _local.hog = cv2.HOGDescriptor()
+        _local.hog.setSVMDetector(cv2.HOGDescriptor_getDefaultPeopleDetector())
+    return _local.hog
+
+
+def _boxes(rects) -> Detections:
+    return Detections(boxes=[Box(x=int(x), y=int(y), width=int(w), height=int(h)) for x, y, w, h in rects])
+
+
+def face_detection(req: FaceDetect, ctx: ServiceContext) -> Detections:
+    gray = cv2.equalizeHist(decode_image(req.image_b64, gray=True))
+    det = face_detector()
+    return _boxes(det.detectMultiScale(gray, scaleFactor=1.1, minNeighbors=5, minSize=(24, 24)))
+
+
+def human_detection(req: HumanDetect, ctx: ServiceContext) -> Detections:
+    img = decode_image(req.image_b64)
+    rects, _ = people_detector().detectMultiScale(img, winStride=(8, 8), padding=(8, 8), scale=1.05)
+    return _boxes(rects)
+
+
+class ObjectModels:
+    """Per-user learned objects: name -> (keypoint coordinates, ORB descriptors, model image size)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.models: dict[str, dict[str, tuple[np.ndarray, np.ndarray, tuple[int, int]]]] = {}
+
+
+def models(ctx: ServiceContext) -> ObjectModels:
+    return ctx.state.store("objects", ObjectModels)
+
+
+def orb_features(gray: np.ndarray, n: int = 1500):
+    kps, desc = cv2.ORB_create(nfeatures=n).detectAndCompute(gray, None)
+    return np.float32([k.pt for k in kps]), desc
+
+
+def learn_object(req: LearnObject, ctx: ServiceContext) -> Done:
+    gray = decode_image(req.image_b64, gray=True)
+    pts, desc = orb_features(gray, 1000)
+    if desc is None or len(pts) < 10:
+        raise ServiceError("the object image has too little texture to learn (fewer than 10 features)", "no_features")
+    store = models(ctx)
+    with store.lock:
+        store.models.setdefault(ctx.user, {})[req.name] = (pts, desc, gray.shape[::-1])
+    return Done()
+
+
+def find_objects(req: FindObjects, ctx: ServiceContext) -> FoundObjects:
+    gray = decode_image(req.image_b64, gray=True)
+    store = models(ctx)
+    with store.lock:
+        learned = dict(store.models.get(ctx.user, {}))
+    if not learned:
+        raise ServiceError("no objects learned yet for this user", "no_models")
+    pts, desc = orb_features(gray)
+    found = []
+    if desc is not None and len(pts) >= 4:
+        matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+        for name, (mpts, mdesc, (w, h)) in learned.items():
+            pairs = matcher.knnMatch(mdesc, desc, k=2)
+            good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.75 * p[1].distance]
+            if len(good) < req.min_matches:
+                continue
+            src = mpts[[m.queryIdx for m in good]].reshape(-1, 1, 2)
+            dst = pts[[m.trainIdx for m in good]].reshape(-1, 1, 2)
+            H, inliers = cv2.findHomography(src, dst, cv2.RANSAC, 5.0)
+            if H is None or int(inliers.sum()) < req.min_matches:
+                continue
+            outline = cv2.perspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]).reshape(-1, 1, 2), H)
+            found.append(FoundObject(name=name, matches=int(inliers.sum()), corners=outline.reshape(4, 2).tolist()))
+    found.sort(key=lambda f: -f.matches)
+    return FoundObjects(objects=found[:req.limit])
+
+
+def clear_objects(req: ClearObjects, ctx: ServiceContext) -> Done:
+    store = models(ctx)
+    with store.lock:
+        store.models.pop(ctx.user, None)
+    return Done()

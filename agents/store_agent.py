@@ -1,0 +1,172 @@
+"""Store Agent: the RAPP Store over XMPP, on a persistent StoreRepository (SQLite + blobs).
+
+Packages travel in base64 chunks (rapps/chunks.py): `download_info` then `download_chunk` per
+index; publishing sends `upload_chunk`s then `publish`. Repository calls run in a worker thread.
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+import uuid
+from pathlib import Path
+
+from ontology import store as S
+from ontology.registry import Done
+from rapps.chunks import ChunkError, Reassembler, split_chunks
+
+from .base import RappAgent
+from .errors import Failure, Refusal
+from .responder import Responder
+from .store_repository import StoreError, StoreRepository
+
+UPLOAD_TTL_S = 300.0
+MAX_UPLOADS = 32
+
+
+def _summary(p) -> S.PackageSummary:
+    return S.PackageSummary(**{k: getattr(p, k) for k in S.PackageSummary.model_fields})
+
+
+def _details(info) -> S.PackageDetails:
+    return S.PackageDetails(summary=_summary(info), owner=info.owner, manifest=info.manifest,
+                            signer_key_id=info.signer_key_id, versions=info.versions)
+
+
+class StoreAgent(RappAgent):
+    def __init__(self, name: str = "store", data_dir: str | Path = "store-data", settings=None,
+                 require_signature: bool = False):
+        super().__init__(name, settings)
+        self.repo = StoreRepository(data_dir, require_signature=require_signature)
+        self._uploads: dict[str, tuple[float, Reassembler]] = {}
+        self._downloads: dict[tuple[str, str], tuple[float, list]] = {}
+
+    async def setup(self) -> None:
+        handlers = {
+            "register_owner": self.register_owner, "register_robot": self.register_robot,
+            "list_packages": self.list_packages, "search": self.search, "info": self.info,
+            "versions": self.versions, "download_info": self.download_info,
+            "download_chunk": self.download_chunk, "upload_chunk": self.upload_chunk,
+            "publish": self.publish, "delete": self.delete,
+        }
+        responder = Responder(S.ONTOLOGY, {k: _store_errors(v) for k, v in handlers.items()})
+        self.activate("store-service", responder, responder.make_template())
+
+    async def stop(self) -> None:
+        await super().stop()
+        self.repo.close()
+
+    async def _repo(self, fn, *args, **kw):
+        return await asyncio.to_thread(fn, *args, **kw)
+
+    # -- owners and robots --------------------------------------------------------------------
+    async def register_owner(self, req: S.RegisterOwner, ctx) -> Done:
+        try:
+            await self._repo(self.repo.register_owner, req.owner, password=req.password,
+                             public_key=req.public_key)
+        except StoreError as e:
+            if e.code != "duplicate" or not await self._repo(self.repo.verify_owner, req.owner, req.password):
+                raise
+        return Done()
+
+    async def register_robot(self, req: S.RegisterRobot, ctx) -> Done:
+        await self._repo(self.repo.register_robot, req.robot_id, req.robot_type, req.owner)
+        self.record_structure("register", robot=req.robot_id, robot_type=req.robot_type,
+                              by=ctx.sender, at="store")
+        return Done()
+
+    # -- catalogue ----------------------------------------------------------------------------
+    async def list_packages(self, req: S.ListPackages, ctx) -> S.PackageList:
+        rows = await self._repo(self.repo.list, req.robot_type)
+        return S.PackageList(packages=[_summary(p) for p in rows])
+
+    async def search(self, req: S.Search, ctx) -> S.PackageList:
+        rows = await self._repo(self.repo.search, req.keyword, req.robot_type)
+        return S.PackageList(packages=[_summary(p) for p in rows])
+
+    async def info(self, req: S.Info, ctx) -> S.PackageDetails:
+        return _details(await self._repo(self.repo.info, req.name, req.version))
+
+    async def versions(self, req: S.GetVersions, ctx) -> S.Versions:
+        return S.Versions(name=req.name, versions=await self._repo(self.repo.versions, req.name))
+
+    # -- download -----------------------------------------------------------------------------
+    async def download_info(self, req: S.DownloadBegin, ctx) -> S.DownloadInfo:
+        dl = await self._repo(self.repo.download, req.name, req.version)
+        chunks = split_chunks(dl.data)
+        self._downloads[(dl.manifest.name, dl.manifest.version)] = (time.monotonic(), chunks)
+        self._expire()
+        self.record_structure("download", rapp=dl.manifest.name, version=dl.manifest.version,
+                              by=ctx.sender, size=len(dl.data), sha256=dl.sha256)
+        return S.DownloadInfo(name=dl.manifest.name, version=dl.manifest.version, sha256=dl.sha256,
+                              size=len(dl.data), chunks=len(chunks),
+                              manifest=dl.manifest.model_dump(mode="json"))
+
+    async def download_chunk(self, req: S.DownloadChunk, ctx) -> S.ChunkData:
+        key = (req.name, req.version)
+        if key not in self._downloads:
+            dl = await self._repo(self.repo.download, req.name, req.version)
+            self._downloads[key] = (time.monotonic(), split_chunks(dl.data))
+        _, chunks = self._downloads[key]
+        if req.index >= len(chunks):
+            raise Refusal(f"chunk {req.index} out of range (package has {len(chunks)})", "out_of_range")
+        return S.ChunkData(**chunks[req.index].model_dump())
+
+    # -- publish ------------------------------------------------------------------------------
+    async def upload_chunk(self, req: S.UploadChunk, ctx) -> S.UploadTicket:
+        self._expire()
+        upload_id = req.upload_id or uuid.uuid4().hex
+        if upload_id not in self._uploads:
+            if len(self._uploads) >= MAX_UPLOADS:
+                raise Refusal("too many uploads in progress; try again later", "busy")
+            self._uploads[upload_id] = (time.monotonic(),
+                                        Reassembler(total=req.chunk.total, sha256=req.chunk.sha256,
+                                                    size=req.chunk.size,
+                                                    max_size=self.repo.max_package_size))
+        try:
+            self._uploads[upload_id][1].add(req.chunk.model_dump())
+        except ChunkError as e:
+            self._uploads.pop(upload_id, None)
+            raise Refusal(f"upload refused: {e}", "bad_chunk") from None
+        return S.UploadTicket(upload_id=upload_id)
+
+    async def publish(self, req: S.Publish, ctx) -> S.PackageDetails:
+        if not await self._repo(self.repo.verify_owner, req.owner, req.password):
+            raise Refusal(f"owner {req.owner!r} unknown or wrong password", "forbidden")
+        entry = self._uploads.pop(req.upload_id, None)
+        if entry is None:
+            raise Refusal(f"no upload {req.upload_id!r} in progress", "not_found")
+        try:
+            data = entry[1].result()
+        except ChunkError as e:
+            raise Refusal(f"upload incomplete or corrupt: {e}", "bad_chunk") from None
+        info = await self._repo(self.repo.publish, req.owner, data)
+        self.record_structure("publish", rapp=info.name, version=info.version, by=req.owner)
+        return _details(info)
+
+    async def delete(self, req: S.Delete, ctx) -> S.Deleted:
+        if not await self._repo(self.repo.verify_owner, req.owner, req.password):
+            raise Refusal(f"owner {req.owner!r} unknown or wrong password", "forbidden")
+        gone = await self._repo(self.repo.delete, req.name, req.version, owner=req.owner)
+        for v in gone:
+            self._downloads.pop((req.name, v), None)
+        return S.Deleted(name=req.name, versions=gone)
+
+    def _expire(self) -> None:
+        now = time.monotonic()
+        for table in (self._uploads, self._downloads):
+            for key in [k for k, (t, _) in table.items() if now - t > UPLOAD_TTL_S]:
+                table.pop(key, None)
+
+
+def _store_errors(handler):
+    """StoreError -> refuse (forbidden, not found, duplicate) or failure (corrupt), with reason."""
+
+    async def wrapped(req, ctx):
+        try:
+            return await handler(req, ctx)
+        except StoreError as e:
+            if e.code == "corrupt":
+                raise Failure(str(e), e.code) from None
+            raise Refusal(str(e), e.code) from None
+
+    return wrapped

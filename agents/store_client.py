@@ -1,0 +1,36 @@
+"""Client side of the Store protocol: download (verified) and publish in chunks."""
+from __future__ import annotations
+
+from ontology import store as S
+from rapps.chunks import Reassembler, split_chunks
+from rapps.package import sha256_hex
+
+from .base import RappAgent
+from .errors import RequestFailed
+
+
+async def download_package(agent: RappAgent, store: str, name: str, version: str | None = None,
+                           timeout: float = 10.0) -> tuple[S.DownloadInfo, bytes]:
+    """The package bytes, reassembled and checked against the Store's sha256."""
+    info = await agent.request(store, S.DownloadBegin(name=name, version=version), timeout=timeout)
+    assembler = Reassembler(total=info.chunks, sha256=info.sha256, size=info.size)
+    for i in range(info.chunks):
+        chunk = await agent.request(store, S.DownloadChunk(name=info.name, version=info.version, index=i),
+                                    timeout=timeout)
+        assembler.add(chunk.model_dump())
+    data = assembler.result()
+    if sha256_hex(data) != info.sha256:  # Reassembler checks too; keep the contract explicit
+        raise RequestFailed(f"package {name} failed its sha256 check", code="sha256_mismatch")
+    return info, data
+
+
+async def publish_package(agent: RappAgent, store: str, owner: str, password: str, data: bytes,
+                          timeout: float = 10.0) -> S.PackageDetails:
+    upload_id = None
+    for chunk in split_chunks(data):
+        ticket = await agent.request(store, S.UploadChunk(upload_id=upload_id,
+                                                          chunk=S.ChunkData(**chunk.model_dump())),
+                                     timeout=timeout)
+        upload_id = ticket.upload_id
+    return await agent.request(store, S.Publish(owner=owner, password=password, upload_id=upload_id),
+                               timeout=timeout)

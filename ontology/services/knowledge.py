@@ -1,0 +1,76 @@
+"""Knowledge services: ontology queries over household objects and cognitive exercises."""
+from __future__ import annotations
+
+from pydantic import Field
+
+from ..platform import ServiceRequest
+from ..registry import Content, action
+
+
+class ClassList(Content):
+    classes: list[str]
+
+
+@action("ontology_subclasses_of", ontology="platform", reply=ClassList, group="knowledge")
+class SubclassesOf(ServiceRequest):
+    cls: str
+    recursive: bool = True
+
+
+@action("ontology_superclasses_of", ontology="platform", reply=ClassList, group="knowledge")
+class SuperclassesOf(ServiceRequest):
+    cls: str
+    recursive: bool = True
+
+
+class IsSubclass(Content):
+    result: bool
+
+
+@action("ontology_is_subclass_of", ontology="platform", reply=IsSubclass, group="knowledge")
+class IsSubclassOf(ServiceRequest):
+    child: str
+    parent: str
+
+
+class Question(Content):
+    q: str
+    answers: list[str]
+
+
+class CognitiveTest(Content):
+    test_id: str
+    type: str
+    difficulty: int
+    questions: list[Question]
+
+
+@action("cognitive_test_chooser", ontology="platform", reply=CognitiveTest, group="cognitive")
+class ChooseCognitiveTest(ServiceRequest):
+    """Picks a test of the type; difficulty 0 = adapt to the user's last scores of that type."""
+
+    test_type: str
+    difficulty: int = Field(default=0, ge=0, le=3)
+
+
+class ScoreRecord(Content):
+    test_id: str
+    type: str
+    difficulty: int
+    score: float  # 0..100
+    time: float
+
+
+@action("cognitive_record_performance", ontology="platform", reply=ScoreRecord, group="cognitive")
+class RecordPerformance(ServiceRequest):
+    test_id: str
+    score: float = Field(ge=0, le=100)
+
+
+class CognitiveHistory(Content):
+    records: list[ScoreRecord]
+
+
+@action("cognitive_get_history", ontology="platform", reply=CognitiveHistory, group="cognitive")
+class GetHistory(ServiceRequest):
+    test_type: str = ""

@@ -1,0 +1,257 @@
+"""Async robot API: one RobotAPI per robot; every method takes the request model of ontology.robot and
+returns its reply model, so the Core can dispatch generically: ``await getattr(api, req.action_name)(req)``.
+
+Nothing here blocks the event loop: pybullet work runs in the world's worker thread, image encoding in
+the default executor, motions complete in simulation time. Ground truth is NOT reachable from here
+(use World.ground_truth() in tests and scoring)."""
+from __future__ import annotations
+
+import asyncio
+import base64
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ontology.registry import Done
+from ontology.robot import (CameraInfo, CameraParams, CaptureImage, GetCameraInfo, GetGlobalPose, GetJointAngles,
+                            GetLaserScan, GetSonars, GetTransform, Image, JointAngles, LaserScan, LookAtPoint,
+                            MoveAlongPath, MoveJoint, MoveStop, MoveTo, MoveVel, Pose2D, Rest, Say, SetCameraParam,
+                            SetCameraParams, SetGlobalPose, SonarReading, TakePredefinedPosture, Transform,
+                            WordSpotted, WordSpotting)
+from .controllers import GoToPose, JointMotion, LookAt, PathFollower, VelocityController
+from .effectors import check_speech
+from .errors import InvalidArgument, MotionInterrupted, UnsupportedOperation
+from .receptors import Camera, parse_resolution
+from .robot import Robot
+
+CAMERA_PARAM_NAMES = ("brightness", "contrast", "gain", "exposure", "auto_exposure")
+
+
+class RobotAPI:
+    def __init__(self, robot: Robot):
+        self.robot = robot
+        self.world = robot.world
+
+    # ------------------------------------------------------------------ helpers
+    def _camera(self, name: str) -> Camera:
+        cams = self.robot.cameras
+        if not name:
+            return next(iter(cams.values()))
+        aliases = {"camera": next(iter(cams)), "main": next(iter(cams))}
+        key = aliases.get(name.lower(), name)
+        if key not in cams:
+            raise InvalidArgument(f"unknown camera {name!r} on {self.robot.kind} (known: {', '.join(cams)})")
+        return cams[key]
+
+    async def _motion(self, slot: str, ctrl, joint_names: set[str] | None = None) -> Any:
+        """Pre-empt conflicting motions of this robot, start `ctrl`, wait for it in simulation time."""
+        r = self.robot
+        for key, old in list(r.controllers.items()):
+            conflict = key == slot if joint_names is None else (
+                isinstance(old, JointMotion) and bool(old.joint_names & joint_names))
+            if conflict and not old.done:
+                old.cancel(MotionInterrupted(f"{r.name}: {old.__class__.__name__} pre-empted by a newer command"))
+            if conflict:
+                del r.controllers[key]
+        key = slot if joint_names is None else f"joints:{id(ctrl)}"
+        r.controllers[key] = ctrl
+        fut = self.world.start(ctrl)
+        if not ctrl.blocking:
+            return None
+        try:
+            return await fut
+        finally:
+            if r.controllers.get(key) is ctrl:
+                del r.controllers[key]
+
+    def _stop_base(self, reason: str) -> None:
+        old = self.robot.controllers.pop("base", None)
+        if old is not None and not old.done:
+            old.cancel(MotionInterrupted(f"{self.robot.name}: base motion stopped by {reason}"))
+
+    # ------------------------------------------------------------------ communication
+    async def say(self, req: Say) -> Done:
+        speaker = check_speech(self.robot)
+        speaker.say(req.text, self.world.time)
+        await self.world.sleep(speaker.duration(req.text))
+        return Done()
+
+    async def word_spotting(self, req: WordSpotting) -> WordSpotted:
+        if not req.words:
+            raise InvalidArgument("word_spotting needs at least one word")
+        word, text = await self.robot.microphone.spot(req.words, req.timeout)
+        return WordSpotted(word=word, text=text)
+
+    # ------------------------------------------------------------------ vision
+    async def capture_array(self, camera: str = "", resolution: str = "320x240") -> np.ndarray:
+        """In-process capture: RGB uint8 array (H, W, 3) with the camera parameters applied."""
+        cam = self._camera(camera)
+        w, h = parse_resolution(resolution)
+        return await self.world.run(cam.capture, w, h)
+
+    async def capture_image(self, req: CaptureImage) -> Image:
+        cam = self._camera(req.camera)
+        stamp = self.world.time
+        img = await self.capture_array(req.camera, req.resolution)
+        loop = asyncio.get_running_loop()
+        ok, buf = await loop.run_in_executor(None, cv2.imencode, ".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        return Image(camera=cam.name, width=img.shape[1], height=img.shape[0], encoding="png",
+                     data_b64=base64.b64encode(buf.tobytes()).decode(), stamp=stamp)
+
+    def _params(self, cam: Camera) -> CameraParams:
+        p = cam.params
+        return CameraParams(brightness=p.brightness, contrast=p.contrast, gain=p.gain, exposure=p.exposure,
+                            auto_exposure=p.auto_exposure)
+
+    async def set_camera_param(self, req: SetCameraParam) -> CameraParams:
+        cam = self._camera(req.camera)
+        if req.name not in CAMERA_PARAM_NAMES:
+            raise InvalidArgument(f"unknown camera parameter {req.name!r} (known: {', '.join(CAMERA_PARAM_NAMES)})")
+        value: Any = bool(req.value) if req.name == "auto_exposure" else float(req.value)
+        if req.name in ("contrast", "gain", "exposure") and value <= 0:
+            raise InvalidArgument(f"{req.name} must be > 0")
+        cam.set_params(**{req.name: value})
+        return self._params(cam)
+
+    async def set_camera_params(self, req: SetCameraParams) -> CameraParams:
+        cam = self._camera(req.camera)
+        for n in ("contrast", "gain", "exposure"):
+            v = getattr(req, n)
+            if v is not None and v <= 0:
+                raise InvalidArgument(f"{n} must be > 0")
+        cam.set_params(brightness=req.brightness, contrast=req.contrast, gain=req.gain, exposure=req.exposure,
+                       auto_exposure=req.auto_exposure)
+        return self._params(cam)
+
+    async def get_camera_info(self, req: GetCameraInfo) -> CameraInfo:
+        cam = self._camera(req.camera)
+        w, h = parse_resolution(req.resolution)
+        K = cam.intrinsics(w, h)
+        P = np.hstack([K, np.zeros((3, 1))])
+        hf, vf = cam.fov(w, h)
+        return CameraInfo(camera=cam.name, width=w, height=h, K=K.tolist(), P=P.tolist(),
+                          hfov_deg=math.degrees(hf), vfov_deg=math.degrees(vf))
+
+    # ------------------------------------------------------------------ navigation
+    async def move_to(self, req: MoveTo) -> Done:
+        await self._motion("base", GoToPose(self.robot, relative=(req.x, req.y, req.theta)))
+        return Done()
+
+    async def move_vel(self, req: MoveVel) -> Done:
+        ctrl = VelocityController(self.robot, req.x, req.y, req.theta)  # raises on lateral diff-drive
+        if ctrl.v == (0.0, 0.0, 0.0):
+            return await self.move_stop(MoveStop())
+        await self._motion("base", ctrl)
+        return Done()
+
+    async def move_stop(self, req: MoveStop) -> Done:
+        self._stop_base("move_stop")
+        await self.world.sync()  # the pybullet thread will not step the stopped motion any more
+        return Done()
+
+    async def move_along_path(self, req: MoveAlongPath) -> Done:
+        if not req.poses:
+            raise InvalidArgument("move_along_path needs at least one pose")
+        await self._motion("base", PathFollower(self.robot, [(q.x, q.y, q.theta) for q in req.poses]))
+        return Done()
+
+    async def look_at_point(self, req: LookAtPoint) -> Done:
+        s = self.robot.spec
+        ctrl = LookAt(self.robot, (req.x, req.y, req.z), s.joint_speed)
+        await self._motion("joints", ctrl, joint_names={s.head_yaw, s.head_pitch})
+        return Done()
+
+    async def get_global_pose(self, req: GetGlobalPose) -> Pose2D:
+        x, y, th = self.robot.odometry.estimate
+        return Pose2D(x=x, y=y, theta=th)
+
+    async def set_global_pose(self, req: SetGlobalPose) -> Done:
+        await self.world.run(self.robot.odometry.set, (req.x, req.y, req.theta))
+        return Done()
+
+    def _chain_pose(self, chain: str) -> np.ndarray:
+        """World pose of a named frame (pybullet thread)."""
+        r = self.robot
+        c = chain.lower()
+        if c in ("camera", "main") or c in r.cameras:
+            return self._camera("" if c in ("camera", "main") else c).optical_pose()
+        named = {"head": r.spec.head_pitch, "neck": r.spec.head_yaw}
+        if c in named:
+            j = named[c]
+            return r.link_pose(next(link for link, jn in r._link_joint.items() if jn == j))
+        sensors = {s.name: s.spec.link for s in r.sonars}
+        if r.laser:
+            sensors["laser"] = r.laser.spec.link
+        if c in sensors:
+            return r.link_pose(sensors[c])
+        if c in ("base", "base_link", "robot"):
+            return r.base_in_world()
+        known = ["camera", *r.cameras, "head", "neck", *sensors, "base"]
+        raise InvalidArgument(f"unknown chain {chain!r} (known: {', '.join(known)})")
+
+    async def get_transform(self, req: GetTransform) -> Transform:
+        if req.space not in ("robot", "global"):
+            raise InvalidArgument("space must be 'robot' or 'global'")
+
+        def compute() -> np.ndarray:
+            T = self.robot.in_base(self._chain_pose(req.chain))
+            if req.space == "global":
+                x, y, th = self.robot.odometry.estimate
+                B = np.eye(4)
+                B[:2, :2] = [[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]]
+                B[:2, 3] = [x, y]
+                T = B @ T
+            return T
+
+        T = await self.world.run(compute)
+        return Transform(chain=req.chain, space=req.space, matrix=T.tolist())
+
+    async def move_joint(self, req: MoveJoint) -> Done:
+        targets = self.robot.joints.targets(req.joints, req.angles)
+        speed = self.robot.joints.speed(req.speed)
+        await self._motion("joints", JointMotion(self.robot, targets, speed), joint_names=set(targets))
+        return Done()
+
+    async def get_joint_angles(self, req: GetJointAngles) -> JointAngles:
+        names = req.joints or self.robot.joints.names
+        for n in names:
+            if n not in self.robot.joints.names:
+                raise InvalidArgument(f"unknown joint {n!r}")
+        return JointAngles(joints=list(names), angles=[self.robot.q[n] for n in names])
+
+    async def take_predefined_posture(self, req: TakePredefinedPosture) -> Done:
+        targets = self.robot.joints.posture(req.posture)
+        speed = self.robot.joints.speed(req.speed)
+        await self._motion("joints", JointMotion(self.robot, targets, speed), joint_names=set(targets))
+        return Done()
+
+    async def rest(self, req: Rest) -> Done:
+        self._stop_base("rest")
+        await self.take_predefined_posture(TakePredefinedPosture(posture=self.robot.spec.rest_posture, speed=0.5))
+        return Done()
+
+    # ------------------------------------------------------------------ sensors
+    async def get_sonars(self, req: GetSonars) -> SonarReading:
+        r = self.robot
+        if not r.sonars:
+            raise UnsupportedOperation(f"{r.kind} has no sonars (use get_laser_scan)")
+        left, right = await self.world.run(lambda: [s.read() for s in r.sonars])
+        spec = r.sonars[0].spec
+        return SonarReading(left=left, right=right, range_min=spec.range_min, range_max=spec.range_max)
+
+    async def get_laser_scan(self, req: GetLaserScan) -> LaserScan:
+        r = self.robot
+        if r.laser is None:
+            raise UnsupportedOperation(f"{r.kind} has no laser scanner (use get_sonars)")
+        ranges = await self.world.run(r.laser.scan)
+        s = r.laser.spec
+        return LaserScan(angle_min=s.angle_min, angle_max=s.angle_max,
+                         angle_increment=(s.angle_max - s.angle_min) / (s.rays - 1), range_min=s.range_min,
+                         range_max=s.range_max, ranges=[float(v) for v in ranges])
+
+    # ------------------------------------------------------------------ generic dispatch
+    async def handle(self, req) -> Any:
+        """Dispatch any ontology.robot request model to its method."""
+        return await getattr(self, req.action_name)(req)

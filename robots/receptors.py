@@ -1,0 +1,215 @@
+"""Virtual receptors: camera (TinyRenderer), ray-based range sensors (sonar, laser), microphone.
+
+Camera/range methods run in the world's pybullet thread (call them through World.run / RobotAPI).
+Camera optical frame: x right, y down, z forward; intrinsics match the rendering projection exactly
+(square pixels, principal point at the image centre, pixel centres at integer coordinates, D = 0)."""
+from __future__ import annotations
+
+import asyncio
+import math
+import re
+import threading
+from collections import deque
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pybullet as p
+
+from .errors import InvalidArgument
+from .spec import CameraSpec, RangeSpec
+
+if TYPE_CHECKING:
+    from .robot import Robot
+
+RESOLUTIONS = {"QQVGA": (160, 120), "QVGA": (320, 240), "VGA": (640, 480), "4VGA": (1280, 960)}
+LAMP_RADIANCE = 4.0  # lit lamp pixels are this many times brighter than a white wall
+LIGHT = dict(lightDirection=[0.35, 0.25, 1.0], lightColor=[1, 1, 1], lightDistance=10.0,
+             lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.0, shadow=0)
+# rotation from a camera link frame (x forward, y left, z up) to its optical frame (x right, y down, z fwd)
+R_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def parse_resolution(res: str | tuple[int, int]) -> tuple[int, int]:
+    if isinstance(res, tuple):
+        return res
+    key = res.strip().upper()
+    if key in RESOLUTIONS:
+        return RESOLUTIONS[key]
+    m = re.fullmatch(r"(\d+)\s*[xX]\s*(\d+)", res.strip())
+    if not m:
+        raise InvalidArgument(f"bad resolution {res!r}: use 'WxH' or one of {', '.join(RESOLUTIONS)}")
+    w, h = int(m.group(1)), int(m.group(2))
+    if not (8 <= w <= 2048 and 8 <= h <= 2048):
+        raise InvalidArgument(f"resolution {w}x{h} out of range 8..2048")
+    return w, h
+
+
+@dataclass(frozen=True)
+class ImageParams:
+    brightness: float = 0.0  # added after contrast, in [-1, 1] of full scale
+    contrast: float = 1.0  # scales around mid-grey
+    gain: float = 1.0
+    exposure: float = 1.0  # relative exposure; lamps saturate, walls darken at low exposure
+    auto_exposure: bool = False
+
+
+def apply_params(radiance: np.ndarray, params: ImageParams) -> np.ndarray:
+    """radiance: float HxWx3 (1.0 = white wall fully lit) -> uint8 image."""
+    e = params.exposure * params.gain
+    if params.auto_exposure:
+        e = float(np.clip(0.45 / max(float(np.median(radiance)), 1e-3), 0.25, 4.0)) * params.gain
+    img = (radiance * e - 0.5) * params.contrast + 0.5 + params.brightness
+    return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def pose_matrix(pos, quat) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
+    T[:3, 3] = pos
+    return T
+
+
+class Camera:
+    def __init__(self, robot: "Robot", spec: CameraSpec):
+        self.robot, self.spec, self.name = robot, spec, spec.name
+        self.params = ImageParams()
+
+    # ---- geometry (pure, any thread)
+    def fov(self, width: int, height: int) -> tuple[float, float]:
+        h = math.radians(self.spec.hfov_deg)
+        return h, 2 * math.atan(math.tan(h / 2) * height / width)
+
+    def intrinsics(self, width: int, height: int) -> np.ndarray:
+        hfov, _ = self.fov(width, height)
+        f = (width / 2) / math.tan(hfov / 2)
+        return np.array([[f, 0, width / 2 - 0.5], [0, f, height / 2 - 0.5], [0, 0, 1.0]])
+
+    def set_params(self, **kw) -> ImageParams:
+        self.params = replace(self.params, **{k: v for k, v in kw.items() if v is not None})
+        return self.params
+
+    # ---- pybullet thread
+    def link_pose(self) -> np.ndarray:
+        return self.robot.link_pose(self.spec.link)
+
+    def optical_pose(self) -> np.ndarray:
+        """4x4 world pose of the optical frame (x right, y down, z forward)."""
+        T = self.link_pose()
+        T[:3, :3] = T[:3, :3] @ R_LINK_OPTICAL
+        return T
+
+    def render_radiance(self, width: int, height: int) -> np.ndarray:
+        T = self.link_pose()
+        eye, fwd, up = T[:3, 3], T[:3, 0], T[:3, 2]
+        _, vfov = self.fov(width, height)
+        cid = self.robot.world.cid
+        view = p.computeViewMatrix(eye.tolist(), (eye + fwd).tolist(), up.tolist(), physicsClientId=cid)
+        proj = p.computeProjectionMatrixFOV(math.degrees(vfov), width / height, self.spec.near, self.spec.far,
+                                            physicsClientId=cid)
+        emissive = self.robot.world.emissive_colors
+        flags = 0 if emissive else p.ER_NO_SEGMENTATION_MASK
+        out = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER, flags=flags,
+                               physicsClientId=cid, **LIGHT)
+        rgb = np.asarray(out[2], dtype=np.float32).reshape(height, width, 4)[:, :, :3] / 255.0
+        if emissive:
+            seg = np.asarray(out[4]).reshape(height, width)
+            for uid, color in emissive.items():
+                rgb[seg == uid] = np.asarray(color, np.float32) * LAMP_RADIANCE
+        return rgb
+
+    def capture(self, width: int = 320, height: int = 240) -> np.ndarray:
+        """RGB uint8 image (HxWx3) with the current image parameters applied."""
+        return apply_params(self.render_radiance(width, height), self.params)
+
+
+class RangeSensor:
+    """A fan of rays from a robot link (sonar cone: reports the minimum; laser: every ray)."""
+
+    def __init__(self, robot: "Robot", spec: RangeSpec):
+        self.robot, self.spec, self.name = robot, spec, spec.name
+
+    def angles(self) -> np.ndarray:
+        return np.linspace(self.spec.angle_min, self.spec.angle_max, self.spec.rays)
+
+    def scan(self) -> np.ndarray:
+        """Ranges (m) of every ray, range_max when nothing is hit. pybullet thread."""
+        s = self.spec
+        T = self.robot.link_pose(s.link)
+        a = self.angles()
+        local = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1)
+        dirs = local @ T[:3, :3].T
+        origin = T[:3, 3]
+        starts = np.repeat(origin[None], len(a), 0)
+        ends = origin + dirs * s.range_max
+        with self.robot.probe_hidden():
+            hits = p.rayTestBatch(starts.tolist(), ends.tolist(), physicsClientId=self.robot.world.cid)
+        frac = np.array([h[2] if h[0] >= 0 else 1.0 for h in hits])
+        return np.clip(frac * s.range_max, s.range_min, s.range_max)
+
+    def read(self) -> float:
+        return float(self.scan().min())
+
+
+class Microphone:
+    """Hears text: ``hear(text)`` is what a user or scenario says (thread-safe);
+    ``spot(words, timeout)`` waits (wall clock) for the first utterance containing one of the words."""
+
+    def __init__(self):
+        self._heard: deque[str] = deque()
+        self._lock = threading.Lock()
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = []
+        self.log: list[str] = []
+
+    def hear(self, text: str) -> None:
+        with self._lock:
+            self._heard.append(text)
+            self.log.append(text)
+            waiters = list(self._waiters)
+        for loop, ev in waiters:
+            try:
+                loop.call_soon_threadsafe(ev.set)
+            except RuntimeError:  # loop closed
+                pass
+
+    def clear(self) -> None:
+        with self._lock:
+            self._heard.clear()
+
+    @staticmethod
+    def match(words: list[str], text: str) -> str | None:
+        low = " " + re.sub(r"[^\w\s]", " ", text.lower()) + " "
+        low = re.sub(r"\s+", " ", low)
+        for w in words:
+            if f" {w.lower().strip()} " in low:
+                return w
+        return None
+
+    async def spot(self, words: list[str], timeout: float) -> tuple[str | None, str | None]:
+        loop = asyncio.get_running_loop()
+        ev = asyncio.Event()
+        entry = (loop, ev)
+        deadline = loop.time() + timeout
+        with self._lock:
+            self._waiters.append(entry)
+        try:
+            while True:
+                ev.clear()
+                while True:
+                    with self._lock:
+                        text = self._heard.popleft() if self._heard else None
+                    if text is None:
+                        break
+                    w = self.match(words, text)
+                    if w is not None:
+                        return w, text
+                remaining = deadline - loop.time()
+                if remaining <= 0:
+                    return None, None
+                try:
+                    await asyncio.wait_for(ev.wait(), remaining)
+                except asyncio.TimeoutError:
+                    pass
+        finally:
+            with self._lock:
+                self._waiters.remove(entry)

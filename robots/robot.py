@@ -1,0 +1,134 @@
+"""A robot body in a World: URDF multibody (visual), collision probe cylinder, effectors, receptors.
+Constructed and driven inside the world's pybullet thread; use RobotAPI from async code."""
+from __future__ import annotations
+
+import contextlib
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pybullet as p
+
+from .effectors import BaseEffector, HeadEffector, JointsEffector, Loudspeaker
+from .odometry import Odometry, OdometryNoise
+from .receptors import Camera, Microphone, RangeSensor, pose_matrix
+from .spec import RobotSpec
+
+if TYPE_CHECKING:
+    from .controllers import Controller
+    from .world import World
+
+
+def yaw_quat(yaw: float) -> list[float]:
+    return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
+
+
+class Robot:
+    def __init__(self, world: "World", spec: RobotSpec, name: str, pose: tuple[float, float, float],
+                 noise: OdometryNoise | None, rng: np.random.Generator):
+        self.world, self.spec, self.name, self.kind = world, spec, name, spec.kind
+        cid = world.cid
+        urdf, self.limits = spec.build_urdf()
+        self.uid = p.loadURDF(str(urdf), [pose[0], pose[1], 0.0], yaw_quat(pose[2]), useFixedBase=True,
+                              physicsClientId=cid)
+        self.root_link = p.getBodyInfo(self.uid, physicsClientId=cid)[0].decode()
+        self.link_index = {self.root_link: -1}
+        self.joint_index: dict[str, int] = {}
+        self.joint_parent: dict[str, str] = {}
+        self._joint_origin: dict[str, np.ndarray] = {}
+        self._link_joint: dict[str, str] = {}
+        names_by_index = {-1: self.root_link}
+        for i in range(p.getNumJoints(self.uid, physicsClientId=cid)):
+            info = p.getJointInfo(self.uid, i, physicsClientId=cid)
+            jn, child = info[1].decode(), info[12].decode()
+            self.joint_index[jn], self.link_index[child] = i, i
+            names_by_index[i] = child
+            self.joint_parent[jn] = names_by_index[info[16]]
+            self._joint_origin[jn] = pose_matrix(info[14], info[15])
+            self._link_joint[child] = jn
+        self.q: dict[str, float] = {n: 0.0 for n in self.limits}
+        col = p.createCollisionShape(p.GEOM_CYLINDER, radius=spec.radius, height=spec.collision_height,
+                                     physicsClientId=cid)
+        vis = p.createVisualShape(p.GEOM_SPHERE, radius=0.001, rgbaColor=[0, 0, 0, 1], physicsClientId=cid)
+        self.probe = p.createMultiBody(0, col, vis, [pose[0], pose[1], self._probe_z()], physicsClientId=cid)
+        self.pose = tuple(map(float, pose))
+        self.odometry = Odometry(pose, noise, rng)
+        self.base = BaseEffector(self)
+        self.joints = JointsEffector(self)
+        self.head = HeadEffector(self)
+        self.loudspeaker = Loudspeaker(self) if spec.speech else None
+        self.cameras = {c.name: Camera(self, c) for c in spec.cameras}
+        self.sonars = [RangeSensor(self, s) for s in spec.sonars]
+        self.laser = RangeSensor(self, spec.laser) if spec.laser else None
+        self.microphone = Microphone()
+        self.controllers: dict[str, "Controller"] = {}
+        for j, a in spec.postures.get("StandInit", {}).items():
+            self.set_joint(j, a)
+        self.update_lift()
+        self.set_base_pose(*self.pose)
+
+    # ------------------------------------------------------------ kinematics (pybullet thread)
+    def _probe_z(self) -> float:
+        return self.spec.collision_height / 2 + 0.02
+
+    def set_base_pose(self, x: float, y: float, th: float) -> None:
+        cid = self.world.cid
+        q = yaw_quat(th)
+        p.resetBasePositionAndOrientation(self.uid, [x, y, 0.0], q, physicsClientId=cid)
+        p.resetBasePositionAndOrientation(self.probe, [x, y, self._probe_z()], q, physicsClientId=cid)
+        self.pose = (x, y, th)
+
+    def collides(self, x: float, y: float) -> bool:
+        """Would the collision cylinder at (x, y) penetrate a wall, door, furniture, lamp or robot?"""
+        cid = self.world.cid
+        cands = self.world.obstacles_near(x, y, self.spec.radius + 0.05, exclude=self.probe)
+        if not cands:
+            return False
+        p.resetBasePositionAndOrientation(self.probe, [x, y, self._probe_z()], [0, 0, 0, 1], physicsClientId=cid)
+        for uid in cands:
+            for pt in p.getClosestPoints(self.probe, uid, 0.0, physicsClientId=cid):
+                if pt[8] < -1e-4:
+                    return True
+        return False
+
+    @contextlib.contextmanager
+    def probe_hidden(self):
+        """Move the own collision cylinder away (e.g. so the robot's own rays do not hit it)."""
+        cid = self.world.cid
+        p.resetBasePositionAndOrientation(self.probe, [0, 0, -100], [0, 0, 0, 1], physicsClientId=cid)
+        try:
+            yield
+        finally:
+            p.resetBasePositionAndOrientation(self.probe, [self.pose[0], self.pose[1], self._probe_z()],
+                                              yaw_quat(self.pose[2]), physicsClientId=cid)
+
+    def set_joint(self, name: str, angle: float) -> None:
+        p.resetJointState(self.uid, self.joint_index[name], angle, physicsClientId=self.world.cid)
+        self.q[name] = angle
+
+    def update_lift(self) -> None:
+        if self.spec.lift_joint and self.spec.lift_height:
+            self.set_joint(self.spec.lift_joint, self.spec.lift_height(self.q))
+
+    def link_pose(self, link: str) -> np.ndarray:
+        cid = self.world.cid
+        idx = self.link_index[link]
+        if idx < 0:
+            pos, orn = p.getBasePositionAndOrientation(self.uid, physicsClientId=cid)
+        else:
+            st = p.getLinkState(self.uid, idx, computeForwardKinematics=True, physicsClientId=cid)
+            pos, orn = st[4], st[5]
+        return pose_matrix(pos, orn)
+
+    def joint_offset(self, joint: str) -> np.ndarray:
+        """Fixed transform parent link frame -> joint frame (at joint angle 0)."""
+        return self._joint_origin[joint].copy()
+
+    def joint_offset_of_link(self, link: str) -> np.ndarray:
+        return self.joint_offset(self._link_joint[link])
+
+    def base_in_world(self) -> np.ndarray:
+        return self.link_pose(self.root_link)
+
+    def in_base(self, T_world: np.ndarray) -> np.ndarray:
+        return np.linalg.inv(self.base_in_world()) @ T_world

@@ -1,0 +1,360 @@
+"""The simulated home: a PyBullet world built from a house description, robots in it, and the
+simulation-time stepper. Every pybullet call for a world runs in ONE dedicated worker thread.
+
+    world = World.from_file(HOUSES / "small.yaml", seed=1, overrides={"doors": {"d1": 45}})
+    nao = world.add_robot("nao")             # start pose from the description (seeded)
+    await world.sleep(1.0)                   # simulation seconds
+    world.ground_truth()                     # true poses, door angles, lamp states (tests/scoring only)
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import threading
+import zlib
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pybullet as p
+import yaml
+
+from . import elektron, nao
+from .controllers import Controller, Timer
+from .errors import InvalidArgument, RobotError, WorldClosed
+from .floorplan import (CEILING_COLOR, DOOR_COLOR, DOOR_HEIGHT, DOOR_THICKNESS, FLOOR_COLOR, Box, Plan,
+                        load_plan)
+from .gridmap import GridMap, build_grid_map
+from .odometry import OdometryNoise
+from .qr import qr_texture, symbol_fraction
+from .robot import Robot, yaw_quat
+from .simclock import SimClock
+from .spec import RobotSpec
+
+HOUSES = Path(__file__).parent / "houses"
+ROBOT_SPECS: dict[str, RobotSpec] = {"nao": nao.SPEC, "elektron": elektron.SPEC}
+LAMP_ON_COLOR = (1.0, 0.96, 0.78)
+LAMP_OFF_COLOR = (0.22, 0.22, 0.23)
+
+
+@dataclass
+class GroundTruth:
+    time: float
+    robots: dict[str, tuple[float, float, float]]
+    doors: dict[str, float]  # degrees
+    lamps: dict[str, bool]
+
+
+class World:
+    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60):
+        self.plan = plan
+        self.clock = SimClock(step=time_step, rtf=rtf)
+        self._exec = ThreadPoolExecutor(1, thread_name_prefix=f"pybullet-{plan.name}")
+        self._worker: threading.Thread | None = None
+        self.robots: dict[str, Robot] = {}
+        self.emissive_colors: dict[int, tuple[float, float, float]] = {}
+        self._active: list[Controller] = []
+        self._stepper: asyncio.Task | None = None
+        self._closed = False
+        self.cid = -1
+        self.run_sync(self._build)
+
+    @classmethod
+    def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
+                  time_step: float = 1 / 60) -> "World":
+        """Build from a YAML house description; `path` may also be a bare name in robots/houses."""
+        path = Path(path)
+        if not path.exists() and (HOUSES / f"{path}.yaml").exists():
+            path = HOUSES / f"{path}.yaml"
+        return cls(load_plan(path, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step)
+
+    # ------------------------------------------------------------------ thread plumbing
+    def _mark_worker(self) -> None:
+        self._worker = threading.current_thread()
+
+    def run_sync(self, fn: Callable, *args, **kw) -> Any:
+        """Run fn in the pybullet thread and wait (for setup code and tests outside async code)."""
+        if self._closed:
+            raise WorldClosed("world is closed")
+        if threading.current_thread() is self._worker:
+            return fn(*args, **kw)
+        return self._exec.submit(self._in_worker, fn, *args, **kw).result()
+
+    def _in_worker(self, fn, *args, **kw):
+        if self._worker is None:
+            self._mark_worker()
+        return fn(*args, **kw)
+
+    async def run(self, fn: Callable, *args, **kw) -> Any:
+        """Run fn in the pybullet thread without blocking the event loop."""
+        if self._closed:
+            raise WorldClosed("world is closed")
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self._exec, partial(self._in_worker, fn, *args, **kw))
+
+    # ------------------------------------------------------------------ building
+    def _box_body(self, b: Box, collision: bool = True, visual: bool = True) -> int:
+        cid = self.cid
+        half = [b.sx / 2, b.sy / 2, b.sz / 2]
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid) if collision else -1
+        vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[*b.color, 1], physicsClientId=cid) if visual else -1
+        return p.createMultiBody(0, col, vis, [b.x, b.y, b.z0 + b.sz / 2], yaw_quat(b.yaw), physicsClientId=cid)
+
+    def _build(self) -> None:
+        self.cid = cid = p.connect(p.DIRECT)
+        plan = self.plan
+        self._obstacle_uids: list[int] = []
+        self._obstacle_aabbs: list[list[float]] = []
+        x0, y0, x1, y1 = plan.bounds
+        cx, cy, sx, sy = (x0 + x1) / 2, (y0 + y1) / 2, x1 - x0 + 1.0, y1 - y0 + 1.0
+        self._box_body(Box("floor", cx, cy, sx, sy, 0.02, 0, -0.02, FLOOR_COLOR), collision=False)
+        self._box_body(Box("ceiling", cx, cy, sx, sy, 0.02, 0, plan.wall_height, CEILING_COLOR), collision=False)
+        for b in plan.walls + plan.furniture:
+            self._add_obstacle(self._box_body(b))
+        self.door_uids: dict[str, int] = {}
+        for d in plan.doors:
+            self.door_uids[d.id] = uid = self._door_body(d)
+            self._add_obstacle(uid)
+        self.lamp_uids: dict[str, tuple[int, int]] = {}
+        for lamp in plan.lamps:
+            self.lamp_uids[lamp.id] = self._lamp_bodies(lamp)
+            self._add_obstacle(self.lamp_uids[lamp.id][0])
+            self._set_lamp(lamp.id, lamp.on)
+        for m in plan.landmarks:
+            self._landmark_body(m)
+
+    def _add_obstacle(self, uid: int) -> None:
+        self._obstacle_uids.append(uid)
+        self._obstacle_aabbs.append(self._aabb(uid))
+        self._aabb_array = np.array(self._obstacle_aabbs)
+
+    def _aabb(self, uid: int) -> list[float]:
+        lo, hi = np.array(p.getAABB(uid, -1, physicsClientId=self.cid))
+        for link in range(p.getNumJoints(uid, physicsClientId=self.cid)):
+            l2, h2 = np.array(p.getAABB(uid, link, physicsClientId=self.cid))
+            lo, hi = np.minimum(lo, l2), np.maximum(hi, h2)
+        return [lo[0], lo[1], hi[0], hi[1]]
+
+    def _door_body(self, d) -> int:
+        cid = self.cid
+        w = d.width - 0.02
+        half = [w / 2, DOOR_THICKNESS / 2, DOOR_HEIGHT / 2]
+        off = [0.01 + w / 2, 0.0, DOOR_HEIGHT / 2]
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, collisionFramePosition=off, physicsClientId=cid)
+        hx = 0.01 + w - 0.09
+        vis = p.createVisualShapeArray(
+            shapeTypes=[p.GEOM_BOX, p.GEOM_BOX],
+            halfExtents=[half, [0.05, DOOR_THICKNESS / 2 + 0.025, 0.012]],
+            visualFramePositions=[off, [hx, 0.0, 1.0]],
+            rgbaColors=[[*DOOR_COLOR, 1], [0.85, 0.8, 0.3, 1]], physicsClientId=cid)
+        post = p.createVisualShape(p.GEOM_CYLINDER, radius=0.012, length=DOOR_HEIGHT,
+                                   visualFramePosition=[0, 0, DOOR_HEIGHT / 2], rgbaColor=[0.3, 0.2, 0.1, 1],
+                                   physicsClientId=cid)
+        uid = p.createMultiBody(0, -1, post, [d.hinge[0], d.hinge[1], 0.0], yaw_quat(d.closed_yaw),
+                                linkMasses=[0.0], linkCollisionShapeIndices=[col], linkVisualShapeIndices=[vis],
+                                linkPositions=[[0, 0, 0]], linkOrientations=[[0, 0, 0, 1]],
+                                linkInertialFramePositions=[[0, 0, 0]], linkInertialFrameOrientations=[[0, 0, 0, 1]],
+                                linkParentIndices=[0], linkJointTypes=[p.JOINT_REVOLUTE], linkJointAxis=[[0, 0, 1]],
+                                physicsClientId=cid)
+        p.resetJointState(uid, 0, d.sign * math.radians(d.angle), physicsClientId=cid)
+        return uid
+
+    def _lamp_bodies(self, lamp) -> tuple[int, int]:
+        cid = self.cid
+        pole_h = lamp.z - 0.15
+        col = p.createCollisionShape(p.GEOM_CYLINDER, radius=0.2, height=pole_h, physicsClientId=cid)
+        vis = p.createVisualShapeArray(
+            shapeTypes=[p.GEOM_CYLINDER, p.GEOM_CYLINDER], radii=[0.015, 0.16], lengths=[pole_h, 0.03],
+            visualFramePositions=[[0, 0, 0], [0, 0, -pole_h / 2 + 0.015]],
+            rgbaColors=[[0.15, 0.15, 0.15, 1], [0.15, 0.15, 0.15, 1]], physicsClientId=cid)
+        pole = p.createMultiBody(0, col, vis, [lamp.x, lamp.y, pole_h / 2], physicsClientId=cid)
+        shade_vis = p.createVisualShape(p.GEOM_CYLINDER, radius=0.2, length=0.3, rgbaColor=[*LAMP_OFF_COLOR, 1],
+                                        physicsClientId=cid)
+        shade = p.createMultiBody(0, -1, shade_vis, [lamp.x, lamp.y, lamp.z], physicsClientId=cid)
+        return pole, shade
+
+    def _landmark_body(self, m) -> None:
+        cid = self.cid
+        side = m.size / symbol_fraction(m.text)  # texture side incl. quiet zone
+        nx, ny = math.cos(m.yaw), math.sin(m.yaw)
+        back = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.005, side / 2 + 0.02, side / 2 + 0.02],
+                                   rgbaColor=[0.98, 0.98, 0.98, 1], physicsClientId=cid)
+        p.createMultiBody(0, -1, back, [m.x + nx * 0.005, m.y + ny * 0.005, m.z], yaw_quat(m.yaw), physicsClientId=cid)
+        h = side / 2
+        # local frame: x = panel normal; a viewer facing the panel has +y on the right
+        verts = [[0, -h, h], [0, h, h], [0, h, -h], [0, -h, -h]]  # TL, TR, BR, BL as seen
+        uvs = [[0, 1], [1, 1], [1, 0], [0, 0]]
+        quad = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=[0, 2, 1, 0, 3, 2], uvs=uvs,
+                                   normals=[[1, 0, 0]] * 4, physicsClientId=cid)
+        uid = p.createMultiBody(0, -1, quad, [m.x + nx * 0.0105, m.y + ny * 0.0105, m.z], yaw_quat(m.yaw),
+                                physicsClientId=cid)
+        tex = p.loadTexture(str(qr_texture(m.text)), physicsClientId=cid)
+        p.changeVisualShape(uid, -1, textureUniqueId=tex, rgbaColor=[1, 1, 1, 1], physicsClientId=cid)
+
+    # ------------------------------------------------------------------ obstacles / state
+    def obstacles_near(self, x: float, y: float, r: float, exclude: int = -1) -> list[int]:
+        a = self._aabb_array
+        hit = (a[:, 0] - r <= x) & (x <= a[:, 2] + r) & (a[:, 1] - r <= y) & (y <= a[:, 3] + r)
+        out = [self._obstacle_uids[i] for i in np.nonzero(hit)[0]]
+        for rb in self.robots.values():
+            if rb.probe != exclude and math.hypot(rb.pose[0] - x, rb.pose[1] - y) < r + rb.spec.radius + 0.1:
+                out.append(rb.probe)
+        return out
+
+    def _set_door(self, door_id: str, angle_deg: float) -> None:
+        d = next((d for d in self.plan.doors if d.id == door_id), None)
+        if d is None:
+            raise InvalidArgument(f"unknown door {door_id!r}")
+        d.angle = float(angle_deg)
+        uid = self.door_uids[door_id]
+        p.resetJointState(uid, 0, d.sign * math.radians(d.angle), physicsClientId=self.cid)
+        self._obstacle_aabbs[self._obstacle_uids.index(uid)] = self._aabb(uid)
+        self._aabb_array = np.array(self._obstacle_aabbs)
+
+    def _set_lamp(self, lamp_id: str, on: bool) -> None:
+        lamp = next((lp for lp in self.plan.lamps if lp.id == lamp_id), None)
+        if lamp is None:
+            raise InvalidArgument(f"unknown lamp {lamp_id!r}")
+        lamp.on = bool(on)
+        shade = self.lamp_uids[lamp_id][1]
+        color = LAMP_ON_COLOR if on else LAMP_OFF_COLOR
+        p.changeVisualShape(shade, -1, rgbaColor=[*color, 1], physicsClientId=self.cid)
+        if on:
+            self.emissive_colors[shade] = color
+        else:
+            self.emissive_colors.pop(shade, None)
+
+    async def set_door(self, door_id: str, angle_deg: float) -> None:
+        await self.run(self._set_door, door_id, angle_deg)
+
+    async def set_lamp(self, lamp_id: str, on: bool) -> None:
+        await self.run(self._set_lamp, lamp_id, on)
+
+    def ground_truth(self) -> GroundTruth:
+        """True state for tests and scenario scoring; never exposed through RobotAPI."""
+        return GroundTruth(self.clock.time, {n: r.pose for n, r in self.robots.items()},
+                           {d.id: d.angle for d in self.plan.doors}, {lp.id: lp.on for lp in self.plan.lamps})
+
+    # ------------------------------------------------------------------ robots
+    def add_robot(self, kind: str, name: str | None = None, pose: tuple[float, float, float] | None = None,
+                  odometry_noise: OdometryNoise | None = None) -> Robot:
+        """Add a robot ("nao" or "elektron"). Without `pose` the description's start spec (fixed or a seeded
+        random pose in a room/region) is used. Returns the Robot; wrap it in RobotAPI for async use."""
+        if kind not in ROBOT_SPECS:
+            raise InvalidArgument(f"unknown robot kind {kind!r} (known: {', '.join(ROBOT_SPECS)})")
+        spec = ROBOT_SPECS[kind]
+        name = name or kind
+        if name in self.robots:
+            raise InvalidArgument(f"robot {name!r} already exists")
+        if pose is None:
+            pose = self.plan.start_pose(name, kind, spec.radius)
+        rng = np.random.default_rng([self.plan.seed, zlib.crc32(f"odometry/{name}".encode())])
+        robot = self.run_sync(Robot, self, spec, name, tuple(pose), odometry_noise, rng)
+        self.robots[name] = robot
+        return robot
+
+    # ------------------------------------------------------------------ simulation time
+    @property
+    def time(self) -> float:
+        return self.clock.time
+
+    def start(self, ctrl: Controller) -> asyncio.Future:
+        """Register a controller (event-loop thread); the returned future resolves when it finishes."""
+        if self._closed:
+            raise WorldClosed("world is closed")
+        loop = asyncio.get_running_loop()
+        ctrl.future = loop.create_future()
+        self._active.append(ctrl)
+        if self._stepper is None or self._stepper.done():
+            self.clock.restart_pacing()
+            self._stepper = loop.create_task(self._step_loop(), name=f"world-stepper-{self.plan.name}")
+        return ctrl.future
+
+    async def sleep(self, seconds: float) -> None:
+        """Wait `seconds` of simulation time (all active motions advance meanwhile)."""
+        if seconds > 0:
+            await self.start(Timer(seconds))
+
+    async def sync(self) -> None:
+        """Wait until the pybullet thread has finished everything submitted before."""
+        await self.run(lambda: None)
+
+    async def _step_loop(self) -> None:
+        while not self._closed:
+            self._active = [c for c in self._active if not c.done and not c.cancelled]
+            active = list(self._active)
+            if not active or (self.clock.rtf <= 0 and not any(c.blocking for c in active)):
+                break
+            finished = await self.run(self._advance, active, self.clock.chunk_steps())
+            for c in finished:
+                c.resolve()
+            delay = self.clock.delay()
+            await asyncio.sleep(delay)
+
+    def _advance(self, active: list[Controller], n: int) -> list[Controller]:
+        dt = self.clock.step
+        finished: list[Controller] = []
+        for _ in range(n):
+            for c in active:
+                if c.done or c.cancelled:
+                    continue
+                try:
+                    if c.step(dt):
+                        c.done = True
+                        finished.append(c)
+                except Exception as e:  # noqa: BLE001 - any failure ends the motion and reaches the caller
+                    c.done, c.error = True, e if isinstance(e, RobotError) else RobotError(f"{type(e).__name__}: {e}")
+                    finished.append(c)
+            self.clock.time += dt
+            if any(c.blocking for c in finished):
+                break
+        return finished
+
+    # ------------------------------------------------------------------ maps
+    def grid_map(self, resolution: float = 0.05, include_doors: bool = False) -> GridMap:
+        return build_grid_map(self.plan, resolution=resolution, include_doors=include_doors)
+
+    def export_grid_map(self, directory: str | Path, name: str = "map", resolution: float = 0.05,
+                        include_doors: bool = False) -> tuple[Path, Path]:
+        """Write <name>.png + <name>.yaml (ROS map_server format)."""
+        return self.grid_map(resolution, include_doors).save(directory, name)
+
+    @property
+    def landmarks(self):
+        return list(self.plan.landmarks)
+
+    def landmark_map(self) -> dict[str, Any]:
+        return {"frame": "map", "convention": "yaw = panel normal (into the room); size = QR symbol side "
+                "without quiet zone; corners TL, TR, BR, BL as seen facing the panel",
+                "landmarks": [m.to_dict() for m in self.plan.landmarks]}
+
+    def write_landmark_map(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = self.landmark_map()
+        path.write_text(json.dumps(data, indent=1) if path.suffix == ".json" else yaml.safe_dump(data, sort_keys=False))
+        return path
+
+    # ------------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        if self._closed:
+            return
+        for c in self._active:
+            c.cancel(WorldClosed("world closed"))
+        if self._stepper is not None and not self._stepper.done():
+            self._stepper.cancel()
+        try:
+            self._exec.submit(p.disconnect, physicsClientId=self.cid).result()
+        finally:
+            self._closed = True
+            self._exec.shutdown(wait=True)
+
+    def __enter__(self) -> "World":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,118 @@
+"""Bring up a RAPP system in one call: XMPP server, Store, Platform, robots with Core Agents,
+and their users as plain XMPP chat clients. Used by scenarios, tests and benchmarks.
+
+    async with RappSystem(workdir) as system:
+        await system.publish("rapps/hazard_detection")
+        robot = await system.add_robot("nao", world=world)
+        await robot.user.say(robot.core.address, "check the hazards")
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from agents.base import RappAgent
+from agents.core_agent import CoreAgent
+from agents.platform_agent import PlatformAgent
+from agents.process import Limits
+from agents.store_agent import StoreAgent
+from agents.store_client import publish_package
+from rapps.package import build_package_bytes
+from xmpp_server import EmbeddedServer, XmppSettings
+
+from .user import ChatUser
+
+DEVELOPER = ("developer", "developer-secret")
+
+
+@dataclass
+class RobotHandle:
+    robot_id: str
+    robot_type: str
+    core: CoreAgent
+    user: ChatUser
+    api: object
+
+
+class RappSystem:
+    def __init__(self, workdir: str | Path | None = None, *, settings: XmppSettings | None = None,
+                 trace_file: str | Path | None = None, force_xmpp: bool | None = None,
+                 limits: Limits = Limits(), services: dict | None = None):
+        self._services = services
+        self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-run-"))
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self._given_settings = settings
+        self._trace_file = trace_file
+        self._force_xmpp = force_xmpp
+        self.limits = limits
+        self.server: EmbeddedServer | None = None
+        self.settings: XmppSettings | None = None
+        self.store: StoreAgent | None = None
+        self.platform: PlatformAgent | None = None
+        self.publisher: RappAgent | None = None
+        self.robots: list[RobotHandle] = []
+
+    async def start(self) -> "RappSystem":
+        overrides = {"trace_file": self._trace_file, "force_xmpp": self._force_xmpp}
+        if self._given_settings is None:
+            self.server = EmbeddedServer(db=self.workdir / "xmpp.db")
+            await self.server.astart()
+            self.settings = self.server.settings(**overrides)
+        else:
+            self.settings = self._given_settings.model_copy(
+                update={k: v for k, v in overrides.items() if v is not None})
+        self.store = StoreAgent("store", self.workdir / "store", self.settings)
+        self.platform = PlatformAgent("platform", store="store", settings=self.settings, services=self._services,
+                                      workdir=self.workdir / "platform", limits=self.limits)
+        self.publisher = RappAgent("publisher", self.settings)
+        await asyncio.gather(self.store.start(), self.platform.start(), self.publisher.start())
+        return self
+
+    async def publish(self, src_dir: str | Path, owner: tuple[str, str] = DEVELOPER) -> str:
+        """Build the RApp in src_dir and publish it through the Store Agent (over XMPP)."""
+        from ontology.store import RegisterOwner
+
+        await self.publisher.request(self.store.address, RegisterOwner(owner=owner[0], password=owner[1]))
+        data = await asyncio.to_thread(build_package_bytes, src_dir)
+        details = await publish_package(self.publisher, self.store.address, owner[0], owner[1], data)
+        return f"{details.summary.name} {details.summary.version}"
+
+    async def add_robot(self, robot_type: str, *, api, robot_id: str | None = None,
+                        user: str | None = None, **core_kw) -> RobotHandle:
+        n = len(self.robots) + 1
+        robot_id = robot_id or f"{robot_type}{n}"
+        user_name = user or f"owner-{robot_id}"
+        chat = ChatUser(user_name, self.settings)
+        await chat.start()
+        core = CoreAgent(f"core-{robot_id}", robot_id=robot_id, robot_type=robot_type, robot_api=api,
+                         owner=user_name, platform="platform", store="store", user=user_name,
+                         password=f"{user_name}-pw", settings=self.settings,
+                         workdir=self.workdir / f"core-{robot_id}", limits=self.limits, **core_kw)
+        await core.start()
+        handle = RobotHandle(robot_id, robot_type, core, chat, api)
+        self.robots.append(handle)
+        return handle
+
+    async def stop(self) -> None:
+        for r in self.robots:
+            with contextlib.suppress(Exception):
+                if r.core.dynamic is not None and r.core.dynamic.process is not None:
+                    await r.core.dynamic.process.stop(grace=0.5)
+                await r.core.stop()
+            with contextlib.suppress(Exception):
+                await r.user.stop()
+        for agent in (self.publisher, self.platform, self.store):
+            if agent is not None:
+                with contextlib.suppress(Exception):
+                    await agent.stop()
+        if self.server is not None:
+            await asyncio.to_thread(self.server.close)
+
+    async def __aenter__(self):
+        return await self.start()
+
+    async def __aexit__(self, *exc):
+        await self.stop()
