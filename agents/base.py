@@ -144,7 +144,7 @@ class RappAgent(Agent):
             return []
         tasks = []
         for behaviour in self.behaviours:
-            if behaviour.is_running and not behaviour.is_killed() and behaviour.match(msg):
+            if _accepts(behaviour, msg):
                 tasks.append(self.submit(behaviour.enqueue(msg)))
         if not tasks:
             tasks.append(self.submit(self._unhandled(msg, info)))
@@ -266,6 +266,21 @@ class RappAgent(Agent):
             conversation_id=info.conversation_id, ontology=info.ontology, action=info.action,
             message_id=info.reply_with, in_reply_to=info.in_reply_to, path=path,
             size=len(msg.body or ""), content=cap(msg.body))
+
+
+def _accepts(behaviour, msg: Message) -> bool:
+    """Only behaviours that asked for messages get them: a template or their own match().
+
+    (SPADE lets a behaviour without a template take every message into a queue it may never
+    read; a request would then go unanswered.)"""
+    if not behaviour.is_running or behaviour.is_killed():
+        return False
+    if behaviour.template is None and type(behaviour).match is _BASE_MATCH:
+        return False
+    return behaviour.match(msg)
+
+
+_BASE_MATCH = CyclicBehaviour.match
 
 
 def _reason_of(msg: Message) -> Reason:

@@ -144,5 +144,12 @@ class CloudService:
         self.agent = runtime
 
     def handlers(self) -> dict:
+        """Responder handlers `(request, ctx)` around the author's `async def <action>(self, request)`."""
         from ontology.registry import actions
-        return {name: getattr(self, name) for name in actions(self.ontology) if hasattr(self, name)}
+
+        def wrap(method):
+            async def handler(req, ctx):
+                return await method(req)
+            return handler
+
+        return {name: wrap(getattr(self, name)) for name in actions(self.ontology) if hasattr(self, name)}

@@ -18,7 +18,9 @@ USER_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
 def maildir(ctx: ServiceContext, user: str) -> mailbox.Maildir:
-    return mailbox.Maildir(ctx.state.work_dir / "mail" / user, create=True)
+    root = ctx.state.work_dir / "mail"
+    root.mkdir(parents=True, exist_ok=True)
+    return mailbox.Maildir(root / user, create=True)
 
 
 def email_send(req: EmailSend, ctx: ServiceContext) -> Done:

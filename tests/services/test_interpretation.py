@@ -1,0 +1,40 @@
+import pytest
+
+from agents.services.errors import ServiceError
+from agents.services.interpretation import interpret_command
+from ontology.services.interpretation import InterpretCommand, RAppDescription
+
+RAPPS = [
+    RAppDescription(name="hazard_detection", keywords=["lights", "door", "hazard", "closed"],
+                    phrases=["check the house", "left the lights on"], robot_types=["nao", "elektron"]),
+    RAppDescription(name="weather_reporter", keywords=["weather", "forecast"], phrases=["what's the weather"]),
+    RAppDescription(name="email_reader", keywords=["email", "mail"], phrases=["read my email"]),
+    RAppDescription(name="cognitive_game", keywords=["game", "play", "exercise"], phrases=["let's play"]),
+    RAppDescription(name="news_reader", keywords=["news"], phrases=["what's new"]),
+]
+
+
+@pytest.mark.parametrize("text,rapp,params", [
+    ("check if I left the lights on", "hazard_detection", {}),
+    ("are the doors closed?", "hazard_detection", {}),
+    ("Is the house safe?", "hazard_detection", {}),
+    ("what's the weather in Warsaw", "weather_reporter", {"city": "Warsaw"}),
+    ("Will it rain tomorrow in Krakow?", "weather_reporter", {"city": "Krakow"}),
+    ("what is the forecast for Gdansk", "weather_reporter", {"city": "Gdansk"}),
+    ("read my e-mail", "email_reader", {}),
+    ("do I have new messages", "email_reader", {}),
+    ("let's play a game", "cognitive_game", {}),
+    ("tell me the news", "news_reader", {}),
+])
+def test_phrases(ctx, text, rapp, params):
+    out = interpret_command(InterpretCommand(text=text, robot_type="nao", rapps=RAPPS), ctx)
+    assert out.rapp == rapp and out.parameters == params
+
+
+def test_unknown_and_robot_filter(ctx):
+    with pytest.raises(ServiceError, match="did not understand") as e:
+        interpret_command(InterpretCommand(text="make me a sandwich", robot_type="nao", rapps=RAPPS), ctx)
+    assert e.value.code == "not_understood"
+    only_nao = [RAppDescription(name="x", keywords=["lights"], robot_types=["nao"])]
+    with pytest.raises(ServiceError, match="no application"):
+        interpret_command(InterpretCommand(text="lights", robot_type="elektron", rapps=only_nao), ctx)

@@ -1,0 +1,71 @@
+import base64
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from agents.services import localization as L, render
+from agents.services.errors import ServiceError
+from agents.services.images import encode_image
+from ontology.services.common import CameraIntrinsics
+from ontology.services.localization import ComputeGlobalPose, Landmark, MarkerObservation, QRDetect
+
+K = np.array([[1000.0, 0, 640], [0, 1000.0, 480], [0, 0, 1]])
+CAM = CameraIntrinsics(fx=1000, fy=1000, cx=640, cy=480)
+# camera optical frame in the robot frame: z forward = robot x, x right = -robot y, y down = -robot z
+R_ROBOT_CAM = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
+T_ROBOT_CAM = L.transform(R_ROBOT_CAM, [0.1, 0.0, 0.45])
+
+
+def robot_T(x, y, th):
+    c, s = math.cos(th), math.sin(th)
+    return L.transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [x, y, 0])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_qr_pose_error_below_2cm_at_1_5m(ctx, seed):
+    rng = np.random.default_rng(seed)
+    R = cv2.Rodrigues(np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.6, 0.6), 0.0]))[0] @ np.diag([1, -1, -1])
+    t = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.2, 0.2), 1.5])
+    img = render.render_qr("kitchen", 0.16, L.transform(R, t), K)
+    out = L.qr_detection(QRDetect(image_b64=encode_image(img), camera=CAM, code_size_m=0.16), ctx)
+    assert [c.text for c in out.codes] == ["kitchen"]
+    T = np.asarray(out.codes[0].pose_in_camera)
+    assert np.linalg.norm(T[:3, 3] - t) < 0.02
+    assert np.degrees(np.arccos(np.clip((np.trace(T[:3, :3].T @ R) - 1) / 2, -1, 1))) < 5.0
+
+
+def test_no_code_and_bad_image(ctx):
+    blank = np.full((480, 640), 120, np.uint8)
+    assert L.qr_detection(QRDetect(image_b64=encode_image(blank)), ctx).codes == []
+    with pytest.raises(ServiceError, match="decoded"):
+        L.qr_detection(QRDetect(image_b64=base64.b64encode(b"garbage").decode()), ctx)
+
+
+def test_global_pose_from_rendered_marker(ctx):
+    lm = Landmark(x=5.0, y=2.0, z=0.5, yaw=math.pi)  # on the east wall, facing west into the room
+    T_world_robot = robot_T(3.0, 2.3, 0.15)
+    T_cam_code = L.invert(T_ROBOT_CAM) @ L.invert(T_world_robot) @ L.landmark_transform(lm)
+    img = render.render_qr("hall-1", 0.16, T_cam_code, K)
+    det = L.qr_detection(QRDetect(image_b64=encode_image(img), camera=CAM), ctx).codes
+    assert len(det) == 1
+    pose = L.compute_global_pose(ComputeGlobalPose(
+        observations=[MarkerObservation(text="hall-1", pose_in_camera=det[0].pose_in_camera)],
+        camera_to_robot=T_ROBOT_CAM.tolist(), landmarks={"hall-1": lm}), ctx)
+    assert math.hypot(pose.x - 3.0, pose.y - 2.3) < 0.10  # single marker: yaw error x range
+    assert abs(pose.theta - 0.15) < math.radians(3)
+
+
+def test_global_pose_exact_and_errors(ctx):
+    lm = Landmark(x=1.0, y=4.0, z=1.0, yaw=-math.pi / 2)
+    T_cam_code = L.invert(T_ROBOT_CAM) @ L.invert(robot_T(1.2, 2.0, 1.4)) @ L.landmark_transform(lm)
+    req = dict(observations=[MarkerObservation(text="a", pose_in_camera=T_cam_code.tolist())],
+               camera_to_robot=T_ROBOT_CAM.tolist())
+    pose = L.compute_global_pose(ComputeGlobalPose(landmarks={"a": lm}, **req), ctx)
+    assert np.allclose([pose.x, pose.y, pose.theta], [1.2, 2.0, 1.4], atol=1e-9)
+    with pytest.raises(ServiceError, match="landmark map"):
+        L.compute_global_pose(ComputeGlobalPose(landmarks={"b": lm}, **req), ctx)
+    with pytest.raises(ServiceError, match="4x4"):
+        L.compute_global_pose(ComputeGlobalPose(landmarks={"a": lm}, observations=req["observations"],
+                                                camera_to_robot=[[1, 0], [0, 1]]), ctx)

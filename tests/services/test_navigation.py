@@ -1,0 +1,116 @@
+import base64
+
+import numpy as np
+import pytest
+
+from agents.services import navigation, planning
+from agents.services.errors import ServiceError
+from agents.services.maps import GridMap, encode_map, load_map_files, parse_map
+from bench.planning import make_house
+from ontology.services.common import Pose2D
+from ontology.services.navigation import ListMaps, PlanPath2D, UploadMap
+
+RES = 0.05
+
+
+def passage_map(gap_m: float = 0.50) -> np.ndarray:
+    """6 m x 4 m room split by a wall at x = 3 m with one gap of gap_m (NAO fits, Elektron not)."""
+    b = np.zeros((80, 120), bool)
+    b[0, :] = b[-1, :] = True
+    b[:, 0] = b[:, -1] = True
+    b[:, 59:61] = True
+    g0 = 40 - int(round(gap_m / RES / 2))
+    b[g0:g0 + int(round(gap_m / RES)), 59:61] = False
+    return b
+
+
+def upload(ctx, map_id, blocked, origin=(0.0, 0.0, 0.0)):
+    png, text = encode_map(blocked, RES, origin)
+    return navigation.upload_map(UploadMap(map_id=map_id, png_b64=base64.b64encode(png).decode(), yaml_text=text), ctx)
+
+
+def plan(ctx, robot="nao", alg="astar", map_id="room", start=(1.0, 2.0), goal=(5.0, 2.0), **kw):
+    return navigation.plan_path_2d(PlanPath2D(robot_type=robot, algorithm=alg, map_id=map_id,
+                                              start=Pose2D(x=start[0], y=start[1]), goal=Pose2D(x=goal[0], y=goal[1], theta=0.5), **kw), ctx)
+
+
+def collision_free(ctx, map_id, robot, path):
+    m = ctx.state.maps.get(ctx.user, map_id)
+    free = navigation.free_cells(m, robot)
+    pts = np.array([m.world_to_cell(p.x, p.y) for p in path])
+    return all(planning.segment_free(free, a, b) for a, b in zip(pts[:-1], pts[1:]))
+
+
+def test_upload_roundtrip_and_convention(ctx):
+    b = passage_map()
+    info = upload(ctx, "room", b, origin=(-1.0, 2.0, 0.0))
+    assert (info.width, info.height, info.resolution) == (120, 80, RES)
+    m = ctx.state.maps.get("alice", "room")
+    assert np.array_equal(m.blocked, b)
+    # cell (0, 0) centre is origin + half a cell; map ids are per user
+    assert np.allclose(m.cell_to_world(0, 0), (-1.0 + 0.025, 2.0 + 0.025))
+    assert ctx.state.maps.get("bob", "room") is None
+    assert [i.map_id for i in navigation.list_maps(ListMaps(), ctx).maps] == ["room"]
+
+
+def test_map_files_and_thresholds(tmp_path):
+    b = passage_map()
+    png, text = encode_map(b, RES, image_name="room.png")
+    (tmp_path / "room.png").write_bytes(png)
+    (tmp_path / "room.yaml").write_text(text)
+    m = load_map_files("room", tmp_path / "room.yaml")
+    assert np.array_equal(m.blocked, b) and m.shared
+    negated = parse_map("n", png, text.replace("negate: 0", "negate: 1"))
+    assert np.array_equal(negated.blocked, ~b)
+
+
+def test_bad_map_upload(ctx):
+    with pytest.raises(ServiceError, match="decoded"):
+        navigation.upload_map(UploadMap(map_id="x", png_b64=base64.b64encode(b"nope").decode(),
+                                        yaml_text="resolution: 0.05\norigin: [0, 0, 0]"), ctx)
+    with pytest.raises(ServiceError, match="resolution"):
+        upload_bad = base64.b64encode(encode_map(passage_map(), RES)[0]).decode()
+        navigation.upload_map(UploadMap(map_id="x", png_b64=upload_bad, yaml_text="image: a.png"), ctx)
+
+
+@pytest.mark.parametrize("alg", ["astar", "dijkstra", "rrtconnect", "bitstar"])
+def test_nao_fits_through_passage_elektron_does_not(ctx, alg):
+    upload(ctx, "room", passage_map(0.50))
+    nao = plan(ctx, "nao", alg, time_limit_s=0.5)
+    assert nao.plan_found == 1, nao.reason
+    assert collision_free(ctx, "room", "nao", nao.path)
+    assert (nao.path[0].x, nao.path[0].y) == (1.0, 2.0)
+    assert np.hypot(nao.path[-1].x - 5.0, nao.path[-1].y - 2.0) < 1e-6 and nao.path[-1].theta == 0.5
+    gaps = [np.hypot(a.x - b.x, a.y - b.y) for a, b in zip(nao.path[:-1], nao.path[1:])]
+    assert max(gaps) <= 0.3 + 1e-6
+    assert nao.length_m < 4.3  # nearly straight through the gap
+    el = plan(ctx, "elektron", alg, time_limit_s=0.3)
+    assert el.plan_found == 0 and el.path == []
+
+
+def test_wide_passage_both_fit(ctx):
+    upload(ctx, "wide", passage_map(0.9))
+    assert plan(ctx, "elektron", map_id="wide").plan_found == 1
+
+
+def test_codes_and_reasons(ctx):
+    upload(ctx, "room", passage_map())
+    assert plan(ctx, map_id="nope").plan_found == 2
+    assert plan(ctx, robot="pepper").plan_found == 3
+    assert plan(ctx, alg="teleport").plan_found == 4
+    out = plan(ctx, start=(-3.0, 1.0))
+    assert out.plan_found == 0 and "outside" in out.reason
+    inside = plan(ctx, goal=(3.0, 0.5))  # in the wall
+    assert inside.plan_found == 0 and "obstacle" in inside.reason
+
+
+def test_astar_matches_dijkstra_on_house():
+    m = GridMap("house", make_house(), RES, (0.0, 0.0, 0.0))
+    g = navigation.grid_graph(m, "elektron")
+    lm = navigation.landmarks(m, "elektron")
+    for s, t in [((20, 100), (360, 360)), ((40, 240), (370, 80))]:
+        a = planning.astar_path(g, g.node(*s), g.node(*t), lm)
+        d = planning.dijkstra_path(g, g.node(*s), g.node(*t))
+        assert abs(planning.path_length(a) - planning.path_length(d)) < 1e-6
+        smooth = planning.tighten(g.free, planning.shortcut(g.free, a))
+        assert planning.path_length(smooth) < planning.path_length(a) * 0.99

@@ -1,0 +1,201 @@
+"""The RAPP lifecycle end to end on a real embedded server: command -> download -> Dynamic Agent
+process -> robot and Platform calls -> finish -> destroy -> listening again (figs 2-5)."""
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from agents.base import RappAgent
+from agents.errors import RequestRefused, RequestTimeout
+from agents.store_agent import StoreAgent
+from agents.tracing import read_trace
+from ontology import robot as R
+from ontology import store as S
+from robots import RobotAPI, World
+from scenarios.system import RappSystem
+
+FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
+SUPERVISING = {"supervisor", "core-service", "user-listener"}
+SERVING = {"supervisor", "core-service", "command-server", "busy-chat"}
+
+
+class SpyAPI:
+    """The real robot API, recording which Core behaviours were active at each call."""
+
+    def __init__(self, api: RobotAPI):
+        self.api, self.core, self.calls = api, None, []
+
+    async def handle(self, req):
+        self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
+        return await self.api.handle(req)
+
+
+def variant(tmp_path: Path, name: str, keyword: str, **params) -> Path:
+    """A copy of the echo RApp under another name and keyword, with other default params."""
+    dest = tmp_path / name
+    shutil.copytree(FIXTURE, dest)
+    manifest = yaml.safe_load((dest / "manifest.yaml").read_text())
+    manifest.update(name=name, keywords=[keyword])
+    manifest["params"].update(params)
+    (dest / "manifest.yaml").write_text(yaml.safe_dump(manifest))
+    return dest
+
+
+@pytest.fixture(scope="module")
+async def system(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("lifecycle")
+    world = World.from_file("small", seed=3)
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+        await system.publish(FIXTURE)
+        await system.publish(variant(workdir, "echo-cloud", "cloudecho", use_cloud=True))
+        await system.publish(variant(workdir, "echo-fail", "failecho", behaviour="raise"))
+        spy = SpyAPI(RobotAPI(world.add_robot("nao")))
+        handle = await system.add_robot("nao", api=spy)
+        spy.core = handle.core
+        system.spy = spy
+        system.handle = handle
+        await wait_until(lambda: handle.core.vocabulary and "s3_listen" == state(handle.core))
+        yield system
+    world.close()
+
+
+def state(core) -> str:
+    return core.supervisor.behaviour.current
+
+
+async def wait_until(pred, timeout=20.0):
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not pred():
+        if loop.time() > deadline:
+            raise AssertionError("condition not reached in time")
+        await asyncio.sleep(0.02)
+
+
+async def run_command(system, text: str, expect: str, timeout=60.0) -> str:
+    user = system.handle.user
+    start = len(user.received)
+    await user.say(system.handle.core.address, text)
+    return await user.wait_for(lambda t: expect in t, timeout=timeout, start=start)
+
+
+def structure(trace, agent_prefix=None):
+    return [r for r in trace if r["kind"] == "structure"
+            and (agent_prefix is None or r["agent"].startswith(agent_prefix))]
+
+
+async def test_full_lifecycle(system):
+    core, spy = system.handle.core, system.spy
+    assert core.active_behaviours() == SUPERVISING
+    spy.calls.clear()
+    await run_command(system, "echo", "echo-app finished")
+    # the Dynamic Agent's robot calls ran while the Core served it, not while it supervised
+    assert [c for c, _ in spy.calls if c in ("say", "get_global_pose")][:2] == ["say", "get_global_pose"]
+    say_active = next(active for c, active in spy.calls if c == "say")
+    assert say_active == SERVING
+    # the Core is supervising again, and the Dynamic Agent and its process are gone
+    await wait_until(lambda: state(core) == "s3_listen")
+    assert core.active_behaviours() == SUPERVISING and core.dynamic is None
+    trace = read_trace(system.settings.trace_file)
+    spawn = [r for r in structure(trace) if r["event"] == "spawn"][-1]
+    with pytest.raises(ProcessLookupError):
+        os.kill(spawn["pid"], 0)
+    stopped = [r for r in trace if r["kind"] == "agent" and r["event"] == "stopped"
+               and r["agent"] == spawn["dynamic"]]
+    assert stopped, "the Dynamic Agent logged out"
+    with pytest.raises(RequestTimeout):
+        await core.request(spawn["dynamic"], R.GetGlobalPose(), timeout=0.5)
+    assert "echo done for owner-nao1" in system.handle.user.texts()
+
+
+async def test_cloud_agent_lives_and_dies_with_dynamic_agent(system):
+    await run_command(system, "cloudecho", "echo-cloud finished")
+    assert any("doubled 42" in t for t in system.handle.user.texts())
+    trace = read_trace(system.settings.trace_file)
+    events = [(r["event"], r.get("rapp")) for r in structure(trace)
+              if r["event"] in ("spawn", "cloud-spawn", "cloud-destroy", "destroy")
+              and r.get("rapp") == "echo-cloud"]
+    assert events == [("spawn", "echo-cloud"), ("cloud-spawn", "echo-cloud"),
+                      ("cloud-destroy", "echo-cloud"), ("destroy", "echo-cloud")]
+    cloud = next(r for r in structure(trace) if r["event"] == "cloud-spawn" and r["rapp"] == "echo-cloud")
+    with pytest.raises(ProcessLookupError):
+        os.kill(cloud["pid"], 0)
+    assert not system.platform.clouds
+
+
+async def test_unknown_command_is_explained_and_core_keeps_listening(system):
+    reply = await run_command(system, "please juggle three flaming torches", "did not understand")
+    assert "juggle" in reply
+    await wait_until(lambda: state(system.handle.core) == "s3_listen")
+    await run_command(system, "echo", "echo-app finished")
+    await run_command(system, "echo", "echo-app finished")
+
+
+async def test_failing_task_is_reported_and_cleaned_up(system):
+    reply = await run_command(system, "failecho", "echo-fail ended with a problem")
+    assert "deliberate failure" in reply
+    await wait_until(lambda: system.handle.core.active_behaviours() == SUPERVISING)
+
+
+async def test_robot_request_from_other_agent_is_refused(system):
+    intruder = RappAgent("intruder", system.settings)
+    await intruder.start()
+    try:
+        with pytest.raises(RequestRefused, match="does not serve robot/move_to"):
+            await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=5)
+        # while a Dynamic Agent supervises, an intruder is refused by the command server itself
+        slow = asyncio.create_task(run_command(system, "echo", "echo-app finished"))
+        await wait_until(lambda: "command-server" in system.handle.core.active_behaviours())
+        with pytest.raises(RequestRefused, match="not the current supervisor"):
+            await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=5)
+        await slow
+    finally:
+        await intruder.stop()
+
+
+async def test_trace_shows_structure_changes_in_order(system):
+    trace = read_trace(system.settings.trace_file)
+    core = system.handle.core.address
+    events = structure(trace)
+    assert events[0]["event"] == "publish" and any(r["event"] == "register" for r in events)
+    first = next(i for i, r in enumerate(events) if r["event"] == "download" and r.get("rapp") == "echo-cloud")
+    last = next(i for i, r in enumerate(events) if i > first and r["event"] == "resume")
+    order = [r["event"] for r in events[first:last + 1]]
+    # Store serves the Core; a_dyn starts (Init) and takes over; Working; the Platform fetches
+    # the cloud part and spawns a_cloud; it is destroyed; Finished; a_dyn destroyed; supervision back
+    expected = ["download", "download", "spawn", "status", "handoff", "status", "download",
+                "cloud-spawn", "cloud-destroy", "status", "destroy", "resume"]
+    assert order == expected, " ".join(order)
+    calls = [r for r in trace if r["kind"] == "message" and r["dir"] == "send"
+             and r["receiver"] == core and r["ontology"] == "robot"]
+    assert calls, "robot-API calls are in the trace"
+
+
+async def test_store_data_survives_restart(xmpp_server, tmp_path, unique):
+    settings = xmpp_server.settings()
+    from rapps.package import build_package_bytes
+    from agents.store_client import publish_package
+
+    name = unique("store")
+    store = StoreAgent(name, tmp_path / "store", settings)
+    client = RappAgent(unique("dev"), settings)
+    await store.start()
+    await client.start()
+    await client.request(store.address, S.RegisterOwner(owner="dev", password="pw"))
+    await publish_package(client, store.address, "dev", "pw", build_package_bytes(FIXTURE))
+    await store.stop()
+    again = StoreAgent(name, tmp_path / "store", settings)
+    await again.start()
+    try:
+        listed = await client.request(again.address, S.ListPackages(robot_type="nao"))
+        assert [p.name for p in listed.packages] == ["echo-app"]
+        info = await client.request(again.address, S.DownloadBegin(name="echo-app"))
+        assert info.version == "1.0.0" and info.size > 0
+    finally:
+        await again.stop()
+        await client.stop()
