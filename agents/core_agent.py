@@ -160,7 +160,7 @@ class CoreAgent(RappAgent):
                   "robot_types": p.robot_types} for p in self.catalogue]
         reply = await self.request(self.platform, model(token=self.token, text=text,
                                                         robot_type=self.robot_type, rapps=rapps))
-        return reply.rapp, dict(reply.params)
+        return reply.rapp, dict(reply.parameters)
 
     # -- s5 ------------------------------------------------------------------------------
     async def fetch_package(self, rapp: str) -> tuple[Package, bytes]:

@@ -40,8 +40,10 @@ class RobotHandle:
 class RappSystem:
     def __init__(self, workdir: str | Path | None = None, *, settings: XmppSettings | None = None,
                  trace_file: str | Path | None = None, force_xmpp: bool | None = None,
-                 limits: Limits = Limits(), services: dict | None = None):
+                 limits: Limits = Limits(), services: dict | None = None,
+                 platform_kw: dict | None = None):
         self._services = services
+        self._platform_kw = platform_kw or {}
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-run-"))
         self.workdir.mkdir(parents=True, exist_ok=True)
         self._given_settings = settings
@@ -66,7 +68,8 @@ class RappSystem:
                 update={k: v for k, v in overrides.items() if v is not None})
         self.store = StoreAgent("store", self.workdir / "store", self.settings)
         self.platform = PlatformAgent("platform", store="store", settings=self.settings, services=self._services,
-                                      workdir=self.workdir / "platform", limits=self.limits)
+                                      workdir=self.workdir / "platform", limits=self.limits,
+                                      **self._platform_kw)
         self.publisher = RappAgent("publisher", self.settings)
         await asyncio.gather(self.store.start(), self.platform.start(), self.publisher.start())
         return self
