@@ -1,0 +1,79 @@
+"""Hand-off latency: from the user's command arriving at the Core (its `command` structure record)
+to the Dynamic Agent's first behaviour running (its first FSM `state` enter record), i.e. download,
+verify, unpack, spawn, interpreter start, login and Init included. Measured from the trace.
+
+Floor, in the same run and against the same server: spawning a bare Python process that imports
+SPADE and logs one new agent in (bench/floor_login.py), from Popen to the child's printed time.
+Runs alternate (project, floor, project, floor, ...) so machine noise hits both alike.
+"""
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .common import ECHO_APP, RobotSystem, child_env, log, median, metric, ratio
+
+
+def floor_once(settings, name: str) -> float:
+    t0 = time.time()
+    out = subprocess.run([sys.executable, "-m", "bench.floor_login", name], env=child_env(settings),
+                         capture_output=True, text=True, timeout=60)
+    line = next((ln for ln in out.stdout.splitlines() if ln.startswith("LOGGED_IN")), None)
+    if line is None:
+        raise RuntimeError(f"floor_login failed: {out.stderr[-500:]}")
+    return float(line.split()[1]) - t0
+
+
+def phases(trace: list[dict]) -> list[dict]:
+    """Per hand-off: command, download, spawn, dyn started, first state times (absolute)."""
+    out = []
+    spawns = [r for r in trace if r["kind"] == "structure" and r["event"] == "spawn"]
+    for sp in spawns:
+        dyn = sp["dynamic"]
+        cmd = [r for r in trace if r["kind"] == "structure" and r["event"] == "command"
+               and r["agent"] == sp["agent"] and r["t"] <= sp["t"]]
+        dl = [r for r in trace if r["kind"] == "structure" and r["event"] == "download"
+              and r["agent"] == sp["agent"] and r["t"] <= sp["t"]]
+        started = [r for r in trace if r["kind"] == "agent" and r["event"] == "started" and r["agent"] == dyn]
+        state = [r for r in trace if r["kind"] == "state" and r["event"] == "enter" and r["agent"] == dyn]
+        if not (cmd and state):
+            continue
+        out.append({"command": cmd[-1]["t"], "download": dl[-1]["t"] if dl else None, "spawn": sp["t"],
+                    "started": started[0]["t"] if started else None, "state": state[0]["t"]})
+    return out
+
+
+async def run(quick: bool = True, n: int | None = None) -> list[dict]:
+    from agents.tracing import read_trace
+
+    n = n or (3 if quick else 10)
+    floors = []
+    with tempfile.TemporaryDirectory(prefix="bench-handoff-") as tmp:
+        async with RobotSystem(Path(tmp), [ECHO_APP], trace=True) as rs:
+            h = rs.robots[0]
+            # warm-up: one of each, not counted (first import of a process from a cold page cache)
+            await rs.command(h, "echo", "echo-app finished")
+            await asyncio.to_thread(floor_once, rs.system.settings, "floor-warm")
+            skip = len(phases(read_trace(rs.trace_file)))
+            for i in range(n):
+                await rs.command(h, "echo", "echo-app finished")
+                floors.append(await asyncio.to_thread(floor_once, rs.system.settings, f"floor-{i}"))
+            ph = phases(read_trace(rs.trace_file))[skip:]
+    if len(ph) != n:
+        raise RuntimeError(f"expected {n} hand-offs in the trace, found {len(ph)}")
+    total = [p["state"] - p["command"] for p in ph]
+    med, fmed = median(total), median(floors)
+    extra = {}
+    for a, b, key in (("command", "download", "cmd_to_download_ms"), ("download", "spawn", "download_to_spawn_ms"),
+                      ("spawn", "started", "spawn_to_login_ms"), ("started", "state", "login_to_first_state_ms")):
+        xs = [p[b] - p[a] for p in ph if p[a] is not None and p[b] is not None]
+        if xs:
+            extra[key] = median(xs) * 1e3
+    log(f"handoff median {med * 1e3:.0f} ms, floor {fmed * 1e3:.0f} ms; phases {extra}")
+    return [metric("handoff", med * 1e3, "ms", fmed * 1e3, ratio(med, fmed), n,
+                   samples=[x * 1e3 for x in total], floor_p95=sorted(floors)[-1] * 1e3 if n < 20 else None,
+                   goal_ratio=1.5, **extra)]

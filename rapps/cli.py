@@ -1,0 +1,249 @@
+"""`rapp`: one command line for the project. Errors are one line unless --debug.
+
+    rapp server [--host H] [--port P] [--domain D] [--db FILE | --memory]
+    rapp run demo | hazard-detection --robot nao|elektron --seed N [--json FILE] | two-robots
+    rapp package build DIR [-o OUT] [--key KEY.pem] | rapp package keygen KEY.pem
+    rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
+    rapp trace show|export|html FILE [...]      (rapp trace FILE = show)
+    rapp bench [--quick] [--json FILE]
+    rapp doctor
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+
+
+class CliError(Exception):
+    """A user-facing error: printed as one line, exit code 1."""
+
+
+# -- server -----------------------------------------------------------------------------------
+def cmd_server(a) -> int:
+    from xmpp_server.__main__ import main as server_main
+
+    argv = ["--host", a.host, "--port", str(a.port), "--domain", a.domain]
+    if not a.memory:
+        db = a.db or str(Path(_tmpdir("rapp-xmpp-")) / "server.db")
+        argv += ["--db", db]
+    print(f"embedded XMPP server on {a.host}:{a.port}, domain {a.domain} "
+          f"({'in-memory database' if a.memory else 'database ' + argv[-1]}); Ctrl-C stops it",
+          file=sys.stderr, flush=True)
+    return server_main(argv + (["--verbose"] if a.verbose else []))
+
+
+def _tmpdir(prefix: str) -> str:
+    import tempfile
+    return tempfile.mkdtemp(prefix=prefix)
+
+
+# -- run --------------------------------------------------------------------------------------
+def cmd_run(a, rest: list[str]) -> int:
+    if a.scenario == "demo":
+        from scenarios.demo import main as demo_main
+        return demo_main(rest)
+    if a.scenario == "hazard-detection":
+        from scenarios.hazard import main as hazard_main
+        return hazard_main(rest)
+    if a.scenario == "hazard-table":
+        from scenarios.hazard_table import main as table_main
+        return table_main(rest)
+    if a.scenario == "two-robots":
+        from scenarios.two_robots import main as two_main
+        return two_main(rest)
+    raise CliError(f"unknown scenario {a.scenario!r} (known: demo, hazard-detection, hazard-table, two-robots)")
+
+
+# -- package ----------------------------------------------------------------------------------
+def cmd_package(a) -> int:
+    from rapps.package import build_package, generate_keypair, private_key_to_pem, public_key_id
+
+    if a.action == "build":
+        out = build_package(a.dir, a.output, signing_key=a.key)
+        print(out)
+        return 0
+    if a.action == "keygen":
+        key, pub = generate_keypair()
+        Path(a.dir).write_bytes(private_key_to_pem(key))
+        Path(a.dir).chmod(0o600)
+        print(f"private key {a.dir}; public key {pub} (id {public_key_id(pub)})")
+        return 0
+    raise CliError(f"unknown package action {a.action!r}")
+
+
+# -- store ------------------------------------------------------------------------------------
+async def _with_client(fn):
+    from agents.base import RappAgent
+    from xmpp_server.settings import XmppSettings
+    import uuid
+
+    settings = XmppSettings.from_env()
+    client = RappAgent(f"cli-{uuid.uuid4().hex[:8]}", settings)
+    await client.start()
+    try:
+        return await fn(client, settings)
+    finally:
+        await client.stop()
+
+
+def cmd_store(a) -> int:
+    from ontology import store as S
+
+    async def run(client, settings):
+        store = settings.jid(a.store)
+        if a.action == "publish":
+            from agents.store_client import publish_package
+            if not (a.owner and a.password):
+                raise CliError("publish needs --owner and --password")
+            await client.request(store, S.RegisterOwner(owner=a.owner, password=a.password))
+            d = await publish_package(client, store, a.owner, a.password, Path(a.target).read_bytes())
+            print(f"published {d.summary.name} {d.summary.version} ({d.summary.size} bytes)")
+        elif a.action == "list":
+            reply = await client.request(store, S.ListPackages(robot_type=a.robot_type))
+            for p in reply.packages:
+                print(f"{p.name:24} {p.version:10} {','.join(p.robot_types):16} {' '.join(p.keywords)}")
+        elif a.action == "info":
+            d = await client.request(store, S.Info(name=a.target))
+            print(f"{d.summary.name} {d.summary.version} by {d.owner}; versions {', '.join(d.versions)}")
+            print(f"  {d.summary.description}")
+            print(f"  robots: {', '.join(d.summary.robot_types)}; keywords: {', '.join(d.summary.keywords)}")
+            print(f"  sha256 {d.summary.sha256}; signed by {d.signer_key_id or 'nobody'}")
+        elif a.action == "remove":
+            d = await client.request(store, S.Delete(owner=a.owner, password=a.password, name=a.target,
+                                                     version=a.version))
+            print(f"removed {d.name} {', '.join(d.versions)}")
+        return 0
+
+    if a.action in ("publish", "info", "remove") and not a.target:
+        raise CliError(f"store {a.action} needs a target")
+    return asyncio.run(_with_client(run))
+
+
+# -- trace ------------------------------------------------------------------------------------
+def cmd_trace(argv: list[str]) -> int:
+    actions = {"show", "export", "html"}
+    action = argv[0] if argv and argv[0] in actions else "show"
+    if argv and argv[0] in actions:
+        argv = argv[1:]
+    p = argparse.ArgumentParser(prog=f"rapp trace {action}")
+    p.add_argument("file")
+    p.add_argument("--agent", action="append", help="only messages to/from this agent (repeatable)")
+    p.add_argument("--conversation", action="append", help="only this conversation id (prefix ok)")
+    if action == "show":
+        p.add_argument("--view", choices=["table", "sequence", "both"], default="both")
+    if action == "export":
+        p.add_argument("--format", choices=["mermaid", "json", "text"], default="mermaid")
+    if action in ("export", "html"):
+        p.add_argument("-o", "--output", help="output file (default: stdout / FILE.html)")
+    a = p.parse_args(argv)
+    from agents.tracing import read_trace
+    from scenarios import trace_report as tr
+
+    if not Path(a.file).exists():
+        raise CliError(f"no trace file {a.file}")
+    records = tr.filter_records(read_trace(a.file), agents=a.agent, conversations=a.conversation)
+    if action == "show":
+        if a.view in ("table", "both"):
+            print(tr.table(records))
+        if a.view in ("sequence", "both"):
+            print(tr.sequence_text(records))
+        return 0
+    if action == "export":
+        import json
+        text = {"mermaid": lambda: tr.mermaid(records), "text": lambda: tr.sequence_text(records),
+                "json": lambda: json.dumps(records, indent=1)}[a.format]()
+        if a.output:
+            Path(a.output).write_text(text)
+        else:
+            print(text)
+        return 0
+    from scenarios.trace_html import render_html
+    out = Path(a.output or (str(a.file) + ".html"))
+    out.write_text(render_html(records, title=Path(a.file).name))
+    print(out)
+    return 0
+
+
+# -- doctor -----------------------------------------------------------------------------------
+def cmd_doctor(a) -> int:
+    from scenarios.doctor import run_checks
+    return run_checks()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="rapp", description="RAPP variable-structure robot control system")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("server", help="run the embedded XMPP server (pyjabber) on this machine")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=5222)
+    s.add_argument("--domain", default="localhost")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--db", help="SQLite file for accounts (default: a fresh file per run)")
+    g.add_argument("--memory", action="store_true", help="in-memory database (pyjabber loses it on some disconnects)")
+    s.add_argument("--verbose", action="store_true")
+
+    r = sub.add_parser("run", help="run a scenario (demo, hazard-detection, hazard-table, two-robots)")
+    r.add_argument("scenario")
+
+    k = sub.add_parser("package", help="build a RApp package or a signing key")
+    k.add_argument("action", choices=["build", "keygen"])
+    k.add_argument("dir", help="RApp source directory (build) or key file to write (keygen)")
+    k.add_argument("-o", "--output")
+    k.add_argument("--key", help="ed25519 private key (PEM) to sign with")
+
+    st = sub.add_parser("store", help="talk to the Store Agent on the configured XMPP server")
+    st.add_argument("action", choices=["publish", "list", "info", "remove"])
+    st.add_argument("target", nargs="?", help="package file (publish) or package name")
+    st.add_argument("--owner")
+    st.add_argument("--password")
+    st.add_argument("--version")
+    st.add_argument("--robot-type")
+    st.add_argument("--store", default="store", help="the Store Agent's name or JID")
+
+    sub.add_parser("trace", help="show, export or render a message trace (rapp trace FILE)", add_help=False)
+    sub.add_parser("bench", help="run the benchmarks (rapp bench --help)", add_help=False)
+    sub.add_parser("doctor", help="check the installation and the configured XMPP server")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    if debug:
+        argv.remove("--debug")
+    try:
+        if argv and argv[0] == "trace":
+            return cmd_trace(argv[1:])
+        if argv and argv[0] == "bench":
+            from bench.runner import main as bench_main
+            return bench_main(argv[1:])
+        parser = build_parser()
+        a, rest = parser.parse_known_args(argv)
+        if a.command == "run":
+            return cmd_run(a, rest)
+        if rest:
+            parser.error(f"unrecognized arguments: {' '.join(rest)}")
+        return {"server": cmd_server, "package": cmd_package, "store": cmd_store,
+                "doctor": cmd_doctor}[a.command](a)
+    except KeyboardInterrupt:
+        return 130
+    except SystemExit:
+        raise
+    except Exception as e:  # noqa: BLE001 - one clear line for users; --debug for the traceback
+        if debug:
+            raise
+        print(f"rapp: error: {_one_line(e)}", file=sys.stderr)
+        return 1
+
+
+def _one_line(e: BaseException) -> str:
+    text = str(e).strip().splitlines()
+    return f"{type(e).__name__}: {text[0] if text else ''}".rstrip(": ") if not isinstance(e, CliError) else text[0]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
