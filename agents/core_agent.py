@@ -7,6 +7,7 @@ Behaviours and when they are active (see `active_behaviours()`):
   user-listener   while the Core supervises: user chat -> command queue
   command-server  while a Dynamic Agent supervises: its robot-API requests (fig. 5, s8/s9)
   busy-chat       while a Dynamic Agent supervises: answers the user, "stop" cancels the task
+  heartbeats      while a Dynamic Agent supervises: its liveness (a hang is noticed within 2 s)
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from pathlib import Path
 
 from spade.behaviour import CyclicBehaviour
 from spade.message import Message
+from spade.template import Template
 
 import ontology.robot  # noqa: F401 - registers the robot-API models the command server serves
 from behaviours import BehaviourHost
@@ -41,7 +43,7 @@ from .responder import Responder
 from .store_client import download_package
 
 log = logging.getLogger("rapp.core")
-HEARTBEAT_TIMEOUT_S = 2.0
+HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 2 s
 STOP_WORDS = {"stop", "cancel", "abort", "halt"}
 
 
@@ -79,6 +81,23 @@ class _UserChat(CyclicBehaviour):
             await self.on_text(msg.body.strip())
 
 
+class _HeartbeatMonitor(CyclicBehaviour):
+    """Takes the Dynamic Agent's one-way heartbeats (inform, ontology core)."""
+
+    def __init__(self, on_beat):
+        super().__init__()
+        self.on_beat = on_beat
+
+    async def run(self) -> None:
+        msg = await self.receive(timeout=0.5)
+        if msg is not None:
+            self.on_beat(bare(msg.sender))
+
+
+def _heartbeat_template() -> Template:
+    return Template(metadata={"ontology": C.ONTOLOGY, "performative": "inform", "action": "heartbeat"})
+
+
 class CoreAgent(RappAgent):
     def __init__(self, name: str, *, robot_id: str, robot_type: str, robot_api, owner: str,
                  platform: str, store: str, user: str, password: str, settings=None,
@@ -105,7 +124,7 @@ class CoreAgent(RappAgent):
     # -- setup and behaviours ------------------------------------------------------------
     async def setup(self) -> None:
         service = Responder(C.ONTOLOGY, {"task_status": self._on_status, "report": self._on_report,
-                                         "heartbeat": self._on_heartbeat, "get_state": self._on_get_state})
+                                         "get_state": self._on_get_state})
         self.activate("core-service", service, service.make_template())
         self.activate("user-listener", _UserChat(self.owner, self._command_heard))
         self.supervisor = BehaviourHost(build_core_fsm(), self.memory)
@@ -209,11 +228,18 @@ class CoreAgent(RappAgent):
         server = self._command_server()
         self.activate("command-server", server, server.make_template())
         self.activate("busy-chat", _UserChat(self.owner, self._busy_chat))
+        self.activate("heartbeats", _HeartbeatMonitor(self._beat), _heartbeat_template())
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
+
+    def _beat(self, sender: str) -> None:
+        d = self.dynamic
+        if d is not None and sender == bare(d.jid):
+            d.last_beat = time.monotonic()
 
     def _resume(self) -> None:
         self.deactivate("command-server")
         self.deactivate("busy-chat")
+        self.deactivate("heartbeats")
         self.activate("user-listener", _UserChat(self.owner, self._command_heard))
         self.record_structure("resume", robot=self.robot_id)
 
@@ -227,6 +253,8 @@ class CoreAgent(RappAgent):
             session.end_reason = reason
             session.ended.set()
             session.ready.set()
+            self.record_structure("ended", dynamic=session.jid, rapp=session.rapp, state=session.state,
+                                  reason=reason)
 
     # -- s8: serve until the Dynamic Agent ends --------------------------------------------
     async def serve_until_done(self) -> str:
@@ -240,7 +268,7 @@ class CoreAgent(RappAgent):
             elif now - start > limit:
                 self._end(session, f"time limit of {limit:g}s exceeded")
             try:
-                await asyncio.wait_for(session.ended.wait(), 0.25)
+                await asyncio.wait_for(session.ended.wait(), 0.1)
             except asyncio.TimeoutError:
                 pass
         return session.end_reason
@@ -304,12 +332,6 @@ class CoreAgent(RappAgent):
             d.ready.set()
         elif req.state in (C.TaskState.FINISHED, C.TaskState.ERROR):
             self._end(d, req.detail or req.state.value)
-        return Done()
-
-    async def _on_heartbeat(self, req: C.Heartbeat, ctx) -> Done:
-        d = self.dynamic
-        if d is not None and ctx.sender == bare(d.jid):
-            d.last_beat = time.monotonic()
         return Done()
 
     async def _on_report(self, req: C.Report, ctx) -> Done:

@@ -20,7 +20,7 @@ from .errors import RequestError
 from .runtime import load_entry_point
 
 log = logging.getLogger("rapp.dynamic")
-HEARTBEAT_S = 0.5
+HEARTBEAT_S = 0.25
 
 
 class _Heartbeat(PeriodicBehaviour):
@@ -51,9 +51,11 @@ class DynamicAgent(RappAgent):
     async def run_to_end(self) -> int:
         """Start, run the task to its end, report, stop. Returns the process exit code."""
         await self.start()
+        # import and build before Init: a slow import must not look like a hang to the Core
+        behaviour, failure = self._build_task()
         self.activate("heartbeat", _Heartbeat(period=HEARTBEAT_S))
         await self._status(C.TaskState.INIT)
-        outcome = await self._run_task()
+        outcome = Outcome(False, failure) if failure else await self._run_task(behaviour)
         if self.task is not None:
             try:
                 await self.task.cloud.stop()
@@ -64,13 +66,15 @@ class DynamicAgent(RappAgent):
         await self.stop()
         return 0 if outcome.ok else 1
 
-    async def _run_task(self) -> Outcome:
+    def _build_task(self):
         try:
             cls = load_entry_point(self.package_dir, self.manifest.entry_point)
             self.task = cls(self)
-            behaviour = self.task.build()
+            return self.task.build(), None
         except Exception as e:  # noqa: BLE001 - a broken RApp is reported, not crashed on
-            return Outcome(False, f"task could not be built: {type(e).__name__}: {e}")
+            return None, f"task could not be built: {type(e).__name__}: {e}"
+
+    async def _run_task(self, behaviour) -> Outcome:
         await self._status(C.TaskState.WORKING)
         host = BehaviourHost(behaviour, self.memory)
         self.activate("task", host)

@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .common import ECHO_APP, RobotSystem, child_env, log, median, metric, ratio
+from .common import ECHO_APP, RobotSystem, child_env, log, median, metric, percentile, ratio
 
 
 def floor_once(settings, name: str) -> float:
@@ -75,5 +75,5 @@ async def run(quick: bool = True, n: int | None = None) -> list[dict]:
             extra[key] = median(xs) * 1e3
     log(f"handoff median {med * 1e3:.0f} ms, floor {fmed * 1e3:.0f} ms; phases {extra}")
     return [metric("handoff", med * 1e3, "ms", fmed * 1e3, ratio(med, fmed), n,
-                   samples=[x * 1e3 for x in total], floor_p95=sorted(floors)[-1] * 1e3 if n < 20 else None,
+                   samples=[x * 1e3 for x in total], floor_p95=percentile(floors, 95) * 1e3,
                    goal_ratio=1.5, **extra)]

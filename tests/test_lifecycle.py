@@ -21,7 +21,7 @@ from scenarios.system import RappSystem
 
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
 SUPERVISING = {"supervisor", "core-service", "user-listener"}
-SERVING = {"supervisor", "core-service", "command-server", "busy-chat"}
+SERVING = {"supervisor", "core-service", "command-server", "busy-chat", "heartbeats"}
 
 
 class SpyAPI:
@@ -169,7 +169,7 @@ async def test_trace_shows_structure_changes_in_order(system):
     # Store serves the Core; a_dyn starts (Init) and takes over; Working; the Platform fetches
     # the cloud part and spawns a_cloud; it is destroyed; Finished; a_dyn destroyed; supervision back
     expected = ["download", "download", "spawn", "status", "handoff", "status", "download",
-                "cloud-spawn", "cloud-destroy", "status", "destroy", "resume"]
+                "cloud-spawn", "cloud-destroy", "status", "ended", "destroy", "resume"]
     assert order == expected, " ".join(order)
     calls = [r for r in trace if r["kind"] == "message" and r["dir"] == "send"
              and r["receiver"] == core and r["ontology"] == "robot"]

@@ -18,7 +18,7 @@ from typing import Callable
 import ontology.services as _models  # noqa: F401  (registers the actions)
 from ontology.registry import Action, Content, lookup
 
-from . import cognitive, email, hazard, information, interpretation, knowledge, localization, navigation, vision
+from . import cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation, vision
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
 
@@ -40,6 +40,8 @@ _IMPLS: dict[str, tuple[Callable, bool]] = {
     "compute_global_pose": (localization.compute_global_pose, False),
     "hazard_detection_door_check": (hazard.door_check, True),
     "hazard_detection_light_check": (hazard.light_check, False),
+    "home_upload_info": (home.upload_info, False),
+    "home_get_info": (home.get_info, False),
     "face_detection": (vision.face_detection, True),
     "human_detection": (vision.human_detection, True),
     "object_detection_learn_object": (vision.learn_object, True),

@@ -1,0 +1,41 @@
+"""Per-user home descriptions (map id, landmarks, hazard list) kept on the Platform."""
+from __future__ import annotations
+
+import threading
+
+from ontology.services.home import GetHomeInfo, HomeInfo, UploadHomeInfo
+
+from .context import ServiceContext, ServiceState
+from .errors import ServiceError
+
+
+class HomeStore:
+    """(user, home_id) -> HomeInfo, thread-safe."""
+
+    def __init__(self):
+        self._homes: dict[tuple[str, str], HomeInfo] = {}
+        self._lock = threading.Lock()
+
+    def put(self, user: str, info: HomeInfo) -> None:
+        with self._lock:
+            self._homes[(user, info.home_id)] = info
+
+    def get(self, user: str, home_id: str) -> HomeInfo | None:
+        with self._lock:
+            return self._homes.get((user, home_id))
+
+
+def homes(state: ServiceState) -> HomeStore:
+    return state.store("homes", HomeStore)
+
+
+def upload_info(req: UploadHomeInfo, ctx: ServiceContext) -> HomeInfo:
+    homes(ctx.state).put(ctx.user, req.info)
+    return req.info
+
+
+def get_info(req: GetHomeInfo, ctx: ServiceContext) -> HomeInfo:
+    info = homes(ctx.state).get(ctx.user, req.home_id)
+    if info is None:
+        raise ServiceError(f"no home {req.home_id!r} uploaded for user {ctx.user!r}", "unknown_home")
+    return info

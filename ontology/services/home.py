@@ -1,0 +1,51 @@
+"""Home description a user keeps on the Platform: the map id, the landmark (QR) map and the list of
+possible hazards with where to stand and where to look to check each one (hazard-detection RApp)."""
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from ..platform import ServiceRequest
+from ..registry import Content, action
+from .common import Pose2D
+from .localization import Landmark
+
+GROUP = "home"
+
+
+class DoorShape(Content):
+    """Hinge on the floor (m), closed direction hinge -> latch (deg) and leaf width (m)."""
+
+    hinge: list[float] = Field(min_length=2, max_length=2)
+    closed_yaw_deg: float
+    width_m: float = Field(default=0.9, gt=0)
+
+
+class HazardSpec(Content):
+    id: str
+    type: Literal["door", "lamp"]
+    stand: Pose2D  # where the robot stands to check it (global frame)
+    look_at: list[float] = Field(min_length=3, max_length=3)  # x, y, z of the point to look at
+    door: DoorShape | None = None
+
+
+class LandmarkSpec(Landmark):
+    size_m: float = Field(default=0.25, gt=0)  # QR symbol side without quiet zone
+
+
+class HomeInfo(Content):
+    home_id: str = Field(min_length=1, max_length=64)
+    map_id: str  # a map uploaded with path_planning_upload_map (or a shared one)
+    hazards: list[HazardSpec] = []
+    landmarks: dict[str, LandmarkSpec] = {}  # keyed by the text encoded in the QR code
+
+
+@action("home_upload_info", ontology="platform", reply=HomeInfo, group=GROUP)
+class UploadHomeInfo(ServiceRequest):
+    info: HomeInfo
+
+
+@action("home_get_info", ontology="platform", reply=HomeInfo, group=GROUP)
+class GetHomeInfo(ServiceRequest):
+    home_id: str = "home"

@@ -1,0 +1,1 @@
+"""Hazard-detection RApp: task (Dynamic Agent) and QR localization (Cloud Agent)."""

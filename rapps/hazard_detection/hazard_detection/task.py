@@ -1,0 +1,173 @@
+"""Hazard-detection task (paper 000 fig. 16): s1 get the home map and hazard list from the Platform,
+s2 self-localize (sub-FSM), then for every hazard s3/s4 plan a path from the pose to the hazard's
+standing pose, s5 follow it leg by leg re-localizing at the way-points (sub-FSM), look at the hazard
+and check it; s6 report the hazards to the Core; s7 finishing the FSM tells the Core we are done."""
+from __future__ import annotations
+
+import math
+
+from behaviours import FSM
+from rapps.sdk import Step, Task
+
+from .localize import Localizer
+from .models import ONTOLOGY
+
+PLAN_FOUND = 1
+
+
+def path_length(poses) -> float:
+    return sum(math.hypot(b.x - a.x, b.y - a.y) for a, b in zip(poses, poses[1:]))
+
+
+def first_leg(poses, leg: float) -> tuple[list, bool]:
+    """The path up to about `leg` metres (the whole path if little more is left); True if final."""
+    if path_length(poses) <= 1.5 * leg:
+        return list(poses), True
+    out, run = [poses[0]], 0.0
+    for a, b in zip(poses, poses[1:]):
+        out.append(b)
+        run += math.hypot(b.x - a.x, b.y - a.y)
+        if run >= leg:
+            break
+    return out, False
+
+
+class HazardTask(Task):
+    cloud_ontology = ONTOLOGY
+
+    def build(self) -> FSM:
+        self.localizer = Localizer(self)
+        fsm = FSM("hazard_detection", initial="s1_get_home")
+        fsm.add_state("s1_get_home", Step(self.get_home))
+        fsm.add_state("s2_localize", self.localizer.build("s2_localize"))
+        fsm.add_state("s3_next_hazard", Step(self.next_hazard))
+        fsm.add_state("s4_5_go_to_hazard", self.build_navigation())
+        fsm.add_state("s5_check_hazard", Step(self.check_hazard))
+        fsm.add_state("s5_unreachable", Step(self.unreachable))
+        fsm.add_state("s6_report", Step(self.report_hazards))
+        fsm.add_state("s7_done", Step(self.done), final=True)
+        fsm.add_transition("s1_get_home", "s2_localize")
+        fsm.add_transition("s2_localize", "s3_next_hazard")
+        fsm.add_transition("s3_next_hazard", "s4_5_go_to_hazard", when=lambda m, o: o.value)
+        fsm.add_transition("s3_next_hazard", "s6_report", when=lambda m, o: not o.value)
+        fsm.add_transition("s4_5_go_to_hazard", "s5_check_hazard")
+        fsm.add_transition("s4_5_go_to_hazard", "s5_unreachable", on_error=True)
+        fsm.add_transition("s5_check_hazard", "s3_next_hazard")
+        fsm.add_transition("s5_check_hazard", "s5_unreachable", on_error=True)
+        fsm.add_transition("s5_unreachable", "s3_next_hazard")
+        fsm.add_transition("s6_report", "s7_done")
+        return fsm
+
+    def build_navigation(self) -> FSM:
+        """s3/s4 plan from the current pose, s5 move one leg, re-localize; until the standing pose."""
+        nav = FSM("navigate", initial="n1_plan")
+        nav.add_state("n1_plan", Step(self.plan))
+        nav.add_state("n2_move_leg", Step(self.move_leg))
+        nav.add_state("n3_relocalize", self.localizer.build("n3_relocalize"))
+        nav.add_state("n4_arrived", Step(self.arrived), final=True)
+        nav.add_transition("n1_plan", "n2_move_leg")
+        nav.add_transition("n2_move_leg", "n3_relocalize")
+        nav.add_transition("n3_relocalize", "n4_arrived", when=lambda m, o: m["leg_final"])
+        nav.add_transition("n3_relocalize", "n1_plan", when=lambda m, o: not m["leg_final"])
+        return nav
+
+    # -- s1 ---------------------------------------------------------------------------------
+    async def get_home(self, memory):
+        info = await self.platform.home_get_info(home_id=str(self.params.get("home", "home")))
+        memory["home"] = info
+        memory["todo"] = list(info.hazards)
+        memory["results"] = []
+        await self.robot.say(text=f"Checking {len(info.hazards)} possible hazards.")
+
+    # -- s3 ---------------------------------------------------------------------------------
+    async def next_hazard(self, memory) -> bool:
+        if not memory["todo"]:
+            return False
+        pose = await self.robot.get_global_pose()
+        # nearest first (greedy tour)
+        memory["todo"].sort(key=lambda h: math.hypot(h.stand.x - pose.x, h.stand.y - pose.y))
+        memory["hazard"] = memory["todo"].pop(0)
+        memory["replans"] = 0
+        return True
+
+    # -- s4/s5 ------------------------------------------------------------------------------
+    async def plan(self, memory):
+        hazard = memory["hazard"]
+        pose = await self.robot.get_global_pose()
+        reply = await self.platform.path_planning_plan_path_2d(
+            map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
+            start=pose.model_dump(), goal=hazard.stand.model_dump())
+        if reply.plan_found != PLAN_FOUND:
+            raise RuntimeError(f"no path to {hazard.id}: {reply.reason}")
+        memory["replans"] += 1
+        if memory["replans"] > 40:
+            raise RuntimeError(f"could not reach {hazard.id}")
+        memory["leg"], memory["leg_final"] = first_leg(reply.path, float(self.params["leg_length_m"]))
+
+    async def move_leg(self, memory):
+        leg = memory["leg"]
+        await self.robot.move_along_path(poses=[p.model_dump() for p in leg], _timeout=900.0)
+
+    async def arrived(self, memory):
+        pass
+
+    def robot_type(self) -> str:
+        return self.localizer.head["yaw"] == "HeadYaw" and "nao" or "elektron"
+
+    # -- s5: look and check -----------------------------------------------------------------
+    async def check_hazard(self, memory):
+        h = memory["hazard"]
+        await self.robot.look_at_point(x=h.look_at[0], y=h.look_at[1], z=h.look_at[2])
+        res = self.params["check_resolution"] if h.type == "door" else "320x240"
+        image = await self.robot.capture_image(resolution=res)
+        if h.type == "door":
+            result = await self.check_door(h, image, res)
+        else:
+            reply = await self.platform.hazard_detection_light_check(image_b64=image.data_b64)
+            result = {"id": h.id, "type": "lamp", "state": "on" if reply.lamp_on else "off",
+                      "light_level": reply.light_level, "hazard": reply.lamp_on}
+        memory["results"].append(result)
+        await self.report(describe(result), hazard=result)
+
+    async def check_door(self, h, image, res) -> dict:
+        info = await self.robot.get_camera_info(resolution=res)
+        tf = await self.robot.get_transform(chain="camera", space="global")
+        K = info.K
+        geometry = dict(camera=dict(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2]), camera_to_world=tf.matrix,
+                        hinge=h.door.hinge, closed_yaw_deg=h.door.closed_yaw_deg, width_m=h.door.width_m)
+        reply = await self.platform.hazard_detection_door_check(image_b64=image.data_b64, geometry=geometry)
+        is_open = reply.door_angle > float(self.params["door_open_deg"])
+        return {"id": h.id, "type": "door", "state": "open" if is_open else "closed",
+                "angle_deg": reply.door_angle, "method": reply.method, "hazard": is_open}
+
+    async def unreachable(self, memory):
+        h = memory["hazard"]
+        reason = memory.get("error", "")
+        result = {"id": h.id, "type": h.type, "state": "unknown", "hazard": None}
+        memory["results"].append(result)
+        await self.report(describe(result) + (f" {reason}" if reason else ""), hazard=result)
+
+    # -- s6/s7 ------------------------------------------------------------------------------
+    async def report_hazards(self, memory):
+        results = memory["results"]
+        found = [r for r in results if r["hazard"]]
+        if found:
+            text = "Hazards found: " + "; ".join(
+                f"the {r['type']} {r['id']} is {r['state']}" for r in found) + "."
+        else:
+            text = f"No hazards: all {len(results)} checked doors are closed and lamps off."
+        await self.report(text, hazards=results, localizations=memory.get("localizations", []))
+
+    async def done(self, memory):
+        try:
+            await self.robot.say(text="Hazard check finished.")
+        except Exception:  # noqa: BLE001 - a robot without speech
+            pass
+
+
+def describe(r: dict) -> str:
+    """One line per hazard; the scenario parses it: 'Hazard <id> (<type>): <state>[, <n> degrees]'."""
+    text = f"Hazard {r['id']} ({r['type']}): {r['state']}"
+    if r["type"] == "door" and r.get("angle_deg") is not None:
+        text += f", {r['angle_deg']:.1f} degrees"
+    return text + "."

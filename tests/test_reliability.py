@@ -1,0 +1,89 @@
+"""Dynamic Agent faults: exception, hang, busy loop, SIGKILL, no end (time limit). In every case
+the Core notices within 2 s, stops the robot, destroys the Dynamic Agent, tells the user and
+resumes supervision; the next command works."""
+from __future__ import annotations
+
+import asyncio
+import os
+
+import pytest
+
+from agents.tracing import read_trace
+from robots import RobotAPI, World
+from scenarios.system import RappSystem
+
+from .test_lifecycle import FIXTURE, SUPERVISING, run_command, state, variant, wait_until
+
+FAULTS = {  # keyword -> (params, time limit)
+    "raiseecho": ({"behaviour": "raise"}, 60),
+    "hangecho": ({"behaviour": "hang"}, 60),
+    "busyecho": ({"behaviour": "busy"}, 60),
+    "killecho": ({"behaviour": "exit"}, 60),
+    "silentecho": ({"behaviour": "silent"}, 3),
+}
+
+
+@pytest.fixture(scope="module")
+async def system(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("reliability")
+    world = World.from_file("small", seed=5)
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+        await system.publish(FIXTURE)
+        for kw, (params, limit) in FAULTS.items():
+            src = variant(workdir, kw.replace("echo", "-echo"), kw, **params)
+            manifest = src / "manifest.yaml"
+            manifest.write_text(manifest.read_text().replace("time_limit_s: 60", f"time_limit_s: {limit}"))
+            await system.publish(src)
+        system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
+        await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
+        yield system
+    world.close()
+
+
+def _records(system, rapp, kind, event=None):
+    return [r for r in read_trace(system.settings.trace_file)
+            if r["kind"] == kind and (event is None or r.get("event") == event)
+            and (r.get("rapp") == rapp or rapp in r.get("agent", ""))]
+
+
+@pytest.mark.parametrize("keyword,expect", [
+    ("raiseecho", "deliberate failure"),
+    ("hangecho", "no heartbeat"),
+    ("busyecho", "no heartbeat"),
+    ("killecho", "exited with code -9"),
+    ("silentecho", "time limit of 3s exceeded"),
+])
+async def test_fault_is_noticed_cleaned_up_and_reported(system, keyword, expect):
+    rapp = keyword.replace("echo", "-echo")
+    reply = await run_command(system, keyword, f"{rapp} ended with a problem", timeout=30)
+    assert expect in reply
+    core = system.handle.core
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING and state(core) == "s3_listen")
+    # noticed within 2 s of the fault (for the time limit: of the limit running out)
+    ended = _records(system, rapp, "structure", "ended")[-1]
+    if keyword == "silentecho":
+        spawn = _records(system, rapp, "structure", "spawn")[-1]
+        assert ended["t"] - spawn["t"] < 3 + 2.0
+    else:
+        fault = [r for r in read_trace(system.settings.trace_file) if r["kind"] == "state"
+                 and r["state"] == "misbehave" and rapp in r["agent"]][-1]
+        assert ended["t"] - fault["t"] < 2.0, ended["t"] - fault["t"]
+    # the process is gone, the robot was stopped, the next command works
+    spawn = _records(system, rapp, "structure", "spawn")[-1]
+    with pytest.raises(ProcessLookupError):
+        os.kill(spawn["pid"], 0)
+    await run_command(system, "echo", "echo-app finished")
+
+
+async def test_dynamic_process_has_resource_limits(system):
+    core = system.handle.core
+    task = asyncio.create_task(run_command(system, "silentecho", "silent-echo ended with a problem", timeout=30))
+    await wait_until(lambda: core.dynamic is not None and core.dynamic.process is not None
+                     and "command-server" in core.active_behaviours())
+    pid = core.dynamic.process.pid
+    limits = open(f"/proc/{pid}/limits").read()
+    cpu = next(l for l in limits.splitlines() if l.startswith("Max cpu time"))
+    mem = next(l for l in limits.splitlines() if l.startswith("Max address space"))
+    assert "unlimited" not in cpu and "unlimited" not in mem
+    assert os.readlink(f"/proc/{pid}/cwd") == str(core.dynamic.workdir)
+    await task
