@@ -8,6 +8,11 @@ Behaviours and when they are active (see `active_behaviours()`):
   command-server  while a Dynamic Agent supervises: its robot-API requests (fig. 5, s8/s9)
   busy-chat       while a Dynamic Agent supervises: answers the user, "stop" cancels the task
   heartbeats      while a Dynamic Agent supervises: its liveness (a hang is noticed within 2 s)
+  safety          while a Dynamic Agent supervises: an obstacle closer than `safety_distance`
+                  latches the emergency stop (paper 003); nothing moves until "resume"
+
+Rights: robot commands are executed only for the current Dynamic Agent, only in the robot-API
+groups its manifest declares, and each takes the lock of its device (agents/locks.py).
 """
 from __future__ import annotations
 
@@ -21,7 +26,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from spade.behaviour import CyclicBehaviour
+from spade.behaviour import CyclicBehaviour, PeriodicBehaviour
 from spade.message import Message
 from spade.template import Template
 
@@ -36,7 +41,8 @@ from rapps.package import Package, read_package, unpack_package
 
 from .base import RappAgent
 from .core_fsm import build_core_fsm
-from .errors import Refusal, RequestError
+from .errors import Failure, Refusal, RequestError
+from .locks import ACTION_DEVICE, LockError, ResourceLocks
 from .messages import AclInfo, bare
 from .process import AgentProcess, Limits
 from .responder import Responder
@@ -44,7 +50,11 @@ from .store_client import download_package
 
 log = logging.getLogger("rapp.core")
 HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 2 s
-STOP_WORDS = {"stop", "cancel", "abort", "halt"}
+STOP_WORDS = {"stop", "cancel", "abort", "halt", "emergency stop"}
+RESUME_WORDS = {"resume", "continue", "go on"}
+# what must not move while the emergency stop is latched
+MOTION_ACTIONS = {"move_to", "move_vel", "move_along_path", "look_at_point", "move_joint",
+                  "take_predefined_posture", "rest"}
 
 
 @dataclass
@@ -98,11 +108,29 @@ def _heartbeat_template() -> Template:
     return Template(metadata={"ontology": C.ONTOLOGY, "performative": "inform", "action": "heartbeat"})
 
 
+class _SafetyMonitor(PeriodicBehaviour):
+    """Reads the range sensors; an obstacle closer than the safety distance latches the e-stop."""
+
+    def __init__(self, core: "CoreAgent", period: float):
+        super().__init__(period=period)
+        self.core = core
+
+    async def run(self) -> None:
+        core = self.core
+        if core.estop_reason is not None or core.locks.holder("base") is None:
+            return  # latched already, or the base is not being driven
+        nearest = await core.nearest_obstacle()
+        if nearest is not None and nearest < core.safety_distance:
+            await core.emergency_stop(f"obstacle ahead within {core.safety_distance:.2f} m of the "
+                                      f"range sensors' minimum")
+
+
 class CoreAgent(RappAgent):
     def __init__(self, name: str, *, robot_id: str, robot_type: str, robot_api, owner: str,
                  platform: str, store: str, user: str, password: str, settings=None,
                  workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
-                 limits: Limits = Limits(), say_reports: bool = True):
+                 limits: Limits = Limits(), say_reports: bool = True,
+                 safety_distance: float | None = 0.10, safety_period: float = 0.2):
         super().__init__(name, settings)
         self.robot_id, self.robot_type, self.robot = robot_id, robot_type, robot_api
         self.owner = self.settings.jid(owner)
@@ -120,6 +148,9 @@ class CoreAgent(RappAgent):
         self.told: list[str] = []  # everything said to the user, in order
         self.supervisor: BehaviourHost | None = None
         self._serial = itertools.count(1)
+        self.locks = ResourceLocks()
+        self.estop_reason: str | None = None
+        self.safety_distance, self.safety_period = safety_distance, safety_period
 
     # -- setup and behaviours ------------------------------------------------------------
     async def setup(self) -> None:
@@ -136,7 +167,13 @@ class CoreAgent(RappAgent):
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
-        await self.commands.put(text)
+        word = text.lower().strip(" .!")
+        if word in STOP_WORDS:
+            await self.emergency_stop("stopped by the user")
+        elif word in RESUME_WORDS:
+            await self.resume_motion()
+        else:
+            await self.commands.put(text)
 
     async def next_command(self) -> str:
         return await self.commands.get()
@@ -152,14 +189,24 @@ class CoreAgent(RappAgent):
         except RequestError as e:
             if e.code != "duplicate":
                 raise
-        login = await self.request(self.platform, P.Login(user=self.user, password=self.password))
-        self.token = login.token
+        await self._login()
         await self.request(self.platform, P.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
                                                           core_jid=self.address))
         await self.request(self.store, S.RegisterOwner(owner=self.user, password=self.password))
         await self.request(self.store, S.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
                                                        owner=self.user))
         self.record_structure("register", robot=self.robot_id, platform=self.platform, store=self.store)
+
+    async def _login(self) -> None:
+        login = await self.request(self.platform, P.Login(user=self.user, password=self.password,
+                                                          ttl_s=24 * 3600))
+        self.token, self.token_expires = login.token, login.expires_at
+
+    async def fresh_token(self) -> str:
+        """The Core's token, renewed when it has less than an hour left."""
+        if time.time() > getattr(self, "token_expires", 0) - 3600:
+            await self._login()
+        return self.token
 
     def set_catalogue(self, packages: list[S.PackageSummary]) -> None:
         self.catalogue = list(packages)
@@ -177,7 +224,7 @@ class CoreAgent(RappAgent):
         model = lookup(P.ONTOLOGY, "interpret_command")
         rapps = [{"name": p.name, "keywords": p.keywords, "phrases": p.phrases,
                   "robot_types": p.robot_types} for p in self.catalogue]
-        reply = await self.request(self.platform, model(token=self.token, text=text,
+        reply = await self.request(self.platform, model(token=await self.fresh_token(), text=text,
                                                         robot_type=self.robot_type, rapps=rapps))
         return reply.rapp, dict(reply.parameters)
 
@@ -205,8 +252,10 @@ class CoreAgent(RappAgent):
         session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
                                  manifest=m, workdir=workdir)
         self.dynamic = session
+        app_token = await self.request(self.platform, P.IssueAppToken(
+            token=await self.fresh_token(), rapp=m.name, services=m.services, ttl_s=max(60.0, m.time_limit_s + 60)))
         spec = {"kind": "dynamic", "name": name, "package_dir": str(pkg_dir), "core": self.address,
-                "platform": self.platform, "token": self.token, "params": params}
+                "platform": self.platform, "token": app_token.token, "params": params}
         (workdir / "spec.json").write_text(__import__("json").dumps(spec))
         session.process = AgentProcess(name, "agents.runtime", [str(workdir / "spec.json")], workdir,
                                        env=self.settings.to_env(), limits=self.limits)
@@ -229,6 +278,8 @@ class CoreAgent(RappAgent):
         self.activate("command-server", server, server.make_template())
         self.activate("busy-chat", _UserChat(self.owner, self._busy_chat))
         self.activate("heartbeats", _HeartbeatMonitor(self._beat), _heartbeat_template())
+        if self.safety_distance:
+            self.activate("safety", _SafetyMonitor(self, period=self.safety_period))
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
 
     def _beat(self, sender: str) -> None:
@@ -240,6 +291,7 @@ class CoreAgent(RappAgent):
         self.deactivate("command-server")
         self.deactivate("busy-chat")
         self.deactivate("heartbeats")
+        self.deactivate("safety")
         self.activate("user-listener", _UserChat(self.owner, self._command_heard))
         self.record_structure("resume", robot=self.robot_id)
 
@@ -282,6 +334,7 @@ class CoreAgent(RappAgent):
         if "command-server" in self.active_behaviours():
             self.deactivate("command-server")  # no more robot commands from it, from now on
         await self._stop_robot()
+        self.locks.free_all(session.jid)
         if session.process is not None:
             await session.process.stop(grace=1.0)
         try:
@@ -303,6 +356,24 @@ class CoreAgent(RappAgent):
         if "user-listener" not in self.active_behaviours():
             self._resume()
 
+    async def nearest_obstacle(self) -> float | None:
+        """How far the nearest obstacle ahead is beyond what the sensors can still measure
+        (sonar reading or laser ray within ±30° minus the sensor's minimum range); None when the
+        robot has neither sensor."""
+        margins = []
+        for req in (ontology.robot.GetSonars(), ontology.robot.GetLaserScan()):
+            try:
+                reply = await self.robot.handle(req)
+            except Exception:  # noqa: BLE001 - a robot without this sensor
+                continue
+            if isinstance(reply, ontology.robot.SonarReading):
+                margins += [reply.left - reply.range_min, reply.right - reply.range_min]
+            else:
+                for i, r in enumerate(reply.ranges):
+                    if abs(reply.angle_min + i * reply.angle_increment) <= 0.52:
+                        margins.append(r - reply.range_min)
+        return min(margins) if margins else None
+
     async def _stop_robot(self) -> None:
         try:
             await self.robot.handle(ontology.robot.MoveStop())
@@ -314,9 +385,54 @@ class CoreAgent(RappAgent):
         d = self.dynamic
         if d is None or ctx.sender != bare(d.jid) or d.ended.is_set():
             raise Refusal(f"{ctx.sender} is not the current supervisor of {self.robot_id}", "not-supervisor")
+        if req.group != "resources" and req.group not in d.manifest.robot_api:
+            raise Refusal(f"{d.rapp} did not declare the robot-API group {req.group!r} "
+                          f"(needed by {req.action_name}) in its manifest", "permission")
+        if self.estop_reason and req.action_name in MOTION_ACTIONS:
+            raise Refusal(f"emergency stop ({self.estop_reason}): nothing moves until the user says "
+                          f"\"resume\"", "estop")
 
     async def _robot_call(self, req, ctx):
-        return await self.robot.handle(req)
+        if req.action_name == "lock_resource":
+            return await self._lock(req, ctx.sender)
+        if req.action_name == "free_resource":
+            return self._free(req, ctx.sender)
+        try:
+            async with self.locks.hold(ACTION_DEVICE.get(req.action_name), ctx.sender, timeout=60.0):
+                return await self.robot.handle(req)
+        except LockError as e:
+            raise Refusal(str(e), "locked") from None
+
+    async def _lock(self, req, owner: str):
+        try:
+            ok = (await self.locks.lock(req.resource, owner, req.timeout_s) if req.wait
+                  else self.locks.try_lock(req.resource, owner))
+        except LockError as e:
+            raise Refusal(str(e), "unknown-resource") from None
+        return ontology.robot.LockState(resource=req.resource, held=ok, holder=self.locks.holder(req.resource))
+
+    def _free(self, req, owner: str):
+        try:
+            self.locks.free(req.resource, owner)
+        except LockError as e:
+            raise Failure(str(e), "not-holder") from None
+        return ontology.robot.LockState(resource=req.resource, held=False, holder=self.locks.holder(req.resource))
+
+    # -- emergency stop (paper 003) -----------------------------------------------------------
+    async def emergency_stop(self, reason: str) -> None:
+        """Halt every effector now (bypassing queued commands) and latch until resumed."""
+        first = self.estop_reason is None
+        self.estop_reason = reason
+        await self._stop_robot()
+        if first:
+            self.record_structure("estop", robot=self.robot_id, reason=reason)
+            await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again.")
+
+    async def resume_motion(self) -> None:
+        if self.estop_reason is not None:
+            self.estop_reason = None
+            self.record_structure("estop-released", robot=self.robot_id)
+            await self.tell_user("Resumed: I may move again.")
 
     def _from_dynamic(self, ctx) -> DynamicSession:
         d = self.dynamic
@@ -357,8 +473,13 @@ class CoreAgent(RappAgent):
 
     async def _busy_chat(self, text: str) -> None:
         d = self.dynamic
-        if text.lower().strip(" .!") in STOP_WORDS and d is not None:
-            await self._stop_robot()
-            self._end(d, "stopped by the user")
+        word = text.lower().strip(" .!")
+        if word in STOP_WORDS:
+            if d is not None:
+                self._end(d, "stopped by the user")  # the reason, before the task's own failure
+            await self.emergency_stop("stopped by the user")
+            return
+        if word in RESUME_WORDS:
+            await self.resume_motion()
             return
         await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}; say \"stop\" to cancel it.")

@@ -31,8 +31,8 @@ from .store_client import download_package
 from .store_repository import _check_password, hash_password
 
 log = logging.getLogger("rapp.platform")
-CONTROL = {"register_user", "login", "list_services", "register_robot", "start_cloud_agent",
-           "stop_cloud_agent", "release_cloud_agents", "cloud_ready", "ping"}
+# what every RApp token may call besides the services its manifest declares
+ALWAYS_ALLOWED = {"start_cloud_agent", "stop_cloud_agent", "ping", "list_services"}
 
 
 @dataclass
@@ -62,6 +62,7 @@ class PlatformAgent(RappAgent):
         self.state = services_state or ServiceState()
         self.users: dict[str, str] = {}  # user -> password hash
         self.tokens: dict[str, tuple[str, float]] = {}  # token -> (user, expires_at)
+        self.scopes: dict[str, tuple[str, frozenset[str]]] = {}  # app token -> (rapp, services)
         self.robots: dict[str, P.RegisterRobot] = {}
         self.clouds: dict[str, CloudSession] = {}
         self.max_pending, self.pending = max_pending, 0
@@ -74,7 +75,7 @@ class PlatformAgent(RappAgent):
                     "list_services": self.list_services, "register_robot": self.register_robot,
                     "start_cloud_agent": self.start_cloud, "stop_cloud_agent": self.stop_cloud,
                     "release_cloud_agents": self.release_clouds, "cloud_ready": self.cloud_ready,
-                    "ping": self.ping}
+                    "ping": self.ping, "issue_app_token": self.issue_app_token}
         for name in self.services:
             handlers[name] = self.run_service
         responder = Responder(P.ONTOLOGY, handlers, check=self._check_token)
@@ -90,6 +91,14 @@ class PlatformAgent(RappAgent):
         if not isinstance(req, P.ServiceRequest):
             return
         ctx.user = self.user_of(req.token)
+        scope = self.scopes.get(req.token)
+        if scope is not None:
+            rapp, allowed = scope
+            if req.action_name == "issue_app_token":
+                raise Refusal("a RApp token cannot issue tokens", "permission")
+            if req.action_name not in allowed and req.action_name not in ALWAYS_ALLOWED:
+                raise Refusal(f"{rapp} did not declare the service {req.action_name!r} in its manifest",
+                              "permission")
 
     def user_of(self, token: str) -> str:
         if not token:
@@ -100,6 +109,7 @@ class PlatformAgent(RappAgent):
         user, expires = entry
         if time.time() > expires:
             self.tokens.pop(token, None)
+            self.scopes.pop(token, None)
             raise Refusal("token expired: log in again", "expired-token")
         return user
 
@@ -117,6 +127,16 @@ class PlatformAgent(RappAgent):
         expires = time.time() + req.ttl_s
         self.tokens[token] = (req.user, expires)
         return P.TokenReply(token=token, expires_at=expires, user=req.user)
+
+    async def issue_app_token(self, req: P.IssueAppToken, ctx) -> P.TokenReply:
+        unknown = sorted(set(req.services) - set(actions(P.ONTOLOGY)))
+        if unknown:
+            raise Refusal(f"{req.rapp} declares unknown services: {', '.join(unknown)}", "unknown-service")
+        token = secrets.token_urlsafe(24)
+        expires = min(time.time() + req.ttl_s, self.tokens[req.token][1])
+        self.tokens[token] = (ctx.user, expires)
+        self.scopes[token] = (req.rapp, frozenset(req.services))
+        return P.TokenReply(token=token, expires_at=expires, user=ctx.user)
 
     async def register_robot(self, req: P.RegisterRobot, ctx) -> Done:
         self.robots[req.robot_id] = req

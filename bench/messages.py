@@ -91,7 +91,7 @@ async def run(quick: bool = True, count: int | None = None, rounds: int | None =
     from xmpp_server import EmbeddedServer
 
     quiet_logs()
-    count = count or (2000 if quick else 10000)
+    count = count or (2000 if quick else 5000)
     rounds = rounds or (3 if quick else 5)
     # the floor carries the same body as the ACL message (its JSON content), without the metadata
     body = make_message("x@localhost", C.Heartbeat(seq=1), performative=Performative.INFORM,

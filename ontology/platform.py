@@ -48,6 +48,16 @@ class ServiceList(Content):
     services: list[ServiceInfo]
 
 
+@action("issue_app_token", ontology=ONTOLOGY, reply=TokenReply, group="users")
+class IssueAppToken(ServiceRequest):
+    """A token for one RApp run, limited to the services its manifest declares (the Core asks
+    for it before starting the Dynamic Agent and hands it over instead of its own)."""
+
+    rapp: str
+    services: list[str]
+    ttl_s: float = Field(default=3600.0, gt=0, le=24 * 3600)
+
+
 @action("list_services", ontology=ONTOLOGY, reply=ServiceList, group="discovery")
 class ListServices(Action):
     in_group: str | None = None

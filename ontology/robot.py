@@ -220,4 +220,26 @@ class GetLaserScan(Action):
     pass
 
 
-ROBOT_ACTIONS: dict[str, type[Action]] = actions(ONTOLOGY)
+class LockState(Content):
+    resource: str
+    held: bool
+    holder: str | None = None
+
+
+@action("lock_resource", ontology=ONTOLOGY, reply=LockState, group="resources")
+class LockResource(Action):
+    """Paper 003: lock (wait up to timeout_s) or try-lock (wait=False) a device: base, head,
+    joints, camera, speaker, microphone. Served by the Core, not by the robot."""
+
+    resource: str
+    wait: bool = True
+    timeout_s: float = Field(default=10.0, ge=0, le=600)
+
+
+@action("free_resource", ontology=ONTOLOGY, reply=LockState, group="resources")
+class FreeResource(Action):
+    resource: str
+
+
+ROBOT_ACTIONS: dict[str, type[Action]] = {
+    n: m for n, m in actions(ONTOLOGY).items() if m.group != "resources"}

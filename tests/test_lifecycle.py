@@ -21,7 +21,7 @@ from scenarios.system import RappSystem
 
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
 SUPERVISING = {"supervisor", "core-service", "user-listener"}
-SERVING = {"supervisor", "core-service", "command-server", "busy-chat", "heartbeats"}
+SERVING = {"supervisor", "core-service", "command-server", "busy-chat", "heartbeats", "safety"}
 
 
 class SpyAPI:

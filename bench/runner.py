@@ -1,0 +1,196 @@
+"""`python -m bench` / `rapp bench`: run the benchmarks, print a table, write JSON.
+
+    python -m bench [--quick] [--json FILE] [--only NAME ...]
+
+Every benchmark measures the project and a floor (or peer) side by side in the same run and reports
+their ratio. Each benchmark runs in a child process of its own (a fresh XMPP server, event loop and
+PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick finishes in under
+3 minutes on a 2-core machine. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf
+(metric names such as robot_rtt or plan_astar select their benchmark).
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import datetime
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .common import ROOT, log, metric, table
+
+BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf"]
+ALIASES = {"robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
+           "fleet_service_p95": "fleet", "sim": "sim_rtf"}
+
+
+# -- the benchmarks (each returns a list of metric dicts) ------------------------------------
+def bench_handoff(quick: bool, tiny: bool) -> list[dict]:
+    from . import handoff
+    return asyncio.run(handoff.run(quick, n=1 if tiny else None))
+
+
+def bench_rtt(quick: bool, tiny: bool) -> list[dict]:
+    from . import rtt
+    return asyncio.run(rtt.run(quick, calls=20 if tiny else None))
+
+
+def bench_messages(quick: bool, tiny: bool) -> list[dict]:
+    from . import messages
+    return asyncio.run(messages.run(quick, count=200 if tiny else None, rounds=1 if tiny else None))
+
+
+def bench_fleet(quick: bool, tiny: bool) -> list[dict]:
+    from . import fleet
+    return asyncio.run(fleet.run(quick, sizes=[1, 2] if tiny else None, calls=5 if tiny else 20))
+
+
+def bench_planning(quick: bool, tiny: bool) -> list[dict]:
+    import contextlib
+    import io
+
+    from . import planning
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        lines = planning.run(repeats=1 if tiny else 2 if quick else 5,
+                             ompl_time=0.5 if quick else 1.0, json_only=True)
+    peers = {"plan_scipy_dijkstra", "plan_ompl_rrtconnect"}
+    fastest = min(ln["median"] for ln in lines if ln["name"] in peers)
+    out = []
+    for ln in lines:
+        out.append(metric(ln["name"], ln["median"], "ms", fastest, ln["ratio"], ln["n"],
+                          samples=ln["values"], length_ratio=ln["length_ratio"],
+                          peer=ln["name"] in peers, floor_meaning="median of the fastest peer "
+                          "(scipy csgraph Dijkstra, OMPL RRTConnect)"))
+    return out
+
+
+def bench_sim_rtf(quick: bool, tiny: bool) -> list[dict]:
+    from . import sim_rtf
+
+    sim_s = 0.5 if tiny else 2.0 if quick else 5.0
+    out = []
+    for n in ([1] if tiny else [1, 2, 4]):
+        floor = sim_rtf.floor_run("house", n, sim_s)
+        rtf = asyncio.run(sim_rtf.api_run("house", n, sim_s))
+        # higher is better: ratio = floor / value (> 1: slower than bare pybullet)
+        out.append(metric(f"sim_rtf_{n}", rtf, "x realtime", floor, floor / rtf, 1, robots=n,
+                          sim_seconds=sim_s, goal=1.0, goal_met=rtf >= 1.0,
+                          ratio_meaning="floor/value (>1: slower than floor)"))
+        log(f"sim_rtf {n} robot(s): rtf {rtf:.2f}, floor {floor:.2f}")
+    return out
+
+
+def _child(name: str, quick: bool, tiny: bool, out: str) -> int:
+    fn = globals()[f"bench_{name}"]
+    try:
+        res = fn(quick, tiny)
+    except Exception as e:  # noqa: BLE001 - a failing benchmark is reported, the others still run
+        import traceback
+        traceback.print_exc()
+        res = [metric(name, None, "", None, None, 0, error=f"{type(e).__name__}: {e}"[:500])]
+    Path(out).write_text(json.dumps(res))
+    return 0
+
+
+def run_one(name: str, quick: bool, tiny: bool, timeout: float) -> list[dict]:
+    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as f:
+        out = f.name
+    cmd = [sys.executable, "-m", "bench.runner", "--child", name, "--out", out]
+    cmd += ["--quick"] if quick else []
+    cmd += ["--tiny"] if tiny else []
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, env=env, cwd=ROOT, timeout=timeout, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+        try:
+            res = json.loads(Path(out).read_text() or "[]")
+        except (OSError, json.JSONDecodeError):
+            res = []
+        if not res:
+            res = [metric(name, None, "", None, None, 0, error=f"exit {proc.returncode}: {proc.stderr[-500:]}")]
+        for line in proc.stderr.splitlines():
+            if line.startswith("[bench]") or "Error" in line:
+                print(line, file=sys.stderr)
+    except subprocess.TimeoutExpired:
+        res = [metric(name, None, "", None, None, 0, error=f"timed out after {timeout:.0f} s")]
+    finally:
+        Path(out).unlink(missing_ok=True)
+    log(f"{name} done in {time.perf_counter() - t0:.1f} s")
+    for m in res:
+        m.setdefault("bench", name)
+    return res
+
+
+def machine() -> dict:
+    return {"date": datetime.datetime.now().isoformat(timespec="seconds"), "nproc": os.cpu_count(),
+            "python": sys.version.split()[0], "platform": platform.platform(),
+            "cpu": _cpu_model()}
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
+def select(only: list[str] | None) -> list[str]:
+    if not only:
+        return list(BENCHMARKS)
+    chosen = []
+    for name in only:
+        b = ALIASES.get(name, name)
+        if b.startswith("plan_"):
+            b = "planning"
+        if b.startswith("sim_rtf"):
+            b = "sim_rtf"
+        if b not in BENCHMARKS:
+            raise SystemExit(f"unknown benchmark {name!r} (known: {', '.join(BENCHMARKS)})")
+        if b not in chosen:
+            chosen.append(b)
+    return chosen
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes; under 3 minutes in total")
+    ap.add_argument("--json", metavar="FILE", help="write the results as JSON to FILE")
+    ap.add_argument("--only", nargs="+", metavar="NAME", help="run only these benchmarks")
+    ap.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)  # smoke tests
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.child:
+        return _child(a.child, a.quick, a.tiny, a.out)
+    names = select(a.only)
+    t0 = time.perf_counter()
+    results = []
+    for name in names:
+        results.extend(run_one(name, a.quick, a.tiny, timeout=900 if not a.quick else 170))
+    elapsed = time.perf_counter() - t0
+    print(table(results))
+    errors = [m for m in results if m.get("error")]
+    for m in errors:
+        print(f"ERROR {m['name']}: {m['error']}")
+    print(f"{len(results)} metrics from {len(names)} benchmarks in {elapsed:.0f} s "
+          f"({'quick' if a.quick else 'full'} mode)")
+    if a.json:
+        doc = {"mode": "tiny" if a.tiny else "quick" if a.quick else "full", "elapsed_s": round(elapsed, 1),
+               "machine": machine(), "metrics": results}
+        Path(a.json).write_text(json.dumps(doc, indent=1))
+    return 1 if errors else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

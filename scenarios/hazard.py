@@ -1,0 +1,156 @@
+"""The paper's experiment (paper 001 sec. 4, paper 000 fig. 16): a robot owner asks by chat to check
+the hazards; the Core downloads the hazard-detection RApp from the Store, its Dynamic Agent (and its
+Cloud Agent) walk the robot to each door and lamp and report; the run is scored against ground truth.
+
+    result = await run_hazard_detection("nao", seed=1, house="house", out_dir="out/")
+    python -m scenarios.hazard --robot elektron --seed 3 --house small --json result.json
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import re
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from agents.services.context import ServiceState
+from robots import OdometryNoise, RobotAPI, World
+
+from .home_setup import DOOR_OPEN_DEG, home_description, home_map, hazard_overrides, upload_home
+from .plots import plot_hazard_run
+from .recorder import RecordingAPI
+from .system import RappSystem
+
+RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
+COMMAND = "check the hazards"
+REPORT_RE = re.compile(r"Hazard (\S+) \((door|lamp)\): (\w+)(?:, ([\d.]+) degrees)?")
+
+
+async def wait_until(pred, timeout: float = 30.0, what: str = "condition") -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not pred():
+        if loop.time() > deadline:
+            raise TimeoutError(f"{what} not reached within {timeout:g}s")
+        await asyncio.sleep(0.05)
+
+
+def core_listening(core) -> bool:
+    sup = core.supervisor
+    return bool(core.vocabulary) and sup is not None and sup.behaviour.current == "s3_listen"
+
+
+def parse_reports(texts: list[str]) -> dict[str, dict]:
+    """Per hazard, what the user was told: state and (doors) the estimated angle."""
+    out = {}
+    for text in texts:
+        m = REPORT_RE.search(text)
+        if m:
+            out[m.group(1)] = {"state": m.group(3), "angle": float(m.group(4)) if m.group(4) else None}
+    return out
+
+
+def score_hazards(specs, truth, reports: dict) -> list[dict]:
+    rows = []
+    for spec in specs:
+        rep = reports.get(spec.id, {})
+        if spec.type == "door":
+            angle = truth.doors[spec.id]
+            row = {"id": spec.id, "type": "door", "true_state": "open" if angle > DOOR_OPEN_DEG else "closed",
+                   "reported_state": rep.get("state"), "true_angle": angle, "estimated_angle": rep.get("angle")}
+        else:
+            row = {"id": spec.id, "type": "lamp", "true_state": "on" if truth.lamps[spec.id] else "off",
+                   "reported_state": rep.get("state")}
+        rows.append(row)
+    return rows
+
+
+async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "house", json_path=None,
+                               out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0) -> dict:
+    out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
+    out.mkdir(parents=True, exist_ok=True)
+    world = World.from_file(house, seed=seed, overrides=hazard_overrides(house, seed), rtf=rtf)
+    try:
+        recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
+                                frames_dir=out / "frames")
+        user = f"owner-{robot}-{seed}"
+        info, png, yaml_text = home_description(world, house, out)
+        state = ServiceState(work_dir=out / "services")
+        upload_home(state, user, info, png, yaml_text)
+        trace = out / "trace.jsonl"
+        trace.unlink(missing_ok=True)
+        async with RappSystem(out / "system", settings=settings, trace_file=trace,
+                              platform_kw={"services_state": state}) as system:
+            await system.publish(RAPP_DIR)
+            handle = await system.add_robot(robot, api=recorder, user=user)
+            await wait_until(lambda: core_listening(handle.core), 30, "Core listening")
+            sim0, wall0 = world.time, time.monotonic()
+            await handle.user.say(handle.core.address, COMMAND)
+            await handle.user.wait_for(lambda t: t.startswith("hazard-detection finished")
+                                       or t.startswith("hazard-detection ended"), timeout=timeout_s)
+            sim_s, wall_s = world.time - sim0, time.monotonic() - wall0
+            texts = handle.user.texts()
+        rows = score_hazards(info.hazards, world.ground_truth(), parse_reports(texts))
+        for row, frame in zip(rows_in_report_order(rows, texts), recorder.frames):
+            frame.rename(frame.with_name(f"{row['id']}.png"))
+        result = {
+            "robot": robot, "seed": seed, "hazards": rows,
+            "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),
+            "localization_error_m": round(recorder.localization_error(), 4),
+            "max_tracking_error_m": round(recorder.tracking_error(), 4),
+            "duration_sim_s": round(sim_s, 2), "duration_wall_s": round(wall_s, 2),
+            "trace": str(trace), "plot": str(out / "hazard_run.png"),
+        }
+        plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
+                        info.landmarks, rows, info.hazards,
+                        title=f"{robot} seed {seed} ({house}): localization {result['localization_error_m']*100:.1f} cm,"
+                              f" tracking {result['max_tracking_error_m']*100:.1f} cm")
+        (out / "chat.txt").write_text("\n".join(texts) + "\n")
+        (out / "recording.json").write_text(json.dumps({"localizations": recorder.localizations,
+                                                        "paths": recorder.paths}))
+    finally:
+        world.close()
+    Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+def rows_in_report_order(rows: list[dict], texts: list[str]) -> list[dict]:
+    """Rows in the order the hazards were checked (= order of the saved frames)."""
+    by_id = {r["id"]: r for r in rows}
+    order = [m.group(1) for m in map(REPORT_RE.search, texts) if m]
+    return [by_id[i] for i in order if i in by_id]
+
+
+def summary(result: dict) -> str:
+    lines = [f"hazard detection: robot {result['robot']} seed {result['seed']}: "
+             f"{'all correct' if result['all_correct'] else 'MISCLASSIFIED'}, "
+             f"localization {result['localization_error_m'] * 100:.1f} cm, "
+             f"tracking {result['max_tracking_error_m'] * 100:.1f} cm, "
+             f"{result['duration_sim_s']:.0f} s sim / {result['duration_wall_s']:.0f} s wall"]
+    for h in result["hazards"]:
+        extra = (f" (true {h['true_angle']:.0f} deg, estimated {h['estimated_angle']})" if h["type"] == "door" else "")
+        lines.append(f"  {h['type']:4s} {h['id']:10s} true {h['true_state']:6s} reported {h['reported_state']}{extra}")
+    lines.append(f"  plot {result['plot']}\n  trace {result['trace']}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="hazard-detection", description=__doc__.splitlines()[0])
+    ap.add_argument("--robot", choices=["nao", "elektron"], default="nao")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--house", choices=["house", "small"], default="house")
+    ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here")
+    ap.add_argument("--out", dest="out_dir", default=None, help="directory for plot, frames and trace")
+    ap.add_argument("--rtf", type=float, default=0.0, help="real-time factor (0 = as fast as possible)")
+    args = ap.parse_args(argv)
+    result = asyncio.run(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
+                                              args.rtf))
+    print(summary(result))
+    return 0 if result["all_correct"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

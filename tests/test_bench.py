@@ -1,0 +1,40 @@
+"""Smoke test of `python -m bench`: the runner with tiny sizes writes one JSON entry per metric
+with the agreed fields (the numbers themselves are not checked here)."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from bench import common, runner
+
+FIELDS = {"name", "value", "unit", "floor", "ratio", "n"}
+
+
+def test_table_and_selection():
+    m = common.metric("x", 2.0, "ms", 1.0, 2.0, 3, samples=[1.0, 2.0, 3.0], length_ratio=1.01)
+    assert FIELDS | {"median", "p95", "length_ratio"} <= set(m) and m["median"] == 2.0
+    text = common.table([m])
+    assert text.splitlines()[0].split(" | ")[0].strip() == "name" and "ms" in text
+    assert runner.select(["robot_rtt", "plan_astar", "rtt"]) == ["rtt", "planning"]
+    with pytest.raises(SystemExit):
+        runner.select(["nonsense"])
+
+
+def test_runner_tiny_json_shape(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    code = runner.main(["--quick", "--tiny", "--json", str(out),
+                        "--only", "rtt", "messages", "planning", "sim_rtf"])
+    doc = json.loads(out.read_text())
+    metrics = doc["metrics"]
+    assert code == 0, [m.get("error") for m in metrics]
+    assert doc["machine"]["nproc"] >= 1 and doc["mode"] == "tiny"
+    names = {m["name"] for m in metrics}
+    assert {"robot_rtt", "platform_rtt", "messages", "messages_traced", "plan_astar", "sim_rtf_1"} <= names
+    for m in metrics:
+        assert FIELDS <= set(m), m
+        assert m["value"] is not None and m["floor"] is not None and m["ratio"] is not None, m
+    rtt = next(m for m in metrics if m["name"] == "robot_rtt")
+    assert rtt["n"] == 20 and rtt["p95"] >= rtt["median"] > 0
+    assert all("length_ratio" in m for m in metrics if m["name"].startswith("plan_"))
+    assert "robot_rtt" in capsys.readouterr().out
