@@ -34,6 +34,7 @@ from .messages import AclInfo, bare, copy_message, make_message, reply_to
 from .tracing import cap, tracer_for
 
 log = logging.getLogger("rapp.agent")
+MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
 
 
 class _RoutingContainer:
@@ -139,6 +140,8 @@ class RappAgent(Agent):
     def _route(self, msg: Message, path: str):
         self._trace_message("recv", msg, path)
         info = AclInfo.of(msg)
+        if len(msg.body or "") > MAX_BODY:
+            return [self.submit(self._too_large(msg, info))]
         if info.performative in {p.value for p in acl.ANSWERS} and info.conversation_id in self._pending:
             self._pending[info.conversation_id].put_nowait(msg)
             return []
@@ -162,6 +165,14 @@ class RappAgent(Agent):
             await self.send(reply_to(msg, Reason(reason=reason, code="not-serving"), Performative.REFUSE))
             return
         await self.on_unhandled(msg, info)
+
+    async def _too_large(self, msg: Message, info: AclInfo) -> None:
+        reason = f"message of {len(msg.body)} characters exceeds the limit of {MAX_BODY}"
+        if info.performative in {p.value for p in acl.OPENING}:
+            msg.body = ""
+            await self.send(reply_to(msg, Reason(reason=reason, code="too-large"), Performative.NOT_UNDERSTOOD))
+        else:
+            self.tracer.record("dropped", agent=self.address, sender=bare(msg.sender), reason=reason)
 
     def not_serving_reason(self, info: AclInfo) -> str:
         """Why a known action is refused when no active behaviour serves it (override to explain)."""

@@ -115,14 +115,14 @@ class StoreAgent(RappAgent):
     async def upload_chunk(self, req: S.UploadChunk, ctx) -> S.UploadTicket:
         self._expire()
         upload_id = req.upload_id or uuid.uuid4().hex
-        if upload_id not in self._uploads:
-            if len(self._uploads) >= MAX_UPLOADS:
-                raise Refusal("too many uploads in progress; try again later", "busy")
-            self._uploads[upload_id] = (time.monotonic(),
-                                        Reassembler(total=req.chunk.total, sha256=req.chunk.sha256,
-                                                    size=req.chunk.size,
-                                                    max_size=self.repo.max_package_size))
         try:
+            if upload_id not in self._uploads:
+                if len(self._uploads) >= MAX_UPLOADS:
+                    raise Refusal("too many uploads in progress; try again later", "busy")
+                self._uploads[upload_id] = (time.monotonic(),
+                                            Reassembler(total=req.chunk.total, sha256=req.chunk.sha256,
+                                                        size=req.chunk.size,
+                                                        max_size=self.repo.max_package_size))
             self._uploads[upload_id][1].add(req.chunk.model_dump())
         except ChunkError as e:
             self._uploads.pop(upload_id, None)

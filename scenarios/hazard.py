@@ -11,6 +11,7 @@ import argparse
 import asyncio
 import json
 import re
+import shutil
 import sys
 import tempfile
 import time
@@ -82,6 +83,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         upload_home(state, user, info, png, yaml_text)
         trace = out / "trace.jsonl"
         trace.unlink(missing_ok=True)
+        shutil.rmtree(out / "system", ignore_errors=True)  # a fresh Store and XMPP accounts
         async with RappSystem(out / "system", settings=settings, trace_file=trace,
                               platform_kw={"services_state": state}) as system:
             await system.publish(RAPP_DIR)
@@ -89,8 +91,11 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             await wait_until(lambda: core_listening(handle.core), 30, "Core listening")
             sim0, wall0 = world.time, time.monotonic()
             await handle.user.say(handle.core.address, COMMAND)
-            await handle.user.wait_for(lambda t: t.startswith("hazard-detection finished")
-                                       or t.startswith("hazard-detection ended"), timeout=timeout_s)
+            end = await handle.user.wait_for(lambda t: t.startswith(("hazard-detection finished",
+                                                                     "hazard-detection ended"))
+                                             or "did not understand" in t, timeout=timeout_s)
+            if "did not understand" in end:
+                raise RuntimeError(f"the Core did not start the RApp: {end}")
             sim_s, wall_s = world.time - sim0, time.monotonic() - wall0
             texts = handle.user.texts()
         rows = score_hazards(info.hazards, world.ground_truth(), parse_reports(texts))
