@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from typing import Any
 
 from spade.agent import Agent
@@ -26,6 +27,7 @@ from ontology import acl
 from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, lookup, parse_json, validate
+from xmpp_server.ports import free_port
 from xmpp_server.settings import XmppSettings
 
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
@@ -61,6 +63,7 @@ class RappAgent(Agent):
         self._pending: dict[str, asyncio.Queue] = {}
         self._named: dict[str, Any] = {}
         self.unhandled: list[Message] = []  # kept, not dropped, for inspection
+        self.web_url: str | None = None  # SPADE's agent page when settings.web is on
 
     # -- identity and lifecycle -------------------------------------------------------------
     @property
@@ -81,9 +84,45 @@ class RappAgent(Agent):
             self.tracer.record("agent", event="start-failed", agent=self.address, reason=str(e))
             await self._abort_connection()
             raise AgentStartError(f"{self.address} could not start: {type(e).__name__}: {e}") from e
-        if self.settings.web:
-            self.web.start(hostname="127.0.0.1", port=0)
-        self.tracer.record("agent", event="started", agent=self.address, cls=type(self).__name__)
+        web = {}
+        if self.settings.web:  # SPADE's agent page, loopback only; listening once start() returns
+            await self.web.start(hostname="127.0.0.1", port=free_port("127.0.0.1"))
+            self.web_url = f"http://127.0.0.1:{self.web.port}/spade"
+            web = {"web": self.web_url}
+        self._stopping = False
+        self.client.add_event_handler("disconnected", self._on_disconnected)
+        self.tracer.record("agent", event="started", agent=self.address, cls=type(self).__name__, **web)
+
+    # -- reconnection -----------------------------------------------------------------------
+    def _on_disconnected(self, _event) -> None:
+        if getattr(self, "_stopping", True) or getattr(self, "_reconnecting", False):
+            return
+        self._reconnecting = True
+        self.tracer.record("agent", event="disconnected", agent=self.address)
+        self.submit(self._reconnect())
+
+    async def _reconnect(self) -> None:
+        """Log in again with back-off (0.2 s doubling to 5 s) until the server is back."""
+        delay = 0.2
+        try:
+            while not self._stopping:
+                started = asyncio.get_running_loop().create_future()
+                handler = lambda _e: started.done() or started.set_result(True)  # noqa: E731
+                self.client.add_event_handler("session_start", handler)
+                self.client.connect(host=self.settings.host, port=self.settings.port)
+                try:
+                    await asyncio.wait_for(started, max(2.0, delay))
+                    self._reconnected_at = time.monotonic()
+                    self.tracer.record("agent", event="reconnected", agent=self.address)
+                    return
+                except asyncio.TimeoutError:
+                    self.client.abort()
+                    await asyncio.sleep(delay)
+                    delay = min(delay * 2, 5.0)
+                finally:
+                    self.client.del_event_handler("session_start", handler)
+        finally:
+            self._reconnecting = False
 
     async def _abort_connection(self) -> None:
         if self.client is not None:
@@ -100,6 +139,7 @@ class RappAgent(Agent):
         await super()._async_connect()
 
     async def stop(self) -> None:
+        self._stopping = True
         for q in self._pending.values():
             q.put_nowait(None)  # wake waiting requests; they fail as timeouts
         await super().stop()
@@ -188,8 +228,26 @@ class RappAgent(Agent):
 
     # -- FIPA-Request initiator -------------------------------------------------------------
     async def request(self, to: str, content: Action, *, timeout: float = 10.0,
-                      performative: Performative = Performative.REQUEST) -> Content:
-        """Send a request and wait for the final answer; agree extends nothing, it is noted."""
+                      performative: Performative = Performative.REQUEST,
+                      retries: int | None = None) -> Content:
+        """Send a request and wait for the final answer (agree is noted, not final).
+
+        A timed-out request is sent again only when its action is idempotent (a read):
+        `retries` times (default 2 for idempotent actions, 0 otherwise)."""
+        if retries is None:
+            retries = 2 if content.idempotent else 0
+        for attempt in range(retries + 1):
+            try:
+                return await self._request_once(to, content, timeout, performative)
+            except RequestTimeout:
+                if attempt == retries:
+                    raise
+                self.tracer.record("retry", agent=self.address, peer=to, action=content.action_name,
+                                   attempt=attempt + 1)
+        raise AssertionError("unreachable")
+
+    async def _request_once(self, to: str, content: Action, timeout: float,
+                            performative: Performative) -> Content:
         msg = make_message(to, content, performative=performative)
         conv = msg.get_metadata(acl.CONVERSATION_ID)
         queue: asyncio.Queue = asyncio.Queue()

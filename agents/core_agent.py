@@ -315,6 +315,8 @@ class CoreAgent(RappAgent):
         start = time.monotonic()
         while not session.ended.is_set():
             now = time.monotonic()
+            if getattr(self, "_reconnecting", False) or now - getattr(self, "_reconnected_at", 0) < 2.0:
+                session.last_beat = now  # our own link was down: silence proves nothing
             if now - session.last_beat > HEARTBEAT_TIMEOUT_S and session.state != "Finished":
                 self._end(session, f"no heartbeat for {now - session.last_beat:.1f}s (hung?)")
             elif now - start > limit:
@@ -336,6 +338,11 @@ class CoreAgent(RappAgent):
         await self._stop_robot()
         self.locks.free_all(session.jid)
         if session.process is not None:
+            if session.state in ("Finished", "Error"):  # it is logging out by itself: let it
+                try:
+                    await asyncio.wait_for(session.process.wait(), 2.0)
+                except asyncio.TimeoutError:
+                    pass
             await session.process.stop(grace=1.0)
         try:
             await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),

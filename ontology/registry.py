@@ -29,6 +29,8 @@ class Action(Content):
     reply_model: ClassVar[type[Content] | None] = None
     # robot-API group or platform service name the action belongs to (for permissions)
     group: ClassVar[str] = ""
+    # a read without side effects: safe to send again after a timeout (e.g. a server restart)
+    idempotent: ClassVar[bool] = False
 
 
 class Done(Content):
@@ -42,9 +44,14 @@ class ContentError(ValueError):
 
 
 _actions: dict[tuple[str, str], type[Action]] = {}
+# actions named like reads are idempotent unless registered otherwise
+READ_PREFIXES = ("get_", "list_", "capture_", "ping", "info", "versions", "search", "download_",
+                 "path_planning_plan", "qr_detection", "compute_", "hazard_detection_", "face_",
+                 "human_", "ontology_", "weather_", "news_")
 
 
-def action(name: str, *, ontology: str, reply: type[Content] = Done, group: str = ""):
+def action(name: str, *, ontology: str, reply: type[Content] = Done, group: str = "",
+           idempotent: bool | None = None):
     """Class decorator registering an Action model under (ontology, name)."""
 
     def register(cls: type[Action]) -> type[Action]:
@@ -55,6 +62,7 @@ def action(name: str, *, ontology: str, reply: type[Content] = Done, group: str 
         cls.ontology_name = ontology
         cls.reply_model = reply
         cls.group = group or ontology
+        cls.idempotent = name.startswith(READ_PREFIXES) if idempotent is None else idempotent
         _actions[key] = cls
         return cls
 

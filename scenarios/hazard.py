@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import re
 import shutil
 import sys
@@ -104,15 +105,15 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         result = {
             "robot": robot, "seed": seed, "hazards": rows,
             "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),
-            "localization_error_m": round(recorder.localization_error(), 4),
-            "max_tracking_error_m": round(recorder.tracking_error(), 4),
+            "localization_error_m": finite(recorder.localization_error()),
+            "max_tracking_error_m": finite(recorder.tracking_error()),
             "duration_sim_s": round(sim_s, 2), "duration_wall_s": round(wall_s, 2),
             "trace": str(trace), "plot": str(out / "hazard_run.png"),
         }
         plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
                         info.landmarks, rows, info.hazards,
-                        title=f"{robot} seed {seed} ({house}): localization {result['localization_error_m']*100:.1f} cm,"
-                              f" tracking {result['max_tracking_error_m']*100:.1f} cm")
+                        title=f"{robot} seed {seed} ({house}): localization {cm(result['localization_error_m'])},"
+                              f" tracking {cm(result['max_tracking_error_m'])}")
         (out / "chat.txt").write_text("\n".join(texts) + "\n")
         (out / "recording.json").write_text(json.dumps({"localizations": recorder.localizations,
                                                         "paths": recorder.paths}))
@@ -122,6 +123,10 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     return result
 
 
+def finite(value: float, digits: int = 4) -> float | None:
+    return round(value, digits) if math.isfinite(value) else None
+
+
 def rows_in_report_order(rows: list[dict], texts: list[str]) -> list[dict]:
     """Rows in the order the hazards were checked (= order of the saved frames)."""
     by_id = {r["id"]: r for r in rows}
@@ -129,11 +134,15 @@ def rows_in_report_order(rows: list[dict], texts: list[str]) -> list[dict]:
     return [by_id[i] for i in order if i in by_id]
 
 
+def cm(value: float | None) -> str:
+    return "n/a" if value is None else f"{value * 100:.1f} cm"
+
+
 def summary(result: dict) -> str:
     lines = [f"hazard detection: robot {result['robot']} seed {result['seed']}: "
              f"{'all correct' if result['all_correct'] else 'MISCLASSIFIED'}, "
-             f"localization {result['localization_error_m'] * 100:.1f} cm, "
-             f"tracking {result['max_tracking_error_m'] * 100:.1f} cm, "
+             f"localization {cm(result['localization_error_m'])}, "
+             f"tracking {cm(result['max_tracking_error_m'])}, "
              f"{result['duration_sim_s']:.0f} s sim / {result['duration_wall_s']:.0f} s wall"]
     for h in result["hazards"]:
         extra = (f" (true {h['true_angle']:.0f} deg, estimated {h['estimated_angle']})" if h["type"] == "door" else "")

@@ -33,6 +33,8 @@ class ChatUser(ClientXMPP):
         self.add_event_handler("session_start", self._on_session)
         self.add_event_handler("failed_all_auth", lambda _: self._fail("authentication failed"))
         self.add_event_handler("message", self._on_message)
+        self.add_event_handler("disconnected", self._on_disconnected)
+        self._stopping = False
         logging.getLogger("slixmpp").setLevel(logging.WARNING)
 
     async def _register(self, _):
@@ -63,7 +65,13 @@ class ChatUser(ClientXMPP):
         self.connect(host=self.settings.host, port=self.settings.port)
         await asyncio.wait_for(self._session, timeout)
 
+    def _on_disconnected(self, _):
+        if not self._stopping:  # the server went away: try again until it is back
+            asyncio.get_event_loop().call_later(0.5, lambda: self._stopping or self.connect(
+                host=self.settings.host, port=self.settings.port))
+
     async def stop(self) -> None:
+        self._stopping = True
         self.disconnect()
         await asyncio.sleep(0.05)
 

@@ -1,5 +1,10 @@
-"""Cloud Agent part: QR-marker global localization (paper 001 fig. 6), with the Platform's shared math."""
+"""Cloud Agent part: QR-marker global localization (paper 001 fig. 6) with the Platform's shared math.
+
+With two or more distinct landmarks the pose comes from their centres only (a weighted 2-D rigid
+fit of robot-frame to map positions): ranges and bearings of codes are far more accurate than a
+single code's orientation. With one landmark, that code's full pose is used."""
 import asyncio
+import math
 
 import cv2
 import numpy as np
@@ -8,15 +13,15 @@ from agents.services import localization as L
 from agents.services.images import decode_image
 from rapps.sdk import CloudService
 
-from .models import ONTOLOGY, Localization, Localize
+from .models import ONTOLOGY, Localization, Observation, Observations, Observe, SolvePose
 
 
-def localize(req: Localize) -> Localization:
+def observe(req: Observe) -> Observations:
     img = decode_image(req.image_b64)
     gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     K, dist = L.camera_matrix(req.camera)
     T_robot_cam = np.asarray(req.camera_to_robot, float)
-    poses, used, dists = [], [], []
+    items = []
     for text, corners in L.detect_qr(img):
         lm = req.landmarks.get(text)
         if lm is None:
@@ -25,20 +30,50 @@ def localize(req: Localize) -> Localization:
         d = float(np.linalg.norm(T_cam_code[:3, 3]))
         if d > req.max_distance_m:
             continue
-        poses.append(L.planar(L.robot_pose_from_code(T_cam_code, T_robot_cam, lm)))
-        used.append(text)
-        dists.append(d)
-    if not poses:
+        x, y, th = L.planar(L.robot_pose_from_code(T_cam_code, T_robot_cam, lm))
+        centre = (T_robot_cam @ T_cam_code[:, 3])[:3]
+        items.append(Observation(text=text, in_robot=centre.tolist(), pose=dict(x=x, y=y, theta=th), distance_m=d))
+    return Observations(items=items)
+
+
+def rigid_fit(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[float, float, float]:
+    """(x, y, theta) of the transform b = R(theta) a + t minimizing the weighted squared error."""
+    w = w / w.sum()
+    ca, cb = (w[:, None] * a).sum(0), (w[:, None] * b).sum(0)
+    A, B = a - ca, b - cb
+    H = (w[:, None, None] * A[:, :, None] * B[:, None, :]).sum(0)
+    theta = math.atan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
+    R = np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]])
+    t = cb - R @ ca
+    return float(t[0]), float(t[1]), theta
+
+
+def solve_pose(req: SolvePose) -> Localization:
+    obs = [o for o in req.observations if o.text in req.landmarks]
+    if not obs:
         return Localization(found=False)
-    p = np.asarray(poses)
-    w = 1.0 / np.asarray(dists) ** 2  # nearer codes are more accurate
-    theta = float(np.arctan2((w * np.sin(p[:, 2])).sum(), (w * np.cos(p[:, 2])).sum()))
-    pose = dict(x=float(np.average(p[:, 0], weights=w)), y=float(np.average(p[:, 1], weights=w)), theta=theta)
-    return Localization(found=True, pose=pose, markers=used, distance_m=min(dists))
+    best: dict[str, Observation] = {}
+    for o in obs:  # one observation per landmark: the nearest view
+        if o.text not in best or o.distance_m < best[o.text].distance_m:
+            best[o.text] = o
+    obs = sorted(best.values(), key=lambda o: o.distance_m)
+    if len(obs) >= 2:
+        a = np.array([o.in_robot[:2] for o in obs])
+        b = np.array([[req.landmarks[o.text].x, req.landmarks[o.text].y] for o in obs])
+        if np.linalg.norm(b - b.mean(0), axis=1).max() > 0.5:  # landmarks far enough apart
+            w = 1.0 / np.array([o.distance_m for o in obs]) ** 2
+            x, y, th = rigid_fit(a, b, w)
+            return Localization(found=True, pose=dict(x=x, y=y, theta=th), markers=[o.text for o in obs],
+                                method="points")
+    o = obs[0]
+    return Localization(found=True, pose=o.pose, markers=[o.text], method="single")
 
 
 class LocalizationCloud(CloudService):
     ontology = ONTOLOGY
 
-    async def localize(self, req: Localize) -> Localization:
-        return await asyncio.to_thread(localize, req)
+    async def observe(self, req: Observe) -> Observations:
+        return await asyncio.to_thread(observe, req)
+
+    async def solve_pose(self, req: SolvePose) -> Localization:
+        return solve_pose(req)

@@ -1,5 +1,6 @@
-"""Self-localization sub-FSM (fig. 16 s2): capture, find a QR landmark on the Cloud Agent; if none
-is seen turn the head one step and try again until the head limit; then set the global pose."""
+"""Self-localization sub-FSM (fig. 16 s2): capture, find QR landmarks on the Cloud Agent; while not
+enough are seen turn the head one step and try again until the head limit; then solve the pose on the
+Cloud Agent and set it on the robot (the odometry estimate stays if no landmark was seen)."""
 from __future__ import annotations
 
 
@@ -34,17 +35,16 @@ class Localizer:
     def build(self, name: str = "localize") -> FSM:
         fsm = FSM(name, initial="l1_prepare")
         fsm.add_state("l1_prepare", Step(self.prepare))
-        fsm.add_state("l2_capture", Step(self.capture))
-        fsm.add_state("l3_detect", Step(self.detect))
-        fsm.add_state("l4_turn_head", Step(self.turn_head))
+        fsm.add_state("l2_turn_head", Step(self.turn_head))
+        fsm.add_state("l3_capture", Step(self.capture))
+        fsm.add_state("l4_detect", Step(self.detect))
         fsm.add_state("l5_set_pose", Step(self.set_pose), final=True)
-        fsm.add_state("l6_not_found", Step(self.not_found), final=True)
-        fsm.add_transition("l1_prepare", "l4_turn_head")
-        fsm.add_transition("l4_turn_head", "l2_capture", when=lambda m, o: o.value)
-        fsm.add_transition("l4_turn_head", "l6_not_found", when=lambda m, o: not o.value)
-        fsm.add_transition("l2_capture", "l3_detect")
-        fsm.add_transition("l3_detect", "l5_set_pose", when=lambda m, o: o.value)
-        fsm.add_transition("l3_detect", "l4_turn_head", when=lambda m, o: not o.value)
+        fsm.add_transition("l1_prepare", "l2_turn_head")
+        fsm.add_transition("l2_turn_head", "l3_capture", when=lambda m, o: o.value)
+        fsm.add_transition("l2_turn_head", "l5_set_pose", when=lambda m, o: not o.value)  # head limit
+        fsm.add_transition("l3_capture", "l4_detect")
+        fsm.add_transition("l4_detect", "l5_set_pose", when=lambda m, o: o.value)
+        fsm.add_transition("l4_detect", "l2_turn_head", when=lambda m, o: not o.value)
         return fsm
 
     async def prepare(self, memory):
@@ -56,9 +56,10 @@ class Localizer:
             K = info.K
             self.camera = dict(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2])
         memory["sweep"] = sweep_angles(float(params["head_step_rad"]), self.head["limit"])
-        memory["localization"] = None
+        memory["observations"] = []
 
     async def turn_head(self, memory) -> bool:
+        """Next head position of the sweep; False when the head limit is reached."""
         if not memory["sweep"]:
             return False
         yaw = memory["sweep"].pop(0)
@@ -72,23 +73,31 @@ class Localizer:
         memory["camera_to_robot"] = (await robot.get_transform(chain="camera", space="robot")).matrix
 
     async def detect(self, memory) -> bool:
-        info = memory["home"]
+        """Landmarks in this frame (on the Cloud Agent); True when enough were seen to stop sweeping:
+        two distinct landmarks, or one nearer than near_marker_m."""
         reply = await self.task.cloud.call(
-            "localize", image_b64=memory.pop("frame").data_b64, camera=self.camera,
-            camera_to_robot=memory["camera_to_robot"], landmarks=info.landmarks,
+            "observe", image_b64=memory.pop("frame").data_b64, camera=self.camera,
+            camera_to_robot=memory["camera_to_robot"], landmarks=memory["home"].landmarks,
             max_distance_m=float(self.task.params["max_marker_distance_m"]))
-        memory["localization"] = reply
-        return reply.found
+        obs = memory["observations"]
+        obs.extend(reply.items)
+        near = float(self.task.params["near_marker_m"])
+        return len({o.text for o in obs}) >= 2 or any(o.distance_m < near for o in obs)
 
     async def set_pose(self, memory):
-        p = memory["localization"].pose
-        await self.task.robot.set_global_pose(x=p.x, y=p.y, theta=p.theta)
-        memory.setdefault("localizations", []).append(
-            {"x": p.x, "y": p.y, "theta": p.theta, "markers": memory["localization"].markers})
-        await self._head_home()
-
-    async def not_found(self, memory):
-        memory.setdefault("localizations", []).append(None)
+        """Solve the pose from the sweep's observations (Cloud Agent) and set it on the robot."""
+        found = None
+        if memory["observations"]:
+            found = await self.task.cloud.call("solve_pose", observations=memory["observations"],
+                                               landmarks=memory["home"].landmarks)
+        memory["localization"] = found
+        if found is not None and found.found:
+            p = found.pose
+            await self.task.robot.set_global_pose(x=p.x, y=p.y, theta=p.theta)
+            memory.setdefault("localizations", []).append(
+                {"x": p.x, "y": p.y, "theta": p.theta, "markers": found.markers, "method": found.method})
+        else:
+            memory.setdefault("localizations", []).append(None)
         await self._head_home()
 
     async def _head_home(self):

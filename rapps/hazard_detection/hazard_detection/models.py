@@ -6,19 +6,40 @@ from ontology.services.home import LandmarkSpec
 ONTOLOGY = "cloud.hazard-detection"
 
 
-class Localization(Content):
-    found: bool
-    pose: Pose2D | None = None
-    markers: list[str] = []  # texts of the landmarks used
-    distance_m: float | None = None  # distance of the nearest used landmark
+class Observation(Content):
+    """One QR landmark seen: its centre in the robot base frame and the pose it alone implies."""
+
+    text: str
+    in_robot: list[float]  # x, y, z of the code centre in the robot base frame (m)
+    pose: Pose2D  # robot pose from this code alone (position and orientation of the code)
+    distance_m: float
 
 
-@action("localize", ontology=ONTOLOGY, reply=Localization)
-class Localize(Action):
-    """Robot pose from the QR landmarks seen in one image (camera optical frame -> robot base)."""
+class Observations(Content):
+    items: list[Observation] = []
+
+
+@action("observe", ontology=ONTOLOGY, reply=Observations)
+class Observe(Action):
+    """Find the known QR landmarks in one image (camera optical frame -> robot base given)."""
 
     image_b64: str
     camera: CameraIntrinsics
     camera_to_robot: list[list[float]]
     landmarks: dict[str, LandmarkSpec]
     max_distance_m: float = 4.5
+
+
+class Localization(Content):
+    found: bool
+    pose: Pose2D | None = None
+    markers: list[str] = []  # texts of the landmarks used
+    method: str = ""  # "points" (2+ landmarks) or "single" (one code's pose)
+
+
+@action("solve_pose", ontology=ONTOLOGY, reply=Localization)
+class SolvePose(Action):
+    """Robot pose from the observations of one head sweep."""
+
+    observations: list[Observation]
+    landmarks: dict[str, LandmarkSpec]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+from agents.errors import RequestFailed
 from behaviours import FSM
 from rapps.sdk import Step, Task
 
@@ -77,7 +78,7 @@ class HazardTask(Task):
         memory["home"] = info
         memory["todo"] = list(info.hazards)
         memory["results"] = []
-        await self.robot.say(text=f"Checking {len(info.hazards)} possible hazards.")
+        await self.speak(f"Checking {len(info.hazards)} possible hazards.")
 
     # -- s3 ---------------------------------------------------------------------------------
     async def next_hazard(self, memory) -> bool:
@@ -159,9 +160,12 @@ class HazardTask(Task):
         await self.report(text, hazards=results, localizations=memory.get("localizations", []))
 
     async def done(self, memory):
+        await self.speak("Hazard check finished.")
+
+    async def speak(self, text: str) -> None:
         try:
-            await self.robot.say(text="Hazard check finished.")
-        except Exception:  # noqa: BLE001 - a robot without speech
+            await self.robot.say(text=text)
+        except RequestFailed:  # a robot without speech (Elektron): the chat reports are enough
             pass
 
 

@@ -1,0 +1,198 @@
+"""The `rapp` command line as a user runs it: a subprocess of the installed entry point.
+
+help for every subcommand; package build / keygen / signed build; one-line errors (tracebacks only
+with --debug); trace show / export; store publish / list / info / remove and doctor against a
+running system (its own embedded server), doctor's FAIL line when nothing listens.
+"""
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from rapps.package import SignatureStatus, read_package
+from scenarios.system import RappSystem
+from xmpp_server.ports import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
+_SCRIPT = Path(sys.executable).with_name("rapp")
+RAPP = [str(_SCRIPT)] if _SCRIPT.exists() else [sys.executable, "-m", "rapps.cli"]
+
+
+def rapp(*args, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess:
+    base = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_")}
+    return subprocess.run([*RAPP, *map(str, args)], capture_output=True, text=True, cwd=ROOT,
+                          env={**base, **(env or {})}, timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+async def arapp(*args, **kw) -> subprocess.CompletedProcess:
+    """rapp in a thread: the agents under test run on this event loop and must keep running."""
+    return await asyncio.to_thread(rapp, *args, **kw)
+
+
+def one_error_line(res: subprocess.CompletedProcess) -> str:
+    assert res.returncode == 1, (res.returncode, res.stdout, res.stderr)
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rapp: error: "), res.stderr
+    assert "Traceback" not in res.stderr
+    return lines[0]
+
+
+# -- help -------------------------------------------------------------------------------------
+def test_top_level_help_lists_every_subcommand():
+    res = rapp("--help")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("usage: rapp")
+    for cmd in ("server", "run", "package", "store", "trace", "bench", "doctor"):
+        assert cmd in res.stdout
+
+
+@pytest.mark.parametrize("argv, usage", [
+    (["server", "--help"], "usage: rapp server"),
+    (["run", "--help"], "usage: rapp run"),
+    (["package", "--help"], "usage: rapp package"),
+    (["store", "--help"], "usage: rapp store"),
+    (["trace", "--help"], "usage: rapp trace show"),
+    (["trace", "export", "--help"], "usage: rapp trace export"),
+    (["trace", "html", "--help"], "usage: rapp trace html"),
+    (["bench", "--help"], "usage: "),
+    (["doctor", "--help"], "usage: rapp doctor"),
+])
+def test_subcommand_help(argv, usage):
+    res = rapp(*argv)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith(usage), res.stdout[:200]
+
+
+def test_unknown_subcommand_is_a_usage_error():
+    res = rapp("juggle")
+    assert res.returncode == 2 and "invalid choice" in res.stderr
+
+
+# -- package ----------------------------------------------------------------------------------
+def test_package_build(tmp_path):
+    res = rapp("package", "build", FIXTURE, "-o", tmp_path)
+    assert res.returncode == 0, res.stderr
+    out = Path(res.stdout.strip())
+    assert out == tmp_path / "echo-app-1.0.0.rapp" and out.is_file()
+    pkg = read_package(out.read_bytes())
+    assert pkg.manifest.name == "echo-app" and pkg.signature is SignatureStatus.UNSIGNED
+    assert "echo_app/task.py" in pkg.paths
+
+
+def test_package_keygen_and_signed_build(tmp_path):
+    key = tmp_path / "dev.pem"
+    res = rapp("package", "keygen", key)
+    assert res.returncode == 0, res.stderr
+    assert key.is_file() and (key.stat().st_mode & 0o777) == 0o600
+    key_id = res.stdout.strip().rsplit("(id ", 1)[1].rstrip(")")
+    res = rapp("package", "build", FIXTURE, "-o", tmp_path / "signed.rapp", "--key", key)
+    assert res.returncode == 0, res.stderr
+    pkg = read_package((tmp_path / "signed.rapp").read_bytes())
+    assert pkg.signed and pkg.key_id == key_id
+
+
+def test_malformed_manifest_is_one_line_and_debug_shows_traceback(tmp_path):
+    src = tmp_path / "bad_app"
+    shutil.copytree(FIXTURE, src)
+    text = (src / "manifest.yaml").read_text().replace("version: 1.0.0", "version: one point oh")
+    (src / "manifest.yaml").write_text(text)
+    line = one_error_line(rapp("package", "build", src, "-o", tmp_path))
+    assert "version" in line
+    res = rapp("--debug", "package", "build", src, "-o", tmp_path)
+    assert res.returncode != 0 and "Traceback (most recent call last)" in res.stderr
+    assert not list(tmp_path.glob("*.rapp"))
+
+
+def test_package_build_missing_dir_is_one_line(tmp_path):
+    line = one_error_line(rapp("package", "build", tmp_path / "nope"))
+    assert "does not exist" in line
+
+
+# -- against a running system -----------------------------------------------------------------
+@pytest.fixture(scope="module")
+async def running(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("cli")
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+        env = system.settings.to_env()
+        env.pop("RAPP_TRACE_FILE", None)  # the CLI's own client does not write the system trace
+        system.env = env
+        yield system
+
+
+async def test_store_publish_list_info_remove(running, tmp_path):
+    env = running.env
+    pkg = tmp_path / "echo.rapp"
+    assert (await arapp("package", "build", FIXTURE, "-o", pkg)).returncode == 0
+
+    res = await arapp("store", "publish", pkg, "--owner", "dev", "--password", "pw", env=env)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("published echo-app 1.0.0")
+
+    res = await arapp("store", "list", env=env)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split()[:2] == ["echo-app", "1.0.0"]
+
+    res = await arapp("store", "info", "echo-app", env=env)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("echo-app 1.0.0 by dev") and "signed by nobody" in res.stdout
+
+    line = one_error_line(await arapp("store", "remove", "echo-app", "--owner", "dev",
+                                      "--password", "wrong", env=env))
+    assert "RequestRefused" in line or "refuse" in line.lower()
+
+    res = await arapp("store", "remove", "echo-app", "--owner", "dev", "--password", "pw", env=env)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("removed echo-app")
+
+    res = await arapp("store", "list", env=env)
+    assert res.returncode == 0 and "echo-app" not in res.stdout
+    one_error_line(await arapp("store", "info", "echo-app", env=env))
+
+
+async def test_trace_show_and_export_mermaid(running, tmp_path):
+    pytest.importorskip("scenarios.trace_report",
+                        reason="scenarios/trace_report.py (trace views) is not written yet")
+    trace = running.settings.trace_file
+    # a small conversation of our own, so the trace has messages whatever ran before
+    from ontology import store as S
+    await running.publisher.request(running.store.address, S.ListPackages(robot_type="nao"))
+    assert trace.exists()
+
+    res = await arapp("trace", "show", trace, "--agent", "store")
+    assert res.returncode == 0, res.stderr
+    assert "list_packages" in res.stdout
+
+    out = tmp_path / "trace.mmd"
+    res = await arapp("trace", "export", trace, "--format", "mermaid", "--agent", "store", "-o", out)
+    assert res.returncode == 0, res.stderr
+    text = out.read_text()
+    assert text.startswith("sequenceDiagram")
+    assert "participant" in text and "store" in text and "->>" in text
+
+    res = await arapp("trace", "export", trace, "--format", "mermaid")
+    assert res.returncode == 0 and res.stdout.startswith("sequenceDiagram")
+    one_error_line(await arapp("trace", "show", tmp_path / "missing.jsonl"))
+
+
+async def test_doctor_reports_running_server_ok(running):
+    res = await arapp("doctor", env=running.env)
+    s = running.settings
+    assert f"ok    configured XMPP server accepts logins: login to {s.host}:{s.port}" in res.stdout, res.stdout
+
+
+def test_doctor_fails_with_a_hint_when_nothing_listens():
+    port = free_port()
+    res = rapp("doctor", env={"RAPP_XMPP_HOST": "127.0.0.1", "RAPP_XMPP_PORT": str(port)})
+    assert res.returncode == 1
+    fails = [ln for ln in res.stdout.splitlines() if "FAIL" in ln]
+    assert len(fails) == 1, res.stdout
+    assert "configured XMPP server" in fails[0] and f"127.0.0.1:{port}" in fails[0]
+    assert "rapp server" in fails[0] and "RAPP_XMPP_HOST" in fails[0]  # the hint
+    assert "Traceback" not in res.stdout + res.stderr

@@ -1,0 +1,91 @@
+"""The full RAPP lifecycle against a real, private Prosody (not the embedded pyjabber server).
+
+Opt-in by installation: skipped with a reason when the `prosody` binary is missing
+(`apt-get install prosody`). Prosody differs from pyjabber where it matters: STARTTLS is required,
+and it stamps full JIDs (user@domain/resource) on `from`, so this checks the agents compare bare
+JIDs along the whole path (user command -> Dynamic Agent process -> robot.say + Platform ping ->
+finished -> Core listening again).
+"""
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from agents.tracing import read_trace
+from ontology import robot as R
+from agents.errors import RequestTimeout
+from robots import RobotAPI, World
+from scenarios.system import RappSystem
+from tests.test_lifecycle import (FIXTURE, SERVING, SUPERVISING, SpyAPI, run_command, state,
+                                  structure, wait_until)
+from xmpp_server.prosody import ProsodyServer, prosody_binary
+
+pytestmark = [
+    pytest.mark.prosody,
+    pytest.mark.skipif(prosody_binary() is None,
+                       reason="prosody is not installed (apt-get install prosody); "
+                              "the real-server lifecycle test needs it"),
+]
+
+
+@pytest.fixture(scope="module")
+async def prosody():
+    async with ProsodyServer() as server:
+        yield server
+
+
+@pytest.fixture(scope="module")
+async def system(prosody, tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("prosody-lifecycle")
+    world = World.from_file("small", seed=3)
+    settings = prosody.settings(trace_file=workdir / "trace.jsonl", force_xmpp=True)
+    try:
+        async with RappSystem(workdir, settings=settings) as system:
+            await system.publish(FIXTURE)
+            spy = SpyAPI(RobotAPI(world.add_robot("nao")))
+            handle = await system.add_robot("nao", api=spy)
+            spy.core = handle.core
+            system.spy = spy
+            system.handle = handle
+            await wait_until(lambda: handle.core.vocabulary and "s3_listen" == state(handle.core))
+            yield system
+    finally:
+        world.close()
+
+
+async def test_prosody_accepts_prosodyctl_accounts(prosody):
+    from xmpp_server.probe import probe_login
+
+    prosody.register("ctl-user", "ctl-pw")
+    await probe_login(prosody.host, prosody.port, prosody.domain, user="ctl-user",
+                      password="ctl-pw", register=False, timeout=5)
+
+
+async def test_full_lifecycle_on_prosody(system):
+    core, spy = system.handle.core, system.spy
+    assert core.active_behaviours() == SUPERVISING
+    spy.calls.clear()
+    await run_command(system, "echo", "echo-app finished")
+    assert [c for c, _ in spy.calls if c in ("say", "get_global_pose")][:2] == ["say", "get_global_pose"]
+    say_active = next(active for c, active in spy.calls if c == "say")
+    assert say_active == SERVING
+    await wait_until(lambda: state(core) == "s3_listen")
+    assert core.active_behaviours() == SUPERVISING and core.dynamic is None
+    trace = read_trace(system.settings.trace_file)
+    spawn = [r for r in structure(trace) if r["event"] == "spawn"][-1]
+    with pytest.raises(ProcessLookupError):
+        os.kill(spawn["pid"], 0)
+    stopped = [r for r in trace if r["kind"] == "agent" and r["event"] == "stopped"
+               and r["agent"] == spawn["dynamic"]]
+    assert stopped, "the Dynamic Agent logged out"
+    with pytest.raises(RequestTimeout):
+        await core.request(spawn["dynamic"], R.GetGlobalPose(), timeout=0.5)
+    assert "echo done for owner-nao1" in system.handle.user.texts()
+    # everything went through Prosody, and the Platform was pinged by the Dynamic Agent
+    sent = [r for r in trace if r["kind"] == "message" and r["dir"] == "send"]
+    assert sent and all(r["path"] == "xmpp" for r in sent)
+    assert any(r["receiver"] == system.platform.address and r["sender"] == spawn["dynamic"]
+               and r["action"] == "ping" for r in sent), "the Dynamic Agent pinged the Platform"
+    # the core is listening again: a second command runs too
+    await run_command(system, "echo", "echo-app finished")
