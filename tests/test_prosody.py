@@ -89,3 +89,17 @@ async def test_full_lifecycle_on_prosody(system):
                and r["action"] == "ping" for r in sent), "the Dynamic Agent pinged the Platform"
     # the core is listening again: a second command runs too
     await run_command(system, "echo", "echo-app finished")
+
+
+async def test_prosody_without_in_band_registration(tmp_path):
+    from xmpp_server.probe import LoginError, probe_login
+
+    async with ProsodyServer(workdir=tmp_path / "prosody", allow_registration=False) as srv:
+        assert srv.settings().auto_register is False
+        with pytest.raises(LoginError):
+            await probe_login(srv.host, srv.port, srv.domain, user="nobody", timeout=3)
+        srv.register("store", "rapp-secret")
+        await probe_login(srv.host, srv.port, srv.domain, user="store", password="rapp-secret",
+                          register=False, timeout=5)
+        assert 'c2s_interfaces = { "127.0.0.1" }' in srv.config_file.read_text()
+    assert not srv.running()

@@ -26,14 +26,26 @@ def observe(req: Observe) -> Observations:
         lm = req.landmarks.get(text)
         if lm is None:
             continue
-        T_cam_code = L.code_pose(L.refine_corners(gray, corners), lm.size_m, K, dist)
+        solutions = code_poses(L.refine_corners(gray, corners), lm.size_m, K, dist)
+        T_cam_code = solutions[0]
         d = float(np.linalg.norm(T_cam_code[:3, 3]))
         if d > req.max_distance_m:
             continue
-        x, y, th = L.planar(L.robot_pose_from_code(T_cam_code, T_robot_cam, lm))
+        poses = [dict(zip(("x", "y", "theta"), L.planar(L.robot_pose_from_code(T, T_robot_cam, lm))))
+                 for T in solutions]
         centre = (T_robot_cam @ T_cam_code[:, 3])[:3]
-        items.append(Observation(text=text, in_robot=centre.tolist(), pose=dict(x=x, y=y, theta=th), distance_m=d))
+        items.append(Observation(text=text, in_robot=centre.tolist(), poses=poses, distance_m=d))
     return Observations(items=items)
+
+
+def code_poses(corners: np.ndarray, size: float, K: np.ndarray, dist: np.ndarray) -> list[np.ndarray]:
+    """Both IPPE solutions (code -> camera), lowest reprojection error first: far or small planar
+    codes are ambiguous, a wrong flip turns the robot heading by tens of degrees."""
+    n, rvecs, tvecs, _ = cv2.solvePnPGeneric(L.code_corners_3d(size), corners.reshape(4, 1, 2).astype(np.float64),
+                                             K, dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    if not n:
+        return [L.code_pose(corners, size, K, dist)]
+    return [L.transform(cv2.Rodrigues(r)[0], t) for r, t in zip(rvecs, tvecs)]
 
 
 def rigid_fit(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[float, float, float]:
@@ -66,7 +78,10 @@ def solve_pose(req: SolvePose) -> Localization:
             return Localization(found=True, pose=dict(x=x, y=y, theta=th), markers=[o.text for o in obs],
                                 method="points")
     o = obs[0]
-    return Localization(found=True, pose=o.pose, markers=[o.text], method="single")
+    pose = o.poses[0]
+    if req.prior is not None:  # the solution whose heading agrees with the current estimate
+        pose = min(o.poses, key=lambda p: abs(math.remainder(p.theta - req.prior.theta, math.tau)))
+    return Localization(found=True, pose=pose, markers=[o.text], method="single")
 
 
 class LocalizationCloud(CloudService):

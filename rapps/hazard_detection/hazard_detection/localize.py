@@ -88,8 +88,9 @@ class Localizer:
         """Solve the pose from the sweep's observations (Cloud Agent) and set it on the robot."""
         found = None
         if memory["observations"]:
+            prior = await self.task.robot.get_global_pose()
             found = await self.task.cloud.call("solve_pose", observations=memory["observations"],
-                                               landmarks=memory["home"].landmarks)
+                                               landmarks=memory["home"].landmarks, prior=prior.model_dump())
         memory["localization"] = found
         if found is not None and found.found:
             p = found.pose

@@ -11,7 +11,7 @@ class Observation(Content):
 
     text: str
     in_robot: list[float]  # x, y, z of the code centre in the robot base frame (m)
-    pose: Pose2D  # robot pose from this code alone (position and orientation of the code)
+    poses: list[Pose2D]  # robot poses from this code alone: both planar-ambiguity solutions, best first
     distance_m: float
 
 
@@ -43,3 +43,4 @@ class SolvePose(Action):
 
     observations: list[Observation]
     landmarks: dict[str, LandmarkSpec]
+    prior: Pose2D | None = None  # current estimate: picks between a single code's ambiguous poses

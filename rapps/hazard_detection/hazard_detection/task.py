@@ -55,7 +55,7 @@ class HazardTask(Task):
         fsm.add_transition("s4_5_go_to_hazard", "s5_unreachable", on_error=True)
         fsm.add_transition("s5_check_hazard", "s3_next_hazard")
         fsm.add_transition("s5_check_hazard", "s5_unreachable", on_error=True)
-        fsm.add_transition("s5_unreachable", "s3_next_hazard")
+        fsm.add_transition("s5_unreachable", "s2_localize")  # where are we after the failure?
         fsm.add_transition("s6_report", "s7_done")
         return fsm
 

@@ -1,0 +1,77 @@
+"""The hazard-detection experiment end to end: chat command -> Core downloads the RApp -> Dynamic
+and Cloud Agents check the hazards -> report to the user -> destroyed; scored against ground truth."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from agents.services.context import ServiceContext, ServiceState
+from agents.services.errors import ServiceError
+from agents.services.home import get_info, upload_info
+from agents.tracing import read_trace
+from ontology.services.home import GetHomeInfo, HomeInfo, UploadHomeInfo
+from scenarios.hazard import parse_reports, run_hazard_detection
+from scenarios.home_setup import hazard_list, hazard_overrides
+
+RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
+               "duration_sim_s", "duration_wall_s", "trace", "plot"}
+
+
+def structure_events(trace: list[dict], rapp: str) -> list[str]:
+    return [r["event"] for r in trace if r["kind"] == "structure" and r.get("rapp") == rapp
+            and r["event"] in ("spawn", "cloud-spawn", "cloud-destroy", "destroy")]
+
+
+def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
+    assert set(result) == RESULT_KEYS
+    assert {h["id"] for h in result["hazards"]} == hazard_ids
+    assert result["all_correct"], result["hazards"]
+    events = structure_events(read_trace(result["trace"]), "hazard-detection")
+    assert events[0] == "spawn" and "cloud-spawn" in events and events[-1] == "destroy", events
+    chat = (out / "chat.txt").read_text()
+    assert "hazard-detection finished" in chat
+    assert set(parse_reports(chat.splitlines())) == hazard_ids  # the user got every hazard's report
+    assert Path(result["plot"]).stat().st_size > 10_000
+    assert {p.stem for p in (out / "frames").glob("*.png")} == hazard_ids
+    assert json.loads((out / "result.json").read_text()) == result
+
+
+async def test_hazard_detection_small_house(tmp_path):
+    result = await run_hazard_detection("elektron", seed=1, house="small", out_dir=tmp_path)
+    check_run(result, tmp_path, {"d1", "l1"})
+    assert result["localization_error_m"] <= 0.05
+    assert result["max_tracking_error_m"] <= 0.12
+    door = next(h for h in result["hazards"] if h["type"] == "door")
+    assert abs(door["estimated_angle"] - door["true_angle"]) <= 10
+
+
+def test_home_info_is_per_user(tmp_path):
+    state = ServiceState(work_dir=tmp_path)
+    info = HomeInfo(home_id="home", map_id="m", hazards=[])
+    upload_info(UploadHomeInfo(info=info), ServiceContext("alice", state))
+    assert get_info(GetHomeInfo(home_id="home"), ServiceContext("alice", state)) == info
+    with pytest.raises(ServiceError, match="no home"):
+        get_info(GetHomeInfo(home_id="home"), ServiceContext("bob", state))
+
+
+def test_seeded_door_states_and_hazard_list():
+    from robots import World
+
+    assert hazard_overrides("house", 4) == hazard_overrides("house", 4)
+    overrides = hazard_overrides("house", 4)
+    assert overrides["doors"]["d_living"] >= 80  # the passage door stays open
+    world = World.from_file("house", seed=4, overrides=overrides)
+    try:
+        kinds = [h.type for h in hazard_list(world, "house")]
+    finally:
+        world.close()
+    assert kinds.count("door") >= 2 and kinds.count("lamp") >= 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot", ["nao", "elektron"])
+async def test_hazard_detection_full_house(tmp_path, robot):
+    result = await run_hazard_detection(robot, seed=1, house="house", out_dir=tmp_path)
+    check_run(result, tmp_path, {"d_kitchen", "d_bedroom", "l_living", "l_office"})
