@@ -33,6 +33,7 @@ from xmpp_server.settings import XmppSettings
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, make_message, reply_to
+from .stanza import message_xml
 from .tracing import cap, tracer_for
 
 log = logging.getLogger("rapp.agent")
@@ -158,7 +159,8 @@ class RappAgent(Agent):
         else:
             if self.client is None:
                 raise RuntimeError(f"{self.address} is not connected")
-            msg.prepare(self.client).send()
+            # a str stanza is queued by slixmpp while disconnected and sent after reconnecting
+            self.client.send(message_xml(msg))
 
     def _local_agent(self, to: str):
         real = self._container_real

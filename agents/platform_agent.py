@@ -164,10 +164,9 @@ class PlatformAgent(RappAgent):
         if self.pending >= self.max_pending:
             raise Refusal(f"platform busy: {self.pending} calls in progress, retry shortly", "busy")
         spec = self.services[req.action_name]
-        fn = getattr(spec, "fn", spec)
         self.pending += 1
         try:
-            return await asyncio.to_thread(fn, req, ServiceContext(user=ctx.user, state=self.state))
+            return await asyncio.to_thread(spec.run, req, ServiceContext(user=ctx.user, state=self.state))
         except ServiceError as e:
             raise Failure(str(getattr(e, "reason", e)), getattr(e, "code", "service-error")) from None
         finally:

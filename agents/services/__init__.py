@@ -31,11 +31,6 @@ class ServiceSpec:
     run: Callable[[Action, ServiceContext], Content]
     cpu_heavy: bool = False
 
-    @property
-    def fn(self) -> Callable[[Action, ServiceContext], Content]:
-        """Alias of `run` (what the Platform Agent calls)."""
-        return self.run
-
 
 _IMPLS: dict[str, tuple[Callable, bool]] = {
     "path_planning_upload_map": (navigation.upload_map, False),
