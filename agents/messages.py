@@ -29,7 +29,8 @@ def make_message(to: str, content: Content | None, *, performative: Performative
         meta[acl.ACTION] = action
     if in_reply_to:
         meta[acl.IN_REPLY_TO] = in_reply_to
-    return Message(to=str(to), body=encode(content), thread=meta[acl.CONVERSATION_ID], metadata=meta)
+    # no XMPP thread: it would only repeat the conversation id on the wire
+    return Message(to=str(to), body=encode(content), metadata=meta)
 
 
 def reply_to(msg: Message, content: Content | None, performative: Performative | str) -> Message:
