@@ -5,6 +5,7 @@ Behaviours and when they are active (see `active_behaviours()`):
   supervisor      always   the FSM of fig. 5 (agents/core_fsm.py)
   core-service    always   task status / heartbeats / reports of the current Dynamic Agent
   user-listener   while the Core supervises: user chat -> command queue
+  microphone-listener  while the Core supervises: what the robot's microphone hears -> commands
   command-server  while a Dynamic Agent supervises: its robot-API requests (fig. 5, s8/s9)
   busy-chat       while a Dynamic Agent supervises: answers the user, "stop" cancels the task
   heartbeats      while a Dynamic Agent supervises: its liveness (a hang is noticed within 2 s)
@@ -44,7 +45,7 @@ from .core_fsm import build_core_fsm
 from .errors import Failure, Refusal, RequestError
 from .locks import ACTION_DEVICE, LockError, ResourceLocks
 from .messages import AclInfo, bare
-from .process import AgentProcess, Limits
+from .process import AgentProcess, InProcessAgent, Limits
 from .responder import Responder
 from .store_client import download_package
 
@@ -91,6 +92,19 @@ class _UserChat(CyclicBehaviour):
             await self.on_text(msg.body.strip())
 
 
+class _MicrophoneListener(CyclicBehaviour):
+    """The robot's microphone: each utterance heard while the Core supervises is a command."""
+
+    def __init__(self, microphone, on_text):
+        super().__init__()
+        self.microphone, self.on_text = microphone, on_text
+
+    async def run(self) -> None:
+        text = await self.microphone.listen(timeout=0.5)
+        if text and text.strip():
+            await self.on_text(text.strip())
+
+
 class _HeartbeatMonitor(CyclicBehaviour):
     """Takes the Dynamic Agent's one-way heartbeats (inform, ontology core)."""
 
@@ -130,7 +144,8 @@ class CoreAgent(RappAgent):
                  platform: str, store: str, user: str, password: str, settings=None,
                  workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
                  limits: Limits = Limits(), say_reports: bool = True,
-                 safety_distance: float | None = 0.10, safety_period: float = 0.2):
+                 safety_distance: float | None = 0.10, safety_period: float = 0.2,
+                 dynamic_mode: str = "process"):
         super().__init__(name, settings)
         self.robot_id, self.robot_type, self.robot = robot_id, robot_type, robot_api
         self.owner = self.settings.jid(owner)
@@ -149,6 +164,9 @@ class CoreAgent(RappAgent):
         self.supervisor: BehaviourHost | None = None
         self._serial = itertools.count(1)
         self.locks = ResourceLocks()
+        if dynamic_mode not in ("process", "inprocess"):
+            raise ValueError(f"dynamic_mode must be 'process' or 'inprocess', not {dynamic_mode!r}")
+        self.dynamic_mode = dynamic_mode
         self.estop_reason: str | None = None
         self.safety_distance, self.safety_period = safety_distance, safety_period
 
@@ -158,12 +176,18 @@ class CoreAgent(RappAgent):
                                          "get_state": self._on_get_state})
         self.activate("core-service", service, service.make_template())
         self.activate("user-listener", _UserChat(self.owner, self._command_heard))
+        self._listen_to_microphone()
         self.supervisor = BehaviourHost(build_core_fsm(), self.memory)
         self.activate("supervisor", self.supervisor)
 
     def _command_server(self) -> Responder:
         handlers = {name: self._robot_call for name in actions("robot")}
         return Responder("robot", handlers, check=self._only_supervisor)
+
+    def _listen_to_microphone(self) -> None:
+        mic = getattr(getattr(self.robot, "robot", None), "microphone", None)
+        if mic is not None and hasattr(mic, "listen"):
+            self.activate("microphone-listener", _MicrophoneListener(mic, self._command_heard))
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
@@ -257,8 +281,11 @@ class CoreAgent(RappAgent):
         spec = {"kind": "dynamic", "name": name, "package_dir": str(pkg_dir), "core": self.address,
                 "platform": self.platform, "token": app_token.token, "params": params}
         (workdir / "spec.json").write_text(__import__("json").dumps(spec))
-        session.process = AgentProcess(name, "agents.runtime", [str(workdir / "spec.json")], workdir,
-                                       env=self.settings.to_env(), limits=self.limits)
+        if self.dynamic_mode == "inprocess":
+            session.process = InProcessAgent(name, spec, workdir, self.settings)
+        else:
+            session.process = AgentProcess(name, "agents.runtime", [str(workdir / "spec.json")], workdir,
+                                           env=self.settings.to_env(), limits=self.limits)
         await session.process.start()
         self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
                               pid=session.process.pid)
@@ -274,6 +301,7 @@ class CoreAgent(RappAgent):
 
     def _handoff(self) -> None:
         self.deactivate("user-listener")
+        self.deactivate("microphone-listener")  # the RApp may use the microphone (word_spotting)
         server = self._command_server()
         self.activate("command-server", server, server.make_template())
         self.activate("busy-chat", _UserChat(self.owner, self._busy_chat))
@@ -293,6 +321,7 @@ class CoreAgent(RappAgent):
         self.deactivate("heartbeats")
         self.deactivate("safety")
         self.activate("user-listener", _UserChat(self.owner, self._command_heard))
+        self._listen_to_microphone()
         self.record_structure("resume", robot=self.robot_id)
 
     async def _watch_process(self, session: DynamicSession) -> None:

@@ -102,3 +102,55 @@ class AgentProcess:
             return (self.workdir / "stderr.log").read_text(errors="replace")[-n:]
         except OSError:
             return ""
+
+
+class InProcessAgent:
+    """The AgentProcess interface for an agent run as a task of this process: the same package
+    bytes, unpacking and runtime code, no isolation (no limits, a crash affects the caller).
+    For fast tests and for measuring what the process costs."""
+
+    def __init__(self, name: str, spec: dict, workdir: Path, settings):
+        self.name, self.spec, self.workdir, self.settings = name, spec, Path(workdir), settings
+        self.task: asyncio.Task | None = None
+        self.agent = None
+        self.returncode: int | None = None
+
+    async def start(self) -> None:
+        from .runtime import build_agent, run_agent
+
+        self.agent = build_agent(self.spec, self.settings)
+        self.task = asyncio.ensure_future(run_agent(self.agent, self.spec))
+
+    @property
+    def pid(self) -> int:
+        return os.getpid()
+
+    def alive(self) -> bool:
+        return self.task is not None and not self.task.done()
+
+    async def wait(self) -> int:
+        try:
+            self.returncode = await asyncio.shield(self.task)
+        except asyncio.CancelledError:
+            self.returncode = 143
+        except Exception:  # noqa: BLE001 - a crashed in-process agent ends like a crashed process
+            self.returncode = 1
+        return self.returncode
+
+    async def stop(self, grace: float = 1.0) -> int | None:
+        if self.task is None:
+            return None
+        if not self.task.done():
+            try:
+                await asyncio.wait_for(asyncio.shield(self.task), grace)
+            except asyncio.TimeoutError:
+                self.task.cancel()
+                if self.agent.is_alive():
+                    await self.agent.stop()
+            except Exception:  # noqa: BLE001
+                pass
+        return await self.wait()
+
+    def stderr_tail(self, n: int = 2000) -> str:
+        exc = self.task.exception() if self.task is not None and self.task.done() and not self.task.cancelled() else None
+        return f"{type(exc).__name__}: {exc}" if exc else ""

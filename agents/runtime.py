@@ -27,6 +27,7 @@ def load_entry_point(package_dir: str | Path, entry_point: str):
     """Import `module:Class` from the unpacked package directory."""
     module_name, _, class_name = entry_point.partition(":")
     root = str(Path(package_dir).resolve())
+    _forget_other_copies(module_name.split(".")[0], root)
     if root not in sys.path:
         sys.path.insert(0, root)
     try:
@@ -39,10 +40,21 @@ def load_entry_point(package_dir: str | Path, entry_point: str):
     return cls
 
 
-async def run_spec(spec: dict) -> int:
+def _forget_other_copies(top: str, root: str) -> None:
+    """In-process runs import each RApp from its own unpack directory: drop earlier copies."""
+    for name in [n for n in sys.modules if n == top or n.startswith(top + ".")]:
+        origin = getattr(sys.modules[name], "__file__", None) or ""
+        if not origin.startswith(root):
+            del sys.modules[name]
+    sys.path[:] = [p for p in sys.path if not (p.endswith("/package") and p != root and
+                                               Path(p, top).exists())]
+
+
+def build_agent(spec: dict, settings=None):
+    """The Dynamic or Cloud Agent a spec describes (not started)."""
     from xmpp_server.settings import XmppSettings
 
-    settings = XmppSettings.from_env()
+    settings = settings or XmppSettings.from_env()
     manifest = load_manifest(Path(spec["package_dir"]) / "manifest.yaml")
     if spec["kind"] == "dynamic":
         from .dynamic_agent import DynamicAgent
@@ -55,16 +67,25 @@ async def run_spec(spec: dict) -> int:
                            owner=spec.get("owner", ""), token=spec.get("token", ""), settings=settings)
     else:
         raise SystemExit(f"unknown agent kind {spec['kind']!r}")
+    return agent
+
+
+async def run_agent(agent, spec: dict) -> int:
+    if spec["kind"] == "cloud":
+        return await agent.run_to_end(spec["platform"])
+    return await agent.run_to_end()
+
+
+async def run_spec(spec: dict) -> int:
     import signal
 
+    agent = build_agent(spec)
     loop = asyncio.get_running_loop()
     main_task = asyncio.current_task()
     # SIGTERM from the Core/Platform: log out cleanly (presence unavailable), then exit
     loop.add_signal_handler(signal.SIGTERM, main_task.cancel)
     try:
-        if spec["kind"] == "cloud":
-            return await agent.run_to_end(spec["platform"])
-        return await agent.run_to_end()
+        return await run_agent(agent, spec)
     except asyncio.CancelledError:
         await asyncio.wait_for(agent.stop(), 2.0)
         return 143

@@ -199,3 +199,23 @@ async def test_store_data_survives_restart(xmpp_server, tmp_path, unique):
     finally:
         await again.stop()
         await client.stop()
+
+
+async def test_in_process_mode_runs_the_same_package_bytes(system):
+    """The same download, verification, unpacking and runtime code, as a task of the Core's process."""
+    world = World.from_file("small", seed=8)
+    handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")), robot_id="nao-inproc",
+                                    dynamic_mode="inprocess")
+    try:
+        await wait_until(lambda: handle.core.vocabulary and state(handle.core) == "s3_listen")
+        for _ in range(2):  # twice: the second run imports the RApp again from its new directory
+            start = len(handle.user.received)
+            await handle.user.say(handle.core.address, "cloudecho")
+            await handle.user.wait_for(lambda t: "echo-cloud finished" in t, timeout=60, start=start)
+        assert any("doubled 42" in t for t in handle.user.texts())
+        spawns = [r for r in structure(read_trace(system.settings.trace_file))
+                  if r["event"] == "spawn" and r["dynamic"].startswith("dyn-nao-inproc")]
+        assert len(spawns) == 2 and all(r["pid"] == os.getpid() for r in spawns)
+        await wait_until(lambda: handle.core.active_behaviours() >= {"supervisor", "user-listener"})
+    finally:
+        world.close()
