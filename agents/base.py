@@ -190,7 +190,8 @@ class RappAgent(Agent):
         tasks = []
         for behaviour in self.behaviours:
             if _accepts(behaviour, msg):
-                tasks.append(self.submit(behaviour.enqueue(msg)))
+                direct = getattr(behaviour, "take_now", None)  # responders: no queue hop
+                tasks.append(direct(msg) if direct else self.submit(behaviour.enqueue(msg)))
         if not tasks:
             tasks.append(self.submit(self._unhandled(msg, info)))
         return tasks

@@ -52,20 +52,29 @@ class Responder(CyclicBehaviour):
         self.concurrent = concurrent
         self.check = check
         self._tasks: set[asyncio.Task] = set()
+        self._order = asyncio.Lock()
 
     def make_template(self) -> Template:
         # constructor metadata: assigning template.metadata later matches everything (spade 4.1.4)
         return Template(metadata={"ontology": self.ontology, "performative": Performative.REQUEST.value})
 
     async def run(self) -> None:
-        msg = await self.receive(timeout=0.5)
-        if msg is None:
-            return
+        msg = await self.receive(timeout=0.5)  # only messages queued before take_now existed
+        if msg is not None:
+            self.take_now(msg)
+
+    def take_now(self, msg: Message) -> asyncio.Task:
+        """Called by RappAgent's router: serve at once, without SPADE's queue hop."""
         if self.concurrent:
             task = asyncio.create_task(self.serve(msg))
-            self._tasks.add(task)
-            task.add_done_callback(self._tasks.discard)
         else:
+            task = asyncio.create_task(self._serve_in_order(msg))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    async def _serve_in_order(self, msg: Message) -> None:
+        async with self._order:
             await self.serve(msg)
 
     async def serve(self, msg: Message) -> None:

@@ -49,18 +49,34 @@ class GroundTruth:
     lamps: dict[str, bool]
 
 
-class World:
-    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60):
+class Scene:
+    """The rendered/physical scene of a house: static bodies, doors, lamps, QR panels. World builds it in
+    its pybullet thread; the render process (robots/render_process.py) builds the same scene with the same
+    code in its own DIRECT client to mirror it."""
+
+    plan: Plan
+    cid: int
+
+    def _init_scene(self, plan: Plan) -> None:
         self.plan = plan
+        self.cid = -1
+        self.emissive_colors: dict[int, tuple[float, float, float]] = {}
+        self.door_uids: dict[str, int] = {}
+        self.lamp_uids: dict[str, tuple[int, int]] = {}
+
+    def _add_obstacle(self, uid: int) -> None:  # World overrides: collision bookkeeping
+        pass
+
+class World(Scene):
+    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60):
+        self._init_scene(plan)
         self.clock = SimClock(step=time_step, rtf=rtf)
         self._exec = ThreadPoolExecutor(1, thread_name_prefix=f"pybullet-{plan.name}")
         self._worker: threading.Thread | None = None
         self.robots: dict[str, Robot] = {}
-        self.emissive_colors: dict[int, tuple[float, float, float]] = {}
         self._active: list[Controller] = []
         self._stepper: asyncio.Task | None = None
         self._closed = False
-        self.cid = -1
         self.run_sync(self._build)
 
     @classmethod

@@ -140,6 +140,16 @@ async def serve(*, bind_host: str, port: int, s2s_port: int, domain: str, db_pat
     if task in done:
         ready.cancel()
         raise RuntimeError(f"XMPP server failed to start on {bind_host}:{port}")
+    # pyjabber's own SIGTERM handler raises SystemExit inside a callback, which the loop does not
+    # turn into a shutdown: stop by cancelling its task instead
+    import signal
+
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, task.cancel)
     if ready_callback:
         ready_callback()
-    await task
+    try:
+        await task
+    except asyncio.CancelledError:
+        pass
