@@ -1,6 +1,7 @@
 """`rapp`: one command line for the project. Errors are one line unless --debug.
 
     rapp server [--host H] [--port P] [--domain D] [--db FILE | --memory]
+    rapp agent store|platform|core [...]       (one agent on this machine, for deployments)
     rapp run demo | hazard-detection --robot nao|elektron --seed N [--json FILE] | two-robots
     rapp package build DIR [-o OUT] [--key KEY.pem] | rapp package keygen KEY.pem
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
@@ -206,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("trace", help="show, export or render a message trace (rapp trace FILE)", add_help=False)
     sub.add_parser("bench", help="run the benchmarks (rapp bench --help)", add_help=False)
+    sub.add_parser("agent", help="run one Store, Platform or Core agent here (rapp agent --help)",
+                   add_help=False)
     sub.add_parser("doctor", help="check the installation and the configured XMPP server")
     return p
 
@@ -218,6 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if argv and argv[0] == "trace":
             return cmd_trace(argv[1:])
+        if argv and argv[0] == "agent":
+            from scenarios.roles import main as agent_main
+            return agent_main(argv[1:])
         if argv and argv[0] == "bench":
             from bench.runner import main as bench_main
             return bench_main(argv[1:])

@@ -70,6 +70,22 @@ def pose_matrix(pos, quat) -> np.ndarray:
     return T
 
 
+def render_radiance(cid: int, width: int, height: int, view, proj,
+                    emissive: dict[int, tuple[float, float, float]]) -> np.ndarray:
+    """Render with TinyRenderer in client `cid`: float HxWx3 radiance, lit lamp shades (body uid -> colour in
+    `emissive`) replaced by LAMP_RADIANCE times their colour. Shared by the in-process camera and the
+    render process (robots/render_process.py), so both give the same pixels for the same scene state."""
+    flags = 0 if emissive else p.ER_NO_SEGMENTATION_MASK
+    out = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER, flags=flags,
+                           physicsClientId=cid, **LIGHT)
+    rgb = np.asarray(out[2], dtype=np.float32).reshape(height, width, 4)[:, :, :3] / 255.0
+    if emissive:
+        seg = np.asarray(out[4]).reshape(height, width)
+        for uid, color in emissive.items():
+            rgb[seg == uid] = np.asarray(color, np.float32) * LAMP_RADIANCE
+    return rgb
+
+
 class Camera:
     def __init__(self, robot: "Robot", spec: CameraSpec):
         self.robot, self.spec, self.name = robot, spec, spec.name
@@ -99,7 +115,8 @@ class Camera:
         T[:3, :3] = T[:3, :3] @ R_LINK_OPTICAL
         return T
 
-    def render_radiance(self, width: int, height: int) -> np.ndarray:
+    def view_projection(self, width: int, height: int) -> tuple[list[float], list[float]]:
+        """OpenGL view and projection matrices (16 floats each) of this camera's current pose."""
         T = self.link_pose()
         eye, fwd, up = T[:3, 3], T[:3, 0], T[:3, 2]
         _, vfov = self.fov(width, height)
@@ -107,16 +124,11 @@ class Camera:
         view = p.computeViewMatrix(eye.tolist(), (eye + fwd).tolist(), up.tolist(), physicsClientId=cid)
         proj = p.computeProjectionMatrixFOV(math.degrees(vfov), width / height, self.spec.near, self.spec.far,
                                             physicsClientId=cid)
-        emissive = self.robot.world.emissive_colors
-        flags = 0 if emissive else p.ER_NO_SEGMENTATION_MASK
-        out = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER, flags=flags,
-                               physicsClientId=cid, **LIGHT)
-        rgb = np.asarray(out[2], dtype=np.float32).reshape(height, width, 4)[:, :, :3] / 255.0
-        if emissive:
-            seg = np.asarray(out[4]).reshape(height, width)
-            for uid, color in emissive.items():
-                rgb[seg == uid] = np.asarray(color, np.float32) * LAMP_RADIANCE
-        return rgb
+        return list(view), list(proj)
+
+    def render_radiance(self, width: int, height: int) -> np.ndarray:
+        view, proj = self.view_projection(width, height)
+        return render_radiance(self.robot.world.cid, width, height, view, proj, self.robot.world.emissive_colors)
 
     def capture(self, width: int = 320, height: int = 240) -> np.ndarray:
         """RGB uint8 image (HxWx3) with the current image parameters applied."""

@@ -23,14 +23,29 @@ def yaw_quat(yaw: float) -> list[float]:
     return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
 
 
+def probe_z(spec: RobotSpec) -> float:
+    return spec.collision_height / 2 + 0.02
+
+
+def create_bodies(cid: int, spec: RobotSpec, pose: tuple[float, float, float], collision: bool = True
+                  ) -> tuple[int, int, dict[str, tuple[float, float]]]:
+    """The robot's URDF multibody and its collision-probe cylinder (with a tiny visual marker); also used
+    by the render process to mirror the robot. Returns (uid, probe uid, joint limits)."""
+    urdf, limits = spec.build_urdf()
+    uid = p.loadURDF(str(urdf), [pose[0], pose[1], 0.0], yaw_quat(pose[2]), useFixedBase=True, physicsClientId=cid)
+    col = p.createCollisionShape(p.GEOM_CYLINDER, radius=spec.radius, height=spec.collision_height,
+                                 physicsClientId=cid) if collision else -1
+    vis = p.createVisualShape(p.GEOM_SPHERE, radius=0.001, rgbaColor=[0, 0, 0, 1], physicsClientId=cid)
+    probe = p.createMultiBody(0, col, vis, [pose[0], pose[1], probe_z(spec)], physicsClientId=cid)
+    return uid, probe, limits
+
+
 class Robot:
     def __init__(self, world: "World", spec: RobotSpec, name: str, pose: tuple[float, float, float],
                  noise: OdometryNoise | None, rng: np.random.Generator):
         self.world, self.spec, self.name, self.kind = world, spec, name, spec.kind
         cid = world.cid
-        urdf, self.limits = spec.build_urdf()
-        self.uid = p.loadURDF(str(urdf), [pose[0], pose[1], 0.0], yaw_quat(pose[2]), useFixedBase=True,
-                              physicsClientId=cid)
+        self.uid, self.probe, self.limits = create_bodies(cid, spec, pose)
         self.root_link = p.getBodyInfo(self.uid, physicsClientId=cid)[0].decode()
         self.link_index = {self.root_link: -1}
         self.joint_index: dict[str, int] = {}
@@ -47,10 +62,6 @@ class Robot:
             self._joint_origin[jn] = pose_matrix(info[14], info[15])
             self._link_joint[child] = jn
         self.q: dict[str, float] = {n: 0.0 for n in self.limits}
-        col = p.createCollisionShape(p.GEOM_CYLINDER, radius=spec.radius, height=spec.collision_height,
-                                     physicsClientId=cid)
-        vis = p.createVisualShape(p.GEOM_SPHERE, radius=0.001, rgbaColor=[0, 0, 0, 1], physicsClientId=cid)
-        self.probe = p.createMultiBody(0, col, vis, [pose[0], pose[1], self._probe_z()], physicsClientId=cid)
         self.pose = tuple(map(float, pose))
         self.odometry = Odometry(pose, noise, rng)
         self.base = BaseEffector(self)
@@ -69,7 +80,7 @@ class Robot:
 
     # ------------------------------------------------------------ kinematics (pybullet thread)
     def _probe_z(self) -> float:
-        return self.spec.collision_height / 2 + 0.02
+        return probe_z(self.spec)
 
     def set_base_pose(self, x: float, y: float, th: float) -> None:
         cid = self.world.cid

@@ -67,52 +67,6 @@ class Scene:
     def _add_obstacle(self, uid: int) -> None:  # World overrides: collision bookkeeping
         pass
 
-class World(Scene):
-    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60):
-        self._init_scene(plan)
-        self.clock = SimClock(step=time_step, rtf=rtf)
-        self._exec = ThreadPoolExecutor(1, thread_name_prefix=f"pybullet-{plan.name}")
-        self._worker: threading.Thread | None = None
-        self.robots: dict[str, Robot] = {}
-        self._active: list[Controller] = []
-        self._stepper: asyncio.Task | None = None
-        self._closed = False
-        self.run_sync(self._build)
-
-    @classmethod
-    def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
-                  time_step: float = 1 / 60) -> "World":
-        """Build from a YAML house description; `path` may also be a bare name in robots/houses."""
-        path = Path(path)
-        if not path.exists() and (HOUSES / f"{path}.yaml").exists():
-            path = HOUSES / f"{path}.yaml"
-        return cls(load_plan(path, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step)
-
-    # ------------------------------------------------------------------ thread plumbing
-    def _mark_worker(self) -> None:
-        self._worker = threading.current_thread()
-
-    def run_sync(self, fn: Callable, *args, **kw) -> Any:
-        """Run fn in the pybullet thread and wait (for setup code and tests outside async code)."""
-        if self._closed:
-            raise WorldClosed("world is closed")
-        if threading.current_thread() is self._worker:
-            return fn(*args, **kw)
-        return self._exec.submit(self._in_worker, fn, *args, **kw).result()
-
-    def _in_worker(self, fn, *args, **kw):
-        if self._worker is None:
-            self._mark_worker()
-        return fn(*args, **kw)
-
-    async def run(self, fn: Callable, *args, **kw) -> Any:
-        """Run fn in the pybullet thread without blocking the event loop."""
-        if self._closed:
-            raise WorldClosed("world is closed")
-        loop = asyncio.get_running_loop()
-        return await loop.run_in_executor(self._exec, partial(self._in_worker, fn, *args, **kw))
-
-    # ------------------------------------------------------------------ building
     def _box_body(self, b: Box, collision: bool = True, visual: bool = True) -> int:
         cid = self.cid
         half = [b.sx / 2, b.sy / 2, b.sz / 2]
@@ -120,40 +74,24 @@ class World(Scene):
         vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[*b.color, 1], physicsClientId=cid) if visual else -1
         return p.createMultiBody(0, col, vis, [b.x, b.y, b.z0 + b.sz / 2], yaw_quat(b.yaw), physicsClientId=cid)
 
-    def _build(self) -> None:
-        self.cid = cid = p.connect(p.DIRECT)
+    def _build_scene(self) -> None:
+        """Create every static body (self.cid must be connected)."""
         plan = self.plan
-        self._obstacle_uids: list[int] = []
-        self._obstacle_aabbs: list[list[float]] = []
         x0, y0, x1, y1 = plan.bounds
         cx, cy, sx, sy = (x0 + x1) / 2, (y0 + y1) / 2, x1 - x0 + 1.0, y1 - y0 + 1.0
         self._box_body(Box("floor", cx, cy, sx, sy, 0.02, 0, -0.02, FLOOR_COLOR), collision=False)
         self._box_body(Box("ceiling", cx, cy, sx, sy, 0.02, 0, plan.wall_height, CEILING_COLOR), collision=False)
         for b in plan.walls + plan.furniture:
             self._add_obstacle(self._box_body(b))
-        self.door_uids: dict[str, int] = {}
         for d in plan.doors:
             self.door_uids[d.id] = uid = self._door_body(d)
             self._add_obstacle(uid)
-        self.lamp_uids: dict[str, tuple[int, int]] = {}
         for lamp in plan.lamps:
             self.lamp_uids[lamp.id] = self._lamp_bodies(lamp)
             self._add_obstacle(self.lamp_uids[lamp.id][0])
             self._set_lamp(lamp.id, lamp.on)
         for m in plan.landmarks:
             self._landmark_body(m)
-
-    def _add_obstacle(self, uid: int) -> None:
-        self._obstacle_uids.append(uid)
-        self._obstacle_aabbs.append(self._aabb(uid))
-        self._aabb_array = np.array(self._obstacle_aabbs)
-
-    def _aabb(self, uid: int) -> list[float]:
-        lo, hi = np.array(p.getAABB(uid, -1, physicsClientId=self.cid))
-        for link in range(p.getNumJoints(uid, physicsClientId=self.cid)):
-            l2, h2 = np.array(p.getAABB(uid, link, physicsClientId=self.cid))
-            lo, hi = np.minimum(lo, l2), np.maximum(hi, h2)
-        return [lo[0], lo[1], hi[0], hi[1]]
 
     def _door_body(self, d) -> int:
         cid = self.cid
@@ -211,25 +149,12 @@ class World(Scene):
         tex = p.loadTexture(str(qr_texture(m.text)), physicsClientId=cid)
         p.changeVisualShape(uid, -1, textureUniqueId=tex, rgbaColor=[1, 1, 1, 1], physicsClientId=cid)
 
-    # ------------------------------------------------------------------ obstacles / state
-    def obstacles_near(self, x: float, y: float, r: float, exclude: int = -1) -> list[int]:
-        a = self._aabb_array
-        hit = (a[:, 0] - r <= x) & (x <= a[:, 2] + r) & (a[:, 1] - r <= y) & (y <= a[:, 3] + r)
-        out = [self._obstacle_uids[i] for i in np.nonzero(hit)[0]]
-        for rb in self.robots.values():
-            if rb.probe != exclude and math.hypot(rb.pose[0] - x, rb.pose[1] - y) < r + rb.spec.radius + 0.1:
-                out.append(rb.probe)
-        return out
-
     def _set_door(self, door_id: str, angle_deg: float) -> None:
         d = next((d for d in self.plan.doors if d.id == door_id), None)
         if d is None:
             raise InvalidArgument(f"unknown door {door_id!r}")
         d.angle = float(angle_deg)
-        uid = self.door_uids[door_id]
-        p.resetJointState(uid, 0, d.sign * math.radians(d.angle), physicsClientId=self.cid)
-        self._obstacle_aabbs[self._obstacle_uids.index(uid)] = self._aabb(uid)
-        self._aabb_array = np.array(self._obstacle_aabbs)
+        p.resetJointState(self.door_uids[door_id], 0, d.sign * math.radians(d.angle), physicsClientId=self.cid)
 
     def _set_lamp(self, lamp_id: str, on: bool) -> None:
         lamp = next((lp for lp in self.plan.lamps if lp.id == lamp_id), None)
@@ -243,6 +168,87 @@ class World(Scene):
             self.emissive_colors[shade] = color
         else:
             self.emissive_colors.pop(shade, None)
+
+
+class World(Scene):
+    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60):
+        self._init_scene(plan)
+        self.clock = SimClock(step=time_step, rtf=rtf)
+        self._exec = ThreadPoolExecutor(1, thread_name_prefix=f"pybullet-{plan.name}")
+        self._worker: threading.Thread | None = None
+        self.robots: dict[str, Robot] = {}
+        self._active: list[Controller] = []
+        self._stepper: asyncio.Task | None = None
+        self._closed = False
+        self.run_sync(self._build)
+
+    @classmethod
+    def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
+                  time_step: float = 1 / 60) -> "World":
+        """Build from a YAML house description; `path` may also be a bare name in robots/houses."""
+        path = Path(path)
+        if not path.exists() and (HOUSES / f"{path}.yaml").exists():
+            path = HOUSES / f"{path}.yaml"
+        return cls(load_plan(path, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step)
+
+    # ------------------------------------------------------------------ thread plumbing
+    def _mark_worker(self) -> None:
+        self._worker = threading.current_thread()
+
+    def run_sync(self, fn: Callable, *args, **kw) -> Any:
+        """Run fn in the pybullet thread and wait (for setup code and tests outside async code)."""
+        if self._closed:
+            raise WorldClosed("world is closed")
+        if threading.current_thread() is self._worker:
+            return fn(*args, **kw)
+        return self._exec.submit(self._in_worker, fn, *args, **kw).result()
+
+    def _in_worker(self, fn, *args, **kw):
+        if self._worker is None:
+            self._mark_worker()
+        return fn(*args, **kw)
+
+    async def run(self, fn: Callable, *args, **kw) -> Any:
+        """Run fn in the pybullet thread without blocking the event loop."""
+        if self._closed:
+            raise WorldClosed("world is closed")
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self._exec, partial(self._in_worker, fn, *args, **kw))
+
+    # ------------------------------------------------------------------ building
+    def _build(self) -> None:
+        self.cid = p.connect(p.DIRECT)
+        self._obstacle_uids: list[int] = []
+        self._obstacle_aabbs: list[list[float]] = []
+        self._build_scene()
+
+    def _add_obstacle(self, uid: int) -> None:
+        self._obstacle_uids.append(uid)
+        self._obstacle_aabbs.append(self._aabb(uid))
+        self._aabb_array = np.array(self._obstacle_aabbs)
+
+    def _aabb(self, uid: int) -> list[float]:
+        lo, hi = np.array(p.getAABB(uid, -1, physicsClientId=self.cid))
+        for link in range(p.getNumJoints(uid, physicsClientId=self.cid)):
+            l2, h2 = np.array(p.getAABB(uid, link, physicsClientId=self.cid))
+            lo, hi = np.minimum(lo, l2), np.maximum(hi, h2)
+        return [lo[0], lo[1], hi[0], hi[1]]
+
+    # ------------------------------------------------------------------ obstacles / state
+    def obstacles_near(self, x: float, y: float, r: float, exclude: int = -1) -> list[int]:
+        a = self._aabb_array
+        hit = (a[:, 0] - r <= x) & (x <= a[:, 2] + r) & (a[:, 1] - r <= y) & (y <= a[:, 3] + r)
+        out = [self._obstacle_uids[i] for i in np.nonzero(hit)[0]]
+        for rb in self.robots.values():
+            if rb.probe != exclude and math.hypot(rb.pose[0] - x, rb.pose[1] - y) < r + rb.spec.radius + 0.1:
+                out.append(rb.probe)
+        return out
+
+    def _set_door(self, door_id: str, angle_deg: float) -> None:
+        super()._set_door(door_id, angle_deg)
+        uid = self.door_uids[door_id]
+        self._obstacle_aabbs[self._obstacle_uids.index(uid)] = self._aabb(uid)
+        self._aabb_array = np.array(self._obstacle_aabbs)
 
     async def set_door(self, door_id: str, angle_deg: float) -> None:
         await self.run(self._set_door, door_id, angle_deg)

@@ -27,6 +27,7 @@ class _ProbeClient(ClientXMPP):
         self.add_event_handler("session_start", self._on_session)
         self.add_event_handler("failed_all_auth", self._on_fail)
         self.add_event_handler("disconnected", self._on_disconnect)
+        self.add_event_handler("connection_failed", self._on_refused)
         if register:
             self.register_plugin("xep_0077")
             self.add_event_handler("register", self._register)
@@ -48,6 +49,10 @@ class _ProbeClient(ClientXMPP):
     def _on_fail(self, _):
         if not self.done.done():
             self.done.set_exception(LoginError(f"authentication failed for {self.boundjid.bare}"))
+
+    def _on_refused(self, err):
+        if not self.done.done():
+            self.done.set_exception(LoginError(f"connection refused: {err}"))
 
     def _on_disconnect(self, _):
         if not self.done.done():
