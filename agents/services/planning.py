@@ -131,12 +131,15 @@ def astar_path(graph: GridGraph, s: int, g: int, landmarks: np.ndarray | None = 
 
 # ---------- smoothing ----------
 
-def segment_free(free: np.ndarray, a, b, step: float = 0.2) -> bool:
+def segment_free(free: np.ndarray, a, b, step: float = 0.5) -> bool:
     return bool(segments_free(free, np.asarray(a, float), np.asarray([b], float), step)[0])
 
 
-def segments_free(free: np.ndarray, a: np.ndarray, bs: np.ndarray, step: float = 0.2) -> np.ndarray:
-    """Line of sight from point a to each of bs (cell coordinates): every sample's cell is free."""
+def segments_free(free: np.ndarray, a: np.ndarray, bs: np.ndarray, step: float = 0.5) -> np.ndarray:
+    """Line of sight from point a to each of bs (cell coordinates): every sample's cell is free.
+
+    Samples every half cell: a segment may clip the corner of an occupied cell of the *inflated*
+    map, never the obstacle itself (inflation is at least the robot's radius)."""
     d = bs - a
     n = int(np.ceil(np.max(np.hypot(d[:, 0], d[:, 1]), initial=0.0) / step)) + 1
     t = np.linspace(0.0, 1.0, n + 1)
@@ -175,7 +178,7 @@ def shortcut(free: np.ndarray, pts: np.ndarray, chunk: int = 48) -> np.ndarray:
     return np.asarray(out)
 
 
-def pairs_free(free: np.ndarray, a: np.ndarray, b: np.ndarray, step: float = 0.2) -> np.ndarray:
+def pairs_free(free: np.ndarray, a: np.ndarray, b: np.ndarray, step: float = 0.5) -> np.ndarray:
     """Line of sight for each pair of points a[k] -> b[k] (cell coordinates)."""
     d = b - a
     n = int(np.ceil(np.max(np.hypot(d[:, 0], d[:, 1]), initial=0.0) / step)) + 1
