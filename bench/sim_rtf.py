@@ -1,9 +1,12 @@
 """Simulation benchmark: N robots in the full house, each driving and capturing a 320x240 frame every
 100 ms of simulation time through RobotAPI; reports the real-time factor (sim s / wall s) for 1, 2, 4
 robots and the ratio to a floor measured in the same run (bare pybullet: the same kinematic base updates
-and getCameraImage calls in a plain loop, no API / asyncio / thread hand-off).
+and getCameraImage calls in a plain loop, no API / asyncio / thread hand-off, all in one thread).
+Images are rendered in render processes (World render="process", the default) or in the world's
+pybullet thread (--render inline). The stall measurement renders one 1280x960 frame while a coroutine
+ticks every 10 ms and reports the coroutine's maximum lateness (event-loop stall).
 
-    python -m bench.sim_rtf [--sim-seconds 5] [--house house]
+    python -m bench.sim_rtf [--sim-seconds 5] [--house house] [--render process|inline] [--stall]
 """
 from __future__ import annotations
 
@@ -22,9 +25,10 @@ KINDS = ["nao", "elektron", "nao", "elektron"]
 FRAME_PERIOD = 0.1
 
 
-async def api_run(house: str, n: int, sim_seconds: float) -> float:
-    world = World.from_file(house, seed=1, rtf=0.0)
+async def api_run(house: str, n: int, sim_seconds: float, render: str = "process") -> float:
+    world = World.from_file(house, seed=1, rtf=0.0, render=render)
     apis = [RobotAPI(world.add_robot(KINDS[i], name=f"r{i}")) for i in range(n)]
+    await asyncio.to_thread(world.start_renderer, n)  # process start-up is not part of the measurement
     for a in apis:
         await a.move_vel(MoveVel(x=0.05, theta=0.2))
 
@@ -45,6 +49,32 @@ async def api_run(house: str, n: int, sim_seconds: float) -> float:
     expected = n * round(sim_seconds / FRAME_PERIOD)
     assert frames[0] >= expected, (frames[0], expected)
     return rtf
+
+
+async def loop_stall(house: str, render: str, resolution: str = "1280x960") -> dict:
+    """Max lateness of a 10 ms ticker while one frame renders (the world's first frame is not measured)."""
+    world = World.from_file(house, seed=1, render=render)
+    api = RobotAPI(world.add_robot("nao", name="r0"))
+    await api.capture_array(resolution="160x120")
+    loop = asyncio.get_running_loop()
+    late: list[float] = []
+
+    async def ticker() -> None:
+        while True:
+            t = loop.time()
+            await asyncio.sleep(0.01)
+            late.append(loop.time() - t - 0.01)
+
+    task = asyncio.create_task(ticker())
+    await asyncio.sleep(0.05)
+    t0 = time.perf_counter()
+    await api.capture_array(resolution=resolution)
+    took = time.perf_counter() - t0
+    await asyncio.sleep(0.03)
+    task.cancel()
+    world.close()
+    return {"render": render, "frame": resolution, "frame_s": round(took, 3),
+            "max_loop_lateness_ms": round(max(late) * 1e3, 1)}
 
 
 def floor_run(house: str, n: int, sim_seconds: float) -> float:
@@ -81,15 +111,21 @@ def main() -> None:
     ap.add_argument("--sim-seconds", type=float, default=5.0)
     ap.add_argument("--house", default="house")
     ap.add_argument("--robots", type=int, nargs="+", default=[1, 2, 4])
+    ap.add_argument("--render", choices=["process", "inline"], default="process")
+    ap.add_argument("--stall", action="store_true", help="only measure the event-loop stall (both render modes)")
     a = ap.parse_args()
+    if a.stall:
+        for mode in ("inline", "process"):
+            print(json.dumps(asyncio.run(loop_stall(a.house, mode))))
+        return
     results = []
     for n in a.robots:
         floor = floor_run(a.house, n, a.sim_seconds)
-        rtf = asyncio.run(api_run(a.house, n, a.sim_seconds))
+        rtf = asyncio.run(api_run(a.house, n, a.sim_seconds, a.render))
         results.append({"robots": n, "rtf": round(rtf, 3), "floor_rtf": round(floor, 3),
                         "ratio_vs_floor": round(rtf / floor, 3), "target_met": rtf >= 1.0})
         print(f"{n} robot(s): rtf {rtf:6.2f}   floor (bare pybullet) {floor:6.2f}   ratio {rtf / floor:5.2f}")
-    print(json.dumps({"bench": "sim_rtf", "house": a.house, "frame": "320x240", "frame_period_s": FRAME_PERIOD,
+    print(json.dumps({"bench": "sim_rtf", "house": a.house, "render": a.render, "frame": "320x240", "frame_period_s": FRAME_PERIOD,
                       "sim_seconds": a.sim_seconds, "results": results}))
 
 

@@ -3,7 +3,10 @@
 A house description (YAML, see robots/floorplan.py and robots/houses/) becomes a PyBullet world
 (World), robots are added to it (Robot), and RobotAPI wraps one robot for the Core Agent: every method
 takes an ontology.robot request model and returns its reply model. All pybullet calls of a world run
-in one worker thread; motions complete in simulation time (rtf 0 = as fast as possible).
+in one worker thread; motions complete in simulation time (rtf 0 = as fast as possible). Camera images
+are rendered in up to two render processes that mirror the scene (robots/render_process.py), so a frame
+neither holds this process's GIL nor delays stepping; World.from_file(..., render="inline") (or the
+environment variable RAPP_ROBOTS_RENDER=inline) renders in the pybullet thread instead.
 
     import asyncio, math
     from ontology.robot import CaptureImage, LookAtPoint, MoveTo

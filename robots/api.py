@@ -86,10 +86,10 @@ class RobotAPI:
 
     # ------------------------------------------------------------------ vision
     async def capture_array(self, camera: str = "", resolution: str = "320x240") -> np.ndarray:
-        """In-process capture: RGB uint8 array (H, W, 3) with the camera parameters applied."""
+        """RGB uint8 array (H, W, 3) with the camera parameters applied (no PNG encoding)."""
         cam = self._camera(camera)
         w, h = parse_resolution(resolution)
-        return await self.world.run(cam.capture, w, h)
+        return await self.world.capture(cam, w, h)
 
     async def capture_image(self, req: CaptureImage) -> Image:
         cam = self._camera(req.camera)

@@ -165,7 +165,8 @@ class RangeSensor:
 
 class Microphone:
     """Hears text: ``hear(text)`` is what a user or scenario says (thread-safe);
-    ``spot(words, timeout)`` waits (wall clock) for the first utterance containing one of the words."""
+    ``spot(words, timeout)`` waits (wall clock) for the first utterance containing one of the words;
+    ``listen(timeout)`` returns the next utterance, whatever it is."""
 
     def __init__(self):
         self._heard: deque[str] = deque()
@@ -183,6 +184,26 @@ class Microphone:
                 loop.call_soon_threadsafe(ev.set)
             except RuntimeError:  # loop closed
                 pass
+
+    async def listen(self, timeout: float) -> str | None:
+        """The next utterance, whatever it says (the Core's command listening), or None."""
+        loop = asyncio.get_running_loop()
+        ev = asyncio.Event()
+        entry = (loop, ev)
+        with self._lock:
+            if self._heard:
+                return self._heard.popleft()
+            self._waiters.append(entry)
+        try:
+            try:
+                await asyncio.wait_for(ev.wait(), timeout)
+            except asyncio.TimeoutError:
+                pass
+            with self._lock:
+                return self._heard.popleft() if self._heard else None
+        finally:
+            with self._lock:
+                self._waiters.remove(entry)
 
     def clear(self) -> None:
         with self._lock:

@@ -1,5 +1,7 @@
 """The simulated home: a PyBullet world built from a house description, robots in it, and the
-simulation-time stepper. Every pybullet call for a world runs in ONE dedicated worker thread.
+simulation-time stepper. Every pybullet call for a world runs in ONE dedicated worker thread; camera
+images are rendered in render processes mirroring the scene (render="process", default) or in that
+thread (render="inline").
 
     world = World.from_file(HOUSES / "small.yaml", seed=1, overrides={"doors": {"d1": 45}})
     nao = world.add_robot("nao")             # start pose from the description (seeded)
@@ -11,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import os
 import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
@@ -31,6 +34,8 @@ from .floorplan import (CEILING_COLOR, DOOR_COLOR, DOOR_HEIGHT, DOOR_THICKNESS, 
 from .gridmap import GridMap, build_grid_map
 from .odometry import OdometryNoise
 from .qr import qr_texture, symbol_fraction
+from .receptors import Camera
+from .render_process import RenderPool, SceneState
 from .robot import Robot, yaw_quat
 from .simclock import SimClock
 from .spec import RobotSpec
@@ -39,6 +44,7 @@ HOUSES = Path(__file__).parent / "houses"
 ROBOT_SPECS: dict[str, RobotSpec] = {"nao": nao.SPEC, "elektron": elektron.SPEC}
 LAMP_ON_COLOR = (1.0, 0.96, 0.78)
 LAMP_OFF_COLOR = (0.22, 0.22, 0.23)
+RENDER_MODES = ("process", "inline")
 
 
 @dataclass
@@ -171,7 +177,18 @@ class Scene:
 
 
 class World(Scene):
-    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60):
+    """render: "process" (default; env RAPP_ROBOTS_RENDER overrides the default) renders camera images in
+    up to `render_workers` separate processes mirroring the scene (robots/render_process.py), so a frame
+    neither holds this process's GIL nor waits for / delays physics stepping; "inline" renders in the
+    pybullet thread of this process."""
+
+    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60, render: str | None = None,
+                 render_workers: int | None = None):
+        render = render or os.environ.get("RAPP_ROBOTS_RENDER") or "process"
+        if render not in RENDER_MODES:
+            raise InvalidArgument(f"render must be one of {', '.join(RENDER_MODES)}, not {render!r}")
+        self.render_mode = render
+        self._renderer: RenderPool | None = None
         self._init_scene(plan)
         self.clock = SimClock(step=time_step, rtf=rtf)
         self._exec = ThreadPoolExecutor(1, thread_name_prefix=f"pybullet-{plan.name}")
@@ -181,15 +198,19 @@ class World(Scene):
         self._stepper: asyncio.Task | None = None
         self._closed = False
         self.run_sync(self._build)
+        if render == "process":
+            self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name)
 
     @classmethod
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
-                  time_step: float = 1 / 60) -> "World":
+                  time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None
+                  ) -> "World":
         """Build from a YAML house description; `path` may also be a bare name in robots/houses."""
         path = Path(path)
         if not path.exists() and (HOUSES / f"{path}.yaml").exists():
             path = HOUSES / f"{path}.yaml"
-        return cls(load_plan(path, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step)
+        return cls(load_plan(path, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step, render=render,
+                   render_workers=render_workers)
 
     # ------------------------------------------------------------------ thread plumbing
     def _mark_worker(self) -> None:
@@ -278,6 +299,38 @@ class World(Scene):
         robot = self.run_sync(Robot, self, spec, name, tuple(pose), odometry_noise, rng)
         self.robots[name] = robot
         return robot
+
+    # ------------------------------------------------------------------ cameras
+    def _render_request(self, cam: Camera, width: int, height: int) -> tuple:
+        """pybullet thread: camera matrices and the dynamic scene state, consistent with the sim time."""
+        view, proj = cam.view_projection(width, height)
+        state = SceneState({n: (r.kind, r.pose, dict(r.q)) for n, r in list(self.robots.items())},
+                           {d.id: d.angle for d in self.plan.doors}, {lp.id: lp.on for lp in self.plan.lamps})
+        return state, width, height, view, proj, cam.params
+
+    async def capture(self, cam: Camera, width: int, height: int) -> np.ndarray:
+        """RGB uint8 image (HxWx3) of `cam` with its image parameters applied, rendered in a render process
+        (the scene state is taken at the current simulation time; stepping goes on meanwhile) or inline."""
+        if self._renderer is None:
+            return await self.run(cam.capture, width, height)
+        req = await self.run(self._render_request, cam, width, height)
+        if self._closed:
+            raise WorldClosed("world is closed")
+        return await self._renderer.render_async(*req)
+
+    def capture_sync(self, cam: Camera, width: int, height: int) -> np.ndarray:
+        """Blocking capture (setup code, tests and scripts outside async code)."""
+        if self._renderer is None:
+            return self.run_sync(cam.capture, width, height)
+        return self._renderer.render(*self.run_sync(self._render_request, cam, width, height))
+
+    def start_renderer(self, processes: int | None = None) -> None:
+        """Start the render processes now (blocking, ~0.5 s each) rather than at the first captures."""
+        if self._renderer is not None:
+            self._renderer.warm_up(processes)
+
+    def render_pids(self) -> list[int]:
+        return self._renderer.pids() if self._renderer is not None else []
 
     # ------------------------------------------------------------------ simulation time
     @property
@@ -369,6 +422,8 @@ class World(Scene):
             c.cancel(WorldClosed("world closed"))
         if self._stepper is not None and not self._stepper.done():
             self._stepper.cancel()
+        if self._renderer is not None:
+            self._renderer.close()
         try:
             self._exec.submit(p.disconnect, physicsClientId=self.cid).result()
         finally:

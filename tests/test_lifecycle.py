@@ -20,7 +20,7 @@ from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
-SUPERVISING = {"supervisor", "core-service", "user-listener"}
+SUPERVISING = {"supervisor", "core-service", "user-listener", "microphone-listener"}
 SERVING = {"supervisor", "core-service", "command-server", "busy-chat", "heartbeats", "safety"}
 
 
@@ -29,6 +29,7 @@ class SpyAPI:
 
     def __init__(self, api: RobotAPI):
         self.api, self.core, self.calls = api, None, []
+        self.robot = api.robot  # the Core finds the microphone here, as on a RobotAPI
 
     async def handle(self, req):
         self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
@@ -147,12 +148,12 @@ async def test_robot_request_from_other_agent_is_refused(system):
     await intruder.start()
     try:
         with pytest.raises(RequestRefused, match="does not serve robot/move_to"):
-            await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=5)
+            await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=20)
         # while a Dynamic Agent supervises, an intruder is refused by the command server itself
         slow = asyncio.create_task(run_command(system, "echo", "echo-app finished"))
         await wait_until(lambda: "command-server" in system.handle.core.active_behaviours())
         with pytest.raises(RequestRefused, match="not the current supervisor"):
-            await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=5)
+            await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=20)
         await slow
     finally:
         await intruder.stop()
@@ -219,3 +220,14 @@ async def test_in_process_mode_runs_the_same_package_bytes(system):
         await wait_until(lambda: handle.core.active_behaviours() >= {"supervisor", "user-listener"})
     finally:
         world.close()
+
+
+async def test_command_heard_through_the_robots_microphone(system):
+    core = system.handle.core
+    await wait_until(lambda: "microphone-listener" in core.active_behaviours())
+    start = len(system.handle.user.received)
+    core.robot.api.robot.microphone.hear("echo")  # the user speaks to the robot
+    await system.handle.user.wait_for(lambda t: "echo-app finished" in t, timeout=60, start=start)
+    commands = [r for r in read_trace(system.settings.trace_file)
+                if r["kind"] == "structure" and r["event"] == "command"]
+    assert commands[-1]["text"] == "echo"

@@ -52,7 +52,7 @@ class _ProbeClient(ClientXMPP):
 
     def _on_refused(self, err):
         if not self.done.done():
-            self.done.set_exception(LoginError(f"connection refused: {err}"))
+            self.done.set_exception(LoginError(f"cannot connect to {self.address}: {err}"))
 
     def _on_disconnect(self, _):
         if not self.done.done():
@@ -67,6 +67,7 @@ async def probe_login(host: str, port: int, domain: str, *, user: str | None = N
     loop = asyncio.get_running_loop()
     t0 = loop.time()
     client = _ProbeClient(f"{user}@{domain}", password, register)
+    client.address = f"{host}:{port}"
     client.connect(host=host, port=port)
     try:
         await asyncio.wait_for(client.done, timeout)

@@ -1,13 +1,17 @@
 """Cloud Agent part: QR-marker global localization (paper 001 fig. 6) with the Platform's shared math.
 
-With two or more distinct landmarks the pose comes from their centres only (a weighted 2-D rigid
+A first estimate: with two or more distinct landmarks, from their centres only (a weighted 2-D rigid
 fit of robot-frame to map positions): ranges and bearings of codes are far more accurate than a
-single code's orientation. With one landmark, that code's full pose is used."""
+single code's orientation; with one landmark, that code's full pose. Then the planar pose (x, y,
+theta) is refined by minimizing the reprojection error of every corner of every code in every view of
+the sweep (the camera height, roll and pitch are known from the robot's kinematics, so only three
+unknowns remain: a single code's heading is no longer the ill-conditioned 6-DOF one)."""
 import asyncio
 import math
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
 
 from agents.services import localization as L
 from agents.services.images import decode_image
@@ -26,7 +30,8 @@ def observe(req: Observe) -> Observations:
         lm = req.landmarks.get(text)
         if lm is None:
             continue
-        solutions = code_poses(L.refine_corners(gray, corners), lm.size_m, K, dist)
+        refined = L.refine_corners(gray, corners).reshape(4, 2)
+        solutions = code_poses(refined, lm.size_m, K, dist)
         T_cam_code = solutions[0]
         d = float(np.linalg.norm(T_cam_code[:3, 3]))
         if d > req.max_distance_m:
@@ -34,7 +39,8 @@ def observe(req: Observe) -> Observations:
         poses = [dict(zip(("x", "y", "theta"), L.planar(L.robot_pose_from_code(T, T_robot_cam, lm))))
                  for T in solutions]
         centre = (T_robot_cam @ T_cam_code[:, 3])[:3]
-        items.append(Observation(text=text, in_robot=centre.tolist(), poses=poses, distance_m=d))
+        items.append(Observation(text=text, in_robot=centre.tolist(), poses=poses, distance_m=d,
+                                 corners=refined.tolist(), camera=req.camera, camera_to_robot=req.camera_to_robot))
     return Observations(items=items)
 
 
@@ -60,7 +66,70 @@ def rigid_fit(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[float, float
     return float(t[0]), float(t[1]), theta
 
 
+def _views(obs: list[Observation], landmarks) -> list[tuple]:
+    """Per observation with corners: (world corners 4x3, measured 4x2, K, T_cam_robot)."""
+    out = []
+    for o in obs:
+        if len(o.corners) != 4 or o.camera is None or len(o.camera_to_robot) != 4:
+            continue
+        lm = landmarks[o.text]
+        T_world_code = L.landmark_transform(lm)
+        pts = (T_world_code[:3, :3] @ L.code_corners_3d(lm.size_m).T).T + T_world_code[:3, 3]
+        K, _ = L.camera_matrix(o.camera)
+        out.append((pts, np.asarray(o.corners, float), K, L.invert(np.asarray(o.camera_to_robot, float))))
+    return out
+
+
+def _residuals(q: np.ndarray, views: list[tuple]) -> np.ndarray:
+    x, y, th = q
+    c, s = math.cos(th), math.sin(th)
+    T_robot_world = L.invert(L.transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [x, y, 0.0]))
+    res = []
+    for pts, uv, K, T_cam_robot in views:
+        T = T_cam_robot @ T_robot_world
+        pc = (T[:3, :3] @ pts.T).T + T[:3, 3]
+        z = np.maximum(pc[:, 2], 1e-3)
+        proj = np.stack([K[0, 0] * pc[:, 0] / z + K[0, 2], K[1, 1] * pc[:, 1] / z + K[1, 2]], 1)
+        res.append((proj - uv).ravel())
+    return np.concatenate(res)
+
+
+def refine(starts: list[tuple[float, float, float]], views: list[tuple]) -> tuple[tuple[float, float, float], float] | None:
+    """Planar robot pose minimizing the corners' reprojection error, from the best of the start poses;
+    (pose, rms px) or None without usable views."""
+    if not views:
+        return None
+    best = None
+    for q0 in starts:
+        sol = least_squares(_residuals, np.asarray(q0, float), args=(views,), loss="soft_l1", f_scale=2.0,
+                            x_scale=[0.1, 0.1, 0.02])
+        rms = float(np.sqrt(np.mean(_residuals(sol.x, views) ** 2)))
+        if best is None or rms < best[1]:
+            best = ((float(sol.x[0]), float(sol.x[1]), math.remainder(float(sol.x[2]), math.tau)), rms)
+    return best
+
+
 def solve_pose(req: SolvePose) -> Localization:
+    loc = initial_pose(req)
+    if not loc.found:
+        return loc
+    obs = [o for o in req.observations if o.text in req.landmarks]
+    p = loc.pose
+    starts = [(p.x, p.y, p.theta)]
+    if loc.method == "single":  # both planar-ambiguity solutions of the code as starts
+        starts += [(q.x, q.y, q.theta) for o in obs if o.text == loc.markers[0] for q in o.poses]
+    fit = refine(starts, _views(obs, req.landmarks))
+    if fit is None:
+        return loc
+    (x, y, th), rms = fit
+    moved = math.hypot(x - p.x, y - p.y)
+    if rms > 4.0 or moved > 0.6:  # the fit did not converge to a consistent pose: keep the first estimate
+        return loc
+    return Localization(found=True, pose=dict(x=x, y=y, theta=th), markers=loc.markers, method=loc.method + "+fit",
+                        rms_px=rms)
+
+
+def initial_pose(req: SolvePose) -> Localization:
     obs = [o for o in req.observations if o.text in req.landmarks]
     if not obs:
         return Localization(found=False)

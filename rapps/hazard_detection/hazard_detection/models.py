@@ -13,6 +13,9 @@ class Observation(Content):
     in_robot: list[float]  # x, y, z of the code centre in the robot base frame (m)
     poses: list[Pose2D]  # robot poses from this code alone: both planar-ambiguity solutions, best first
     distance_m: float
+    corners: list[list[float]] = []  # refined image corners (TL, TR, BR, BL), pixels
+    camera: CameraIntrinsics | None = None  # intrinsics of the image the corners are in
+    camera_to_robot: list[list[float]] = []  # camera optical frame -> robot base when the image was taken
 
 
 class Observations(Content):
@@ -34,7 +37,8 @@ class Localization(Content):
     found: bool
     pose: Pose2D | None = None
     markers: list[str] = []  # texts of the landmarks used
-    method: str = ""  # "points" (2+ landmarks) or "single" (one code's pose)
+    method: str = ""  # "points" (2+ landmarks) or "single" (one code's pose), "+fit" when refined
+    rms_px: float | None = None  # reprojection error of the refined pose (all corners of all views)
 
 
 @action("solve_pose", ontology=ONTOLOGY, reply=Localization)

@@ -1,0 +1,381 @@
+"""Camera rendering in separate processes that mirror a World's scene.
+
+PyBullet's TinyRenderer holds the GIL for the whole getCameraImage call (~30 ms at 320x240, 0.5-2 s at
+1280x960), which starves the event loop of the process and serialises rendering with physics stepping.
+A RenderPool keeps up to N render processes (default: 2, one per core); each builds the same static
+scene from the same house description with the same code as World (Scene._build_scene, create_bodies),
+in its own DIRECT client. Per request it receives only the dynamic state that changed since its last
+request (robot base poses and joint angles, door angles, lamp states) plus the view/projection matrices,
+renders with ER_TINY_RENDERER, applies the camera image parameters and returns the uint8 RGB image
+through a pipe. The caller waits in a thread (a thread blocked on a pipe releases the GIL), so neither
+the event loop nor the world's pybullet thread waits for the renderer.
+
+Processes start lazily (the first request starts one; a second one starts only when a request arrives
+while the first is busy), are restarted once if they die, and are stopped by RenderPool.close()
+(World.close()), at interpreter exit (weakref.finalize), and by themselves when the parent goes away
+(EOF on their request pipe). They are plain `python -c` children (subprocess), not multiprocessing
+children, so the parent's __main__ is never re-imported.
+
+Protocol (multiprocessing.connection framing, pickle): parent -> child ("init", plan) then
+("render", RenderJob) ... ("close",); child -> parent ("ready",) / ("ok", image) / ("error", traceback).
+"""
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+import threading
+import traceback
+import weakref
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import RobotError, WorldClosed
+
+START_TIMEOUT = 60.0  # s for a render process to build its scene
+RENDER_TIMEOUT = 300.0  # s for one frame (1280x960 takes ~2 s on a loaded machine)
+
+
+@dataclass
+class SceneState:
+    """Dynamic state of a world that affects images (snapshot taken in the world's pybullet thread)."""
+
+    robots: dict[str, tuple[str, tuple[float, float, float], dict[str, float]]]  # name -> (kind, pose, q)
+    doors: dict[str, float]  # degrees
+    lamps: dict[str, bool]
+
+
+@dataclass
+class RenderJob:
+    width: int
+    height: int
+    view: list[float]
+    proj: list[float]
+    params: Any  # receptors.ImageParams
+    add: list[tuple[str, str, tuple[float, float, float]]] = field(default_factory=list)  # (name, kind, pose)
+    poses: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    joints: dict[str, dict[str, float]] = field(default_factory=dict)
+    doors: dict[str, float] = field(default_factory=dict)
+    lamps: dict[str, bool] = field(default_factory=dict)
+
+
+# ====================================================================== child side
+def _mirror_scene_class():
+    import pybullet as p
+
+    from .receptors import apply_params, render_radiance
+    from .robot import create_bodies, probe_z, yaw_quat
+    from .world import ROBOT_SPECS, Scene
+
+    class MirrorScene(Scene):
+        def __init__(self, plan):
+            self._init_scene(plan)
+            self.cid = p.connect(p.DIRECT)
+            self._build_scene()
+            self.bodies: dict[str, tuple[int, int, dict[str, int], Any]] = {}
+
+        def apply(self, job: RenderJob) -> None:
+            cid = self.cid
+            for name, kind, pose in job.add:
+                spec = ROBOT_SPECS[kind]
+                uid, probe, _ = create_bodies(cid, spec, pose, collision=False)
+                joints = {p.getJointInfo(uid, i, physicsClientId=cid)[1].decode(): i
+                          for i in range(p.getNumJoints(uid, physicsClientId=cid))}
+                self.bodies[name] = (uid, probe, joints, spec)
+            for name, (x, y, th) in job.poses.items():
+                uid, probe, _, spec = self.bodies[name]
+                q = yaw_quat(th)
+                p.resetBasePositionAndOrientation(uid, [x, y, 0.0], q, physicsClientId=cid)
+                p.resetBasePositionAndOrientation(probe, [x, y, probe_z(spec)], q, physicsClientId=cid)
+            for name, qs in job.joints.items():
+                uid, _, joints, _ = self.bodies[name]
+                for j, a in qs.items():
+                    p.resetJointState(uid, joints[j], a, physicsClientId=cid)
+            for door_id, angle in job.doors.items():
+                self._set_door(door_id, angle)
+            for lamp_id, on in job.lamps.items():
+                self._set_lamp(lamp_id, on)
+
+        def render(self, job: RenderJob) -> np.ndarray:
+            self.apply(job)
+            radiance = render_radiance(self.cid, job.width, job.height, job.view, job.proj, self.emissive_colors)
+            return apply_params(radiance, job.params)
+
+    return MirrorScene
+
+
+def serve(fd_in: int, fd_out: int) -> None:
+    """Render-process main loop (runs in the child)."""
+    conn_in, conn_out = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
+    scene = None
+    try:
+        while True:
+            try:
+                msg = conn_in.recv()
+            except (EOFError, OSError):  # parent closed the pipe or died
+                return
+            try:
+                if msg[0] == "close":
+                    return
+                if msg[0] == "init":
+                    scene = _mirror_scene_class()(msg[1])
+                    reply: tuple = ("ready",)
+                elif msg[0] == "render":
+                    reply = ("ok", scene.render(msg[1]))
+                else:
+                    reply = ("error", f"unknown request {msg[0]!r}")
+            except Exception:  # noqa: BLE001 - report to the parent, keep serving
+                reply = ("error", traceback.format_exc())
+            try:
+                conn_out.send(reply)
+            except OSError:
+                return
+    finally:
+        conn_in.close()
+        conn_out.close()
+
+
+# The child imports robots.render_process without running robots/__init__.py (which pulls in the robot
+# API, ontology, ...): a bare package module pointing at this directory is enough for the submodules.
+_BOOT = """
+import os, sys, types
+err = os.dup(2); null = os.open(os.devnull, os.O_WRONLY); os.dup2(null, 2)
+try:
+    import pybullet  # prints its build time on stderr: once per process is enough
+finally:
+    os.dup2(err, 2); os.close(err); os.close(null)
+sys.path.insert(0, {root!r})
+pkg = types.ModuleType("robots"); pkg.__path__ = [{pkg!r}]; sys.modules["robots"] = pkg
+from robots.render_process import serve
+serve(int(sys.argv[1]), int(sys.argv[2]))
+"""
+
+
+# ====================================================================== parent side
+class _Worker:
+    """One render process and what it knows of the dynamic state (for sending differences only)."""
+
+    def __init__(self, index: int):
+        self.index = index
+        self.proc: subprocess.Popen | None = None
+        self.send_conn: Connection | None = None
+        self.recv_conn: Connection | None = None
+        self.busy = False
+        self.known: SceneState | None = None
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def start(self, plan_msg: tuple) -> None:
+        pkg = Path(__file__).resolve().parent
+        to_child_r, to_child_w = os.pipe()
+        from_child_r, from_child_w = os.pipe()
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-c", _BOOT.format(root=str(pkg.parent), pkg=str(pkg)),
+                 str(to_child_r), str(from_child_w)],
+                pass_fds=(to_child_r, from_child_w), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                close_fds=True)
+        except BaseException:
+            for fd in (to_child_r, to_child_w, from_child_r, from_child_w):
+                os.close(fd)
+            raise
+        os.close(to_child_r)
+        os.close(from_child_w)
+        self.send_conn = Connection(to_child_w, readable=False)
+        self.recv_conn = Connection(from_child_r, writable=False)
+        self.known = SceneState({}, {}, {})
+        self.send_conn.send(plan_msg)
+        reply = self._reply(START_TIMEOUT)
+        if reply[0] != "ready":
+            raise RuntimeError(f"render process failed to start:\n{reply[1]}")
+
+    def _reply(self, timeout: float) -> tuple:
+        if not self.recv_conn.poll(timeout):
+            raise TimeoutError(f"render process {self.index} did not answer within {timeout:.0f} s")
+        return self.recv_conn.recv()
+
+    def job_for(self, state: SceneState, **kw) -> RenderJob:
+        """A RenderJob carrying only what changed since this process's last request."""
+        job = RenderJob(**kw)
+        known = self.known
+        for name, (kind, pose, q) in state.robots.items():
+            old = known.robots.get(name)
+            if old is None:
+                job.add.append((name, kind, pose))
+                job.poses[name] = pose
+                job.joints[name] = dict(q)
+                continue
+            if old[1] != pose:
+                job.poses[name] = pose
+            changed = {j: a for j, a in q.items() if old[2].get(j) != a}
+            if changed:
+                job.joints[name] = changed
+        job.doors = {k: v for k, v in state.doors.items() if known.doors.get(k) != v}
+        job.lamps = {k: v for k, v in state.lamps.items() if known.lamps.get(k) != v}
+        return job
+
+    def render(self, state: SceneState, **kw) -> np.ndarray:
+        job = self.job_for(state, **kw)
+        self.send_conn.send(("render", job))
+        self.known = state  # sent: the process applies it even if rendering then fails
+        reply = self._reply(RENDER_TIMEOUT)
+        if reply[0] != "ok":
+            raise RenderError(f"render process error:\n{reply[1]}")
+        return reply[1]
+
+    def stop(self, kill: bool = False, timeout: float = 2.0) -> None:
+        """Stop the process: ask it to exit (idle process), or kill it (a thread may be waiting on its pipe:
+        that thread then reads EOF and closes the pipes itself). Always reaps it (no zombie)."""
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        if not kill and proc.poll() is None and self.send_conn is not None:
+            try:
+                self.send_conn.send(("close",))
+            except OSError:
+                pass
+        if kill:
+            proc.kill()
+        else:
+            self.close_conns()
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+    def close_conns(self) -> None:
+        for c in (self.send_conn, self.recv_conn):
+            if c is not None:
+                try:
+                    c.close()
+                except OSError:
+                    pass
+        self.send_conn = self.recv_conn = None
+
+
+class RenderError(RobotError):
+    """Rendering failed (the render process reported an exception, or died twice in a row)."""
+
+    code = "render_failed"
+
+
+def _kill_all(workers: list[_Worker]) -> None:
+    for w in workers:
+        if w.proc is not None:
+            try:
+                w.proc.kill()
+                w.proc.wait(5)
+            except Exception:  # noqa: BLE001 - best effort at interpreter exit
+                pass
+
+
+class RenderPool:
+    """Up to `size` render processes mirroring one World; thread-safe, loop-agnostic."""
+
+    def __init__(self, plan, size: int = 2, name: str = "world"):
+        self.size = max(1, int(size))
+        self._plan_msg = ("init", plan)  # pickled when a process starts; later changes arrive as state
+        self._workers = [_Worker(i) for i in range(self.size)]
+        self._cond = threading.Condition()
+        self._closed = False
+        self._exec = ThreadPoolExecutor(self.size, thread_name_prefix=f"render-{name}")
+        self._finalizer = weakref.finalize(self, _kill_all, self._workers)
+        self.restarts = 0
+
+    # ---- worker selection
+    def _acquire(self) -> _Worker:
+        with self._cond:
+            while True:
+                if self._closed:
+                    raise WorldClosed("renderer is closed")
+                idle = [w for w in self._workers if not w.busy]
+                if idle:
+                    w = next((w for w in idle if w.alive), idle[0])  # prefer a running process
+                    w.busy = True
+                    return w
+                self._cond.wait()
+
+    def _release(self, w: _Worker) -> None:
+        with self._cond:
+            w.busy = False
+            self._cond.notify()
+
+    # ---- rendering
+    def render(self, state: SceneState, width: int, height: int, view, proj, params) -> np.ndarray:
+        """Blocking: render in a process and return the uint8 RGB image (call from a thread)."""
+        w = self._acquire()
+        try:
+            for attempt in (0, 1):
+                try:
+                    if not w.alive:
+                        w.close_conns()
+                        w.start(self._plan_msg)
+                    return w.render(state, width=width, height=height, view=list(view), proj=list(proj),
+                                    params=params)
+                except RenderError:
+                    w.stop(kill=True)  # its mirror may be half-updated: the next request starts afresh
+                    w.close_conns()
+                    raise
+                except (EOFError, OSError, TimeoutError, RuntimeError) as e:
+                    w.stop(kill=True, timeout=5.0)
+                    w.close_conns()
+                    if self._closed:
+                        raise WorldClosed("renderer closed while rendering") from e
+                    if attempt:
+                        raise RenderError(f"render process failed: {type(e).__name__}: {e}") from e
+                    self.restarts += 1
+            raise AssertionError("unreachable")
+        finally:
+            self._release(w)
+
+    async def render_async(self, state: SceneState, width: int, height: int, view, proj, params) -> np.ndarray:
+        if self._closed:
+            raise WorldClosed("renderer is closed")
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self._exec, self.render, state, width, height, view, proj, params)
+
+    def warm_up(self, processes: int | None = None) -> None:
+        """Start render processes now (blocking) instead of at the first requests."""
+        n = self.size if processes is None else min(processes, self.size)
+        ws = []
+        try:
+            with self._cond:
+                for w in self._workers:
+                    if len(ws) < n and not w.busy:
+                        w.busy = True
+                        ws.append(w)
+            for w in ws:
+                if not w.alive:
+                    w.close_conns()
+                    w.start(self._plan_msg)
+        finally:
+            for w in ws:
+                self._release(w)
+
+    def pids(self) -> list[int]:
+        return [w.proc.pid for w in self._workers if w.alive]
+
+    def close(self) -> None:
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            busy = [w.busy for w in self._workers]
+            self._cond.notify_all()
+        for w, b in zip(self._workers, busy):
+            w.stop(kill=b)  # a busy process is killed: the waiting thread sees EOF
+        self._exec.shutdown(wait=True)
+        for w in self._workers:
+            w.close_conns()
+        self._finalizer.detach()
+
+
