@@ -12,8 +12,7 @@ import ssl
 import time
 
 from slixmpp import ClientXMPP
-from slixmpp.exceptions import IqError, IqTimeout
-
+from xmpp_server.probe import register_in_band
 from xmpp_server.settings import XmppSettings
 
 
@@ -37,15 +36,8 @@ class ChatUser(ClientXMPP):
         self._stopping = False
         logging.getLogger("slixmpp").setLevel(logging.WARNING)
 
-    async def _register(self, _):
-        iq = self.Iq()
-        iq["type"] = "set"
-        iq["register"]["username"] = self.boundjid.user
-        iq["register"]["password"] = self.password
-        try:
-            await iq.send()
-        except (IqError, IqTimeout):
-            pass
+    async def _register(self, _event):  # slixmpp awaits only coroutine functions
+        await register_in_band(self)
 
     def _on_session(self, _):
         self.send_presence()

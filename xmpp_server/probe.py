@@ -17,6 +17,19 @@ class LoginError(RuntimeError):
     pass
 
 
+async def register_in_band(client: ClientXMPP) -> None:
+    """XEP-0077 registration of the client's own account; an existing account is fine (the login
+    that follows decides)."""
+    iq = client.Iq()
+    iq["type"] = "set"
+    iq["register"]["username"] = client.boundjid.user
+    iq["register"]["password"] = client.password
+    try:
+        await iq.send()
+    except (IqError, IqTimeout):
+        pass
+
+
 class _ProbeClient(ClientXMPP):
     def __init__(self, jid: str, password: str, register: bool):
         super().__init__(jid, password)
@@ -32,15 +45,8 @@ class _ProbeClient(ClientXMPP):
             self.register_plugin("xep_0077")
             self.add_event_handler("register", self._register)
 
-    async def _register(self, _):
-        iq = self.Iq()
-        iq["type"] = "set"
-        iq["register"]["username"] = self.boundjid.user
-        iq["register"]["password"] = self.password
-        try:
-            await iq.send()
-        except (IqError, IqTimeout):
-            pass  # exists already; the login decides
+    async def _register(self, _event):  # slixmpp awaits only coroutine functions
+        await register_in_band(self)
 
     def _on_session(self, _):
         if not self.done.done():

@@ -26,7 +26,44 @@ class ServerStartError(RuntimeError):
     pass
 
 
-class EmbeddedServer:
+def terminate(proc: subprocess.Popen, timeout: float) -> int:
+    """SIGTERM, then SIGKILL after `timeout`; always waits (no zombie)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
+class ManagedServer:
+    """Context-manager plumbing shared by the server wrappers: subclasses provide `astart()`,
+    `start()`, `stop()` and a temporary directory in `_tmp` (or None)."""
+
+    _tmp = None
+
+    def close(self) -> None:
+        self.stop()
+        if self._tmp:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    async def __aenter__(self):
+        return await self.astart()
+
+    async def __aexit__(self, *exc):
+        await asyncio.to_thread(self.close)
+
+
+class EmbeddedServer(ManagedServer):
     def __init__(self, host: str = "127.0.0.1", port: int | None = None, domain: str = "localhost",
                  db: str | Path | None = None, memory: bool = False, verbose: bool = False,
                  start_timeout: float = 20.0):
@@ -95,35 +132,11 @@ class EmbeddedServer:
     def stop(self, timeout: float = 5.0) -> None:
         if self.proc is None:
             return
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        terminate(self.proc, timeout)
         for stream in (self.proc.stdout, self.proc.stderr):
             if stream:
                 stream.close()
         self.proc = None
-
-    def close(self) -> None:
-        self.stop()
-        if self._tmp:
-            self._tmp.cleanup()
-            self._tmp = None
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.close()
-
-    async def __aenter__(self):
-        return await self.astart()
-
-    async def __aexit__(self, *exc):
-        await asyncio.to_thread(self.close)
 
 
 def _loop_running() -> bool:

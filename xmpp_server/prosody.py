@@ -23,7 +23,7 @@ from pathlib import Path
 
 from .ports import free_port
 from .probe import LoginError, probe_login
-from .process import ServerStartError, _loop_running
+from .process import ManagedServer, ServerStartError, _loop_running, terminate
 from .settings import XmppSettings
 
 
@@ -63,7 +63,7 @@ def make_self_signed_cert(domain: str, cert_file: Path, key_file: Path, days: in
     cert_file.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
 
 
-class ProsodyServer:
+class ProsodyServer(ManagedServer):
     """Start and stop a private Prosody; same shape as EmbeddedServer."""
 
     def __init__(self, host: str = "127.0.0.1", port: int | None = None, domain: str = "localhost",
@@ -215,36 +215,11 @@ VirtualHost {_lua(self.domain)}
     def stop(self, timeout: float = 10.0) -> None:
         if self.proc is None:
             return
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.proc_rc = self.proc.returncode
+        self.proc_rc = terminate(self.proc, timeout)
         if self._stderr:
             self._stderr.close()
             self._stderr = None
         self.proc = None
-
-    def close(self) -> None:
-        self.stop()
-        if self._tmp:
-            self._tmp.cleanup()
-            self._tmp = None
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.close()
-
-    async def __aenter__(self):
-        return await self.astart()
-
-    async def __aexit__(self, *exc):
-        await asyncio.to_thread(self.close)
 
 
 def _listening(host: str, port: int) -> bool:
