@@ -13,7 +13,6 @@ import asyncio
 import logging
 
 from behaviours import FSM, Behaviour, OneShot
-from ontology import platform as P
 from ontology import store as S
 
 from .errors import RequestError

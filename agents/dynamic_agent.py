@@ -5,7 +5,6 @@ Lifecycle: log in -> task_status Init to the Core -> build the task -> Working -
 """
 from __future__ import annotations
 
-import asyncio
 import logging
 from pathlib import Path
 

@@ -12,7 +12,6 @@ import argparse
 import asyncio
 import contextlib
 import signal
-from pathlib import Path
 
 from xmpp_server.settings import XmppSettings
 

@@ -5,7 +5,7 @@ import asyncio
 
 import pytest
 
-from behaviours import FSM, Behaviour, BehaviourHost, FSMError, OneShot, Outcome
+from behaviours import FSM, Behaviour, BehaviourHost, FSMError, Outcome
 from behaviours.example import build as build_example
 
 

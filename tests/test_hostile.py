@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings as hsettings, strategies as st
 
 from agents.base import MAX_BODY, RappAgent
-from agents.errors import NotUnderstood, RequestRefused
+from agents.errors import RequestRefused
 from agents.messages import make_message
 from agents.store_client import publish_package
 from ontology import acl
@@ -19,7 +19,6 @@ from ontology import platform as P
 from ontology import store as S
 from ontology.acl import Performative
 from ontology.registry import actions
-from rapps.package import build_package_bytes
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 

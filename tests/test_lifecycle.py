@@ -90,7 +90,9 @@ def structure(trace, agent_prefix=None):
             and (agent_prefix is None or r["agent"].startswith(agent_prefix))]
 
 
-async def test_full_lifecycle(system):
+async def check_full_lifecycle(system) -> list[dict]:
+    """One "echo" command through the whole lifecycle; returns the trace (shared with the
+    Prosody test)."""
     core, spy = system.handle.core, system.spy
     assert core.active_behaviours() == SUPERVISING
     spy.calls.clear()
@@ -112,6 +114,11 @@ async def test_full_lifecycle(system):
     with pytest.raises(RequestTimeout):
         await core.request(spawn["dynamic"], R.GetGlobalPose(), timeout=0.5)
     assert "echo done for owner-nao1" in system.handle.user.texts()
+    return trace
+
+
+async def test_full_lifecycle(system):
+    await check_full_lifecycle(system)
 
 
 async def test_cloud_agent_lives_and_dies_with_dynamic_agent(system):

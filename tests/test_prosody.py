@@ -8,16 +8,12 @@ finished -> Core listening again).
 """
 from __future__ import annotations
 
-import os
 
 import pytest
 
-from agents.tracing import read_trace
-from ontology import robot as R
-from agents.errors import RequestTimeout
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
-from tests.test_lifecycle import (FIXTURE, SERVING, SUPERVISING, SpyAPI, run_command, state,
+from tests.test_lifecycle import (FIXTURE, SpyAPI, check_full_lifecycle, run_command, state,
                                   structure, wait_until)
 from xmpp_server.prosody import ProsodyServer, prosody_binary
 
@@ -63,25 +59,8 @@ async def test_prosody_accepts_prosodyctl_accounts(prosody):
 
 
 async def test_full_lifecycle_on_prosody(system):
-    core, spy = system.handle.core, system.spy
-    assert core.active_behaviours() == SUPERVISING
-    spy.calls.clear()
-    await run_command(system, "echo", "echo-app finished")
-    assert [c for c, _ in spy.calls if c in ("say", "get_global_pose")][:2] == ["say", "get_global_pose"]
-    say_active = next(active for c, active in spy.calls if c == "say")
-    assert say_active == SERVING
-    await wait_until(lambda: state(core) == "s3_listen")
-    assert core.active_behaviours() == SUPERVISING and core.dynamic is None
-    trace = read_trace(system.settings.trace_file)
+    trace = await check_full_lifecycle(system)
     spawn = [r for r in structure(trace) if r["event"] == "spawn"][-1]
-    with pytest.raises(ProcessLookupError):
-        os.kill(spawn["pid"], 0)
-    stopped = [r for r in trace if r["kind"] == "agent" and r["event"] == "stopped"
-               and r["agent"] == spawn["dynamic"]]
-    assert stopped, "the Dynamic Agent logged out"
-    with pytest.raises(RequestTimeout):
-        await core.request(spawn["dynamic"], R.GetGlobalPose(), timeout=0.5)
-    assert "echo done for owner-nao1" in system.handle.user.texts()
     # everything went through Prosody, and the Platform was pinged by the Dynamic Agent
     sent = [r for r in trace if r["kind"] == "message" and r["dir"] == "send"]
     assert sent and all(r["path"] == "xmpp" for r in sent)

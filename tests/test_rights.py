@@ -9,7 +9,7 @@ import yaml
 
 from agents.locks import LockError, ResourceLocks
 from agents.tracing import read_trace
-from rapps.package import build_package_bytes, generate_keypair, public_key_b64
+from rapps.package import build_package_bytes, generate_keypair
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
@@ -73,7 +73,7 @@ async def test_user_stop_halts_and_latches_until_resume(system):
 
 async def test_obstacle_within_safety_distance_latches_estop(system):
     core = system.handle.core
-    reply = await run_command(system, "driveecho", "Emergency stop: obstacle ahead", timeout=60)
+    await run_command(system, "driveecho", "Emergency stop: obstacle ahead", timeout=60)
     assert core.estop_reason and "obstacle" in core.estop_reason
     trace = read_trace(system.settings.trace_file)
     assert any(r["kind"] == "structure" and r["event"] == "estop" and "obstacle" in r["reason"] for r in trace)

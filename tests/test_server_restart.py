@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 
-import pytest
 
 from agents.tracing import read_trace
 from robots import RobotAPI, World

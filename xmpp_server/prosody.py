@@ -15,7 +15,6 @@ import asyncio
 import datetime
 import os
 import shutil
-import signal
 import subprocess
 import tempfile
 import time

@@ -6,7 +6,6 @@ import cv2
 import pytest
 import yaml
 
-from robots import World
 from robots.gridmap import FREE, OCCUPIED, UNKNOWN
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robots import RobotAPI, World
+from robots import World
 from robots.errors import InvalidArgument
 
 from .conftest import api_at
