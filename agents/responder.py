@@ -106,8 +106,11 @@ class Responder(CyclicBehaviour):
             await self._answer(msg, Performative.FAILURE, Reason(reason="cancelled", code="cancelled"))
             raise
         except Exception as e:  # noqa: BLE001 - any handler bug becomes a failure, the agent lives on
-            log.exception("handler for %s failed", info.action)
             code = getattr(e, "code", "error")
+            if hasattr(e, "code"):  # a typed domain error (robot, service, store): no traceback
+                log.info("%s failed: %s", info.action, e)
+            else:
+                log.exception("handler for %s failed", info.action)
             await self._answer(msg, Performative.FAILURE,
                                Reason(reason=f"{type(e).__name__}: {e}", code=str(code)))
             return
