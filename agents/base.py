@@ -40,6 +40,34 @@ log = logging.getLogger("rapp.agent")
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
 
 
+async def _cancellable_step(self) -> None:
+    """SPADE's CyclicBehaviour._step with one change: cancellation ends the behaviour.
+
+    SPADE 4.1.4 catches CancelledError inside the loop and goes on, so a behaviour of an agent
+    that was not stopped ignores cancellation forever (an event loop then never closes)."""
+    while not self._done() and not self.is_killed():
+        try:
+            await self._run()
+            await asyncio.sleep(0)
+        except asyncio.CancelledError:
+            self.kill()
+            self.is_running = False
+            raise
+        except Exception as e:  # noqa: BLE001 - SPADE's own contract: an error kills the behaviour
+            log.exception("behaviour %s failed", self)
+            self.kill(exit_code=e)
+    try:
+        await self.on_end()
+    except Exception as e:  # noqa: BLE001
+        log.exception("on_end of %s failed", self)
+        self.kill(exit_code=e)
+    self.is_running = False
+    self.agent.remove_behaviour(self)
+
+
+CyclicBehaviour._step = _cancellable_step
+
+
 class _RoutingContainer:
     """Stands in for SPADE's Container on one agent, so every send passes through the agent."""
 

@@ -101,6 +101,10 @@ class _MicrophoneListener(CyclicBehaviour):
 
     async def run(self) -> None:
         text = await self.microphone.listen(timeout=0.5)
+        if self.is_killed():  # deactivated while listening: the utterance belongs to the RApp now
+            if text:
+                self.microphone.hear(text)
+            return
         if text and text.strip():
             await self.on_text(text.strip())
 

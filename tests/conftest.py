@@ -33,3 +33,4 @@ def unique():
         _counter += 1
         return f"{prefix}{_counter}"
     return make
+

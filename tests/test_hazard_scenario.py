@@ -38,11 +38,12 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     assert json.loads((out / "result.json").read_text()) == result
 
 
-async def test_hazard_detection_small_house(tmp_path):
-    result = await run_hazard_detection("elektron", seed=1, house="small", out_dir=tmp_path)
+@pytest.mark.parametrize("robot", ["nao", "elektron"])
+async def test_hazard_detection_small_house(tmp_path, robot):
+    result = await run_hazard_detection(robot, seed=1, house="small", out_dir=tmp_path)
     check_run(result, tmp_path, {"d1", "l1"})
     assert result["localization_error_m"] <= 0.05
-    assert result["max_tracking_error_m"] <= 0.12
+    assert result["max_tracking_error_m"] <= 0.10
     door = next(h for h in result["hazards"] if h["type"] == "door")
     assert abs(door["estimated_angle"] - door["true_angle"]) <= 10
 
@@ -75,3 +76,34 @@ def test_seeded_door_states_and_hazard_list():
 async def test_hazard_detection_full_house(tmp_path, robot):
     result = await run_hazard_detection(robot, seed=1, house="house", out_dir=tmp_path)
     check_run(result, tmp_path, {"d_kitchen", "d_bedroom", "l_living", "l_office"})
+    assert result["localization_error_m"] <= 0.05
+    assert result["max_tracking_error_m"] <= 0.10
+
+
+def check_two_robots(result: dict, out: Path, split: dict) -> None:
+    assert set(result["robots"]) == {"nao", "elektron"}
+    events = read_trace(result["trace"])
+    spawns = [r for r in events if r["kind"] == "structure" and r.get("event") == "spawn"
+              and r.get("rapp") == "hazard-detection"]
+    assert len(spawns) == 2  # one Dynamic Agent per robot, same Store and Platform
+    for kind, r in result["robots"].items():
+        assert {h["id"] for h in r["hazards"]} == split[kind]
+        assert r["all_correct"], (kind, r["hazards"])
+        assert r["localization_error_m"] <= 0.05 and r["max_tracking_error_m"] <= 0.10, (kind, r)
+        assert "hazard-detection finished" in (out / kind / "chat.txt").read_text()
+    assert json.loads((out / "result.json").read_text()) == result
+
+
+async def test_two_robots_small_house(tmp_path):
+    from scenarios.two_robots import SPLIT, run_two_robots
+
+    result = await run_two_robots(seed=1, house="small", out_dir=tmp_path)
+    check_two_robots(result, tmp_path, SPLIT["small"])
+
+
+@pytest.mark.slow
+async def test_two_robots_full_house(tmp_path):
+    from scenarios.two_robots import SPLIT, run_two_robots
+
+    result = await run_two_robots(seed=1, house="house", out_dir=tmp_path)
+    check_two_robots(result, tmp_path, SPLIT["house"])

@@ -109,11 +109,37 @@ def refine(starts: list[tuple[float, float, float]], views: list[tuple]) -> tupl
     return best
 
 
+SINGLE_MAX_M = 2.5  # one code farther than this fixes the pose too poorly (tens of cm): keep odometry
+GOOD_RMS_PX = 2.0  # above this a multi-code fit drops its worst code and tries again
+
+
 def solve_pose(req: SolvePose) -> Localization:
+    loc = _solve(req)
+    while (loc.found and loc.rms_px is not None and loc.rms_px > GOOD_RMS_PX and len(loc.markers) > 1):
+        worst = _worst_marker(req, loc)  # one code disagrees (partly hidden, seen too obliquely)
+        req = req.model_copy(update={"observations": [o for o in req.observations if o.text != worst]})
+        loc = _solve(req)
+    return loc
+
+
+def _worst_marker(req: SolvePose, loc: Localization) -> str:
+    p = loc.pose
+    errs = {}
+    for o in req.observations:
+        v = _views([o], req.landmarks)
+        if v:
+            r = _residuals(np.array([p.x, p.y, p.theta]), v)
+            errs[o.text] = max(errs.get(o.text, 0.0), float(np.sqrt(np.mean(r ** 2))))
+    return max(errs, key=errs.get) if errs else loc.markers[-1]
+
+
+def _solve(req: SolvePose) -> Localization:
     loc = initial_pose(req)
     if not loc.found:
         return loc
     obs = [o for o in req.observations if o.text in req.landmarks]
+    if loc.method == "single" and min(o.distance_m for o in obs if o.text == loc.markers[0]) > SINGLE_MAX_M:
+        return Localization(found=False, markers=loc.markers, method="single-too-far")
     p = loc.pose
     starts = [(p.x, p.y, p.theta)]
     if loc.method == "single":  # both planar-ambiguity solutions of the code as starts

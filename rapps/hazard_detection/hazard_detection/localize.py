@@ -8,9 +8,9 @@ from __future__ import annotations
 from behaviours import FSM
 from rapps.sdk import Step
 
-# head joints, sweep limit (rad) and the pitch to look at landmarks at 0.7 m, per robot model
+# head joints, sweep limit (rad) and the pitch to look at landmarks at 0.7 m (positive = down), per robot model
 HEADS = {
-    "HeadYaw": {"yaw": "HeadYaw", "pitch": "HeadPitch", "limit": 2.0, "tilt": 0.05},
+    "HeadYaw": {"yaw": "HeadYaw", "pitch": "HeadPitch", "limit": 2.0, "tilt": -0.12},  # camera ~0.5 m: look up
     "HeadPan": {"yaw": "HeadPan", "pitch": "HeadTilt", "limit": 2.7, "tilt": 0.12},
 }
 

@@ -1,0 +1,83 @@
+"""The reference RApps (weather reporter, e-mail reader, cognitive game) run on the same Core,
+unchanged, each started by a user sentence interpreted by the Platform."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from ontology import platform as P
+from ontology.services.email import EmailSend
+from ontology.services.knowledge import GetHistory
+from robots import RobotAPI, World
+from scenarios.system import RappSystem
+
+from .test_lifecycle import state, wait_until
+
+RAPPS = Path(__file__).resolve().parent.parent / "rapps"
+
+
+@pytest.fixture(scope="module")
+async def system(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("reference")
+    world = World.from_file("small", seed=9)
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+        for name in ("weather_reporter", "email_reader", "cognitive_game"):
+            await system.publish(RAPPS / name)
+        system.world = world
+        system.nao = world.add_robot("nao")
+        system.handle = await system.add_robot("nao", api=RobotAPI(system.nao))
+        await wait_until(lambda: len(system.handle.core.vocabulary) >= 3 and state(system.handle.core) == "s3_listen")
+        core = system.handle.core
+        login = await system.publisher.request(system.platform.address,
+                                               P.Login(user=core.user, password=core.password))
+        system.token = login.token  # the owner's own token, as their phone app would have it
+        yield system
+    world.close()
+
+
+async def command(system, text: str, expect: str, timeout: float = 60.0) -> list[str]:
+    user = system.handle.user
+    start = len(user.received)
+    await user.say(system.handle.core.address, text)
+    await user.wait_for(lambda t: expect in t, timeout=timeout, start=start)
+    return user.texts()[start:]
+
+
+async def test_weather_reporter(system):
+    said = await command(system, "what's the weather in Warsaw", "weather_reporter finished")
+    report = next(t for t in said if t.startswith("In Warsaw"))
+    assert "12 degrees" in report and "partly cloudy" in report and "Tomorrow: light rain" in report
+    assert any("In Warsaw" in t for _, t in system.nao.loudspeaker.spoken)  # it was spoken too
+
+
+async def test_email_reader(system):
+    said = await command(system, "read my e-mail", "email_reader finished")
+    assert any("no new e-mail" in t for t in said)
+    await system.publisher.request(system.platform.address, EmailSend(
+        token=system.token, recipients=[system.handle.core.user], subject="Dinner on Sunday",
+        body="Come at six, bring the cake."))
+    said = await command(system, "do I have new mail?", "email_reader finished")
+    assert any("Dinner on Sunday" in t and "bring the cake" in t for t in said)
+
+
+async def test_cognitive_game_hears_answers_and_records_score(system):
+    user, mic = system.handle.user, system.nao.microphone
+    start = len(user.received)
+    await user.say(system.handle.core.address, "let's play a game")
+    answers = {"How much is 2 plus 3?": "five", "How much is 10 minus 4?": "I think it is 6",
+               "How much is 7 times 8?": "56", "How much is 45 divided by 5?": "nine"}
+    asked = 0
+    while True:
+        text = await user.wait_for(lambda t: t.startswith("Question") or "finished:" in t,
+                                   timeout=60, start=start)
+        start = user.received.index(next(r for r in user.received[start:] if r[2] == text)) + 1
+        if "finished:" in text:
+            break
+        question = re.sub(r"^Question \d+: ", "", text)
+        mic.hear(answers.get(question, "pass"))
+        asked += 1
+    assert asked >= 2 and f"{asked} of {asked} correct, score 100" in text
+    history = await system.publisher.request(system.platform.address, GetHistory(token=system.token))
+    assert history.records and history.records[-1].score == 100.0
