@@ -81,3 +81,11 @@ async def test_cognitive_game_hears_answers_and_records_score(system):
     assert asked >= 2 and f"{asked} of {asked} correct, score 100" in text
     history = await system.publisher.request(system.platform.address, GetHistory(token=system.token))
     assert history.records and history.records[-1].score == 100.0
+
+
+async def test_hello_example(system):
+    await system.publish(RAPPS / "examples" / "hello")
+    core = system.handle.core
+    core.vocabulary["hello"] = "hello"  # published after the Core read the Store's list
+    said = await command(system, "hello", "hello finished")
+    assert "Hello, I am your robot." in said

@@ -1,9 +1,21 @@
-"""Task of the ``hello`` example RApp (placeholder until the SDK base class exists in rapps/sdk.py)."""
+"""Task of the ``hello`` example RApp: the smallest complete task built on the SDK."""
+from agents.errors import RequestError
+from behaviours import FSM
+from rapps.sdk import Step, Task
 
 
-class HelloTask:
-    """Says the configured greeting through the robot's communication API, then finishes."""
+class HelloTask(Task):
+    """Says the configured greeting (or writes it when the robot cannot speak), then finishes."""
 
-    async def run(self):
-        """Run the task once; the Dynamic Agent runtime awaits this coroutine."""
-        return None
+    def build(self):
+        fsm = FSM("hello", initial="greet")
+        fsm.add_state("greet", Step(self.greet), final=True)
+        return fsm
+
+    async def greet(self, memory):
+        text = str(self.params.get("greeting", "Hello"))
+        try:
+            await self.robot.say(text=text)
+        except RequestError:
+            pass  # e.g. Elektron has no speech synthesis: the report carries the greeting
+        await self.report(text)
