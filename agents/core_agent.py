@@ -135,7 +135,7 @@ class _SafetyMonitor(PeriodicBehaviour):
 
     async def run(self) -> None:
         core = self.core
-        if core.estop_reason is not None or core.locks.holder("base") is None:
+        if core.estop_reason is not None or (core.locks.holder("base") is None and not core.driving):
             return  # latched already, or the base is not being driven
         nearest = await core.nearest_obstacle()
         if nearest is not None and nearest < core.safety_distance:
@@ -172,6 +172,7 @@ class CoreAgent(RappAgent):
             raise ValueError(f"dynamic_mode must be 'process' or 'inprocess', not {dynamic_mode!r}")
         self.dynamic_mode = dynamic_mode
         self.estop_reason: str | None = None
+        self.driving = False  # a move_vel velocity is in force
         self.safety_distance, self.safety_period = safety_distance, safety_period
 
     # -- setup and behaviours ------------------------------------------------------------
@@ -419,6 +420,7 @@ class CoreAgent(RappAgent):
         return min(margins) if margins else None
 
     async def _stop_robot(self) -> None:
+        self.driving = False
         try:
             await self.robot.handle(ontology.robot.MoveStop())
         except Exception as e:  # noqa: BLE001 - stopping must not fail the destroy
@@ -441,6 +443,10 @@ class CoreAgent(RappAgent):
             return await self._lock(req, ctx.sender)
         if req.action_name == "free_resource":
             return self._free(req, ctx.sender)
+        if req.action_name == "move_vel":  # a velocity keeps the base moving after the call returns
+            self.driving = any(abs(getattr(req, f, 0.0) or 0.0) > 1e-9 for f in ("x", "y", "theta"))
+        elif req.action_name in ("move_stop", "move_to", "move_along_path"):
+            self.driving = False
         try:
             async with self.locks.hold(ACTION_DEVICE.get(req.action_name), ctx.sender, timeout=60.0):
                 return await self.robot.handle(req)

@@ -34,6 +34,7 @@ async def system(tmp_path_factory):
         await system.publish(variant(workdir, "greedy-echo", "greedyecho", call_service="path_planning_list_maps"))
         await system.publish(variant(workdir, "drive-echo", "driveecho", behaviour="drive", distance=6.0))
         await system.publish(variant(workdir, "lock-echo", "lockecho", lock="camera"))
+        await system.publish(variant(workdir, "cruise-echo", "cruiseecho", behaviour="cruise"))
         system.world = world
         system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
         await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
@@ -78,6 +79,17 @@ async def test_obstacle_within_safety_distance_latches_estop(system):
     trace = read_trace(system.settings.trace_file)
     assert any(r["kind"] == "structure" and r["event"] == "estop" and "obstacle" in r["reason"] for r in trace)
     await system.handle.user.wait_for(lambda t: "drive-echo ended" in t, timeout=30)
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING)
+    await run_command(system, "resume", "I may move again")
+
+
+async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
+    core = system.handle.core
+    await run_command(system, "cruiseecho", "Emergency stop: obstacle ahead", timeout=60)
+    pose = system.world.ground_truth().robots["nao"]
+    await asyncio.sleep(0.3)
+    assert system.world.ground_truth().robots["nao"] == pose  # halted, and stays halted
+    await run_command(system, "stop", "cruise-echo ended with a problem")
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
     await run_command(system, "resume", "I may move again")
 
