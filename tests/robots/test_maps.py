@@ -4,6 +4,8 @@ import math
 
 import cv2
 import pytest
+from pathlib import Path
+
 import yaml
 
 from robots.gridmap import FREE, OCCUPIED, UNKNOWN
@@ -37,7 +39,9 @@ def test_landmark_map_file(make_world, tmp_path):
     path = w.write_landmark_map(tmp_path / "landmarks.yaml")
     data = yaml.safe_load(path.read_text())
     ids = {m["id"]: m for m in data["landmarks"]}
-    assert set(ids) == {"qr_s1", "qr_s2", "qr_s3"}
+    house = yaml.safe_load((Path(__file__).resolve().parents[2] / "robots/houses/small.yaml").read_text())
+    declared = {lm["id"] for lm in house["landmarks"]}
+    assert set(ids) == declared and {"qr_s1", "qr_s2", "qr_s3"} <= declared  # every panel, no more
     m = ids["qr_s1"]
     assert (m["text"], m["x"], m["y"], m["z"], m["size"]) == ("QR-S1", 1.8, 3.95, 0.7, 0.25)
     assert m["yaw"] == pytest.approx(-math.pi / 2) and len(m["corners"]) == 4
