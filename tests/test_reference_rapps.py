@@ -38,6 +38,8 @@ async def system(tmp_path_factory):
 
 
 async def command(system, text: str, expect: str, timeout: float = 60.0) -> list[str]:
+    core = system.handle.core  # the previous task may still be winding down: wait for supervision
+    await wait_until(lambda: state(core) == "s3_listen" and "user-listener" in core.active_behaviours())
     user = system.handle.user
     start = len(user.received)
     await user.say(system.handle.core.address, text)
@@ -79,6 +81,7 @@ async def test_cognitive_game_hears_answers_and_records_score(system):
         mic.hear(answers.get(question, "pass"))
         asked += 1
     assert asked >= 2 and f"{asked} of {asked} correct, score 100" in text
+    await user.wait_for(lambda t: "cognitive_game finished" in t, timeout=30, start=start)
     history = await system.publisher.request(system.platform.address, GetHistory(token=system.token))
     assert history.records and history.records[-1].score == 100.0
 
