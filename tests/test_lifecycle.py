@@ -55,6 +55,7 @@ async def system(tmp_path_factory):
         await system.publish(FIXTURE)
         await system.publish(variant(workdir, "echo-cloud", "cloudecho", use_cloud=True))
         await system.publish(variant(workdir, "echo-fail", "failecho", behaviour="raise"))
+        await system.publish(variant(workdir, "echo-slow", "slowecho", behaviour="silent"))
         spy = SpyAPI(RobotAPI(world.add_robot("nao")))
         handle = await system.add_robot("nao", api=spy)
         spy.core = handle.core
@@ -157,11 +158,13 @@ async def test_robot_request_from_other_agent_is_refused(system):
         with pytest.raises(RequestRefused, match="does not serve robot/move_to"):
             await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=20)
         # while a Dynamic Agent supervises, an intruder is refused by the command server itself
-        slow = asyncio.create_task(run_command(system, "echo", "echo-app finished"))
+        slow = asyncio.create_task(run_command(system, "slowecho", "echo-slow ended with a problem"))
         await wait_until(lambda: "command-server" in system.handle.core.active_behaviours())
         with pytest.raises(RequestRefused, match="not the current supervisor"):
             await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=20)
-        await slow
+        await system.handle.user.say(system.handle.core.address, "stop")
+        assert "stopped by the user" in await slow
+        await run_command(system, "resume", "I may move again")
     finally:
         await intruder.stop()
 
