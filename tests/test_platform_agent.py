@@ -1,19 +1,28 @@
-"""The Platform Agent's rights and load behaviour: token expiry, per-user data, overload."""
+"""The Platform Agent's rights and load behaviour: tokens, per-user data, errors, overload;
+services run through the agent over XMPP (they are unit-tested directly in tests/services)."""
 from __future__ import annotations
 
 import asyncio
 import base64
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 from agents.base import RappAgent
-from agents.errors import RequestFailed, RequestRefused
+from agents.errors import NotUnderstood, RequestFailed, RequestRefused
 from agents.platform_agent import PlatformAgent
+from agents.services import SERVICES
+from agents.services.images import encode_image
+from agents.services.maps import encode_map
 from ontology import platform as P
-from ontology.services.information import WeatherCurrent
-from ontology.services.navigation import ListMaps, UploadMap
+from ontology.services.common import Pose2D
+from ontology.services.information import NewsExplore, WeatherCurrent
+from ontology.services.navigation import PLAN_FOUND, ListMaps, PlanPath2D, UploadMap
+from ontology.services.vision import FaceDetect, FindObjects, HumanDetect, LearnObject
+
+PHOTOS = Path(__file__).resolve().parent / "data"  # see tests/data/README.md
 
 
 async def _platform(settings, unique, **kw):
@@ -87,6 +96,135 @@ async def test_overload_is_answered_never_left_pending(settings, unique):
         assert (await client.request(platform.address, WeatherCurrent(token=token, city="Warsaw"))).city == "Warsaw"
         with pytest.raises(RequestFailed, match="Atlantis"):
             await client.request(platform.address, WeatherCurrent(token=token, city="Atlantis"))
+    finally:
+        await client.stop()
+        await platform.stop()
+
+
+async def test_login_gives_a_token_and_calls_without_a_valid_one_are_refused(settings, unique):
+    platform, client = await _platform(settings, unique)
+    try:
+        with pytest.raises(RequestRefused, match="unknown user or wrong password"):
+            await client.request(platform.address, P.Login(user="nobody", password="pw"))
+        token = await _token(client, platform, "dan")
+        assert len(token) >= 20 and (await client.request(platform.address, P.Ping(token=token))).user == "dan"
+        with pytest.raises(RequestRefused, match="missing token") as no_token:
+            await client.request(platform.address, WeatherCurrent(city="Warsaw"))
+        assert no_token.value.code == "no-token"
+        with pytest.raises(RequestRefused, match="unknown token") as forged:
+            await client.request(platform.address, WeatherCurrent(token=token[::-1], city="Warsaw"))
+        assert forged.value.code == "bad-token"
+    finally:
+        await client.stop()
+        await platform.stop()
+
+
+async def test_unknown_service_is_not_understood_and_service_errors_are_failures(settings, unique):
+    without_news = {name: spec for name, spec in SERVICES.items() if name != "news_explore"}
+    platform, client = await _platform(settings, unique, services=without_news)
+    try:
+        token = await _token(client, platform, "eve")
+        with pytest.raises(NotUnderstood, match="news_explore"):
+            await client.request(platform.address, NewsExplore(token=token, keywords=["robots"]))
+        with pytest.raises(RequestFailed, match="no weather data for city 'Atlantis'") as failed:
+            await client.request(platform.address, WeatherCurrent(token=token, city="Atlantis"))
+        assert failed.value.code == "unknown_city"
+        assert (await client.request(platform.address, P.Ping(token=token))).user == "eve"  # still serving
+    finally:
+        await client.stop()
+        await platform.stop()
+
+
+RES = 0.05
+
+
+def _room_upload(token: str, map_id: str) -> UploadMap:
+    """A 3 m x 3 m empty room with walls around it."""
+    blocked = np.zeros((60, 60), bool)
+    blocked[0, :] = blocked[-1, :] = blocked[:, 0] = blocked[:, -1] = True
+    png, yaml_text = encode_map(blocked, RES)
+    return UploadMap(token=token, map_id=map_id, png_b64=base64.b64encode(png).decode(), yaml_text=yaml_text)
+
+
+def _plan(token: str, map_id: str) -> PlanPath2D:
+    return PlanPath2D(token=token, robot_type="nao", algorithm="astar", map_id=map_id,
+                      start=Pose2D(x=0.7, y=0.7), goal=Pose2D(x=2.3, y=2.2))
+
+
+async def test_plan_path_on_an_uploaded_map_is_private_to_its_user(settings, unique):
+    platform, client = await _platform(settings, unique)
+    try:
+        ann, bob = await _token(client, platform, "ann"), await _token(client, platform, "bob")
+        info = await client.request(platform.address, _room_upload(ann, "room"))
+        assert (info.width, info.height) == (60, 60)
+        plan = await client.request(platform.address, _plan(ann, "room"), timeout=30)
+        assert plan.plan_found == PLAN_FOUND and len(plan.path) >= 2 and 2.0 < plan.length_m < 3.0
+        assert (await client.request(platform.address, _plan(bob, "room"), timeout=30)).plan_found != PLAN_FOUND
+    finally:
+        await client.stop()
+        await platform.stop()
+
+
+def _textured(seed: int) -> str:
+    rng = np.random.default_rng(seed)
+    img = np.full((160, 200), 255, np.uint8)
+    for _ in range(80):
+        x, y = (int(v) for v in rng.integers(0, 180, 2))
+        cv2.rectangle(img, (x, y), (x + int(rng.integers(5, 30)), y + int(rng.integers(5, 30))),
+                      int(rng.integers(0, 200)), -1)
+    return encode_image(img)
+
+
+async def test_learned_objects_belong_to_their_user(settings, unique):
+    platform, client = await _platform(settings, unique)
+    try:
+        ann, bob = await _token(client, platform, "ann"), await _token(client, platform, "bob")
+        book = _textured(1)
+        await client.request(platform.address, LearnObject(token=ann, name="book", image_b64=book), timeout=30)
+        found = await client.request(platform.address, FindObjects(token=ann, image_b64=book), timeout=30)
+        assert [o.name for o in found.objects] == ["book"]
+        with pytest.raises(RequestFailed, match="no objects learned yet"):
+            await client.request(platform.address, FindObjects(token=bob, image_b64=book), timeout=30)
+    finally:
+        await client.stop()
+        await platform.stop()
+
+
+async def test_hundred_concurrent_pings_and_plans_are_all_answered(settings, unique):
+    platform, client = await _platform(settings, unique, max_pending=16)
+    try:
+        token = await _token(client, platform, "fay")
+        await client.request(platform.address, _room_upload(token, "room"))
+
+        async def call(req):
+            try:
+                reply = await client.request(platform.address, req, timeout=60, retries=0)
+                return "ping" if isinstance(reply, P.Pong) else f"plan {reply.plan_found}"
+            except RequestRefused as e:
+                assert e.code == "busy" and "platform busy" in e.reason
+                return "busy"
+
+        requests = [P.Ping(token=token) if i % 2 else _plan(token, "room") for i in range(100)]
+        outcomes = await asyncio.gather(*(call(r) for r in requests))  # a timeout would raise
+        assert outcomes.count("ping") == 50  # control calls are never refused as busy
+        assert outcomes.count(f"plan {PLAN_FOUND}") >= 16
+        assert outcomes.count(f"plan {PLAN_FOUND}") + outcomes.count("busy") == 50
+    finally:
+        await client.stop()
+        await platform.stop()
+
+
+async def test_face_and_human_detection_through_the_agent(settings, unique):
+    platform, client = await _platform(settings, unique)
+    try:
+        token = await _token(client, platform, "gil")
+        photo = {n: base64.b64encode((PHOTOS / f"{n}.jpg").read_bytes()).decode() for n in ("astronaut", "cameraman")}
+        faces = await client.request(platform.address, FaceDetect(token=token, image_b64=photo["astronaut"]))
+        assert len(faces.boxes) == 1 and faces.boxes[0].x < 112 < faces.boxes[0].x + faces.boxes[0].width
+        people = await client.request(platform.address, HumanDetect(token=token, image_b64=photo["cameraman"]))
+        assert people.boxes and people.boxes[0].height > 150
+        with pytest.raises(RequestFailed, match="could not be decoded"):
+            await client.request(platform.address, FaceDetect(token=token, image_b64="bm90IGFuIGltYWdl"))
     finally:
         await client.stop()
         await platform.stop()

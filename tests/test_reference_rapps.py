@@ -37,12 +37,13 @@ async def system(tmp_path_factory):
     world.close()
 
 
-async def command(system, text: str, expect: str, timeout: float = 60.0) -> list[str]:
-    core = system.handle.core  # the previous task may still be winding down: wait for supervision
+async def command(system, text: str, expect: str, timeout: float = 60.0, handle=None) -> list[str]:
+    handle = handle or system.handle
+    core = handle.core  # the previous task may still be winding down: wait for supervision
     await wait_until(lambda: state(core) == "s3_listen" and "user-listener" in core.active_behaviours())
-    user = system.handle.user
+    user = handle.user
     start = len(user.received)
-    await user.say(system.handle.core.address, text)
+    await user.say(core.address, text)
     await user.wait_for(lambda t: expect in t, timeout=timeout, start=start)
     return user.texts()[start:]
 
@@ -52,6 +53,14 @@ async def test_weather_reporter(system):
     report = next(t for t in said if t.startswith("In Warsaw"))
     assert "12 degrees" in report and "partly cloudy" in report and "Tomorrow: light rain" in report
     assert any("In Warsaw" in t for _, t in system.nao.loudspeaker.spoken)  # it was spoken too
+
+
+async def test_weather_reporter_writes_when_the_robot_cannot_speak(system):
+    elektron = await system.add_robot("elektron", api=RobotAPI(system.world.add_robot("elektron")))
+    await wait_until(lambda: len(elektron.core.vocabulary) >= 3 and state(elektron.core) == "s3_listen")
+    said = await command(system, "what's the weather in Krakow", "weather_reporter finished", handle=elektron)
+    report = next(t for t in said if t.startswith("In Krakow"))
+    assert "fog" in report and "cannot speak, so I wrote it" in report
 
 
 async def test_email_reader(system):

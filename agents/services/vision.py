@@ -1,6 +1,8 @@
-"""Face / human detection (OpenCV Haar cascade / HOG people detector when the OpenCV build has them)
+"""Face / human detection (OpenCV's bundled Haar cascade / HOG people detector, OpenCV 4.x)
 and per-user object learning and recognition (ORB features, BFMatcher, RANSAC homography).
 
+The HOG detector crashes the process (segfault) on images smaller than its 64x128 window, so
+images are padded first; the padding (a replicated border) also finds people cut by the frame.
 OpenCV 5's main package moved CascadeClassifier and HOGDescriptor out of objdetect; with such a
 build face and human detection raise ServiceError(code="unavailable").
 """
@@ -14,7 +16,15 @@ import numpy as np
 
 from ontology.registry import Done
 from ontology.services.vision import (
-    Box, ClearObjects, Detections, FaceDetect, FindObjects, FoundObject, FoundObjects, HumanDetect, LearnObject,
+    Box,
+    ClearObjects,
+    Detections,
+    FaceDetect,
+    FindObjects,
+    FoundObject,
+    FoundObjects,
+    HumanDetect,
+    LearnObject,
 )
 
 from .context import ServiceContext
@@ -57,10 +67,33 @@ def face_detection(req: FaceDetect, ctx: ServiceContext) -> Detections:
     return _boxes(det.detectMultiScale(gray, scaleFactor=1.1, minNeighbors=5, minSize=(24, 24)))
 
 
+HOG_WINDOW = (64, 128)  # (w, h) of the default people detector
+MIN_PERSON_SCORE = 0.2  # SVM margin below which a window is not reported
+
+
+def pad_for_people(img: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Image with a replicated border: a quarter of its size, and at least the HOG window.
+    Returns (padded image, left pad, top pad)."""
+    h, w = img.shape[:2]
+    px = max(w // 4, (HOG_WINDOW[0] - w + 1) // 2 + 8)
+    py = max(h // 4, (HOG_WINDOW[1] - h + 1) // 2 + 8)
+    return cv2.copyMakeBorder(img, py, py, px, px, cv2.BORDER_REPLICATE), px, py
+
+
+def _clip(rect, dx: int, dy: int, w: int, h: int) -> tuple[int, int, int, int] | None:
+    x0, y0 = max(0, int(rect[0]) - dx), max(0, int(rect[1]) - dy)
+    x1, y1 = min(w, int(rect[0] + rect[2]) - dx), min(h, int(rect[1] + rect[3]) - dy)
+    return (x0, y0, x1 - x0, y1 - y0) if x1 - x0 > 4 and y1 - y0 > 4 else None
+
+
 def human_detection(req: HumanDetect, ctx: ServiceContext) -> Detections:
     img = decode_image(req.image_b64)
-    rects, _ = people_detector().detectMultiScale(img, winStride=(8, 8), padding=(8, 8), scale=1.05)
-    return _boxes(rects)
+    h, w = img.shape[:2]
+    padded, dx, dy = pad_for_people(img)
+    rects, scores = people_detector().detectMultiScale(padded, winStride=(4, 4), padding=(8, 8), scale=1.05)
+    scores = np.asarray(scores, float).ravel()
+    found = [(s, _clip(r, dx, dy, w, h)) for r, s in zip(rects, scores) if s >= MIN_PERSON_SCORE]
+    return _boxes([box for _, box in sorted(found, key=lambda f: -f[0]) if box is not None])
 
 
 class ObjectModels:
