@@ -17,8 +17,8 @@ from __future__ import annotations
 import argparse
 import html
 import json
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 from agents.tracing import read_trace
 from scenarios.trace_report import display_names, note_label, participants, timeline
@@ -162,6 +162,7 @@ main { flex: 1; display: flex; min-height: 0; }
 .time { fill: #888; font-size: 10px; }
 .structure { cursor: pointer; }
 .structure text { font-size: 11px; fill: #333; }
+.structure text.label { paint-order: stroke; stroke-width: 4px; stroke-linejoin: round; }
 .structure.selected rect { stroke: #000; }
 .created { background: #d8f3dc; fill: #d8f3dc; } .destroyed { background: #f8d7da; fill: #f8d7da; }
 .handoff { background: #ffe8c2; fill: #ffe8c2; } .handback { background: #e3d7f5; fill: #e3d7f5; }
@@ -180,6 +181,8 @@ _JS = r"""
   const COLOURS = {request: "#1f5fbf", "query-ref": "#1f5fbf", subscribe: "#1f5fbf",
     agree: "#777", inform: "#2b8a3e", confirm: "#2b8a3e", failure: "#c92a2a",
     refuse: "#d9480f", "not-understood": "#862e9c", cancel: "#a61e4d", chat: "#222"};
+  const BANDS = {created: "#d8f3dc", destroyed: "#f8d7da", handoff: "#ffe8c2", handback: "#e3d7f5",
+    activated: "#d6eaff", deactivated: "#e4e4e4", state: "#f5f5dc", problem: "#ffc9c9", structure: "#eee"};
   const names = {};
   DATA.agents.forEach(a => { names[a.jid] = a.name; });
   const items = DATA.items.map((it, i) => Object.assign({_i: i}, it));
@@ -283,9 +286,11 @@ _JS = r"""
     svg.replaceChildren();
     svg.setAttribute("width", width); svg.setAttribute("height", height);
     const lifelines = el("g", {class: "lifelines"}), bands = el("g", {class: "bands"}),
-          arrows = el("g", {class: "arrows"});
-    svg.append(bands, lifelines, arrows);
+          arrows = el("g", {class: "arrows"}), times = el("g", {class: "times"});
+    svg.append(bands, lifelines, arrows, times);
     cols.forEach(j => drawLifeline(lifelines, j, x[j], shown, rows, height));
+    shown.forEach((it, k) => times.append(el("text", {class: "time", x: 4,
+      y: rows[k] + (isMsg(it) ? MSG_ROW - 7 : NOTE_ROW / 2 + 4)}, rel(it.t))));
     let count = 0;
     shown.forEach((it, k) => {
       if (isMsg(it)) { arrows.append(drawMessage(it, rows[k], x)); count += 1; }
@@ -323,7 +328,6 @@ _JS = r"""
       + (m.latency != null ? "  latency " + (m.latency * 1000).toFixed(1) + " ms" : "")
       + (m.seen !== "both" ? "  (traced by " + m.seen + " side only)" : "");
     g.append(el("title", {}, tip));
-    g.append(el("text", {class: "time", x: 4, y: ly + 3}, rel(m.t)));
     let d, head, labelX, anchor;
     if (x1 === x2) {
       d = `M${x1} ${ly - 8} h30 v12 h-28`;
@@ -352,19 +356,23 @@ _JS = r"""
     g.append(el("title", {}, n._label));
     g.append(el("rect", {class: cat === "structure" ? "structure-other" : cat, x: GUTTER - 6, y: top + 2,
                          width: width - GUTTER, height: NOTE_ROW - 4, rx: 3, "fill-opacity": 0.85}));
-    g.append(el("text", {class: "time", x: 4, y: top + NOTE_ROW / 2 + 4}, rel(n.t)));
     (n._jids || []).forEach(j => {
       if (x[j] !== undefined) g.append(el("circle", {cx: x[j], cy: top + NOTE_ROW / 2, r: 4, fill: "#555"}));
     });
     const first = (n._jids || []).map(j => x[j]).filter(v => v !== undefined)[0];
-    const tx = first === undefined ? GUTTER : first + 8;
-    g.append(el("text", {x: tx, y: top + NOTE_ROW / 2 + 4}, "\u25B8 " + n._label));
+    const label = "\u25B8 " + n._label, guess = label.length * 6.3;  // ~px at 11px font
+    let tx = first === undefined ? GUTTER : first + 8, anchor = "start";
+    if (tx + guess > width - PAD && first !== undefined && first - 8 - guess > GUTTER) {
+      tx = first - 8; anchor = "end";  // too long to the right of its marker: put it left
+    } else if (tx + guess > width - PAD) tx = GUTTER;
+    g.append(el("text", {class: "label", x: tx, y: top + NOTE_ROW / 2 + 4, "text-anchor": anchor,
+                         stroke: BANDS[cat] || BANDS.structure}, label));
     g.addEventListener("click", () => showDetails(n, g));
     return g;
   }
 
   // -- details ----------------------------------------------------------------------------------
-  const HIDDEN = new Set(["_i", "_label", "_category", "_jids", "content"]);
+  const HIDDEN = new Set(["_i", "_label", "_category", "_jids", "content", "latency"]);
   function showDetails(rec, g) {
     document.querySelectorAll(".selected").forEach(e => e.classList.remove("selected"));
     g.classList.add("selected");

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections import Counter, defaultdict, deque
-from typing import Iterable
+from collections.abc import Iterable
 
 from agents.tracing import read_trace
 
@@ -45,8 +45,7 @@ def agent_matches(jid: str | None, wanted: str) -> bool:
 def short_conv(conversation_id: str | None, n: int = 8) -> str:
     """A short, still recognisable conversation id: 'c-618059c0cba54423' -> '618059c0'."""
     cid = conversation_id or ""
-    if cid.startswith("c-"):
-        cid = cid[2:]
+    cid = cid.removeprefix("c-")
     return cid[:n]
 
 
@@ -164,7 +163,10 @@ def message_label(ev: dict) -> str:
 def note_label(rec: dict, names: dict[str, str] | None = None) -> str:
     """One-line description of a non-message record, e.g. 'spawn dyn-hazard@localhost by core1'."""
     names = names or {}
-    name = lambda j: names.get(bare(j), local(j))  # noqa: E731
+
+    def name(jid: str | None) -> str:
+        return names.get(bare(jid), local(jid))
+
     kind, event, agent = rec.get("kind", ""), rec.get("event", ""), rec.get("agent", "")
     skip = {"t", "kind", "pid", "event", "agent", "cls"}
     if kind == "behaviour":
