@@ -169,6 +169,11 @@ class GoToPose(BaseController):
         return False
 
 
+SHARP_TURN = 0.3  # rad: the carrot stops at path corners turning more than this
+CORNER_REACHED = 0.03  # m: a corner this near counts as passed
+TURN_IN_PLACE = 0.3  # rad: a differential drive turns on the spot while its carrot is further off its heading
+
+
 class PathFollower(BaseController):
     """Follow a global path using the ESTIMATED pose: pure pursuit (diff drive) or a holonomic
     carrot P controller (NAO); the final pose (with heading) is reached with GoToPose."""
@@ -193,28 +198,41 @@ class PathFollower(BaseController):
         t = float(np.clip(np.dot([x - a[0], y - a[1]], ab) / max(float(np.dot(ab, ab)), 1e-12), 0.0, 1.0))
         return t, float(np.hypot(*(a + t * ab - [x, y])))
 
-    def _carrot(self, x: float, y: float) -> tuple[np.ndarray, float]:
-        """Carrot point LOOKAHEAD ahead of the projection, and the remaining arc length."""
+    def _turn(self, i: int) -> float:
+        """Heading change (rad) of the path at vertex i."""
+        a, b = self.pts[i] - self.pts[i - 1], self.pts[i + 1] - self.pts[i]
+        return abs(math.atan2(a[0] * b[1] - a[1] * b[0], float(np.dot(a, b))))
+
+    def _carrot(self, x: float, y: float) -> tuple[np.ndarray, float, float]:
+        """Carrot point LOOKAHEAD ahead of the projection (never past a sharp corner: cutting it is
+        how a robot hits a door frame), the remaining arc length and the distance to that corner."""
         nseg = len(self.lengths)
+        while self.seg < nseg - 1 and math.hypot(*(self.pts[self.seg + 1] - [x, y])) < CORNER_REACHED:
+            self.seg += 1
         best = min(range(self.seg, min(self.seg + 3, nseg)), key=lambda i: self._project(i, x, y)[1])
         self.seg = max(self.seg, best)
         t, _ = self._project(self.seg, x, y)
         remaining = (1 - t) * self.lengths[self.seg] + float(self.lengths[self.seg + 1:].sum())
         a, b = self.pts[self.seg], self.pts[self.seg + 1]
         pt, left, i = a + t * (b - a), self.LOOKAHEAD, self.seg + 1
+        ahead = 0.0
         while i < len(self.pts):
             d = float(np.linalg.norm(self.pts[i] - pt))
             if d >= left:
-                return pt + (self.pts[i] - pt) * (left / d), remaining
+                return pt + (self.pts[i] - pt) * (left / d), remaining, math.inf
             left -= d
+            ahead += d
+            if i < len(self.pts) - 1 and self._turn(i) > SHARP_TURN:
+                return self.pts[i], remaining, ahead
             pt, i = self.pts[i], i + 1
-        return pt, remaining
+        return pt, remaining, math.inf
 
     def step(self, dt: float) -> bool:
         if self.finisher is None:
             s = self.robot.spec
             est = self.robot.odometry.estimate
-            carrot, remaining = self._carrot(est[0], est[1]) if len(self.pts) > 1 else (self.pts[-1], 0.0)
+            carrot, remaining, corner = (self._carrot(est[0], est[1]) if len(self.pts) > 1
+                                         else (self.pts[-1], 0.0, math.inf))
             if remaining < 0.03:
                 self.finisher = GoToPose(self.robot, goal=self.final)
                 self.finisher.blocked_time = self.blocked_time
@@ -222,7 +240,7 @@ class PathFollower(BaseController):
                 cx, cy = _to_robot(est, carrot[0], carrot[1])
                 ld = max(math.hypot(cx, cy), 1e-6)
                 alpha = math.atan2(cy, cx)
-                slow = min(1.0, max(remaining / 0.4, 0.15))
+                slow = min(1.0, max(remaining / 0.4, 0.15), max(corner / 0.3, 0.3))
                 if s.holonomic:
                     v = s.max_vx * slow
                     vx, vy = v * cx / ld, v * cy / ld
@@ -230,7 +248,7 @@ class PathFollower(BaseController):
                     wz = 1.5 * wrap(heading - est[2])
                     scale = max(abs(vx) / s.max_vx, abs(vy) / s.max_vy, abs(wz) / s.max_wz, 1.0)
                     self.drive(vx / scale, vy / scale, wz / scale, dt)
-                elif abs(alpha) > 0.8:
+                elif abs(alpha) > TURN_IN_PLACE:  # arcs started at larger angles overshoot the path
                     self.drive(0.0, 0.0, math.copysign(s.max_wz, alpha), dt)
                 else:
                     v = s.max_vx * slow

@@ -2,7 +2,9 @@
 
 Camera/range methods run in the world's pybullet thread (call them through World.run / RobotAPI).
 Camera optical frame: x right, y down, z forward; intrinsics match the rendering projection exactly
-(square pixels, principal point at the image centre, pixel centres at integer coordinates, D = 0)."""
+(square pixels, D = 0, OpenCV convention: pixel centres at integer coordinates). TinyRenderer samples
+pixel (column i, row j) at OpenGL window coordinates (i, H - 1 - j), not at the pixel centres
+(i + 0.5, H - 0.5 - j), so the principal point is (W/2, H/2 - 1), not (W/2 - 0.5, H/2 - 0.5)."""
 from __future__ import annotations
 
 import asyncio
@@ -99,7 +101,8 @@ class Camera:
     def intrinsics(self, width: int, height: int) -> np.ndarray:
         hfov, _ = self.fov(width, height)
         f = (width / 2) / math.tan(hfov / 2)
-        return np.array([[f, 0, width / 2 - 0.5], [0, f, height / 2 - 0.5], [0, 0, 1.0]])
+        # TinyRenderer's sampling points (see the module docstring), measured on rendered edges
+        return np.array([[f, 0, width / 2], [0, f, height / 2 - 1.0], [0, 0, 1.0]])
 
     def set_params(self, **kw) -> ImageParams:
         self.params = replace(self.params, **{k: v for k, v in kw.items() if v is not None})

@@ -45,6 +45,7 @@ ROBOT_SPECS: dict[str, RobotSpec] = {"nao": nao.SPEC, "elektron": elektron.SPEC}
 LAMP_ON_COLOR = (1.0, 0.96, 0.78)
 LAMP_OFF_COLOR = (0.22, 0.22, 0.23)
 RENDER_MODES = ("process", "inline")
+PRINT_OFFSET_M = 0.0025  # QR print in front of the wall point the landmark map gives
 
 
 @dataclass
@@ -141,16 +142,18 @@ class Scene:
         cid = self.cid
         side = m.size / symbol_fraction(m.text)  # texture side incl. quiet zone
         nx, ny = math.cos(m.yaw), math.sin(m.yaw)
-        back = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.005, side / 2 + 0.02, side / 2 + 0.02],
+        # a 2 mm plate, the print 2.5 mm off the wall: the landmark map gives the wall point, and a
+        # thicker panel biased every localization by its thickness along the code's normal
+        back = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.001, side / 2 + 0.02, side / 2 + 0.02],
                                    rgbaColor=[0.98, 0.98, 0.98, 1], physicsClientId=cid)
-        p.createMultiBody(0, -1, back, [m.x + nx * 0.005, m.y + ny * 0.005, m.z], yaw_quat(m.yaw), physicsClientId=cid)
+        p.createMultiBody(0, -1, back, [m.x + nx * 0.001, m.y + ny * 0.001, m.z], yaw_quat(m.yaw), physicsClientId=cid)
         h = side / 2
         # local frame: x = panel normal; a viewer facing the panel has +y on the right
         verts = [[0, -h, h], [0, h, h], [0, h, -h], [0, -h, -h]]  # TL, TR, BR, BL as seen
         uvs = [[0, 1], [1, 1], [1, 0], [0, 0]]
         quad = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=[0, 2, 1, 0, 3, 2], uvs=uvs,
                                    normals=[[1, 0, 0]] * 4, physicsClientId=cid)
-        uid = p.createMultiBody(0, -1, quad, [m.x + nx * 0.0105, m.y + ny * 0.0105, m.z], yaw_quat(m.yaw),
+        uid = p.createMultiBody(0, -1, quad, [m.x + nx * PRINT_OFFSET_M, m.y + ny * PRINT_OFFSET_M, m.z], yaw_quat(m.yaw),
                                 physicsClientId=cid)
         tex = p.loadTexture(str(qr_texture(m.text)), physicsClientId=cid)
         p.changeVisualShape(uid, -1, textureUniqueId=tex, rgbaColor=[1, 1, 1, 1], physicsClientId=cid)

@@ -100,18 +100,32 @@ def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return out if np.max(np.hypot(*(out - c).T)) < 4.0 else c
 
 
-def detect_qr(img: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """(text, 4x2 corners) of each decoded QR code; undecodable codes are skipped."""
-    det = cv2.QRCodeDetector()
-    found = []
+def _decode(det: cv2.QRCodeDetector, img: np.ndarray) -> list[tuple[str, np.ndarray]]:
     ok, texts, pts, _ = det.detectAndDecodeMulti(img)
-    if ok and pts is not None:
-        found = [(t, p.reshape(4, 2)) for t, p in zip(texts, pts) if t]
+    found = [(t, p.reshape(4, 2)) for t, p in zip(texts, pts) if t] if ok and pts is not None else []
     if not found:  # the single-code path is more tolerant of small codes
         text, pts, _ = det.detectAndDecode(img)
         if text and pts is not None:
             found = [(text, pts.reshape(4, 2))]
     return found
+
+
+STRETCH_X = 2.0  # codes on walls seen obliquely are foreshortened horizontally
+
+
+def detect_qr(img: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """(text, 4x2 corners) of each decoded QR code; undecodable codes are skipped.
+
+    OpenCV's detector misses codes seen more than ~50 degrees off their normal, even large ones; a
+    second pass on the image stretched horizontally undoes most of that foreshortening (corners
+    are mapped back to the original image)."""
+    det = cv2.QRCodeDetector()
+    found = dict(_decode(det, img))
+    wide = cv2.resize(img, None, fx=STRETCH_X, fy=1.0, interpolation=cv2.INTER_LINEAR)
+    for text, pts in _decode(det, wide):
+        if text not in found:
+            found[text] = (pts + 0.5) * [1.0 / STRETCH_X, 1.0] - [0.5, 0.0]
+    return list(found.items())
 
 
 def landmark_transform(lm: Landmark) -> np.ndarray:

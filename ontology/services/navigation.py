@@ -50,6 +50,7 @@ class PlanPathReply(Content):
     reason: str = ""
     length_m: float = 0.0
     planning_time_s: float = 0.0
+    clearance_m: float = 0.0  # margin kept beyond the robot's footprint along this path
 
 
 @action("path_planning_plan_path_2d", ontology="platform", reply=PlanPathReply, group=GROUP)
@@ -64,3 +65,5 @@ class PlanPath2D(ServiceRequest):
     goal: Pose2D
     waypoint_spacing_m: float = Field(default=0.3, gt=0.01, le=5.0)
     time_limit_s: float = Field(default=1.0, gt=0.0, le=10.0)  # sampling planners only
+    # extra distance kept from obstacles where the map allows it (less in narrower passages)
+    clearance_m: float = Field(default=0.10, ge=0.0, le=1.0)

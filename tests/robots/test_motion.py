@@ -6,6 +6,7 @@ import pytest
 from ontology.robot import GetGlobalPose, MoveAlongPath, MoveStop, MoveTo, MoveVel, Pose2D, SetGlobalPose
 from robots import MotionBlocked, OdometryNoise, UnsupportedOperation
 from robots.odometry import wrap
+from scenarios.recorder import RecordingAPI
 
 from .conftest import api_at
 
@@ -38,10 +39,13 @@ async def test_square_with_path_follower_returns_to_start(small, kind, start, co
     x, y, th = small.ground_truth().robots[kind]
     path = [Pose2D(x=x, y=y, theta=th)] + [Pose2D(x=x + dx, y=y + dy, theta=th) for dx, dy in corners] + \
         [Pose2D(x=x, y=y, theta=th)]
-    await api.move_along_path(MoveAlongPath(poses=path))
+    recorder = RecordingAPI(api)  # samples the true trajectory every 0.1 s of simulation
+    await recorder.handle(MoveAlongPath(poses=path))
     d, a = err(small.ground_truth().robots[kind], (x, y, th))
     assert d < POS_TOL and a < ANG_TOL, (d, math.degrees(a))
     assert small.time > 3.0 / api.robot.spec.max_vx  # it really went round
+    # the corners are followed, not cut (a cut corner is a door frame hit)
+    assert recorder.tracking_error() < 0.04, recorder.tracking_error()
 
 
 async def test_odometry_drift_visible_with_noise_and_corrected_by_set_global_pose(small):

@@ -93,6 +93,52 @@ def test_wide_passage_both_fit(ctx):
     assert plan(ctx, "elektron", map_id="wide").plan_found == 1
 
 
+def clearance(ctx, map_id, path) -> float:
+    """Smallest distance (m) from the path's points, sampled every 1 cm, to an occupied cell's edge."""
+    from scipy import ndimage
+    m = ctx.state.maps.get(ctx.user, map_id)
+    dist = ndimage.distance_transform_edt(~m.blocked) * RES - RES / 2
+    pts = np.array([(p.x, p.y) for p in path])
+    out = np.inf
+    for a, b in zip(pts[:-1], pts[1:]):
+        for t in np.linspace(0, 1, max(2, int(np.hypot(*(b - a)) / 0.01))):
+            cx, cy = m.world_to_cell(*(a + t * (b - a)))
+            out = min(out, dist[int(round(cy)), int(round(cx))])
+    return float(out)
+
+
+def test_clearance_kept_where_the_passage_allows(ctx):
+    upload(ctx, "wide", passage_map(1.0))
+    start, goal = (1.0, 0.6), (5.0, 0.6)  # the taut path bends around the gap's lower edge
+    bare = plan(ctx, "nao", map_id="wide", start=start, goal=goal, clearance_m=0.0)
+    kept = plan(ctx, "nao", map_id="wide", start=start, goal=goal)
+    assert bare.plan_found == kept.plan_found == 1
+    assert bare.clearance_m == 0.0 and kept.clearance_m == pytest.approx(0.10)
+    assert clearance(ctx, "wide", bare.path) < navigation.ROBOT_RADIUS["nao"] + 0.04
+    # within a cell's discretisation (inflation by cell centres, line of sight at half cells)
+    assert clearance(ctx, "wide", kept.path) >= navigation.ROBOT_RADIUS["nao"] + 0.10 - RES / 2
+    # Elektron with 0.30 m + 0.10 m does not fit through 0.75 m: less margin, still a path
+    upload(ctx, "mid", passage_map(0.75))
+    el = plan(ctx, "elektron", map_id="mid", start=start, goal=goal)
+    assert el.plan_found == 1 and 0.0 < el.clearance_m < 0.10
+    assert clearance(ctx, "mid", el.path) >= navigation.ROBOT_RADIUS["elektron"] + el.clearance_m - RES / 2
+
+
+def test_start_against_an_obstacle_escapes(ctx):
+    upload(ctx, "room", passage_map())
+    # 0.12 m from the wall face (x = 2.95): inside NAO's 0.20 m inflation, outside the wall itself
+    out = plan(ctx, "nao", start=(2.83, 1.0), goal=(1.0, 2.0))
+    assert out.plan_found == 1, out.reason
+    assert (out.path[0].x, out.path[0].y) == (2.83, 1.0)
+    assert out.path[1].x < 2.83 - 0.05  # first steps away from the wall
+    assert collision_free(ctx, "room", "nao", out.path[1:])
+    deep = plan(ctx, "nao", start=(2.97, 1.0), goal=(1.0, 2.0))  # in the wall
+    assert deep.plan_found == 0 and "in an obstacle" in deep.reason
+    upload(ctx, "slit", passage_map(0.2))
+    stuck = plan(ctx, "elektron", map_id="slit", start=(3.0, 2.0), goal=(1.0, 2.0))  # in a slit
+    assert stuck.plan_found == 0 and "free space" in stuck.reason
+
+
 def test_codes_and_reasons(ctx):
     upload(ctx, "room", passage_map())
     assert plan(ctx, map_id="nope").plan_found == 2

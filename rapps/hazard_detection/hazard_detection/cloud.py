@@ -94,6 +94,26 @@ def _residuals(q: np.ndarray, views: list[tuple]) -> np.ndarray:
     return np.concatenate(res)
 
 
+PIXEL_NOISE = 0.5  # px, standard deviation of a refined corner (rendered codes, measured)
+
+
+def position_std(q: np.ndarray, views: list[tuple]) -> float:
+    """Standard deviation (m, along the worst direction) of the fitted position from the corners'
+    pixel noise: the Gauss-Newton covariance of the fit. Two codes close together or one far code
+    leave the position poorly fixed even when the residual is small."""
+    r0 = _residuals(q, views)
+    J = np.empty((len(r0), 3))
+    for k, eps in enumerate((1e-5, 1e-5, 1e-6)):
+        d = np.zeros(3)
+        d[k] = eps
+        J[:, k] = (_residuals(q + d, views) - r0) / eps
+    try:
+        cov = np.linalg.inv(J.T @ J) * PIXEL_NOISE ** 2
+    except np.linalg.LinAlgError:
+        return math.inf
+    return float(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)))
+
+
 def refine(starts: list[tuple[float, float, float]], views: list[tuple]) -> tuple[tuple[float, float, float], float] | None:
     """Planar robot pose minimizing the corners' reprojection error, from the best of the start poses;
     (pose, rms px) or None without usable views."""
@@ -138,7 +158,9 @@ def _solve(req: SolvePose) -> Localization:
     if not loc.found:
         return loc
     obs = [o for o in req.observations if o.text in req.landmarks]
-    if loc.method == "single" and min(o.distance_m for o in obs if o.text == loc.markers[0]) > SINGLE_MAX_M:
+    distinct = {o.text for o in obs}
+    if (len(distinct) == 1 and loc.method == "single"
+            and min(o.distance_m for o in obs if o.text == loc.markers[0]) > SINGLE_MAX_M):
         return Localization(found=False, markers=loc.markers, method="single-too-far")
     p = loc.pose
     starts = [(p.x, p.y, p.theta)]
@@ -152,7 +174,7 @@ def _solve(req: SolvePose) -> Localization:
     if rms > 4.0 or moved > 0.6:  # the fit did not converge to a consistent pose: keep the first estimate
         return loc
     return Localization(found=True, pose=dict(x=x, y=y, theta=th), markers=loc.markers, method=loc.method + "+fit",
-                        rms_px=rms)
+                        rms_px=rms, std_m=position_std(np.array([x, y, th]), _views(obs, req.landmarks)))
 
 
 def initial_pose(req: SolvePose) -> Localization:
@@ -172,11 +194,11 @@ def initial_pose(req: SolvePose) -> Localization:
             x, y, th = rigid_fit(a, b, w)
             return Localization(found=True, pose=dict(x=x, y=y, theta=th), markers=[o.text for o in obs],
                                 method="points")
-    o = obs[0]
+    o = obs[0]  # nearest; codes too close together for a points fit still all enter the refinement
     pose = o.poses[0]
     if req.prior is not None:  # the solution whose heading agrees with the current estimate
         pose = min(o.poses, key=lambda p: abs(math.remainder(p.theta - req.prior.theta, math.tau)))
-    return Localization(found=True, pose=pose, markers=[o.text], method="single")
+    return Localization(found=True, pose=pose, markers=[x.text for x in obs], method="single")
 
 
 class LocalizationCloud(CloudService):

@@ -1,6 +1,7 @@
-"""Self-localization sub-FSM (fig. 16 s2): capture, find QR landmarks on the Cloud Agent; while not
-enough are seen turn the head one step and try again until the head limit; then solve the pose on the
-Cloud Agent and set it on the robot (the odometry estimate stays if no landmark was seen)."""
+"""Self-localization sub-FSM (fig. 16 s2): capture, find QR landmarks on the Cloud Agent and solve the
+pose from every code seen so far; while that pose is not certain enough turn the head one step and try
+again until the head limit; then set the pose on the robot (the odometry estimate stays if the pose is
+still too uncertain)."""
 from __future__ import annotations
 
 
@@ -57,6 +58,7 @@ class Localizer:
             self.camera = dict(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2])
         memory["sweep"] = sweep_angles(float(params["head_step_rad"]), self.head["limit"])
         memory["observations"] = []
+        memory["localization"] = memory["prior"] = None
 
     async def turn_head(self, memory) -> bool:
         """Next head position of the sweep; False when the head limit is reached."""
@@ -73,30 +75,36 @@ class Localizer:
         memory["camera_to_robot"] = (await robot.get_transform(chain="camera", space="robot")).matrix
 
     async def detect(self, memory) -> bool:
-        """Landmarks in this frame (on the Cloud Agent); True when enough were seen to stop sweeping:
-        two distinct landmarks, or one nearer than near_marker_m."""
+        """Landmarks in this frame (on the Cloud Agent), then the pose from every code seen so far;
+        True when that pose is certain enough to stop sweeping (its position standard deviation at
+        most localize_std_m: two codes close together or far away are not enough)."""
         reply = await self.task.cloud.call(
             "observe", image_b64=memory.pop("frame").data_b64, camera=self.camera,
             camera_to_robot=memory["camera_to_robot"], landmarks=memory["home"].landmarks,
             max_distance_m=float(self.task.params["max_marker_distance_m"]))
-        obs = memory["observations"]
-        obs.extend(reply.items)
-        near = float(self.task.params["near_marker_m"])
-        return len({o.text for o in obs}) >= 2 or any(o.distance_m < near for o in obs)
+        if not reply.items:
+            return False
+        memory["observations"].extend(reply.items)
+        if memory.get("prior") is None:
+            memory["prior"] = await self.task.robot.get_global_pose()
+        found = await self.task.cloud.call("solve_pose", observations=memory["observations"],
+                                           landmarks=memory["home"].landmarks, prior=memory["prior"].model_dump())
+        memory["localization"] = found
+        return self._certain(found, "localize_std_m")
+
+    def _certain(self, found, param: str) -> bool:
+        return bool(found.found and found.std_m is not None and found.std_m <= float(self.task.params[param]))
 
     async def set_pose(self, memory):
-        """Solve the pose from the sweep's observations (Cloud Agent) and set it on the robot."""
-        found = None
-        if memory["observations"]:
-            prior = await self.task.robot.get_global_pose()
-            found = await self.task.cloud.call("solve_pose", observations=memory["observations"],
-                                               landmarks=memory["home"].landmarks, prior=prior.model_dump())
-        memory["localization"] = found
-        if found is not None and found.found:
+        """Set the sweep's pose on the robot if it is certain enough (localize_max_std_m); otherwise
+        the odometry estimate stays."""
+        found = memory.get("localization")
+        if found is not None and self._certain(found, "localize_max_std_m"):
             p = found.pose
             await self.task.robot.set_global_pose(x=p.x, y=p.y, theta=p.theta)
             memory.setdefault("localizations", []).append(
-                {"x": p.x, "y": p.y, "theta": p.theta, "markers": found.markers, "method": found.method})
+                {"x": p.x, "y": p.y, "theta": p.theta, "markers": found.markers, "method": found.method,
+                 "std_m": found.std_m})
         else:
             memory.setdefault("localizations", []).append(None)
         await self._head_home()

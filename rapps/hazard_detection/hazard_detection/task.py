@@ -14,6 +14,7 @@ from .localize import Localizer
 from .models import ONTOLOGY
 
 PLAN_FOUND = 1
+MAX_BLOCKED = 3  # blocked legs per hazard before giving it up
 
 
 def path_length(poses) -> float:
@@ -60,14 +61,19 @@ class HazardTask(Task):
         return fsm
 
     def build_navigation(self) -> FSM:
-        """s3/s4 plan from the current pose, s5 move one leg, re-localize; until the standing pose."""
+        """s3/s4 plan from the current pose, s5 move one leg, re-localize; until the standing pose.
+        A leg blocked by an obstacle (the pose estimate was off near a door frame) backs off the way it
+        came, re-localizes and plans again."""
         nav = FSM("navigate", initial="n1_plan")
         nav.add_state("n1_plan", Step(self.plan))
         nav.add_state("n2_move_leg", Step(self.move_leg))
+        nav.add_state("n2_back_off", Step(self.back_off))
         nav.add_state("n3_relocalize", self.localizer.build("n3_relocalize"))
         nav.add_state("n4_arrived", Step(self.arrived), final=True)
         nav.add_transition("n1_plan", "n2_move_leg")
-        nav.add_transition("n2_move_leg", "n3_relocalize")
+        nav.add_transition("n2_move_leg", "n2_back_off", when=lambda m, o: o.value == "blocked")
+        nav.add_transition("n2_move_leg", "n3_relocalize", when=lambda m, o: o.value != "blocked")
+        nav.add_transition("n2_back_off", "n3_relocalize")
         nav.add_transition("n3_relocalize", "n4_arrived", when=lambda m, o: m["leg_final"])
         nav.add_transition("n3_relocalize", "n1_plan", when=lambda m, o: not m["leg_final"])
         return nav
@@ -88,7 +94,7 @@ class HazardTask(Task):
         # nearest first (greedy tour)
         memory["todo"].sort(key=lambda h: math.hypot(h.stand.x - pose.x, h.stand.y - pose.y))
         memory["hazard"] = memory["todo"].pop(0)
-        memory["replans"] = 0
+        memory["replans"] = memory["blocked"] = 0
         return True
 
     # -- s4/s5 ------------------------------------------------------------------------------
@@ -105,9 +111,20 @@ class HazardTask(Task):
             raise RuntimeError(f"could not reach {hazard.id}")
         memory["leg"], memory["leg_final"] = first_leg(reply.path, float(self.params["leg_length_m"]))
 
-    async def move_leg(self, memory):
+    async def move_leg(self, memory) -> str:
         leg = memory["leg"]
-        await self.robot.move_along_path(poses=[p.model_dump() for p in leg], _timeout=900.0)
+        try:
+            await self.robot.move_along_path(poses=[p.model_dump() for p in leg], _timeout=900.0)
+        except RequestFailed as e:
+            if e.code != "blocked" or memory["blocked"] >= MAX_BLOCKED:
+                raise
+            memory["blocked"] += 1
+            return "blocked"
+        return "moved"
+
+    async def back_off(self, memory):
+        memory["leg_final"] = False
+        await self.robot.move_to(x=-float(self.params["back_off_m"]), _timeout=60.0)
 
     async def arrived(self, memory):
         pass
