@@ -37,6 +37,8 @@ from .stanza import message_xml
 from .tracing import cap, tracer_for
 
 log = logging.getLogger("rapp.agent")
+_ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
+_OPENING_VALUES = frozenset(p.value for p in acl.OPENING)
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
 
 
@@ -212,7 +214,7 @@ class RappAgent(Agent):
         info = AclInfo.of(msg)
         if len(msg.body or "") > MAX_BODY:
             return [self.submit(self._too_large(msg, info))]
-        if info.performative in {p.value for p in acl.ANSWERS} and info.conversation_id in self._pending:
+        if info.performative in _ANSWER_VALUES and info.conversation_id in self._pending:
             self._pending[info.conversation_id].put_nowait(msg)
             return []
         tasks = []
@@ -225,7 +227,7 @@ class RappAgent(Agent):
         return tasks
 
     async def _unhandled(self, msg: Message, info: AclInfo) -> None:
-        if info.performative in {p.value for p in acl.OPENING}:
+        if info.performative in _OPENING_VALUES:
             try:
                 lookup(info.ontology, info.action)
             except ContentError as e:
@@ -239,7 +241,7 @@ class RappAgent(Agent):
 
     async def _too_large(self, msg: Message, info: AclInfo) -> None:
         reason = f"message of {len(msg.body)} characters exceeds the limit of {MAX_BODY}"
-        if info.performative in {p.value for p in acl.OPENING}:
+        if info.performative in _OPENING_VALUES:
             msg.body = ""
             await self.send(reply_to(msg, Reason(reason=reason, code="too-large"), Performative.NOT_UNDERSTOOD))
         else:
@@ -292,7 +294,8 @@ class RappAgent(Agent):
                 remaining = deadline - loop.time()
                 if remaining <= 0:
                     raise asyncio.TimeoutError
-                answer = await asyncio.wait_for(queue.get(), remaining)
+                async with asyncio.timeout(remaining):  # no extra task per wait, unlike wait_for
+                    answer = await queue.get()
                 if answer is None:
                     raise RequestFailed(f"{self.address} stopped while waiting for {name}",
                                         code="stopped", peer=to, action=name)

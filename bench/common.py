@@ -88,15 +88,6 @@ def log(*a: Any) -> None:
     print("[bench]", *a, file=sys.stderr, flush=True)
 
 
-async def wait_until(pred, timeout: float = 30.0, what: str = "condition") -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not pred():
-        if loop.time() > deadline:
-            raise TimeoutError(f"{what} not reached within {timeout:g}s")
-        await asyncio.sleep(0.02)
-
-
 def quiet_logs() -> None:
     import logging
 
@@ -153,6 +144,7 @@ class RobotSystem:
 
     async def add_robots(self, count: int) -> None:
         from robots import RobotAPI
+        from scenarios.system import wait_until
 
         new = []
         for _ in range(count):
@@ -166,6 +158,8 @@ class RobotSystem:
         self.robots.extend(new)
 
     async def command(self, handle, text: str, expect: str, timeout: float = 120.0) -> str:
+        from scenarios.system import wait_until
+
         start = len(handle.user.received)
         await handle.user.say(handle.core.address, text)
         reply = await handle.user.wait_for(lambda t: expect in t or "problem" in t, timeout=timeout, start=start)

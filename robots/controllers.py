@@ -171,6 +171,7 @@ class GoToPose(BaseController):
 
 SHARP_TURN = 0.3  # rad: the carrot stops at path corners turning more than this
 CORNER_REACHED = 0.03  # m: a corner this near counts as passed
+ALIGNED = 0.3  # rad: a holonomic robot starts walking a path once its heading is this close
 TURN_IN_PLACE = 0.3  # rad: a differential drive turns on the spot while its carrot is further off its heading
 
 
@@ -191,6 +192,7 @@ class PathFollower(BaseController):
         self.final = tuple(map(float, poses[-1]))
         self.seg = 0
         self.finisher: GoToPose | None = None
+        self.aligning = True  # holonomic: turn towards the path before walking
 
     def _project(self, i: int, x: float, y: float) -> tuple[float, float]:
         a, b = self.pts[i], self.pts[i + 1]
@@ -246,6 +248,10 @@ class PathFollower(BaseController):
                     vx, vy = v * cx / ld, v * cy / ld
                     heading = math.atan2(carrot[1] - est[1], carrot[0] - est[0]) if remaining > 0.3 else self.final[2]
                     wz = 1.5 * wrap(heading - est[2])
+                    if self.aligning and abs(wrap(heading - est[2])) > ALIGNED:
+                        vx = vy = 0.0  # a large turn first, on the spot: walking while turning curves off the path
+                        wz = math.copysign(max(abs(wz), 0.3), wz)
+                    self.aligning = False if abs(wrap(heading - est[2])) <= ALIGNED else self.aligning
                     scale = max(abs(vx) / s.max_vx, abs(vy) / s.max_vy, abs(wz) / s.max_wz, 1.0)
                     self.drive(vx / scale, vy / scale, wz / scale, dt)
                 elif abs(alpha) > TURN_IN_PLACE:  # arcs started at larger angles overshoot the path

@@ -24,20 +24,11 @@ from robots import OdometryNoise, RobotAPI, World
 from .home_setup import DOOR_OPEN_DEG, home_description, home_map, hazard_overrides, upload_home
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
-from .system import RappSystem
+from .system import RappSystem, wait_until
 
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
 COMMAND = "check the hazards"
 REPORT_RE = re.compile(r"Hazard (\S+) \((door|lamp)\): (\w+)(?:, ([\d.]+) degrees)?")
-
-
-async def wait_until(pred, timeout: float = 30.0, what: str = "condition") -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not pred():
-        if loop.time() > deadline:
-            raise TimeoutError(f"{what} not reached within {timeout:g}s")
-        await asyncio.sleep(0.05)
 
 
 def core_listening(core) -> bool:
@@ -89,7 +80,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                               platform_kw={"services_state": state}) as system:
             await system.publish(RAPP_DIR)
             handle = await system.add_robot(robot, api=recorder, user=user)
-            await wait_until(lambda: core_listening(handle.core), 30, "Core listening")
+            await wait_until(lambda: core_listening(handle.core), 30, "Core listening", interval=0.05)
             sim0, wall0 = world.time, time.monotonic()
             await handle.user.say(handle.core.address, COMMAND)
             end = await handle.user.wait_for(lambda t: t.startswith(("hazard-detection finished",

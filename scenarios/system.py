@@ -28,6 +28,16 @@ from .user import ChatUser
 DEVELOPER = ("developer", "developer-secret")
 
 
+async def wait_until(pred, timeout: float = 30.0, what: str = "condition", interval: float = 0.02) -> None:
+    """Poll `pred()` every `interval` seconds until it is true; TimeoutError after `timeout` seconds."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not pred():
+        if loop.time() > deadline:
+            raise TimeoutError(f"{what} not reached within {timeout:g}s")
+        await asyncio.sleep(interval)
+
+
 @dataclass
 class RobotHandle:
     robot_id: str

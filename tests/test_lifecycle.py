@@ -3,6 +3,7 @@ process -> robot and Platform calls -> finish -> destroy -> listening again (fig
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import shutil
 from pathlib import Path
@@ -17,7 +18,8 @@ from agents.tracing import read_trace
 from ontology import robot as R
 from ontology import store as S
 from robots import RobotAPI, World
-from scenarios.system import RappSystem
+from scenarios.system import RappSystem, wait_until
+from xmpp_server import XmppSettings
 
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
 SUPERVISING = {"supervisor", "core-service", "user-listener", "microphone-listener"}
@@ -47,36 +49,39 @@ def variant(tmp_path: Path, name: str, keyword: str, **params) -> Path:
     return dest
 
 
+@contextlib.asynccontextmanager
+async def lifecycle_system(workdir: Path, settings: XmppSettings | None = None, variants=()):
+    """A RappSystem tracing to workdir/trace.jsonl (on its own embedded server unless `settings`
+    are given) with the echo RApp and the given `variant` arguments published, and one spied nao
+    robot whose Core listens (system.spy, system.handle)."""
+    world = World.from_file("small", seed=3)
+    try:
+        async with RappSystem(workdir, settings=settings, trace_file=workdir / "trace.jsonl") as system:
+            await system.publish(FIXTURE)
+            for name, keyword, params in variants:
+                await system.publish(variant(workdir, name, keyword, **params))
+            spy = SpyAPI(RobotAPI(world.add_robot("nao")))
+            handle = await system.add_robot("nao", api=spy)
+            spy.core = handle.core
+            system.spy = spy
+            system.handle = handle
+            await wait_until(lambda: handle.core.vocabulary and "s3_listen" == state(handle.core))
+            yield system
+    finally:
+        world.close()
+
+
 @pytest.fixture(scope="module")
 async def system(tmp_path_factory):
-    workdir = tmp_path_factory.mktemp("lifecycle")
-    world = World.from_file("small", seed=3)
-    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
-        await system.publish(FIXTURE)
-        await system.publish(variant(workdir, "echo-cloud", "cloudecho", use_cloud=True))
-        await system.publish(variant(workdir, "echo-fail", "failecho", behaviour="raise"))
-        await system.publish(variant(workdir, "echo-slow", "slowecho", behaviour="silent"))
-        spy = SpyAPI(RobotAPI(world.add_robot("nao")))
-        handle = await system.add_robot("nao", api=spy)
-        spy.core = handle.core
-        system.spy = spy
-        system.handle = handle
-        await wait_until(lambda: handle.core.vocabulary and "s3_listen" == state(handle.core))
+    async with lifecycle_system(tmp_path_factory.mktemp("lifecycle"), variants=[
+            ("echo-cloud", "cloudecho", {"use_cloud": True}),
+            ("echo-fail", "failecho", {"behaviour": "raise"}),
+            ("echo-slow", "slowecho", {"behaviour": "silent"})]) as system:
         yield system
-    world.close()
 
 
 def state(core) -> str:
     return core.supervisor.behaviour.current
-
-
-async def wait_until(pred, timeout=20.0):
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not pred():
-        if loop.time() > deadline:
-            raise AssertionError("condition not reached in time")
-        await asyncio.sleep(0.02)
 
 
 async def run_command(system, text: str, expect: str, timeout=60.0) -> str:

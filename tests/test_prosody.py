@@ -8,13 +8,9 @@ finished -> Core listening again).
 """
 from __future__ import annotations
 
-
 import pytest
 
-from robots import RobotAPI, World
-from scenarios.system import RappSystem
-from tests.test_lifecycle import (FIXTURE, SpyAPI, check_full_lifecycle, run_command, state,
-                                  structure, wait_until)
+from tests.test_lifecycle import check_full_lifecycle, lifecycle_system, run_command, structure
 from xmpp_server.prosody import ProsodyServer, prosody_binary
 
 pytestmark = [
@@ -34,20 +30,9 @@ async def prosody():
 @pytest.fixture(scope="module")
 async def system(prosody, tmp_path_factory):
     workdir = tmp_path_factory.mktemp("prosody-lifecycle")
-    world = World.from_file("small", seed=3)
     settings = prosody.settings(trace_file=workdir / "trace.jsonl", force_xmpp=True)
-    try:
-        async with RappSystem(workdir, settings=settings) as system:
-            await system.publish(FIXTURE)
-            spy = SpyAPI(RobotAPI(world.add_robot("nao")))
-            handle = await system.add_robot("nao", api=spy)
-            spy.core = handle.core
-            system.spy = spy
-            system.handle = handle
-            await wait_until(lambda: handle.core.vocabulary and "s3_listen" == state(handle.core))
-            yield system
-    finally:
-        world.close()
+    async with lifecycle_system(workdir, settings) as system:
+        yield system
 
 
 async def test_prosody_accepts_prosodyctl_accounts(prosody):

@@ -109,7 +109,10 @@ class HazardTask(Task):
         memory["replans"] += 1
         if memory["replans"] > 40:
             raise RuntimeError(f"could not reach {hazard.id}")
-        memory["leg"], memory["leg_final"] = first_leg(reply.path, float(self.params["leg_length_m"]))
+        leg = float(self.params["leg_length_m"])
+        if not memory.get("localizations") or memory["localizations"][-1] is None:
+            leg /= 2  # the last localization failed: odometry drifts with the square of the distance
+        memory["leg"], memory["leg_final"] = first_leg(reply.path, leg)
 
     async def move_leg(self, memory) -> str:
         leg = memory["leg"]
