@@ -16,13 +16,15 @@ def make_message(to: str, content: Content | None, *, performative: Performative
     if isinstance(content, Action):
         ontology = ontology or content.ontology_name
         action = action or content.action_name
+    # language (always json) and the default protocol (fipa-request) are implied, not sent: every
+    # metadata field is two more XML elements the server and both ends parse (AclInfo fills them in)
     meta = {
         acl.PERFORMATIVE: Performative(performative).value,
-        acl.LANGUAGE_KEY: acl.LANGUAGE,
-        acl.PROTOCOL: protocol,
         acl.CONVERSATION_ID: conversation_id or acl.new_id(),
         acl.REPLY_WITH: acl.new_id("m"),
     }
+    if protocol != acl.Protocol.REQUEST.value:
+        meta[acl.PROTOCOL] = protocol
     if ontology:
         meta[acl.ONTOLOGY] = ontology
     if action:
@@ -63,8 +65,12 @@ class AclInfo:
             conversation_id=g(acl.CONVERSATION_ID) or msg.thread or "",
             reply_with=g(acl.REPLY_WITH) or "",
             in_reply_to=g(acl.IN_REPLY_TO) or "",
-            protocol=g(acl.PROTOCOL) or "",
+            protocol=g(acl.PROTOCOL) or (acl.Protocol.REQUEST.value if g(acl.PERFORMATIVE) else ""),
         )
+
+    @property
+    def language(self) -> str:
+        return acl.LANGUAGE if self.performative else ""
 
     @property
     def is_acl(self) -> bool:
