@@ -1,10 +1,10 @@
 """Self-localization sub-FSM (fig. 16 s2): capture, find QR landmarks on the Cloud Agent and solve the
 pose from every code seen so far; while that pose is not certain enough turn the head one step and try
-again until the head limit; then set the pose on the robot (the odometry estimate stays if the pose is
-still too uncertain)."""
+again until the head limit, then once more with the body turned half round; then set the pose on the
+robot (the odometry estimate stays if the pose is still too uncertain)."""
 from __future__ import annotations
 
-
+import math
 
 from behaviours import FSM
 from rapps.sdk import Step
@@ -40,9 +40,13 @@ class Localizer:
         fsm.add_state("l3_capture", Step(self.capture))
         fsm.add_state("l4_detect", Step(self.detect))
         fsm.add_state("l5_set_pose", Step(self.set_pose), final=True)
+        fsm.add_state("l6_turn_around", Step(self.turn_around))
         fsm.add_transition("l1_prepare", "l2_turn_head")
         fsm.add_transition("l2_turn_head", "l3_capture", when=lambda m, o: o.value)
-        fsm.add_transition("l2_turn_head", "l5_set_pose", when=lambda m, o: not o.value)  # head limit
+        # head limit: look behind once (the body turns half round), then give up
+        fsm.add_transition("l2_turn_head", "l6_turn_around", when=lambda m, o: not o.value and not m["looked_behind"])
+        fsm.add_transition("l2_turn_head", "l5_set_pose", when=lambda m, o: not o.value and m["looked_behind"])
+        fsm.add_transition("l6_turn_around", "l2_turn_head")
         fsm.add_transition("l3_capture", "l4_detect")
         fsm.add_transition("l4_detect", "l5_set_pose", when=lambda m, o: o.value)
         fsm.add_transition("l4_detect", "l2_turn_head", when=lambda m, o: not o.value)
@@ -57,6 +61,16 @@ class Localizer:
             K = info.K
             self.camera = dict(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2])
         memory["sweep"] = sweep_angles(float(params["head_step_rad"]), self.head["limit"])
+        memory["observations"] = []
+        memory["localization"] = memory["prior"] = None
+        memory["looked_behind"] = not params.get("look_behind", True)
+
+    async def turn_around(self, memory):
+        """No certain pose within the head's reach: turn the body half round and sweep again (codes
+        seen before the turn are dropped: their camera-to-robot transforms no longer hold)."""
+        memory["looked_behind"] = True
+        await self.task.robot.move_to(x=0.0, y=0.0, theta=math.pi, _timeout=60.0)
+        memory["sweep"] = sweep_angles(float(self.task.params["head_step_rad"]), self.head["limit"])
         memory["observations"] = []
         memory["localization"] = memory["prior"] = None
 
