@@ -34,9 +34,11 @@ from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefus
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, make_message, reply_to
 from .stanza import message_xml
+from .xmpp_client import install as _install_xmpp_client
 from .tracing import cap, tracer_for
 
 log = logging.getLogger("rapp.agent")
+_install_xmpp_client()  # one shared TLS context for unverified loopback logins (agents/xmpp_client.py)
 _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
 _OPENING_VALUES = frozenset(p.value for p in acl.OPENING)
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger

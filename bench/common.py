@@ -119,8 +119,9 @@ class RobotSystem:
     """
 
     def __init__(self, workdir: Path, apps: list[Path], *, robots: int = 1, trace: bool = False,
-                 house: str = "small"):
+                 house: str = "small", **core_kw):
         self.workdir, self.apps, self.n, self.trace, self.house = Path(workdir), apps, robots, trace, house
+        self.core_kw = core_kw  # CoreAgent options, e.g. dynamic_mode="inprocess"
         self.system = None
         self.world = None
         self.robots = []
@@ -151,7 +152,8 @@ class RobotSystem:
             i = len(self.robots) + len(new)
             kind = ("nao", "elektron")[i % 2]
             robot = await asyncio.to_thread(self.world.add_robot, kind, f"{kind}{i + 1}")
-            new.append(await self.system.add_robot(kind, api=RobotAPI(robot), robot_id=f"{kind}{i + 1}"))
+            new.append(await self.system.add_robot(kind, api=RobotAPI(robot), robot_id=f"{kind}{i + 1}",
+                                                   **self.core_kw))
         for h in new:
             await wait_until(lambda: h.core.vocabulary and h.core.supervisor.behaviour.current == "s3_listen",
                              60, f"{h.robot_id} listening")

@@ -47,6 +47,41 @@ def phases(trace: list[dict]) -> list[dict]:
     return out
 
 
+INPROCESS_GOAL_MS = 100.0  # issue #8: the in-process hand-off, absolute, on this machine
+
+
+async def inprocess(n: int) -> dict:
+    """The same hand-off with the Core's in-process mode (same package bytes, no interpreter start):
+    an absolute goal, reported with the goal as its floor."""
+    from agents.tracing import read_trace
+
+    with tempfile.TemporaryDirectory(prefix="bench-handoff-inproc-") as tmp:
+        async with RobotSystem(Path(tmp), [ECHO_APP], trace=True, dynamic_mode="inprocess") as rs:
+            h = rs.robots[0]
+            await rs.command(h, "echo", "echo-app finished")  # warm-up: first imports of the RApp
+            skip = len(phases(read_trace(rs.trace_file)))
+            for _ in range(n):
+                await rs.command(h, "echo", "echo-app finished")
+            ph = phases(read_trace(rs.trace_file))[skip:]
+    if len(ph) != n:
+        raise RuntimeError(f"expected {n} in-process hand-offs in the trace, found {len(ph)}")
+    total = [(p["state"] - p["command"]) * 1e3 for p in ph]
+    med, extra = median(total), phase_medians(ph)
+    log(f"handoff_inprocess median {med:.1f} ms (goal <= {INPROCESS_GOAL_MS:.0f} ms); phases {extra}")
+    return metric("handoff_inprocess", med, "ms", INPROCESS_GOAL_MS, ratio(med, INPROCESS_GOAL_MS), n,
+                  samples=total, goal_ratio=1.0, **extra)
+
+
+def phase_medians(ph: list[dict]) -> dict:
+    extra = {}
+    for a, b, key in (("command", "download", "cmd_to_download_ms"), ("download", "spawn", "download_to_spawn_ms"),
+                      ("spawn", "started", "spawn_to_login_ms"), ("started", "state", "login_to_first_state_ms")):
+        xs = [p[b] - p[a] for p in ph if p[a] is not None and p[b] is not None]
+        if xs:
+            extra[key] = median(xs) * 1e3
+    return extra
+
+
 async def run(quick: bool = True, n: int | None = None) -> list[dict]:
     from agents.tracing import read_trace
 
@@ -67,13 +102,9 @@ async def run(quick: bool = True, n: int | None = None) -> list[dict]:
         raise RuntimeError(f"expected {n} hand-offs in the trace, found {len(ph)}")
     total = [p["state"] - p["command"] for p in ph]
     med, fmed = median(total), median(floors)
-    extra = {}
-    for a, b, key in (("command", "download", "cmd_to_download_ms"), ("download", "spawn", "download_to_spawn_ms"),
-                      ("spawn", "started", "spawn_to_login_ms"), ("started", "state", "login_to_first_state_ms")):
-        xs = [p[b] - p[a] for p in ph if p[a] is not None and p[b] is not None]
-        if xs:
-            extra[key] = median(xs) * 1e3
+    extra = phase_medians(ph)
     log(f"handoff median {med * 1e3:.0f} ms, floor {fmed * 1e3:.0f} ms; phases {extra}")
     return [metric("handoff", med * 1e3, "ms", fmed * 1e3, ratio(med, fmed), n,
                    samples=[x * 1e3 for x in total], floor_p95=percentile(floors, 95) * 1e3,
-                   goal_ratio=1.5, **extra)]
+                   goal_ratio=1.5, **extra),
+            await inprocess(n)]

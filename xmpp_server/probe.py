@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import ssl
 import uuid
 
 from slixmpp import ClientXMPP
 from slixmpp.exceptions import IqError, IqTimeout
+
+from .tls import unverified_context
 
 
 class LoginError(RuntimeError):
@@ -32,10 +33,8 @@ async def register_in_band(client: ClientXMPP) -> None:
 
 class _ProbeClient(ClientXMPP):
     def __init__(self, jid: str, password: str, register: bool):
-        super().__init__(jid, password)
+        super().__init__(jid, password, ssl_context=unverified_context())  # probes never verify certificates
         self.enable_direct_tls = False
-        self.ssl_context.check_hostname = False
-        self.ssl_context.verify_mode = ssl.CERT_NONE
         self.done: asyncio.Future = asyncio.get_running_loop().create_future()
         self.add_event_handler("session_start", self._on_session)
         self.add_event_handler("failed_all_auth", self._on_fail)

@@ -1,0 +1,43 @@
+"""SPADE's XMPP client with a shared TLS context when certificates are not verified.
+
+slixmpp builds a fresh default SSL context for every client and loads the system CA store into it
+twice (``create_default_context`` + ``set_default_verify_paths``): ~75 ms of every login, i.e. most
+of an in-process Dynamic Agent's hand-off, spent on certificates that are never checked on loopback.
+With ``verify_security`` off every client shares one context without CA paths; with it on, nothing
+changes. The body repeats ``spade.xmpp_client.XMPPClient.__init__`` of spade 4.1.4 (pinned) with the
+context passed through; revisit on any SPADE upgrade (docs/spade-pitfalls.md).
+"""
+from __future__ import annotations
+
+import logging
+
+from slixmpp import ClientXMPP, __version__
+from spade.xmpp_client import XMPPClient
+
+from xmpp_server.tls import unverified_context
+
+class RappXMPPClient(XMPPClient):
+    def __init__(self, jid, password, verify_security, auto_register):
+        if verify_security:
+            super().__init__(jid, password, verify_security, auto_register)
+            return
+        from packaging import version
+
+        ClientXMPP.__init__(self, jid, password, ssl_context=unverified_context())
+        self.logger = logging.getLogger("spade.Agent")
+        if version.parse(__version__) >= version.Version("1.10.0"):
+            self.enable_direct_tls = False
+        self.add_event_handler("session_start", self.session_start)
+        self.register_plugin("xep_0199")
+        if auto_register:
+            self.add_event_handler("register", self.register)
+            self.register_plugin("xep_0077")
+        self["xep_0199"].enable_keepalive(interval=55)
+        self.register_plugin("xep_0363")
+
+
+def install() -> None:
+    """Make SPADE agents in this process build their clients with RappXMPPClient."""
+    import spade.agent
+
+    spade.agent.XMPPClient = RappXMPPClient
