@@ -11,9 +11,12 @@ Behaviours and when they are active (see `active_behaviours()`):
   heartbeats      while a Dynamic Agent supervises: its liveness (a hang is noticed within 2 s)
   safety          while a Dynamic Agent supervises: an obstacle closer than `safety_distance`
                   latches the emergency stop (paper 003); nothing moves until "resume"
+The listener, heartbeat and safety behaviours are in agents/core_behaviours.py; the command
+server, the emergency stop and the safety check are the RobotCommands mixin (agents/core_commands.py).
 
 Rights: robot commands are executed only for the current Dynamic Agent, only in the robot-API
-groups its manifest declares, and each takes the lock of its device (agents/locks.py).
+groups its manifest declares, and each takes the lock of its device (agents/locks.py); see
+agents/core_commands.py.
 """
 from __future__ import annotations
 
@@ -27,24 +30,24 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from spade.behaviour import CyclicBehaviour, PeriodicBehaviour
 from spade.message import Message
-from spade.template import Template
 
-import ontology.robot  # noqa: F401 - registers the robot-API models the command server serves
+import ontology.robot
 from behaviours import BehaviourHost
 from ontology import core as C
 from ontology import platform as P
 from ontology import store as S
-from ontology.registry import Done, actions
+from ontology.registry import Done
 from rapps.manifest import Manifest
 from rapps.package import Package, read_package, unpack_package
 
 from .base import RappAgent
+from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template
+from .core_commands import RobotCommands
 from .core_fsm import build_core_fsm
-from .errors import Failure, Refusal, RequestError
-from .locks import ACTION_DEVICE, LockError, ResourceLocks
-from .messages import AclInfo, bare
+from .errors import Refusal, RequestError
+from .locks import ResourceLocks
+from .messages import bare
 from .process import AgentProcess, InProcessAgent, Limits
 from .responder import Responder
 from .store_client import download_package
@@ -53,9 +56,6 @@ log = logging.getLogger("rapp.core")
 HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 2 s
 STOP_WORDS = {"stop", "cancel", "abort", "halt", "emergency stop"}
 RESUME_WORDS = {"resume", "continue", "go on"}
-# what must not move while the emergency stop is latched
-MOTION_ACTIONS = {"move_to", "move_vel", "move_along_path", "look_at_point", "move_joint",
-                  "take_predefined_posture", "rest"}
 
 
 @dataclass
@@ -76,74 +76,10 @@ class DynamicSession:
     end_reason: str = ""
 
 
-class _UserChat(CyclicBehaviour):
-    """Takes plain chat (no ACL performative) from the robot's owner."""
+class CoreAgent(RobotCommands, RappAgent):
+    """The Core Agent; its robot-API server (supervisor-only commands, locks, e-stop, safety
+    check) is the RobotCommands mixin (agents/core_commands.py)."""
 
-    def __init__(self, owner: str, on_text):
-        super().__init__()
-        self.owner, self.on_text = owner, on_text
-
-    def match(self, message: Message) -> bool:
-        return not AclInfo.of(message).is_acl and bare(message.sender) == self.owner
-
-    async def run(self) -> None:
-        msg = await self.receive(timeout=0.5)
-        if msg is not None and (msg.body or "").strip():
-            await self.on_text(msg.body.strip())
-
-
-class _MicrophoneListener(CyclicBehaviour):
-    """The robot's microphone: each utterance heard while the Core supervises is a command."""
-
-    def __init__(self, microphone, on_text):
-        super().__init__()
-        self.microphone, self.on_text = microphone, on_text
-
-    async def run(self) -> None:
-        text = await self.microphone.listen(timeout=0.5)
-        if self.is_killed():  # deactivated while listening: the utterance belongs to the RApp now
-            if text:
-                self.microphone.hear(text)
-            return
-        if text and text.strip():
-            await self.on_text(text.strip())
-
-
-class _HeartbeatMonitor(CyclicBehaviour):
-    """Takes the Dynamic Agent's one-way heartbeats (inform, ontology core)."""
-
-    def __init__(self, on_beat):
-        super().__init__()
-        self.on_beat = on_beat
-
-    async def run(self) -> None:
-        msg = await self.receive(timeout=0.5)
-        if msg is not None:
-            self.on_beat(bare(msg.sender))
-
-
-def _heartbeat_template() -> Template:
-    return Template(metadata={"ontology": C.ONTOLOGY, "performative": "inform", "action": "heartbeat"})
-
-
-class _SafetyMonitor(PeriodicBehaviour):
-    """Reads the range sensors; an obstacle closer than the safety distance latches the e-stop."""
-
-    def __init__(self, core: "CoreAgent", period: float):
-        super().__init__(period=period)
-        self.core = core
-
-    async def run(self) -> None:
-        core = self.core
-        if core.estop_reason is not None or (core.locks.holder("base") is None and not core.driving):
-            return  # latched already, or the base is not being driven
-        nearest = await core.nearest_obstacle()
-        if nearest is not None and nearest < core.safety_distance:
-            await core.emergency_stop(f"obstacle ahead within {core.safety_distance:.2f} m of the "
-                                      f"range sensors' minimum")
-
-
-class CoreAgent(RappAgent):
     def __init__(self, name: str, *, robot_id: str, robot_type: str, robot_api, owner: str,
                  platform: str, store: str, user: str, password: str, settings=None,
                  workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
@@ -181,19 +117,15 @@ class CoreAgent(RappAgent):
         service = Responder(C.ONTOLOGY, {"task_status": self._on_status, "report": self._on_report,
                                          "get_state": self._on_get_state})
         self.activate("core-service", service, service.make_template())
-        self.activate("user-listener", _UserChat(self.owner, self._command_heard))
+        self.activate("user-listener", UserChat(self.owner, self._command_heard))
         self._listen_to_microphone()
         self.supervisor = BehaviourHost(build_core_fsm(), self.memory)
         self.activate("supervisor", self.supervisor)
 
-    def _command_server(self) -> Responder:
-        handlers = {name: self._robot_call for name in actions("robot")}
-        return Responder("robot", handlers, check=self._only_supervisor)
-
     def _listen_to_microphone(self) -> None:
         mic = getattr(getattr(self.robot, "robot", None), "microphone", None)
         if mic is not None and hasattr(mic, "listen"):
-            self.activate("microphone-listener", _MicrophoneListener(mic, self._command_heard))
+            self.activate("microphone-listener", MicrophoneListener(mic, self._command_heard))
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
@@ -338,10 +270,10 @@ class CoreAgent(RappAgent):
         self.deactivate("microphone-listener")  # the RApp may use the microphone (word_spotting)
         server = self._command_server()
         self.activate("command-server", server, server.make_template())
-        self.activate("busy-chat", _UserChat(self.owner, self._busy_chat))
-        self.activate("heartbeats", _HeartbeatMonitor(self._beat), _heartbeat_template())
+        self.activate("busy-chat", UserChat(self.owner, self._busy_chat))
+        self.activate("heartbeats", HeartbeatMonitor(self._beat), heartbeat_template())
         if self.safety_distance:
-            self.activate("safety", _SafetyMonitor(self, period=self.safety_period))
+            self.activate("safety", SafetyMonitor(self, period=self.safety_period))
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
 
     def _beat(self, sender: str) -> None:
@@ -354,7 +286,7 @@ class CoreAgent(RappAgent):
         self.deactivate("busy-chat")
         self.deactivate("heartbeats")
         self.deactivate("safety")
-        self.activate("user-listener", _UserChat(self.owner, self._command_heard))
+        self.activate("user-listener", UserChat(self.owner, self._command_heard))
         self._listen_to_microphone()
         self.record_structure("resume", robot=self.robot_id)
 
@@ -430,89 +362,7 @@ class CoreAgent(RappAgent):
         if "user-listener" not in self.active_behaviours():
             self._resume()
 
-    async def nearest_obstacle(self) -> float | None:
-        """How far the nearest obstacle ahead is beyond what the sensors can still measure
-        (sonar reading or laser ray within ±30° minus the sensor's minimum range); None when the
-        robot has neither sensor."""
-        margins = []
-        for req in (ontology.robot.GetSonars(), ontology.robot.GetLaserScan()):
-            try:
-                reply = await self.robot.handle(req)
-            except Exception:  # noqa: BLE001 - a robot without this sensor
-                continue
-            if isinstance(reply, ontology.robot.SonarReading):
-                margins += [reply.left - reply.range_min, reply.right - reply.range_min]
-            else:
-                for i, r in enumerate(reply.ranges):
-                    if abs(reply.angle_min + i * reply.angle_increment) <= 0.52:
-                        margins.append(r - reply.range_min)
-        return min(margins) if margins else None
-
-    async def _stop_robot(self) -> None:
-        self.driving = False
-        try:
-            await self.robot.handle(ontology.robot.MoveStop())
-        except Exception as e:  # noqa: BLE001 - stopping must not fail the destroy
-            log.warning("move_stop failed: %s", e)
-
     # -- services to the Dynamic Agent ------------------------------------------------------
-    def _only_supervisor(self, req, ctx) -> None:
-        d = self.dynamic
-        if d is None or ctx.sender != bare(d.jid) or d.ended.is_set():
-            raise Refusal(f"{ctx.sender} is not the current supervisor of {self.robot_id}", "not-supervisor")
-        if req.group != "resources" and req.group not in d.manifest.robot_api:
-            raise Refusal(f"{d.rapp} did not declare the robot-API group {req.group!r} "
-                          f"(needed by {req.action_name}) in its manifest", "permission")
-        if self.estop_reason and req.action_name in MOTION_ACTIONS:
-            raise Refusal(f"emergency stop ({self.estop_reason}): nothing moves until the user says "
-                          f"\"resume\"", "estop")
-
-    async def _robot_call(self, req, ctx):
-        if req.action_name == "lock_resource":
-            return await self._lock(req, ctx.sender)
-        if req.action_name == "free_resource":
-            return self._free(req, ctx.sender)
-        if req.action_name == "move_vel":  # a velocity keeps the base moving after the call returns
-            self.driving = any(abs(getattr(req, f, 0.0) or 0.0) > 1e-9 for f in ("x", "y", "theta"))
-        elif req.action_name in ("move_stop", "move_to", "move_along_path"):
-            self.driving = False
-        try:
-            async with self.locks.hold(ACTION_DEVICE.get(req.action_name), ctx.sender, timeout=60.0):
-                return await self.robot.handle(req)
-        except LockError as e:
-            raise Refusal(str(e), "locked") from None
-
-    async def _lock(self, req, owner: str):
-        try:
-            ok = (await self.locks.lock(req.resource, owner, req.timeout_s) if req.wait
-                  else self.locks.try_lock(req.resource, owner))
-        except LockError as e:
-            raise Refusal(str(e), "unknown-resource") from None
-        return ontology.robot.LockState(resource=req.resource, held=ok, holder=self.locks.holder(req.resource))
-
-    def _free(self, req, owner: str):
-        try:
-            self.locks.free(req.resource, owner)
-        except LockError as e:
-            raise Failure(str(e), "not-holder") from None
-        return ontology.robot.LockState(resource=req.resource, held=False, holder=self.locks.holder(req.resource))
-
-    # -- emergency stop (paper 003) -----------------------------------------------------------
-    async def emergency_stop(self, reason: str) -> None:
-        """Halt every effector now (bypassing queued commands) and latch until resumed."""
-        first = self.estop_reason is None
-        self.estop_reason = reason
-        await self._stop_robot()
-        if first:
-            self.record_structure("estop", robot=self.robot_id, reason=reason)
-            await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again.")
-
-    async def resume_motion(self) -> None:
-        if self.estop_reason is not None:
-            self.estop_reason = None
-            self.record_structure("estop-released", robot=self.robot_id)
-            await self.tell_user("Resumed: I may move again.")
-
     def _from_dynamic(self, ctx) -> DynamicSession:
         d = self.dynamic
         if d is None or ctx.sender != bare(d.jid):

@@ -1,0 +1,134 @@
+"""The Core Agent's robot-API server (paper 000 fig. 5, s8/s9; the emergency stop of paper 003)."""
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+import ontology.robot  # also registers the robot-API models the command server serves
+from ontology.registry import actions
+
+from .errors import Failure, Refusal
+from .locks import ACTION_DEVICE, LockError, ResourceLocks
+from .messages import bare
+from .responder import Responder
+
+if TYPE_CHECKING:
+    from robots.api import RobotAPI
+
+    from .core_agent import DynamicSession
+
+log = logging.getLogger("rapp.core")
+# what must not move while the emergency stop is latched
+MOTION_ACTIONS = {"move_to", "move_vel", "move_along_path", "look_at_point", "move_joint",
+                  "take_predefined_posture", "rest"}
+
+
+class RobotCommands:
+    """The Core's robot-API server, mixed into CoreAgent: while a Dynamic Agent supervises, the
+    "command-server" behaviour (`_command_server()`) executes its robot-API requests on the robot.
+
+    - supervisor-only commands: a request is served only for the current, not yet ended Dynamic
+      Agent, and only in the robot-API groups its manifest declares (`_only_supervisor`);
+    - resource locks: each command takes the lock of its device (agents/locks.py); the Dynamic
+      Agent may also lock and free resources itself (lock_resource / free_resource);
+    - the e-stop latch: `emergency_stop()` halts every effector and refuses motion until
+      `resume_motion()`;
+    - the safety check: `nearest_obstacle()` (read by core_behaviours.SafetyMonitor) and whether
+      the base is being driven (`driving`).
+
+    The host (CoreAgent) sets the attributes below and provides `record_structure` and `tell_user`.
+    """
+
+    robot: RobotAPI
+    robot_id: str
+    dynamic: DynamicSession | None
+    locks: ResourceLocks
+    estop_reason: str | None  # set while the emergency stop is latched
+    driving: bool  # a move_vel velocity is in force
+
+    def _command_server(self) -> Responder:
+        handlers = {name: self._robot_call for name in actions("robot")}
+        return Responder("robot", handlers, check=self._only_supervisor)
+
+    def _only_supervisor(self, req, ctx) -> None:
+        d = self.dynamic
+        if d is None or ctx.sender != bare(d.jid) or d.ended.is_set():
+            raise Refusal(f"{ctx.sender} is not the current supervisor of {self.robot_id}", "not-supervisor")
+        if req.group != "resources" and req.group not in d.manifest.robot_api:
+            raise Refusal(f"{d.rapp} did not declare the robot-API group {req.group!r} "
+                          f"(needed by {req.action_name}) in its manifest", "permission")
+        if self.estop_reason and req.action_name in MOTION_ACTIONS:
+            raise Refusal(f"emergency stop ({self.estop_reason}): nothing moves until the user says "
+                          f"\"resume\"", "estop")
+
+    async def _robot_call(self, req, ctx):
+        if req.action_name == "lock_resource":
+            return await self._lock(req, ctx.sender)
+        if req.action_name == "free_resource":
+            return self._free(req, ctx.sender)
+        if req.action_name == "move_vel":  # a velocity keeps the base moving after the call returns
+            self.driving = any(abs(getattr(req, f, 0.0) or 0.0) > 1e-9 for f in ("x", "y", "theta"))
+        elif req.action_name in ("move_stop", "move_to", "move_along_path"):
+            self.driving = False
+        try:
+            async with self.locks.hold(ACTION_DEVICE.get(req.action_name), ctx.sender, timeout=60.0):
+                return await self.robot.handle(req)
+        except LockError as e:
+            raise Refusal(str(e), "locked") from None
+
+    async def _lock(self, req, owner: str):
+        try:
+            ok = (await self.locks.lock(req.resource, owner, req.timeout_s) if req.wait
+                  else self.locks.try_lock(req.resource, owner))
+        except LockError as e:
+            raise Refusal(str(e), "unknown-resource") from None
+        return ontology.robot.LockState(resource=req.resource, held=ok, holder=self.locks.holder(req.resource))
+
+    def _free(self, req, owner: str):
+        try:
+            self.locks.free(req.resource, owner)
+        except LockError as e:
+            raise Failure(str(e), "not-holder") from None
+        return ontology.robot.LockState(resource=req.resource, held=False, holder=self.locks.holder(req.resource))
+
+    # -- emergency stop (paper 003) -----------------------------------------------------------
+    async def emergency_stop(self, reason: str) -> None:
+        """Halt every effector now (bypassing queued commands) and latch until resumed."""
+        first = self.estop_reason is None
+        self.estop_reason = reason
+        await self._stop_robot()
+        if first:
+            self.record_structure("estop", robot=self.robot_id, reason=reason)
+            await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again.")
+
+    async def resume_motion(self) -> None:
+        if self.estop_reason is not None:
+            self.estop_reason = None
+            self.record_structure("estop-released", robot=self.robot_id)
+            await self.tell_user("Resumed: I may move again.")
+
+    async def _stop_robot(self) -> None:
+        self.driving = False
+        try:
+            await self.robot.handle(ontology.robot.MoveStop())
+        except Exception as e:  # noqa: BLE001 - stopping must not fail the destroy
+            log.warning("move_stop failed: %s", e)
+
+    # -- the safety check ----------------------------------------------------------------------
+    async def nearest_obstacle(self) -> float | None:
+        """How far the nearest obstacle ahead is beyond what the sensors can still measure
+        (sonar reading or laser ray within ±30° minus the sensor's minimum range); None when the
+        robot has neither sensor."""
+        margins = []
+        for req in (ontology.robot.GetSonars(), ontology.robot.GetLaserScan()):
+            try:
+                reply = await self.robot.handle(req)
+            except Exception:  # noqa: BLE001 - a robot without this sensor
+                continue
+            if isinstance(reply, ontology.robot.SonarReading):
+                margins += [reply.left - reply.range_min, reply.right - reply.range_min]
+            else:
+                for i, r in enumerate(reply.ranges):
+                    if abs(reply.angle_min + i * reply.angle_increment) <= 0.52:
+                        margins.append(r - reply.range_min)
+        return min(margins) if margins else None
