@@ -37,4 +37,10 @@ def test_runner_tiny_json_shape(tmp_path, capsys):
     rtt = next(m for m in metrics if m["name"] == "robot_rtt")
     assert rtt["n"] == 20 and rtt["p95"] >= rtt["median"] > 0
     assert all("length_ratio" in m for m in metrics if m["name"].startswith("plan_"))
-    assert "robot_rtt" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "robot_rtt" in printed
+    # the goals are judged and printed next to the table
+    assert rtt["goal"] == "ratio <= 1.5" and rtt["goal_met"] == (rtt["ratio"] <= 1.5)
+    assert f"goal robot_rtt: ratio <= 1.5: {'met' if rtt['goal_met'] else 'NOT met'}" in printed
+    astar = next(m for m in metrics if m["name"] == "plan_astar")
+    assert astar["goal_met"] == (astar["ratio"] <= 1.0 and astar["length_ratio"] <= 1.02)
