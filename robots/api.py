@@ -66,6 +66,12 @@ class RobotAPI:
             if r.controllers.get(key) is ctrl:
                 del r.controllers[key]
 
+    def moving_forward(self, min_speed: float = 0.02) -> bool:
+        """A base motion is running and its last step drove forward (m/s above min_speed): what a
+        forward-looking range sensor must watch. Turning on the spot is not moving forward."""
+        ctrl = self.robot.controllers.get("base")
+        return ctrl is not None and not ctrl.done and self.robot.base.command[0] > min_speed
+
     def _stop_base(self, reason: str) -> None:
         old = self.robot.controllers.pop("base", None)
         if old is not None and not old.done:

@@ -20,6 +20,7 @@ class BaseEffector:
 
     def __init__(self, robot: "Robot"):
         self.robot, self.spec = robot, robot.spec
+        self.command = (0.0, 0.0, 0.0)  # the velocity of the last step driven (robot frame)
 
     def check_velocity(self, vx: float, vy: float, wz: float) -> tuple[float, float, float]:
         s = self.spec
@@ -33,6 +34,7 @@ class BaseEffector:
     def drive(self, vx: float, vy: float, wz: float, dt: float) -> bool:
         """Advance the true pose by one step; returns True when an obstacle blocked the translation."""
         r = self.robot
+        self.command = (vx, vy, wz)
         x, y, th = r.pose
         thm = th + wz * dt / 2
         dxw = (vx * math.cos(thm) - vy * math.sin(thm)) * dt

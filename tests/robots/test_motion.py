@@ -1,4 +1,5 @@
 """Base motion: closed squares, path following, odometry drift, kinematic limits, walls."""
+import asyncio
 import math
 
 import pytest
@@ -119,3 +120,19 @@ async def test_concurrent_motions_advance_together(small):
     await asyncio.gather(n.move_to(MoveTo(x=0.6)), e.move_to(MoveTo(x=1.0)))
     # concurrent: total sim time is the longer motion, not the sum
     assert small.time - t0 < 0.6 / 0.12 + 2.0
+
+
+async def test_moving_forward_is_what_the_safety_monitor_watches(small):
+    """Turning on the spot next to a wall must not look like driving at it (the Core's safety monitor
+    reads the sonars only while the base moves forward)."""
+    api = api_at(small, "nao", (1.0, 2.4, 0))
+    assert not api.moving_forward()  # standing
+    turn = asyncio.create_task(api.move_to(MoveTo(x=0.0, theta=math.pi)))
+    await small.sleep(0.3)
+    assert not turn.done() and not api.moving_forward()
+    await turn
+    await api.move_vel(MoveVel(x=0.1))
+    await small.sleep(0.3)
+    assert api.moving_forward()
+    await api.move_stop(MoveStop())
+    assert not api.moving_forward()
