@@ -1,4 +1,5 @@
-"""SPADE's XMPP client with a shared TLS context when certificates are not verified.
+"""SPADE's XMPP client with a shared TLS context when certificates are not verified, and message
+data forms left as XML.
 
 slixmpp builds a fresh default SSL context for every client and loads the system CA store into it
 twice (``create_default_context`` + ``set_default_verify_paths``): ~75 ms of every login, i.e. most
@@ -16,11 +17,16 @@ from spade.xmpp_client import XMPPClient
 
 from xmpp_server.tls import unverified_context
 
+
 class RappXMPPClient(XMPPClient):
     def __init__(self, jid, password, verify_security, auto_register):
         if verify_security:
             super().__init__(jid, password, verify_security, auto_register)
-            return
+        else:
+            self._init_unverified(jid, password, auto_register)
+        drop_message_forms(self)
+
+    def _init_unverified(self, jid, password, auto_register):
         from packaging import version
 
         ClientXMPP.__init__(self, jid, password, ssl_context=unverified_context())
@@ -41,3 +47,15 @@ def install() -> None:
     import spade.agent
 
     spade.agent.XMPPClient = RappXMPPClient
+
+
+def drop_message_forms(client: ClientXMPP) -> None:
+    """Leave a message's data form as raw XML. Once any plugin loads XEP-0004 (in-band registration
+    does), slixmpp turns the form of every incoming message into stanza objects, one per field:
+    ~200 us per ACL message, whose metadata SPADE's Message.from_node then reads from the raw XML
+    anyway. The registration is class-wide, so it is undone after every client's plugins load."""
+    from slixmpp.stanza import Message
+
+    client.remove_handler("Data Form")
+    Message.plugin_tag_map.pop("{jabber:x:data}x", None)
+    Message.plugin_attrib_map.pop("form", None)
