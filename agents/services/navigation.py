@@ -115,7 +115,7 @@ def margins(clearance_m: float) -> list[float]:
     clearance keeps less of it (down to the bare footprint) rather than failing."""
     if clearance_m <= 0:
         return [0.0]
-    return [clearance_m, clearance_m / 2, 0.0]
+    return [clearance_m, clearance_m / 2, clearance_m / 4, 0.0]
 
 
 def plan_with_clearance(m: GridMap, req: PlanPath2D, start_c, goal_c):

@@ -65,5 +65,6 @@ class PlanPath2D(ServiceRequest):
     goal: Pose2D
     waypoint_spacing_m: float = Field(default=0.3, gt=0.01, le=5.0)
     time_limit_s: float = Field(default=1.0, gt=0.0, le=10.0)  # sampling planners only
-    # extra distance kept from obstacles where the map allows it (less in narrower passages)
-    clearance_m: float = Field(default=0.10, ge=0.0, le=1.0)
+    # extra distance kept from obstacles where the map allows it (less in narrower passages): a
+    # path along a door frame makes forward range sensors see it within the robots' safety distance
+    clearance_m: float = Field(default=0.20, ge=0.0, le=1.0)
