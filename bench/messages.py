@@ -15,39 +15,55 @@ from .common import log, median, metric, quiet_logs, ratio
 BATCH = 50  # the sender yields to the loop every BATCH messages (lets the transport flush)
 
 
+class Arrivals:
+    """Counts received messages; `done` resolves when `count` have arrived (the time is kept)."""
+
+    def __init__(self, count: int):
+        self.count, self.n, self.last = count, 0, 0.0
+        self.done = asyncio.get_running_loop().create_future()
+
+    def hit(self) -> None:
+        self.n += 1
+        if self.n >= self.count:
+            self.last = time.perf_counter()
+            if not self.done.done():
+                self.done.set_result(True)
+
+
+async def send_all(send, arrivals: Arrivals) -> float:
+    """Messages per second: send(i) for every i (awaited if it is a coroutine), until all arrived."""
+    t0 = time.perf_counter()
+    for i in range(arrivals.count):
+        sent = send(i)
+        if asyncio.iscoroutine(sent):
+            await sent
+        if i % BATCH == BATCH - 1:
+            await asyncio.sleep(0)
+    await asyncio.wait_for(arrivals.done, 60)
+    return arrivals.count / (arrivals.last - t0)
+
+
 async def agents_rate(settings, count: int, tag: str) -> float:
     from agents.base import CyclicBehaviour, RappAgent
     from ontology import core as C
 
-    done = asyncio.get_running_loop().create_future()
-    state = {"n": 0, "last": 0.0}
+    arrivals = Arrivals(count)
 
     class Sink(CyclicBehaviour):
         def match(self, msg):
             return True
 
         async def run(self):
-            msg = await self.receive(timeout=1.0)
-            if msg is None:
-                return
-            state["n"] += 1
-            if state["n"] >= count:
-                state["last"] = time.perf_counter()
-                if not done.done():
-                    done.set_result(True)
+            if await self.receive(timeout=1.0) is not None:
+                arrivals.hit()
 
     sender, receiver = RappAgent(f"msend-{tag}", settings), RappAgent(f"mrecv-{tag}", settings)
     await sender.start()
     await receiver.start()
     receiver.add_behaviour(Sink())
     try:
-        t0 = time.perf_counter()
-        for i in range(count):
-            await sender.notify(receiver.address, C.Heartbeat(seq=i), ontology=C.ONTOLOGY, action="heartbeat")
-            if i % BATCH == BATCH - 1:
-                await asyncio.sleep(0)
-        await asyncio.wait_for(done, 60)
-        return count / (state["last"] - t0)
+        return await send_all(lambda i: sender.notify(receiver.address, C.Heartbeat(seq=i), ontology=C.ONTOLOGY,
+                                                      action="heartbeat"), arrivals)
     finally:
         await sender.stop()
         await receiver.stop()
@@ -56,29 +72,18 @@ async def agents_rate(settings, count: int, tag: str) -> float:
 async def slixmpp_rate(settings, count: int, tag: str, body: str) -> float:
     from scenarios.user import ChatUser
 
-    done = asyncio.get_running_loop().create_future()
-    state = {"n": 0, "last": 0.0}
+    arrivals = Arrivals(count)
 
     class Sink(ChatUser):
         def _on_message(self, msg):
-            state["n"] += 1
-            if state["n"] >= count:
-                state["last"] = time.perf_counter()
-                if not done.done():
-                    done.set_result(True)
+            arrivals.hit()
 
     sender, receiver = ChatUser(f"fsend-{tag}", settings), Sink(f"frecv-{tag}", settings)
     await sender.start()
     await receiver.start()
     to = settings.jid(f"frecv-{tag}")
     try:
-        t0 = time.perf_counter()
-        for i in range(count):
-            sender.send_message(mto=to, mbody=body, mtype="chat")
-            if i % BATCH == BATCH - 1:
-                await asyncio.sleep(0)
-        await asyncio.wait_for(done, 60)
-        return count / (state["last"] - t0)
+        return await send_all(lambda i: sender.send_message(mto=to, mbody=body, mtype="chat"), arrivals)
     finally:
         await sender.stop()
         await receiver.stop()

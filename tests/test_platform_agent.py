@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 from pathlib import Path
 
 import cv2
@@ -25,12 +26,20 @@ from ontology.services.vision import FaceDetect, FindObjects, HumanDetect, Learn
 PHOTOS = Path(__file__).resolve().parent / "data"  # see tests/data/README.md
 
 
+@contextlib.asynccontextmanager
 async def _platform(settings, unique, **kw):
+    """A Platform Agent and a plain client agent, both stopped afterwards."""
     platform = PlatformAgent(unique("platform"), settings=settings, **kw)
     client = RappAgent(unique("client"), settings)
     await platform.start()
-    await client.start()
-    return platform, client
+    try:
+        await client.start()
+        try:
+            yield platform, client
+        finally:
+            await client.stop()
+    finally:
+        await platform.stop()
 
 
 async def _token(client, platform, user, ttl=3600.0) -> str:
@@ -42,8 +51,7 @@ async def _token(client, platform, user, ttl=3600.0) -> str:
 
 
 async def test_expired_token_is_refused(settings, unique):
-    platform, client = await _platform(settings, unique)
-    try:
+    async with _platform(settings, unique) as (platform, client):
         token = await _token(client, platform, "ann", ttl=0.3)
         assert (await client.request(platform.address, P.Ping(token=token))).user == "ann"
         await asyncio.sleep(0.4)
@@ -51,9 +59,6 @@ async def test_expired_token_is_refused(settings, unique):
             await client.request(platform.address, P.Ping(token=token))
         with pytest.raises(RequestRefused, match="unknown user or wrong password"):
             await client.request(platform.address, P.Login(user="ann", password="wrong"))
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 def _map_upload(token: str, map_id: str) -> UploadMap:
@@ -66,21 +71,16 @@ def _map_upload(token: str, map_id: str) -> UploadMap:
 
 
 async def test_user_data_is_visible_only_to_its_owner(settings, unique):
-    platform, client = await _platform(settings, unique)
-    try:
+    async with _platform(settings, unique) as (platform, client):
         ann, bob = await _token(client, platform, "ann"), await _token(client, platform, "bob")
         await client.request(platform.address, _map_upload(ann, "ann-flat"))
         ann_maps = {m.map_id for m in (await client.request(platform.address, ListMaps(token=ann))).maps}
         bob_maps = {m.map_id for m in (await client.request(platform.address, ListMaps(token=bob))).maps}
         assert "ann-flat" in ann_maps and "ann-flat" not in bob_maps
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 async def test_overload_is_answered_never_left_pending(settings, unique):
-    platform, client = await _platform(settings, unique, max_pending=2)
-    try:
+    async with _platform(settings, unique, max_pending=2) as (platform, client):
         token = await _token(client, platform, "cat")
 
         async def call():
@@ -96,14 +96,10 @@ async def test_overload_is_answered_never_left_pending(settings, unique):
         assert (await client.request(platform.address, WeatherCurrent(token=token, city="Warsaw"))).city == "Warsaw"
         with pytest.raises(RequestFailed, match="Atlantis"):
             await client.request(platform.address, WeatherCurrent(token=token, city="Atlantis"))
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 async def test_login_gives_a_token_and_calls_without_a_valid_one_are_refused(settings, unique):
-    platform, client = await _platform(settings, unique)
-    try:
+    async with _platform(settings, unique) as (platform, client):
         with pytest.raises(RequestRefused, match="unknown user or wrong password"):
             await client.request(platform.address, P.Login(user="nobody", password="pw"))
         token = await _token(client, platform, "dan")
@@ -114,15 +110,11 @@ async def test_login_gives_a_token_and_calls_without_a_valid_one_are_refused(set
         with pytest.raises(RequestRefused, match="unknown token") as forged:
             await client.request(platform.address, WeatherCurrent(token=token[::-1], city="Warsaw"))
         assert forged.value.code == "bad-token"
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 async def test_unknown_service_is_not_understood_and_service_errors_are_failures(settings, unique):
     without_news = {name: spec for name, spec in SERVICES.items() if name != "news_explore"}
-    platform, client = await _platform(settings, unique, services=without_news)
-    try:
+    async with _platform(settings, unique, services=without_news) as (platform, client):
         token = await _token(client, platform, "eve")
         with pytest.raises(NotUnderstood, match="news_explore"):
             await client.request(platform.address, NewsExplore(token=token, keywords=["robots"]))
@@ -130,9 +122,6 @@ async def test_unknown_service_is_not_understood_and_service_errors_are_failures
             await client.request(platform.address, WeatherCurrent(token=token, city="Atlantis"))
         assert failed.value.code == "unknown_city"
         assert (await client.request(platform.address, P.Ping(token=token))).user == "eve"  # still serving
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 RES = 0.05
@@ -152,17 +141,13 @@ def _plan(token: str, map_id: str) -> PlanPath2D:
 
 
 async def test_plan_path_on_an_uploaded_map_is_private_to_its_user(settings, unique):
-    platform, client = await _platform(settings, unique)
-    try:
+    async with _platform(settings, unique) as (platform, client):
         ann, bob = await _token(client, platform, "ann"), await _token(client, platform, "bob")
         info = await client.request(platform.address, _room_upload(ann, "room"))
         assert (info.width, info.height) == (60, 60)
         plan = await client.request(platform.address, _plan(ann, "room"), timeout=30)
         assert plan.plan_found == PLAN_FOUND and len(plan.path) >= 2 and 2.0 < plan.length_m < 3.0
         assert (await client.request(platform.address, _plan(bob, "room"), timeout=30)).plan_found != PLAN_FOUND
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 def _textured(seed: int) -> str:
@@ -176,8 +161,7 @@ def _textured(seed: int) -> str:
 
 
 async def test_learned_objects_belong_to_their_user(settings, unique):
-    platform, client = await _platform(settings, unique)
-    try:
+    async with _platform(settings, unique) as (platform, client):
         ann, bob = await _token(client, platform, "ann"), await _token(client, platform, "bob")
         book = _textured(1)
         await client.request(platform.address, LearnObject(token=ann, name="book", image_b64=book), timeout=30)
@@ -185,14 +169,10 @@ async def test_learned_objects_belong_to_their_user(settings, unique):
         assert [o.name for o in found.objects] == ["book"]
         with pytest.raises(RequestFailed, match="no objects learned yet"):
             await client.request(platform.address, FindObjects(token=bob, image_b64=book), timeout=30)
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 async def test_hundred_concurrent_pings_and_plans_are_all_answered(settings, unique):
-    platform, client = await _platform(settings, unique, max_pending=16)
-    try:
+    async with _platform(settings, unique, max_pending=16) as (platform, client):
         token = await _token(client, platform, "fay")
         await client.request(platform.address, _room_upload(token, "room"))
 
@@ -209,14 +189,10 @@ async def test_hundred_concurrent_pings_and_plans_are_all_answered(settings, uni
         assert outcomes.count("ping") == 50  # control calls are never refused as busy
         assert outcomes.count(f"plan {PLAN_FOUND}") >= 16
         assert outcomes.count(f"plan {PLAN_FOUND}") + outcomes.count("busy") == 50
-    finally:
-        await client.stop()
-        await platform.stop()
 
 
 async def test_face_and_human_detection_through_the_agent(settings, unique):
-    platform, client = await _platform(settings, unique)
-    try:
+    async with _platform(settings, unique) as (platform, client):
         token = await _token(client, platform, "gil")
         photo = {n: base64.b64encode((PHOTOS / f"{n}.jpg").read_bytes()).decode() for n in ("astronaut", "cameraman")}
         faces = await client.request(platform.address, FaceDetect(token=token, image_b64=photo["astronaut"]))
@@ -225,6 +201,3 @@ async def test_face_and_human_detection_through_the_agent(settings, unique):
         assert people.boxes and people.boxes[0].height > 150
         with pytest.raises(RequestFailed, match="could not be decoded"):
             await client.request(platform.address, FaceDetect(token=token, image_b64="bm90IGFuIGltYWdl"))
-    finally:
-        await client.stop()
-        await platform.stop()
