@@ -43,6 +43,23 @@ def summary_rows(results: list[dict]) -> list[str]:
     return out
 
 
+def markdown(results: list[dict], title: str) -> str:
+    """The table and its summary as Markdown (docs/hazard-table.md)."""
+    lines = [f"# {title}", "",
+             "| robot | seed | localization cm | tracking cm | all correct | sim s | wall s | wrong |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        wrong = " ".join(h["id"] for h in r["hazards"] if h["true_state"] != h["reported_state"])
+
+        def cm(v):
+            return "n/a" if v is None else f"{v * 100:.1f}"
+        lines.append(f"| {r['robot']} | {r['seed']} | {cm(r['localization_error_m'])} | "
+                     f"{cm(r['max_tracking_error_m'])} | {'yes' if r['all_correct'] else 'no'} | "
+                     f"{r['duration_sim_s']:.0f} | {r['duration_wall_s']:.0f} | {wrong} |")
+    lines += ["", "```", *summary_rows(results), "```", ""]
+    return "\n".join(lines)
+
+
 async def run_table(seeds: list[int], robots: list[str], house: str, out: Path) -> list[dict]:
     results = []
     print(f"{'robot':9s} {'seed':>4s} {'loc cm':>6s} {'trk cm':>6s} {'ok':5s} {'sim s':>8s} {'wall s':>7s}  wrong",
@@ -66,13 +83,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--robots", nargs="+", default=["nao", "elektron"], choices=["nao", "elektron"])
     ap.add_argument("--house", default="house", choices=["house", "small"])
     ap.add_argument("--out", default=None, help="directory for the runs' outputs and table.json")
+    ap.add_argument("--markdown", metavar="FILE", help="also write the table as Markdown")
+    ap.add_argument("--from-json", metavar="TABLE_JSON", help="no runs: rewrite the table of an earlier table.json")
     args = ap.parse_args(argv)
-    out = Path(args.out or tempfile.mkdtemp(prefix="hazard-table-"))
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    results = asyncio.run(run_table(seeds, args.robots, args.house, out))
+    if args.from_json:
+        results = json.loads(Path(args.from_json).read_text())
+    else:
+        out = Path(args.out or tempfile.mkdtemp(prefix="hazard-table-"))
+        seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+        results = asyncio.run(run_table(seeds, args.robots, args.house, out))
+        (out / "table.json").write_text(json.dumps(results, indent=1))
+        print(f"results: {out / 'table.json'}")
     print("\n".join(summary_rows(results)))
-    (out / "table.json").write_text(json.dumps(results, indent=1))
-    print(f"results: {out / 'table.json'}")
+    if args.markdown:
+        where = "the full 20 m x 20 m house" if args.house == "house" else "the small house"
+        Path(args.markdown).write_text(markdown(results, f"Hazard detection on {where}"))
     return 0 if results and all(r["all_correct"] for r in results) else 1
 
 
