@@ -107,3 +107,23 @@ async def test_two_robots_full_house(tmp_path):
 
     result = await run_two_robots(seed=1, house="house", out_dir=tmp_path)
     check_two_robots(result, tmp_path, SPLIT["house"])
+
+
+def test_table_rows_and_markdown():
+    from scenarios.hazard_table import markdown, summary_rows
+
+    def run(robot, seed, loc, trk, wrong=()):
+        hazards = [{"id": h, "true_state": "open", "reported_state": "open" if h not in wrong else "unknown"}
+                   for h in ("d1", "l1")]
+        return {"robot": robot, "seed": seed, "hazards": hazards, "all_correct": not wrong,
+                "localization_error_m": loc, "max_tracking_error_m": trk, "duration_sim_s": 100.0,
+                "duration_wall_s": 30.0}
+
+    results = [run("nao", 1, 0.012, 0.071), run("nao", 2, 0.062, 0.08, wrong=("l1",)), run("elektron", 1, None, 0.03)]
+    summary = summary_rows(results)
+    assert "nao       all hazards correct in 1/2 runs; localization <= 5 cm in 1/2; tracking <= 10 cm in 2/2" in summary
+    assert not any(line.startswith("elektron  loc") for line in summary)  # no localization: no loc row
+    assert any(line.startswith("elektron  track") for line in summary)
+    text = markdown(results, "T")
+    assert "| nao | 2 | 6.2 | 8.0 | no | 100 | 30 | l1 |" in text
+    assert "| elektron | 1 | n/a | 3.0 | yes | 100 | 30 |  |" in text
