@@ -101,10 +101,18 @@ def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
 
 
 def _decode(det: cv2.QRCodeDetector, img: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    ok, texts, pts, _ = det.detectAndDecodeMulti(img)
+    # OpenCV 4.14's detector can fail an internal assertion (convexHull) on some frames: for the
+    # caller that frame holds no readable code, it is not an error of the request
+    try:
+        ok, texts, pts, _ = det.detectAndDecodeMulti(img)
+    except cv2.error:
+        ok, texts, pts = False, (), None
     found = [(t, p.reshape(4, 2)) for t, p in zip(texts, pts) if t] if ok and pts is not None else []
     if not found:  # the single-code path is more tolerant of small codes
-        text, pts, _ = det.detectAndDecode(img)
+        try:
+            text, pts, _ = det.detectAndDecode(img)
+        except cv2.error:
+            text, pts = "", None
         if text and pts is not None:
             found = [(text, pts.reshape(4, 2))]
     return found

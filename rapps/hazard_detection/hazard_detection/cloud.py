@@ -97,10 +97,10 @@ def _residuals(q: np.ndarray, views: list[tuple]) -> np.ndarray:
 PIXEL_NOISE = 0.5  # px, standard deviation of a refined corner (rendered codes, measured)
 
 
-def position_std(q: np.ndarray, views: list[tuple]) -> float:
-    """Standard deviation (m, along the worst direction) of the fitted position from the corners'
-    pixel noise: the Gauss-Newton covariance of the fit. Two codes close together or one far code
-    leave the position poorly fixed even when the residual is small."""
+def pose_std(q: np.ndarray, views: list[tuple]) -> tuple[float, float]:
+    """Standard deviations of the fitted position (m, along the worst direction) and heading (rad)
+    from the corners' pixel noise: the Gauss-Newton covariance of the fit. Two codes close together
+    or one far code leave the pose poorly fixed even when the residual is small."""
     r0 = _residuals(q, views)
     J = np.empty((len(r0), 3))
     for k, eps in enumerate((1e-5, 1e-5, 1e-6)):
@@ -110,8 +110,9 @@ def position_std(q: np.ndarray, views: list[tuple]) -> float:
     try:
         cov = np.linalg.inv(J.T @ J) * PIXEL_NOISE ** 2
     except np.linalg.LinAlgError:
-        return math.inf
-    return float(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)))
+        return math.inf, math.inf
+    return (float(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0))),
+            float(math.sqrt(max(cov[2, 2], 0.0))))
 
 
 def refine(starts: list[tuple[float, float, float]], views: list[tuple]) -> tuple[tuple[float, float, float], float] | None:
@@ -173,8 +174,9 @@ def _solve(req: SolvePose) -> Localization:
     moved = math.hypot(x - p.x, y - p.y)
     if rms > 4.0 or moved > 0.6:  # the fit did not converge to a consistent pose: keep the first estimate
         return loc
+    std_m, std_rad = pose_std(np.array([x, y, th]), _views(obs, req.landmarks))
     return Localization(found=True, pose=dict(x=x, y=y, theta=th), markers=loc.markers, method=loc.method + "+fit",
-                        rms_px=rms, std_m=position_std(np.array([x, y, th]), _views(obs, req.landmarks)))
+                        rms_px=rms, std_m=std_m, std_theta_rad=std_rad)
 
 
 def initial_pose(req: SolvePose) -> Localization:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+from agents.errors import RequestFailed
 from behaviours import FSM
 from rapps.sdk import Step
 
@@ -92,10 +93,13 @@ class Localizer:
         """Landmarks in this frame (on the Cloud Agent), then the pose from every code seen so far;
         True when that pose is certain enough to stop sweeping (its position standard deviation at
         most localize_std_m: two codes close together or far away are not enough)."""
-        reply = await self.task.cloud.call(
-            "observe", image_b64=memory.pop("frame").data_b64, camera=self.camera,
-            camera_to_robot=memory["camera_to_robot"], landmarks=memory["home"].landmarks,
-            max_distance_m=float(self.task.params["max_marker_distance_m"]))
+        try:
+            reply = await self.task.cloud.call(
+                "observe", image_b64=memory.pop("frame").data_b64, camera=self.camera,
+                camera_to_robot=memory["camera_to_robot"], landmarks=memory["home"].landmarks,
+                max_distance_m=float(self.task.params["max_marker_distance_m"]))
+        except RequestFailed:  # a frame the Cloud Agent could not process: look elsewhere
+            return False
         if not reply.items:
             return False
         memory["observations"].extend(reply.items)
@@ -104,16 +108,20 @@ class Localizer:
         found = await self.task.cloud.call("solve_pose", observations=memory["observations"],
                                            landmarks=memory["home"].landmarks, prior=memory["prior"].model_dump())
         memory["localization"] = found
-        return self._certain(found, "localize_std_m")
+        return self._certain(found, "localize_std_m", "localize_std_rad")
 
-    def _certain(self, found, param: str) -> bool:
-        return bool(found.found and found.std_m is not None and found.std_m <= float(self.task.params[param]))
+    def _certain(self, found, param_m: str, param_rad: str) -> bool:
+        """Position and heading certain enough: a heading off by 0.01 rad puts the end of a 1 m leg
+        1 cm off the path."""
+        params = self.task.params
+        return bool(found.found and found.std_m is not None and found.std_theta_rad is not None
+                    and found.std_m <= float(params[param_m]) and found.std_theta_rad <= float(params[param_rad]))
 
     async def set_pose(self, memory):
         """Set the sweep's pose on the robot if it is certain enough (localize_max_std_m); otherwise
         the odometry estimate stays."""
         found = memory.get("localization")
-        if found is not None and self._certain(found, "localize_max_std_m"):
+        if found is not None and self._certain(found, "localize_max_std_m", "localize_max_std_rad"):
             p = found.pose
             await self.task.robot.set_global_pose(x=p.x, y=p.y, theta=p.theta)
             memory.setdefault("localizations", []).append(

@@ -40,6 +40,7 @@ class Localization(Content):
     method: str = ""  # "points" (2+ landmarks) or "single" (one code's pose), "+fit" when refined
     rms_px: float | None = None  # reprojection error of the refined pose (all corners of all views)
     std_m: float | None = None  # position standard deviation of the refined pose (worst direction)
+    std_theta_rad: float | None = None  # heading standard deviation of the refined pose
 
 
 @action("solve_pose", ontology=ONTOLOGY, reply=Localization)
