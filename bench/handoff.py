@@ -53,18 +53,9 @@ INPROCESS_GOAL_MS = 100.0  # issue #8: the in-process hand-off, absolute, on thi
 async def inprocess(n: int) -> dict:
     """The same hand-off with the Core's in-process mode (same package bytes, no interpreter start):
     an absolute goal, reported with the goal as its floor."""
-    from agents.tracing import read_trace
-
     with tempfile.TemporaryDirectory(prefix="bench-handoff-inproc-") as tmp:
         async with RobotSystem(Path(tmp), [ECHO_APP], trace=True, dynamic_mode="inprocess") as rs:
-            h = rs.robots[0]
-            await rs.command(h, "echo", "echo-app finished")  # warm-up: first imports of the RApp
-            skip = len(phases(read_trace(rs.trace_file)))
-            for _ in range(n):
-                await rs.command(h, "echo", "echo-app finished")
-            ph = phases(read_trace(rs.trace_file))[skip:]
-    if len(ph) != n:
-        raise RuntimeError(f"expected {n} in-process hand-offs in the trace, found {len(ph)}")
+            ph = await measured_handoffs(rs, n)
     total = [(p["state"] - p["command"]) * 1e3 for p in ph]
     med, extra = median(total), phase_medians(ph)
     log(f"handoff_inprocess median {med:.1f} ms (goal <= {INPROCESS_GOAL_MS:.0f} ms); phases {extra}")
@@ -82,24 +73,37 @@ def phase_medians(ph: list[dict]) -> dict:
     return extra
 
 
-async def run(quick: bool = True, n: int | None = None) -> list[dict]:
+async def measured_handoffs(rs: RobotSystem, n: int, between=None) -> list[dict]:
+    """Phases of n hand-offs of the echo app after one warm-up hand-off (first imports from a cold
+    page cache), read from the trace; `between(i)` (a coroutine function) runs after each one."""
     from agents.tracing import read_trace
 
+    h = rs.robots[0]
+    await rs.command(h, "echo", "echo-app finished")
+    if between is not None:
+        await between("warm")
+    skip = len(phases(read_trace(rs.trace_file)))
+    for i in range(n):
+        await rs.command(h, "echo", "echo-app finished")
+        if between is not None:
+            await between(i)
+    ph = phases(read_trace(rs.trace_file))[skip:]
+    if len(ph) != n:
+        raise RuntimeError(f"expected {n} hand-offs in the trace, found {len(ph)}")
+    return ph
+
+
+async def run(quick: bool = True, n: int | None = None) -> list[dict]:
     n = n or (3 if quick else 10)
     floors = []
     with tempfile.TemporaryDirectory(prefix="bench-handoff-") as tmp:
         async with RobotSystem(Path(tmp), [ECHO_APP], trace=True) as rs:
-            h = rs.robots[0]
-            # warm-up: one of each, not counted (first import of a process from a cold page cache)
-            await rs.command(h, "echo", "echo-app finished")
-            await asyncio.to_thread(floor_once, rs.system.settings, "floor-warm")
-            skip = len(phases(read_trace(rs.trace_file)))
-            for i in range(n):
-                await rs.command(h, "echo", "echo-app finished")
-                floors.append(await asyncio.to_thread(floor_once, rs.system.settings, f"floor-{i}"))
-            ph = phases(read_trace(rs.trace_file))[skip:]
-    if len(ph) != n:
-        raise RuntimeError(f"expected {n} hand-offs in the trace, found {len(ph)}")
+            async def floor(i) -> None:  # alternating with the hand-offs: noise hits both alike
+                t = await asyncio.to_thread(floor_once, rs.system.settings, f"floor-{i}")
+                if i != "warm":
+                    floors.append(t)
+
+            ph = await measured_handoffs(rs, n, between=floor)
     total = [p["state"] - p["command"] for p in ph]
     med, fmed = median(total), median(floors)
     extra = phase_medians(ph)

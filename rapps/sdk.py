@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from typing import Any, Awaitable, Callable
 
+from agents.errors import RequestFailed
 from behaviours import Behaviour, OneShot
 from ontology import core as C
 from ontology import platform as P
@@ -121,6 +122,18 @@ class Task:
     async def report(self, text: str, **data: Any) -> None:
         """Tell the user something, through the Core (spoken and sent as chat)."""
         await self.runtime.request(self.runtime.core, C.Report(text=text, data=data), timeout=30.0)
+
+    async def say(self, *lines: str) -> bool:
+        """Say each line on the robot; False, and nothing more said, when the robot has no speech
+        synthesis (an Elektron): a report then carries the text. Any other failure is raised."""
+        for line in lines:
+            try:
+                await self.robot.say(text=line)
+            except RequestFailed as e:
+                if e.code != "unsupported":
+                    raise
+                return False
+        return True
 
 
 class Step(OneShot):

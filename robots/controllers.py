@@ -247,11 +247,12 @@ class PathFollower(BaseController):
                     v = s.max_vx * slow
                     vx, vy = v * cx / ld, v * cy / ld
                     heading = math.atan2(carrot[1] - est[1], carrot[0] - est[0]) if remaining > 0.3 else self.final[2]
-                    wz = 1.5 * wrap(heading - est[2])
-                    if self.aligning and abs(wrap(heading - est[2])) > ALIGNED:
-                        vx = vy = 0.0  # a large turn first, on the spot: walking while turning curves off the path
+                    err = wrap(heading - est[2])
+                    wz = 1.5 * err
+                    self.aligning = self.aligning and abs(err) > ALIGNED
+                    if self.aligning:  # a large turn first, on the spot: walking while turning curves off the path
+                        vx = vy = 0.0
                         wz = math.copysign(max(abs(wz), 0.3), wz)
-                    self.aligning = False if abs(wrap(heading - est[2])) <= ALIGNED else self.aligning
                     scale = max(abs(vx) / s.max_vx, abs(vy) / s.max_vy, abs(wz) / s.max_wz, 1.0)
                     self.drive(vx / scale, vy / scale, wz / scale, dt)
                 elif abs(alpha) > TURN_IN_PLACE:  # arcs started at larger angles overshoot the path

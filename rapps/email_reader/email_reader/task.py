@@ -1,7 +1,6 @@
 """E-mail reader: fetch the user's unread mail and read it out."""
 from behaviours import FSM
 from rapps.sdk import Step, Task
-from agents.errors import RequestError
 
 MAX_BODY = 300  # characters read aloud per message
 
@@ -29,9 +28,5 @@ class EmailTask(Task):
                 body = m.body.strip().replace("\n", " ")
                 body = body[:MAX_BODY] + ("..." if len(body) > MAX_BODY else "")
                 lines.append(f"From {m.sender}, subject {m.subject or '(none)'}: {body}")
-        for line in lines:
-            try:
-                await self.robot.say(text=line)
-            except RequestError:
-                break  # no speech on this robot: the report below carries the text
+        await self.say(*lines)  # no speech on this robot: the report below carries the text
         await self.report(" ".join(lines))

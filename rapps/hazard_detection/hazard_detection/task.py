@@ -89,7 +89,7 @@ class HazardTask(Task):
         memory["home"] = info
         memory["todo"] = list(info.hazards)
         memory["results"] = []
-        await self.speak(f"Checking {len(info.hazards)} possible hazards.")
+        await self.say(f"Checking {len(info.hazards)} possible hazards.")
 
     # -- s3 ---------------------------------------------------------------------------------
     async def next_hazard(self, memory) -> bool:
@@ -199,13 +199,8 @@ class HazardTask(Task):
         await self.report(text, hazards=results, localizations=memory.get("localizations", []))
 
     async def done(self, memory):
-        await self.speak("Hazard check finished.")
+        await self.say("Hazard check finished.")
 
-    async def speak(self, text: str) -> None:
-        try:
-            await self.robot.say(text=text)
-        except RequestFailed:  # a robot without speech (Elektron): the chat reports are enough
-            pass
 
 
 def describe(r: dict) -> str:

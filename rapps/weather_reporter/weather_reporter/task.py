@@ -1,7 +1,6 @@
 """Weather reporter: fetch current weather and forecast, speak them, report them to the user."""
 from behaviours import FSM
 from rapps.sdk import Step, Task
-from agents.errors import RequestError
 
 
 class WeatherTask(Task):
@@ -25,15 +24,5 @@ class WeatherTask(Task):
         for day in forecast.days:
             when = "Tomorrow" if day.day == 1 else f"In {day.day} days"
             lines.append(f"{when}: {day.description}, from {day.low_c:.0f} to {day.high_c:.0f} degrees.")
-        spoken = await speak(self, lines)
+        spoken = await self.say(*lines)
         await self.report(" ".join(lines) + ("" if spoken else " (I cannot speak, so I wrote it.)"))
-
-
-async def speak(task: Task, lines: list[str]) -> bool:
-    """Say each line; False when the robot has no speech (e.g. Elektron): the report carries it."""
-    for line in lines:
-        try:
-            await task.robot.say(text=line)
-        except RequestError:
-            return False
-    return True

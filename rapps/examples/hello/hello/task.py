@@ -1,5 +1,4 @@
 """Task of the ``hello`` example RApp: the smallest complete task built on the SDK."""
-from agents.errors import RequestError
 from behaviours import FSM
 from rapps.sdk import Step, Task
 
@@ -14,8 +13,5 @@ class HelloTask(Task):
 
     async def greet(self, memory):
         text = str(self.params.get("greeting", "Hello"))
-        try:
-            await self.robot.say(text=text)
-        except RequestError:
-            pass  # e.g. Elektron has no speech synthesis: the report carries the greeting
+        await self.say(text)  # an Elektron cannot speak: the report carries the greeting
         await self.report(text)
