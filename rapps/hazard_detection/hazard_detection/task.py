@@ -34,6 +34,25 @@ def first_leg(poses, leg: float) -> tuple[list, bool]:
     return out, False
 
 
+def next_leg_action(path, theta: float, leg: float, turn_first: float, *, localized: bool,
+                    turned: bool) -> tuple[str, float, float]:
+    """("turn" | "move", the turn the leg starts with, the leg's length). Odometry drifts with the
+    square of the distance and loses ~0.02 rad of heading per sqrt(rad) turned, so a leg that starts
+    far off the heading is turned on the spot and re-localized first ("turn"), once: a re-localization
+    that looked behind leaves the robot facing away again, and the leg it then walks with a big turn
+    and no fix is half length, like one after a failed localization."""
+    if not localized:
+        leg /= 2
+    if len(path) < 2:
+        return "move", 0.0, leg
+    turn = math.remainder(math.atan2(path[1].y - path[0].y, path[1].x - path[0].x) - theta, math.tau)
+    if abs(turn) <= turn_first:
+        return "move", turn, leg
+    if turned:
+        return "move", turn, leg / 2
+    return "turn", turn, leg
+
+
 class HazardTask(Task):
     cloud_ontology = ONTOLOGY
 
@@ -114,19 +133,12 @@ class HazardTask(Task):
         memory["replans"] += 1
         if memory["replans"] > 40:
             raise RuntimeError(f"could not reach {hazard.id}")
-        leg = float(self.params["leg_length_m"])
-        if not memory.get("localizations") or memory["localizations"][-1] is None:
-            leg /= 2  # the last localization failed: odometry drifts with the square of the distance
+        localized = bool(memory.get("localizations")) and memory["localizations"][-1] is not None
+        action, memory["turn"], leg = next_leg_action(
+            reply.path, pose.theta, float(self.params["leg_length_m"]), float(self.params["turn_first_rad"]),
+            localized=localized, turned=bool(memory.pop("leg_turned", False)))
         memory["leg"], memory["leg_final"] = first_leg(reply.path, leg)
-        path = reply.path
-        if len(path) > 1:
-            direction = math.atan2(path[1].y - path[0].y, path[1].x - path[0].x)
-            memory["turn"] = math.remainder(direction - pose.theta, math.tau)
-            # once per leg: a re-localization that looked behind leaves the robot facing away again
-            if abs(memory["turn"]) > float(self.params["turn_first_rad"]) and not memory.pop("leg_turned", False):
-                return "turn"
-        memory.pop("leg_turned", None)
-        return "move"
+        return action
 
     async def turn(self, memory):
         memory["leg_final"] = False

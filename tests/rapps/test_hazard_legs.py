@@ -1,0 +1,42 @@
+"""The hazard task's leg decisions: how far to walk before the next fix, and when to turn first."""
+import math
+
+import pytest
+
+from ontology.services.common import Pose2D
+from rapps.hazard_detection.hazard_detection.task import first_leg, next_leg_action
+
+LEG, TURN_FIRST = 1.1, 0.8
+
+
+def straight(dx: float, dy: float, n: int = 30) -> list[Pose2D]:
+    return [Pose2D(x=dx * i / n, y=dy * i / n, theta=0.0) for i in range(n + 1)]
+
+
+def test_leg_ahead_is_walked_full_length():
+    action, turn, leg = next_leg_action(straight(3, 0), 0.0, LEG, TURN_FIRST, localized=True, turned=False)
+    assert (action, leg) == ("move", LEG)
+    assert turn == pytest.approx(0.0)
+
+
+def test_leg_behind_turns_first():
+    action, turn, leg = next_leg_action(straight(-3, 0), 0.0, LEG, TURN_FIRST, localized=True, turned=False)
+    assert action == "turn" and abs(turn) == pytest.approx(math.pi) and leg == LEG
+
+
+def test_big_turn_without_a_fix_after_it_halves_the_leg():
+    # turned already for this leg, but the re-localization looked behind: the turn comes again unfixed
+    action, turn, leg = next_leg_action(straight(0, -3), math.pi / 2, LEG, TURN_FIRST, localized=True, turned=True)
+    assert action == "move" and turn == pytest.approx(-math.pi) and leg == LEG / 2
+
+
+def test_failed_localization_halves_the_leg():
+    assert next_leg_action(straight(3, 0), 0.0, LEG, TURN_FIRST, localized=False, turned=False)[2] == LEG / 2
+    assert next_leg_action(straight(-3, 0), 0.0, LEG, TURN_FIRST, localized=False, turned=True)[2] == LEG / 4
+
+
+def test_first_leg_cuts_the_path_near_the_leg_length():
+    poses, final = first_leg(straight(3, 0), LEG / 2)
+    assert not final and LEG / 2 <= poses[-1].x < LEG / 2 + 0.11
+    poses, final = first_leg(straight(0.8, 0), LEG / 2)
+    assert final and poses[-1].x == pytest.approx(0.8)
