@@ -1,12 +1,14 @@
-"""Fleet: N robots (nao/elektron alternately, one shared World) each running a task at once, on one
-Platform and one Store. Rounds with growing N (robots are added between rounds); a round passes when
-every task finishes and every request of every Dynamic Agent is answered (from the trace).
+"""Fleet: N robots (nao/elektron alternately) each running the hazard-detection RApp at once, on one
+Platform, one Store and one XMPP server. Each robot lives in its own copy of the small house (one
+World per robot, seeded door and lamp states), so the tasks compete for the agents, the server and
+the two cores, not for doorways. Rounds with growing N (robots are added between rounds, and the
+robots of earlier rounds run again from where they stopped); a round passes when every task
+finishes ("hazard-detection finished") and every request of every Dynamic Agent is answered (from
+the trace). Whether every hazard was classified correctly is reported per round too.
 
 Reports the largest passing N (`fleet`; floor = the goal, 20 robots; ratio = goal / N, <= 1 met) and
 the Platform service latency p95 at that N (`fleet_service_p95`; floor = the same p95 with 1 robot,
-measured first in the same run). The RApp is bench/rapps/rtt_probe with `calls` get_global_pose and
-`calls` ping requests per robot (the echo_app fixture cannot run on an elektron: it calls `say`, which
-an elektron lacks; hazard_detection needs an uploaded home and runs for minutes per robot).
+measured first in the same run).
 """
 from __future__ import annotations
 
@@ -15,9 +17,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from .common import RTT_PROBE, RobotSystem, log, metric, ms, percentile, ratio
+from .common import log, metric, ms, percentile, quiet_logs, ratio
 
 GOAL = 20
+HOUSE = "small"
 
 
 def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[dict, int]:
@@ -48,45 +51,108 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
     return lat, missing
 
 
-async def one_round(rs: RobotSystem, n: int) -> dict:
+class HazardFleet:
+    """One RappSystem with the hazard-detection RApp published; robots added on demand, robot i
+    (kind nao/elektron alternately) in its own World (small house, seed i + 1), owned by its own
+    user whose home description is on the Platform."""
+
+    def __init__(self, workdir: Path):
+        self.workdir = Path(workdir)
+        self.trace_file = self.workdir / "trace.jsonl"
+        self.system = self.state = self.home = None
+        self.worlds, self.robots = [], []
+
+    async def __aenter__(self) -> "HazardFleet":
+        from agents.services.context import ServiceState
+        from scenarios.hazard import RAPP_DIR
+        from scenarios.system import RappSystem
+
+        quiet_logs()
+        self.state = ServiceState(work_dir=self.workdir / "services")
+        self.system = RappSystem(self.workdir / "system", trace_file=self.trace_file,
+                                 platform_kw={"services_state": self.state})
+        await self.system.start()
+        await self.system.publish(RAPP_DIR)
+        return self
+
+    async def add_robots(self, count: int) -> None:
+        from robots import OdometryNoise, RobotAPI, World
+        from scenarios.hazard import core_listening
+        from scenarios.home_setup import hazard_overrides, home_description, upload_home
+        from scenarios.system import wait_until
+
+        new = []
+        for _ in range(count):
+            i = len(self.robots) + len(new)
+            kind, seed = ("nao", "elektron")[i % 2], i + 1
+            world = await asyncio.to_thread(World.from_file, HOUSE, seed=seed, overrides=hazard_overrides(HOUSE, seed))
+            self.worlds.append(world)
+            robot = await asyncio.to_thread(world.add_robot, kind, odometry_noise=OdometryNoise.typical())
+            if self.home is None:  # the same layout in every world: one map and hazard list
+                self.home = await asyncio.to_thread(home_description, world, HOUSE, self.workdir / "home")
+            user = f"owner-{kind}{i + 1}"
+            upload_home(self.state, user, *self.home)
+            new.append(await self.system.add_robot(kind, api=RobotAPI(robot), robot_id=f"{kind}{i + 1}", user=user))
+        for h in new:
+            await wait_until(lambda h=h: core_listening(h.core), 60, f"{h.robot_id} listening")
+        self.robots.extend(new)
+
+    async def check_hazards(self, i: int, timeout: float) -> dict:
+        """Robot i's owner says "check the hazards"; the end of the task and its scored reports."""
+        from scenarios.hazard import COMMAND, core_listening, parse_reports, score_hazards
+        from scenarios.system import wait_until
+
+        h = self.robots[i]
+        start = len(h.user.received)
+        await h.user.say(h.core.address, COMMAND)
+        end = await h.user.wait_for(lambda t: t.startswith(("hazard-detection finished", "hazard-detection ended"))
+                                    or "did not understand" in t, timeout=timeout, start=start)
+        await wait_until(lambda: core_listening(h.core) and h.core.dynamic is None, 60, f"{h.robot_id} listening again")
+        texts = [t for _, _, t in h.user.received[start:]]
+        rows = score_hazards(self.home[0].hazards, self.worlds[i].ground_truth(), parse_reports(texts))
+        return {"finished": end.startswith("hazard-detection finished"), "end": end,
+                "correct": all(r["true_state"] == r["reported_state"] for r in rows)}
+
+    async def __aexit__(self, *exc) -> None:
+        try:
+            if self.system is not None:
+                await self.system.stop()
+        finally:
+            for w in self.worlds:
+                w.close()
+
+
+async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     from agents.tracing import read_trace
 
-    if len(rs.robots) < n:
-        await rs.add_robots(n - len(rs.robots))
+    if len(fleet.robots) < n:
+        await fleet.add_robots(n - len(fleet.robots))
     since = time.time()
     t0 = time.perf_counter()
-    replies = await asyncio.gather(*(rs.command(h, "rttprobe", "rtt-probe finished", timeout=180)
-                                     for h in rs.robots[:n]), return_exceptions=True)
+    runs = await asyncio.gather(*(fleet.check_hazards(i, timeout) for i in range(n)), return_exceptions=True)
     wall = time.perf_counter() - t0
-    failed = [str(r)[:200] for r in replies if isinstance(r, BaseException) or "problem" in r]
-    lat, missing = request_latencies(read_trace(rs.trace_file), since, rs.system.platform.address)
+    failed = [f"{fleet.robots[i].robot_id}: {str(r)[:200]}" for i, r in enumerate(runs)
+              if isinstance(r, BaseException) or not r["finished"]]
+    wrong = [fleet.robots[i].robot_id for i, r in enumerate(runs) if isinstance(r, dict) and not r["correct"]]
+    lat, missing = request_latencies(read_trace(fleet.trace_file), since, fleet.system.platform.address)
     ok = not failed and not missing and len(lat["platform"]) >= n
-    res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "unanswered": len(missing), "unanswered_actions": missing[:5],
+    res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "misclassified": wrong,
+           "unanswered": len(missing), "unanswered_actions": missing[:5],
            "lost_status_acks": len(lat["lost_status_acks"]),
            "platform_ms": ms(lat["platform"]), "robot_ms": ms(lat["robot"])}
-    log(f"fleet N={n}: {'ok' if ok else 'FAILED'} in {wall:.1f} s, platform p95 "
-        f"{percentile(res['platform_ms'], 95):.1f} ms, robot p95 {percentile(res['robot_ms'], 95):.1f} ms"
+    log(f"fleet N={n}: {'ok' if ok else 'FAILED'} in {wall:.1f} s, {n - len(wrong)}/{n} all hazards correct, "
+        f"platform p95 {percentile(res['platform_ms'], 95):.1f} ms, robot p95 {percentile(res['robot_ms'], 95):.1f} ms"
         + (f"; failures {failed[:2]} unanswered {missing[:5]}" if not ok else ""))
     return res
 
 
-async def run(quick: bool = True, sizes: list[int] | None = None, calls: int = 20) -> list[dict]:
-    import shutil
-
-    import yaml
-
-    sizes = sizes or ([1, 2, 4] if quick else [1, 2, 4, 8, 12, 16, 20, 24, 28, 32])
+async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float = 1200.0) -> list[dict]:
+    sizes = sizes or ([1, 2] if quick else [1, 20, 24])
     rounds = []
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
-        app = Path(tmp) / "rtt_probe"
-        shutil.copytree(RTT_PROBE, app)
-        manifest = yaml.safe_load((app / "manifest.yaml").read_text())
-        manifest["params"].update(calls=calls, warmup=0)
-        (app / "manifest.yaml").write_text(yaml.safe_dump(manifest))
-        async with RobotSystem(Path(tmp) / "run", [app], robots=0, trace=True, house="house") as rs:
-            await rs.command(*(await _warm(rs)), "rttprobe", "rtt-probe finished")  # warm-up, not counted
+        async with HazardFleet(Path(tmp)) as fleet:
             for n in sizes:
-                r = await one_round(rs, n)
+                r = await one_round(fleet, n, timeout)
                 rounds.append(r)
                 if not r["ok"]:
                     break
@@ -99,19 +165,15 @@ async def run(quick: bool = True, sizes: list[int] | None = None, calls: int = 2
     first_fail = next((r for r in rounds if not r["ok"]), None)
     tried = ",".join(str(r["n"]) for r in rounds)
     return [
-        metric("fleet", n_best, "robots", GOAL, ratio(GOAL, n_best), len(rounds), rapp="rtt-probe",
-               sizes_tried=tried, first_failure=(f"N={first_fail['n']}: {first_fail['failed'][:1]} "
-                                                 f"unanswered={first_fail['unanswered']} {first_fail['unanswered_actions']}") if first_fail else None,
+        metric("fleet", n_best, "robots", GOAL, ratio(GOAL, n_best), len(rounds), rapp="hazard-detection",
+               house=HOUSE, sizes_tried=tried,
+               first_failure=(f"N={first_fail['n']}: {first_fail['failed'][:1]} unanswered={first_fail['unanswered']}"
+                              f" {first_fail['unanswered_actions']}") if first_fail else None,
                wall_s_at_n=best["wall_s"] if best else None,
+               all_correct_at_n=(n_best - len(best["misclassified"])) if best else None,
                lost_final_status_acks=sum(r["lost_status_acks"] for r in rounds), capped_by_sizes=first_fail is None),
         metric("fleet_service_p95", p95, "ms", base_p95, ratio(p95, base_p95),
                len(best["platform_ms"]) if best else 0, samples=best["platform_ms"] if best else None,
                at_n=n_best, robot_call_p95_ms=percentile(best["robot_ms"], 95) if best else None,
-               rapp="rtt-probe", floor_meaning="platform service p95 with 1 robot, same run"),
+               rapp="hazard-detection", floor_meaning="platform service p95 with 1 robot, same run"),
     ]
-
-
-async def _warm(rs: RobotSystem):
-    if not rs.robots:
-        await rs.add_robots(1)
-    return (rs.robots[0],)

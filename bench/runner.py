@@ -25,6 +25,7 @@ from pathlib import Path
 from .common import ROOT, log, metric, table
 
 BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf"]
+FULL_TIMEOUT_S = {"fleet": 2400}  # 45 hazard-detection runs in three rounds
 ALIASES = {"robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
            "fleet_service_p95": "fleet", "sim": "sim_rtf"}
 
@@ -47,7 +48,7 @@ def bench_messages(quick: bool, tiny: bool) -> list[dict]:
 
 def bench_fleet(quick: bool, tiny: bool) -> list[dict]:
     from . import fleet
-    return asyncio.run(fleet.run(quick, sizes=[1, 2] if tiny else None, calls=5 if tiny else 20))
+    return asyncio.run(fleet.run(quick, sizes=[1] if tiny else None))
 
 
 def bench_planning(quick: bool, tiny: bool) -> list[dict]:
@@ -153,7 +154,8 @@ GOALS = {
     "platform_rtt": ("ratio <= 1.5", lambda m: m["ratio"] <= 1.5),
     "plan_astar": ("ratio <= 1, length_ratio <= 1.02",
                    lambda m: m["ratio"] <= 1.0 and m.get("length_ratio", 99) <= 1.02),
-    "fleet": (">= 20 robots", lambda m: m["value"] >= 20),
+    # quick sizes stop below the goal: a fleet that passed all of them is not judged
+    "fleet": (">= 20 robots", lambda m: m["value"] >= 20 or (None if m.get("capped_by_sizes") else False)),
     "sim_rtf_4": (">= 1 x realtime", lambda m: m["value"] >= 1.0),
 }
 
@@ -166,7 +168,8 @@ def goal_lines(results: list[dict]) -> list[str]:
             continue
         met = goal[1](m)
         m["goal"], m["goal_met"] = goal[0], met
-        out.append(f"goal {m['name']}: {goal[0]}: {'met' if met else 'NOT met'}")
+        verdict = "met" if met else "not judged (sizes tried stop below it)" if met is None else "NOT met"
+        out.append(f"goal {m['name']}: {goal[0]}: {verdict}")
     return out
 
 
@@ -202,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     results = []
     for name in names:
-        results.extend(run_one(name, a.quick, a.tiny, timeout=900 if not a.quick else 170))
+        results.extend(run_one(name, a.quick, a.tiny, timeout=170 if a.quick else FULL_TIMEOUT_S.get(name, 900)))
     elapsed = time.perf_counter() - t0
     print(table(results))
     print("\n".join(goal_lines(results)))
