@@ -33,7 +33,7 @@ from xmpp_server.settings import XmppSettings
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, make_message, reply_to
-from .stanza import message_xml
+from .stanza import message_xml, read_message
 from .xmpp_client import install as _install_xmpp_client
 from .tracing import cap, tracer_for
 
@@ -205,7 +205,7 @@ class RappAgent(Agent):
 
     # -- receiving --------------------------------------------------------------------------
     def _message_received(self, node):
-        msg = Message.from_node(node)
+        msg = read_message(node)
         return self._route(msg, "xmpp")
 
     def dispatch(self, msg: Message):

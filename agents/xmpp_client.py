@@ -53,9 +53,28 @@ def drop_message_forms(client: ClientXMPP) -> None:
     """Leave a message's data form as raw XML. Once any plugin loads XEP-0004 (in-band registration
     does), slixmpp turns the form of every incoming message into stanza objects, one per field:
     ~200 us per ACL message, whose metadata SPADE's Message.from_node then reads from the raw XML
-    anyway. The registration is class-wide, so it is undone after every client's plugins load."""
+    anyway. The registration is class-wide: it is undone here and kept from coming back when any
+    other client of the process (a chat user, a benchmark's floor client) loads XEP-0004 later."""
     from slixmpp.stanza import Message
 
+    _keep_forms_off_messages()
     client.remove_handler("Data Form")
     Message.plugin_tag_map.pop("{jabber:x:data}x", None)
     Message.plugin_attrib_map.pop("form", None)
+
+
+def _keep_forms_off_messages() -> None:
+    from slixmpp.plugins.xep_0004 import dataforms
+    from slixmpp.plugins.xep_0004.stanza import Form
+    from slixmpp.stanza import Message
+
+    register = dataforms.register_stanza_plugin
+    if getattr(register, "keeps_forms_off_messages", False):
+        return
+
+    def register_except_message_forms(stanza, plugin, *args, **kwargs):
+        if not (stanza is Message and plugin is Form):
+            register(stanza, plugin, *args, **kwargs)
+
+    register_except_message_forms.keeps_forms_off_messages = True
+    dataforms.register_stanza_plugin = register_except_message_forms

@@ -103,6 +103,12 @@ async def test_forced_xmpp_delivery_is_traced_in_order(xmpp_server, unique, trac
                 sent = next(r["t"] for r in recs if r["dir"] == "send" and r["performative"] == perf)
                 got = next(r["t"] for r in recs if r["dir"] == "recv" and r["performative"] == perf)
                 assert sent <= got
+            # FIPA reply-with / in-reply-to survive the wire (reply-with travels as the stanza id)
+            sent = {r["performative"]: r for r in recs if r["dir"] == "send"}
+            got = {r["performative"]: r for r in recs if r["dir"] == "recv"}
+            for perf in ("request", "agree", "inform"):
+                assert got[perf]["message_id"] == sent[perf]["message_id"] != ""
+            assert got["inform"]["in_reply_to"] == sent["request"]["message_id"]
     finally:
         await client.stop()
         await server.stop()
@@ -195,3 +201,18 @@ async def test_second_server_starts_in_same_session():
         await a.stop()
         await b.stop()
     assert not second.running()
+
+
+async def test_message_forms_stay_raw_xml_in_the_whole_process():
+    """An agent's client keeps slixmpp from building stanza objects for message data forms (SPADE
+    reads the metadata from the raw XML), also after another client of the process loads XEP-0004."""
+    from slixmpp import ClientXMPP
+    from slixmpp.stanza import Message
+
+    from agents.xmpp_client import RappXMPPClient
+
+    RappXMPPClient("forms-a@localhost", "pw", False, True)  # in-band registration loads XEP-0004
+    other = ClientXMPP("forms-b@localhost", "pw")
+    other.register_plugin("xep_0077")
+    other.register_plugin("xep_0004")
+    assert "{jabber:x:data}x" not in Message.plugin_tag_map and "form" not in Message.plugin_attrib_map

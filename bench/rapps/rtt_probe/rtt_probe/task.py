@@ -5,7 +5,6 @@ import time
 from pathlib import Path
 
 from behaviours import FSM
-from ontology import core as C
 from rapps.sdk import Step, Task
 
 
@@ -15,12 +14,6 @@ class ProbeTask(Task):
         fsm.add_state("measure", Step(self.measure), final=True)
         return fsm
 
-    async def keepalive(self):
-        # Work-around, outside the timings: the Core drops the Dynamic Agent's heartbeat notifies
-        # (its core-service template takes only requests), so only task_status requests refresh
-        # its liveness; a probe running > HEARTBEAT_TIMEOUT_S would otherwise be ended as hung.
-        await self.runtime.request(self.runtime.core, C.TaskStatus(state=C.TaskState.WORKING), timeout=10.0)
-
     async def measure(self, memory):
         n, warm = int(self.params["calls"]), int(self.params["warmup"])
         out = {}
@@ -28,9 +21,7 @@ class ProbeTask(Task):
             for _ in range(warm):
                 await call()
             times = []
-            for i in range(n):
-                if i % 50 == 0:
-                    await self.keepalive()
+            for _ in range(n):
                 t0 = time.perf_counter()
                 await call()
                 times.append(time.perf_counter() - t0)
