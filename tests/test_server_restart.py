@@ -45,3 +45,36 @@ async def test_server_restart_mid_task(tmp_path):
     stopped_waiting = {r["agent"] for r in trace if r["kind"] == "agent" and r["event"] == "stopped"}
     assert all(r["agent"] in stopped_waiting for r in lost), lost[:3]
     world.close()
+
+
+async def test_embedded_server_hashes_passwords_with_fewer_rounds_and_reads_old_hashes(tmp_path):
+    """New accounts are stored with PASSWORD_ROUNDS PBKDF2 iterations (login and registration cost
+    ~1 ms, not ~35); an account stored with pyjabber's own 100 000 still logs in."""
+    import sqlite3
+
+    import binascii
+    import hashlib
+
+    from xmpp_server import EmbeddedServer
+    from xmpp_server.embedded import PASSWORD_ROUNDS
+    from xmpp_server.probe import LoginError, probe_login
+
+    db = tmp_path / "server.db"
+    async with EmbeddedServer(db=db) as server:
+        await probe_login(server.host, server.port, server.domain, user="fresh", password="pw")
+    salt = b"salt-of-old-acct"
+    digest = hashlib.pbkdf2_hmac("sha256", b"old-pw", salt, 100000)  # as pyjabber stores it
+    old = f"sha256$100000${binascii.hexlify(salt).decode()}${binascii.hexlify(digest).decode()}"
+    with sqlite3.connect(db) as con:
+        stored = dict(con.execute("select jid, hash_pwd from credentials"))
+        assert stored["fresh"].startswith(f"sha256${PASSWORD_ROUNDS}$")
+        con.execute("insert into credentials (jid, hash_pwd) values (?, ?)", ("old", old))
+    async with EmbeddedServer(db=db) as server:
+        await probe_login(server.host, server.port, server.domain, user="old", password="old-pw", register=False)
+        await probe_login(server.host, server.port, server.domain, user="fresh", password="pw", register=False)
+        try:
+            await probe_login(server.host, server.port, server.domain, user="old", password="wrong", register=False)
+        except LoginError:
+            pass
+        else:
+            raise AssertionError("a wrong password logged in")

@@ -92,6 +92,39 @@ def _patch_starttls_race() -> None:
     StreamNegotiator._rapp_patched = True
 
 
+PASSWORD_ROUNDS = 4096  # RFC 7677's minimum for SCRAM-SHA-256; pyjabber's own 100 000 cost ~35 ms
+
+
+def _patch_password_rounds(rounds: int = PASSWORD_ROUNDS) -> None:
+    """Store new accounts' password hashes with `rounds` PBKDF2 iterations.
+
+    pyjabber hashes with 100 000 iterations at registration and again at every login (the stored
+    count is used to verify): ~35 ms of server CPU each, most of an in-process Dynamic Agent's
+    hand-off. This embedded server is a loopback development server whose accounts are the
+    agents' own; verification still uses the count stored with each hash, so databases written
+    with pyjabber's count keep working. Repeats pyjabber 0.4.5's `SASL._store_hash_task` (pinned)."""
+    import bcrypt
+    from pyjabber import AppConfig
+    from pyjabber.db.database import DB
+    from pyjabber.db.model import Model
+    from pyjabber.features.SASL.SASL import SASL
+    from sqlalchemy import insert
+
+    if getattr(SASL, "_rapp_rounds", None) == rounds:
+        return
+
+    async def store_hash(self, password: str, jid_str: str):
+        in_memory = AppConfig.app_config.database_in_memory
+        hashed = await self._hash_scram_async(password=password, iterations=rounds,
+                                              salt=bcrypt.gensalt(rounds=8) if in_memory else bcrypt.gensalt())
+        async with await DB.connection_async() as con:
+            async with con.begin():
+                await con.execute(insert(Model.Credentials).values({"jid": jid_str, "hash_pwd": hashed}))
+
+    SASL._store_hash_task = store_hash
+    SASL._rapp_rounds = rounds
+
+
 def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
                  db_path: str | None, verbose: bool = False):
     """A pyjabber Server for `domain` listening on bind_host:port only."""
@@ -107,6 +140,7 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
 
     pjs.setup_query_local_ip = lambda: None  # no extra LAN listener
     _patch_starttls_race()
+    _patch_password_rounds()
     defaults = Parameters()
     params = Parameters(
         host=domain,
