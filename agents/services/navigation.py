@@ -103,6 +103,7 @@ def plan_cells(m: GridMap, robot_type: str, algorithm: str, start_c, goal_c, tim
         if cells is None:
             return None
         cells[0], cells[-1] = start_c, goal_c
+        cells = planning.corners(cells)
     else:
         cells = planning.ompl_path(free, start_c, goal_c, algorithm, time_limit)
         if cells is None:
