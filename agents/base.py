@@ -27,6 +27,7 @@ from ontology import acl
 from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, lookup, parse_json, validate
+from xmpp_server.client_cleanup import end_filter_task
 from xmpp_server.ports import free_port
 from xmpp_server.settings import XmppSettings
 
@@ -176,6 +177,7 @@ class RappAgent(Agent):
         for q in self._pending.values():
             q.put_nowait(None)  # wake waiting requests; they fail as timeouts
         await super().stop()
+        await end_filter_task(self.client)
         self._container_real.unregister(str(self.jid))
         self.tracer.record("agent", event="stopped", agent=self.address, cls=type(self).__name__)
 

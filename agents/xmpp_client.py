@@ -78,3 +78,4 @@ def _keep_forms_off_messages() -> None:
 
     register_except_message_forms.keeps_forms_off_messages = True
     dataforms.register_stanza_plugin = register_except_message_forms
+

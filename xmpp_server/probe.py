@@ -11,6 +11,7 @@ import uuid
 from slixmpp import ClientXMPP
 from slixmpp.exceptions import IqError, IqTimeout
 
+from .client_cleanup import end_filter_task
 from .tls import unverified_context
 
 
@@ -81,4 +82,5 @@ async def probe_login(host: str, port: int, domain: str, *, user: str | None = N
     finally:
         client.disconnect()
         await asyncio.sleep(0)
+        await end_filter_task(client)
     return loop.time() - t0
