@@ -17,8 +17,12 @@ from xmpp_server.probe import register_in_band
 from xmpp_server.settings import XmppSettings
 
 
+KEEPALIVE_S = 30
+
+
 class ChatUser(ClientXMPP):
-    def __init__(self, name: str, settings: XmppSettings, password: str | None = None):
+    def __init__(self, name: str, settings: XmppSettings, password: str | None = None,
+                 keepalive_s: float = KEEPALIVE_S):
         super().__init__(settings.jid(name), password or settings.password)
         self.settings = settings
         self.enable_direct_tls = False
@@ -29,6 +33,8 @@ class ChatUser(ClientXMPP):
         self._new = asyncio.Event()
         self._session: asyncio.Future = asyncio.get_event_loop().create_future()
         self.register_plugin("xep_0077")
+        self.register_plugin("xep_0199")
+        self["xep_0199"].enable_keepalive(interval=keepalive_s)  # servers drop silent clients
         self.add_event_handler("register", self._register)
         self.add_event_handler("session_start", self._on_session)
         self.add_event_handler("failed_all_auth", lambda _: self._fail("authentication failed"))

@@ -78,3 +78,27 @@ async def test_embedded_server_hashes_passwords_with_fewer_rounds_and_reads_old_
             pass
         else:
             raise AssertionError("a wrong password logged in")
+
+
+async def test_chat_user_keeps_its_connection_past_the_servers_silence_timeout():
+    """pyjabber drops a client silent for `connection_timeout` seconds and keeps the dropped
+    connection listed as online; a message to the bare JID during the reconnection was lost (a
+    hazard run waited forever for "finished"). The chat user's keep-alive pings prevent the drop."""
+    from scenarios.user import ChatUser
+    from xmpp_server import EmbeddedServer
+
+    async with EmbeddedServer(connection_timeout=2) as server:
+        settings = server.settings()
+        quiet = ChatUser("quiet-user", settings, keepalive_s=0.5)
+        other = ChatUser("other-user", settings, keepalive_s=0.5)
+        await quiet.start()
+        await other.start()
+        first = str(quiet.boundjid)
+        try:
+            await asyncio.sleep(4.5)  # more than twice the timeout without a message
+            assert str(quiet.boundjid) == first  # same connection, never re-bound
+            await other.say("quiet-user", "still there?")
+            assert await quiet.wait_for(lambda t: t == "still there?", timeout=5) == "still there?"
+        finally:
+            await quiet.stop()
+            await other.stop()

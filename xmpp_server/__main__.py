@@ -5,7 +5,7 @@ import argparse
 import asyncio
 import sys
 
-from .embedded import serve
+from .embedded import CONNECTION_TIMEOUT_S, serve
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -15,6 +15,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--s2s-port", type=int, default=0, help="server-to-server port (0: none chosen, a free one)")
     p.add_argument("--domain", default="localhost")
     p.add_argument("--db", default=None, help="SQLite file (default: in memory, see --memory)")
+    p.add_argument("--connection-timeout", type=int, default=CONNECTION_TIMEOUT_S,
+                   help="seconds a silent client stays connected (default %(default)s)")
     p.add_argument("--verbose", action="store_true")
     a = p.parse_args(argv)
     if a.s2s_port == 0:
@@ -26,7 +28,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         asyncio.run(serve(bind_host=a.host, port=a.port, s2s_port=a.s2s_port, domain=a.domain,
-                          db_path=a.db, ready_callback=ready, verbose=a.verbose))
+                          db_path=a.db, ready_callback=ready, verbose=a.verbose,
+                          connection_timeout=a.connection_timeout))
     except (KeyboardInterrupt, SystemExit):
         pass
     except RuntimeError as e:

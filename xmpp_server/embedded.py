@@ -92,6 +92,7 @@ def _patch_starttls_race() -> None:
     StreamNegotiator._rapp_patched = True
 
 
+CONNECTION_TIMEOUT_S = 600
 PASSWORD_ROUNDS = 4096  # RFC 7677's minimum for SCRAM-SHA-256; pyjabber's own 100 000 cost ~35 ms
 
 
@@ -126,7 +127,7 @@ def _patch_password_rounds(rounds: int = PASSWORD_ROUNDS) -> None:
 
 
 def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
-                 db_path: str | None, verbose: bool = False):
+                 db_path: str | None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S):
     """A pyjabber Server for `domain` listening on bind_host:port only."""
     from loguru import logger as loguru_logger
     import pyjabber.server as pjs
@@ -151,6 +152,11 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
         database_purge=False,
         cert_path=str(cert_dir(domain)),
         message_persistence=True,
+        # pyjabber drops a client silent for 60 s (its default) and keeps the dropped connection
+        # listed as online; a chat client without keep-alive pings reconnected every minute, and a
+        # message to its bare JID in that gap was lost. SPADE agents ping every 55 s, too close
+        # to 60 under load. Liveness of agents is the Core's heartbeat's job, not the server's.
+        connection_timeout=connection_timeout,
         verbose=verbose,
         # pyjabber's stanza routing breaks when the upload plugin or item is removed, so both stay
         # and only its HTTP server (admin API + uploads on port 9090) is never started
@@ -164,10 +170,10 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
 
 
 async def serve(*, bind_host: str, port: int, s2s_port: int, domain: str, db_path: str | None,
-                ready_callback=None, verbose: bool = False) -> None:
+                ready_callback=None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S) -> None:
     """Run until cancelled or SIGINT/SIGTERM; call ready_callback once listening."""
     server = build_server(bind_host=bind_host, port=port, s2s_port=s2s_port, domain=domain,
-                          db_path=db_path, verbose=verbose)
+                          db_path=db_path, verbose=verbose, connection_timeout=connection_timeout)
     task = asyncio.create_task(server.start())
     ready = asyncio.create_task(server.ready.wait())
     done, _ = await asyncio.wait({task, ready}, return_when=asyncio.FIRST_COMPLETED)

@@ -66,7 +66,7 @@ class ManagedServer:
 class EmbeddedServer(ManagedServer):
     def __init__(self, host: str = "127.0.0.1", port: int | None = None, domain: str = "localhost",
                  db: str | Path | None = None, memory: bool = False, verbose: bool = False,
-                 start_timeout: float = 20.0):
+                 start_timeout: float = 20.0, connection_timeout: int | None = None):
         self.host = host
         self.port = port or free_port(host)
         self.domain = domain
@@ -75,6 +75,7 @@ class EmbeddedServer(ManagedServer):
         self.db = None if memory else str(db or Path(self._tmp.name) / "server.db")
         self.verbose = verbose
         self.start_timeout = start_timeout
+        self.connection_timeout = connection_timeout  # None: the server's default
         self.proc: subprocess.Popen | None = None
 
     def command(self) -> list[str]:
@@ -82,6 +83,8 @@ class EmbeddedServer(ManagedServer):
                "--domain", self.domain]
         if self.db:
             cmd += ["--db", self.db]
+        if self.connection_timeout is not None:
+            cmd += ["--connection-timeout", str(self.connection_timeout)]
         if self.verbose:
             cmd.append("--verbose")
         return cmd
