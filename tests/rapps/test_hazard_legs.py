@@ -38,5 +38,7 @@ def test_failed_localization_halves_the_leg():
 def test_first_leg_cuts_the_path_near_the_leg_length():
     poses, final = first_leg(straight(3, 0), LEG / 2)
     assert not final and LEG / 2 <= poses[-1].x < LEG / 2 + 0.11
-    poses, final = first_leg(straight(0.8, 0), LEG / 2)
-    assert final and poses[-1].x == pytest.approx(0.8)
+    poses, final = first_leg(straight(0.65, 0), LEG / 2)  # a quarter more than a leg: one leg
+    assert final and poses[-1].x == pytest.approx(0.65)
+    poses, final = first_leg(straight(0.75, 0), LEG / 2)  # more: cut, the rest is the next leg
+    assert not final and poses[-1].x < 0.75
