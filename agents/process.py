@@ -12,8 +12,37 @@ import resource
 import signal
 import subprocess
 import sys
+import threading
 from dataclasses import dataclass
 from pathlib import Path
+
+
+def exit_future(proc: subprocess.Popen) -> asyncio.Future:
+    """Resolves with the process's return code when it exits. The loop watches a pidfd; a thread
+    blocked in `proc.wait()` would hold one of the loop's default executor's few workers for the
+    process's whole life (20 running Dynamic Agents starved every `to_thread` call of the Platform
+    in the same process). Without pidfds (not Linux), a daemon thread of its own waits."""
+    loop = asyncio.get_running_loop()
+    fut = loop.create_future()
+
+    def resolve(code: int) -> None:
+        if not fut.done():
+            fut.set_result(code)
+
+    try:
+        fd = os.pidfd_open(proc.pid)
+    except (AttributeError, OSError):
+        threading.Thread(target=lambda: loop.call_soon_threadsafe(resolve, proc.wait()),
+                         name=f"wait-{proc.pid}", daemon=True).start()
+        return fut
+
+    def exited() -> None:
+        loop.remove_reader(fd)
+        os.close(fd)
+        resolve(proc.wait())  # already exited: reaps at once
+
+    loop.add_reader(fd, exited)
+    return fut
 
 
 @dataclass(frozen=True)
@@ -65,7 +94,7 @@ class AgentProcess:
         finally:
             out.close()
             err.close()
-        self._waiter = asyncio.ensure_future(asyncio.to_thread(self.proc.wait))
+        self._waiter = exit_future(self.proc)
 
     @property
     def pid(self) -> int | None:

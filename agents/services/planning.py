@@ -121,8 +121,9 @@ def astar_path(graph: GridGraph, s: int, g: int, landmarks: np.ndarray | None = 
         alt = np.abs(tables[:, g:g + 1] - tables).max(axis=0, initial=0.0) - ALT_ROUNDING
         np.fmax(h, alt, out=h)
     csr = graph.csr
-    reduced = csr.data - h[graph.row_of_edge]
-    reduced += h[csr.indices]
+    with np.errstate(invalid="ignore"):
+        reduced = csr.data - h[graph.row_of_edge]
+        reduced += h[csr.indices]
     np.fmax(reduced, 1e-9, out=reduced)  # nan (inf - inf) only off the start's component
     gr = sparse.csr_matrix((reduced, csr.indices, csr.indptr), shape=csr.shape)
     bound = 4.0 + 0.05 * h[s]
