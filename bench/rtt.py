@@ -3,7 +3,9 @@
 The benchmark RApp bench/rapps/rtt_probe times the calls inside the Dynamic Agent.
 
 Floor, in the same run and through the same server: a raw slixmpp message round trip between two
-plain clients (one echoes every message back), same number of calls. Traces are off for both.
+plain clients, one in the Dynamic Agent's process, one (echoing every message back) in the Core's:
+the same two processes as a robot call. The probe measures floor, robot, floor, platform, call by
+call, so the machine's drift affects all alike. Traces are off.
 """
 from __future__ import annotations
 
@@ -19,7 +21,8 @@ import yaml
 from .common import RTT_PROBE, RobotSystem, log, median, metric, ms, percentile, ratio
 
 
-async def slixmpp_rtt(settings, calls: int, warmup: int = 10, body: str = "x" * 32) -> list[float]:
+async def echo_client(settings, name: str):
+    """The floor's far end: a plain slixmpp client in this process that sends every chat back."""
     from scenarios.user import ChatUser
 
     class Echo(ChatUser):
@@ -27,31 +30,9 @@ async def slixmpp_rtt(settings, calls: int, warmup: int = 10, body: str = "x" * 
             if msg["body"]:
                 self.send_message(mto=msg["from"], mbody=msg["body"], mtype="chat")
 
-    class Pinger(ChatUser):
-        def _on_message(self, msg):
-            if msg["body"] and self.waiter is not None and not self.waiter.done():
-                self.waiter.set_result(time.perf_counter())
-
-    tag = f"{int(time.time() * 1000) % 10**8}"
-    echo, pinger = Echo(f"floor-echo-{tag}", settings), Pinger(f"floor-ping-{tag}", settings)
-    pinger.waiter = None
+    echo = Echo(name, settings)
     await echo.start()
-    await pinger.start()
-    to = settings.jid(f"floor-echo-{tag}")
-    loop = asyncio.get_running_loop()
-    times = []
-    try:
-        for i in range(warmup + calls):
-            pinger.waiter = loop.create_future()
-            t0 = time.perf_counter()
-            pinger.send_message(mto=to, mbody=body, mtype="chat")
-            t1 = await asyncio.wait_for(pinger.waiter, 10)
-            if i >= warmup:
-                times.append(t1 - t0)
-    finally:
-        await pinger.stop()
-        await echo.stop()
-    return times
+    return echo
 
 
 async def run(quick: bool = True, calls: int | None = None) -> list[dict]:
@@ -60,17 +41,20 @@ async def run(quick: bool = True, calls: int | None = None) -> list[dict]:
         app = Path(tmp) / "rtt_probe"
         shutil.copytree(RTT_PROBE, app)
         manifest = yaml.safe_load((app / "manifest.yaml").read_text())
-        manifest["params"]["calls"] = calls
+        echo_name = f"floor-echo-{int(time.time() * 1000) % 10**8}"
+        manifest["params"].update(calls=calls, echo=echo_name)
         (app / "manifest.yaml").write_text(yaml.safe_dump(manifest))
         async with RobotSystem(Path(tmp) / "run", [app], trace=False) as rs:
             h = rs.robots[0]
-            floor_before = await slixmpp_rtt(rs.system.settings, calls // 2)
-            reply = await rs.command(h, "rttprobe", "rtt-probe finished", timeout=300)
+            echo = await echo_client(rs.system.settings, echo_name)
+            try:
+                reply = await rs.command(h, "rttprobe", "rtt-probe finished", timeout=300)
+            finally:
+                await echo.stop()
             if "problem" in reply:
                 raise RuntimeError(reply)
-            floor_after = await slixmpp_rtt(rs.system.settings, calls - calls // 2)
             result = json.loads(next((rs.workdir / f"core-{h.robot_id}").glob("*rtt-probe/rtt.json")).read_text())
-    floor = ms(floor_before + floor_after)
+    floor = ms(result["floor"])
     fmed = median(floor)
     out = []
     for key, name in (("robot", "robot_rtt"), ("platform", "platform_rtt")):

@@ -25,7 +25,7 @@ from pathlib import Path
 from .common import ROOT, log, metric, table
 
 BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf"]
-FULL_TIMEOUT_S = {"fleet": 2400}  # 45 hazard-detection runs in three rounds
+FULL_TIMEOUT_S = {"fleet": 1800}  # 21 hazard-detection runs in two rounds
 ALIASES = {"robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
            "fleet_service_p95": "fleet", "sim": "sim_rtf"}
 
