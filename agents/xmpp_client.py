@@ -41,6 +41,12 @@ class RappXMPPClient(XMPPClient):
         self["xep_0199"].enable_keepalive(interval=55)
         self.register_plugin("xep_0363")
 
+    def session_start(self, event):
+        # SPADE's session_start leaves the roster request's future unretrieved: an agent stopped
+        # (or a server gone) before the answer printed "Future exception was never retrieved"
+        self.send_presence()
+        self.get_roster().add_done_callback(lambda f: f.cancelled() or f.exception())
+
 
 def install() -> None:
     """Make SPADE agents in this process build their clients with RappXMPPClient."""
