@@ -1,10 +1,10 @@
 """Fleet: N robots (nao/elektron alternately) each running the hazard-detection RApp at once, on one
 Platform, one Store and one XMPP server. Each robot lives in its own copy of the small house (one
 World per robot, seeded door and lamp states), so the tasks compete for the agents, the server and
-the two cores, not for doorways. Rounds with growing N (full: 1 and 20; robots are added between rounds, and the
-robots of earlier rounds run again from where they stopped); a round passes when every task
-finishes ("hazard-detection finished") and every request of every Dynamic Agent is answered (from
-the trace). Whether every hazard was classified correctly is reported per round too.
+the two cores, not for doorways. Rounds with growing N (full: 1 and 20; robots are added between
+rounds, and the robots of earlier rounds run again from where they stopped); a round passes when
+every task finishes ("hazard-detection finished") and every request of every Dynamic Agent is
+answered (from the trace). Whether every hazard was classified correctly is reported per round too.
 
 Reports the largest passing N (`fleet`; floor = the goal, 20 robots; ratio = goal / N, <= 1 met) and
 the Platform service latency p95 at that N (`fleet_service_p95`; floor = the same p95 with 1 robot,
@@ -99,14 +99,14 @@ class HazardFleet:
 
     async def check_hazards(self, i: int, timeout: float) -> dict:
         """Robot i's owner says "check the hazards"; the end of the task and its scored reports."""
-        from scenarios.hazard import COMMAND, core_listening, parse_reports, score_hazards
+        from scenarios.hazard import COMMAND, FINISHED, core_listening, parse_reports, score_hazards
         from scenarios.system import wait_until
 
         h = self.robots[i]
         start = len(h.user.received)
         await h.user.say(h.core.address, COMMAND)
-        end = await h.user.wait_for(lambda t: t.startswith(("hazard-detection finished", "hazard-detection ended"))
-                                    or "did not understand" in t, timeout=timeout, start=start)
+        end = await h.user.wait_for(lambda t: t.startswith(FINISHED) or "did not understand" in t,
+                                    timeout=timeout, start=start)
         await wait_until(lambda: core_listening(h.core) and h.core.dynamic is None, 60, f"{h.robot_id} listening again")
         texts = [t for _, _, t in h.user.received[start:]]
         rows = score_hazards(self.home[0].hazards, self.worlds[i].ground_truth(), parse_reports(texts))

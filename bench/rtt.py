@@ -9,7 +9,6 @@ call, so the machine's drift affects all alike. Traces are off.
 """
 from __future__ import annotations
 
-import asyncio
 import json
 import shutil
 import tempfile

@@ -28,6 +28,7 @@ from .system import RappSystem, wait_until
 
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
 COMMAND = "check the hazards"
+FINISHED = ("hazard-detection finished", "hazard-detection ended")  # how the Core ends the task
 REPORT_RE = re.compile(r"Hazard (\S+) \((door|lamp)\): (\w+)(?:, ([\d.]+) degrees)?")
 
 
@@ -83,8 +84,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             await wait_until(lambda: core_listening(handle.core), 30, "Core listening", interval=0.05)
             sim0, wall0 = world.time, time.monotonic()
             await handle.user.say(handle.core.address, COMMAND)
-            end = await handle.user.wait_for(lambda t: t.startswith(("hazard-detection finished",
-                                                                     "hazard-detection ended"))
+            end = await handle.user.wait_for(lambda t: t.startswith(FINISHED)
                                              or "did not understand" in t, timeout=timeout_s)
             if "did not understand" in end:
                 raise RuntimeError(f"the Core did not start the RApp: {end}")

@@ -23,8 +23,8 @@ from pathlib import Path
 from agents.services.context import ServiceState
 from robots import OdometryNoise, RobotAPI, World
 
-from .hazard import (COMMAND, RAPP_DIR, cm, core_listening, finite, parse_reports, rows_in_report_order,
-                     score_hazards, wait_until)
+from .hazard import (COMMAND, FINISHED, RAPP_DIR, cm, core_listening, finite, parse_reports,
+                     rows_in_report_order, score_hazards, wait_until)
 from .home_setup import hazard_overrides, home_description, home_map, upload_home
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
@@ -36,7 +36,6 @@ SPLIT = {
     "house": {"nao": {"d_bedroom", "l_office"}, "elektron": {"d_kitchen", "l_living"}},
     "small": {"nao": {"l1"}, "elektron": {"d1"}},
 }
-FINISHED = ("hazard-detection finished", "hazard-detection ended")
 
 
 async def _run_one(handle, timeout_s: float) -> tuple[str, list[str], float]:

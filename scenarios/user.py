@@ -12,7 +12,7 @@ import ssl
 import time
 
 from slixmpp import ClientXMPP
-from xmpp_server.client_cleanup import end_filter_task
+from xmpp_server.client_cleanup import close_client
 from xmpp_server.probe import register_in_band
 from xmpp_server.settings import XmppSettings
 
@@ -71,9 +71,7 @@ class ChatUser(ClientXMPP):
 
     async def stop(self) -> None:
         self._stopping = True
-        self.disconnect()
-        await asyncio.sleep(0.05)
-        await end_filter_task(self)
+        await close_client(self, settle_s=0.05)
 
     async def say(self, to: str, text: str) -> None:
         self.send_message(mto=self.settings.jid(to), mbody=text, mtype="chat")

@@ -7,6 +7,13 @@ import contextlib
 from slixmpp import ClientXMPP
 
 
+async def close_client(client: ClientXMPP, settle_s: float = 0.0) -> None:
+    """Disconnect, give the stream end `settle_s` to go out, and leave no task behind."""
+    client.disconnect()
+    await asyncio.sleep(settle_s)
+    await end_filter_task(client)
+
+
 async def end_filter_task(client: ClientXMPP | None) -> None:
     """Cancel and await the client's stanza-filter task. slixmpp keeps it alive across disconnects
     (for reconnecting), so a stopped client would leave it pending and asyncio would report

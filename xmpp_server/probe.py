@@ -11,7 +11,7 @@ import uuid
 from slixmpp import ClientXMPP
 from slixmpp.exceptions import IqError, IqTimeout
 
-from .client_cleanup import end_filter_task
+from .client_cleanup import close_client
 from .tls import unverified_context
 
 
@@ -80,7 +80,5 @@ async def probe_login(host: str, port: int, domain: str, *, user: str | None = N
     except asyncio.TimeoutError:
         raise LoginError(f"no XMPP session with {host}:{port} (domain {domain}) within {timeout:.1f}s") from None
     finally:
-        client.disconnect()
-        await asyncio.sleep(0)
-        await end_filter_task(client)
+        await close_client(client)
     return loop.time() - t0

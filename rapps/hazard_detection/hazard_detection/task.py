@@ -217,7 +217,6 @@ class HazardTask(Task):
         await self.say("Hazard check finished.")
 
 
-
 def describe(r: dict) -> str:
     """One line per hazard; the scenario parses it: 'Hazard <id> (<type>): <state>[, <n> degrees]'."""
     text = f"Hazard {r['id']} ({r['type']}): {r['state']}"

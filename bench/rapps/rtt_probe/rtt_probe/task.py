@@ -23,54 +23,47 @@ class ProbeTask(Task):
 
     async def measure(self, memory):
         n, warm = int(self.params["calls"]), int(self.params["warmup"])
-        floor = await FloorPing.start(self.runtime.settings, self.params.get("echo") or "")
-        out = {"robot": [], "platform": [], "floor": []}
+        echo = self.params.get("echo") or ""
+        floor = await FloorPing.start(self.runtime.settings, echo) if echo else None
+        calls = [("robot", self.robot.get_global_pose), ("platform", self.platform.ping)]
+        if floor is not None:  # the floor's round trip before each call
+            calls = [("floor", floor.ping), calls[0], ("floor", floor.ping), calls[1]]
+        out = {name: [] for name, _ in calls}
         try:
             for i in range(warm + n):
-                for name, call in (("floor", floor.ping), ("robot", self.robot.get_global_pose),
-                                   ("floor", floor.ping), ("platform", self.platform.ping)):
+                for name, call in calls:
                     t0 = time.perf_counter()
-                    if await call() is False:
-                        continue
+                    await call()
                     if i >= warm:
                         out[name].append(time.perf_counter() - t0)
         finally:
-            await floor.stop()
+            if floor is not None:
+                await floor.user.stop()
         Path("rtt.json").write_text(json.dumps(out))
-        med = {k: sorted(v)[len(v) // 2] * 1e3 for k, v in out.items() if v}
+        med = {k: sorted(v)[len(v) // 2] * 1e3 for k, v in out.items()}
         await self.report("rtt probe done: " + ", ".join(f"{k} {v:.2f} ms" for k, v in med.items()))
 
 
 class FloorPing:
-    """A plain slixmpp chat client pinging `echo`; ping() returns False when there is no echo."""
+    """A plain slixmpp chat client pinging the echo client."""
 
-    def __init__(self, user=None, to: str = ""):
+    def __init__(self, user, to: str):
         self.user, self.to, self.waiter = user, to, None
 
     @classmethod
     async def start(cls, settings, echo: str) -> "FloorPing":
-        if not echo:
-            return cls()
         from scenarios.user import ChatUser
-
-        probe = cls(to=settings.jid(echo))
 
         class Pinger(ChatUser):
             def _on_message(self, msg):
                 if msg["body"] and probe.waiter is not None and not probe.waiter.done():
                     probe.waiter.set_result(None)
 
-        probe.user = Pinger(f"floor-ping-{uuid.uuid4().hex[:8]}", settings)
+        probe = cls(Pinger(f"floor-ping-{uuid.uuid4().hex[:8]}", settings), settings.jid(echo))
         await probe.user.start()
         return probe
 
-    async def ping(self):
-        if self.user is None:
-            return False
+    async def ping(self) -> None:
         self.waiter = asyncio.get_running_loop().create_future()
         self.user.send_message(mto=self.to, mbody="x" * 32, mtype="chat")
         await asyncio.wait_for(self.waiter, 10)
-
-    async def stop(self):
-        if self.user is not None:
-            await self.user.stop()

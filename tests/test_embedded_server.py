@@ -1,0 +1,56 @@
+"""The embedded server's own settings, against the real server in its process: password hashing
+cost, and how long a silent client stays connected."""
+from __future__ import annotations
+
+import asyncio
+import binascii
+import hashlib
+import sqlite3
+
+import pytest
+
+from scenarios.user import ChatUser
+from xmpp_server import EmbeddedServer
+from xmpp_server.embedded import PASSWORD_ROUNDS
+from xmpp_server.probe import LoginError, probe_login
+
+
+async def test_embedded_server_hashes_passwords_with_fewer_rounds_and_reads_old_hashes(tmp_path):
+    """New accounts are stored with PASSWORD_ROUNDS PBKDF2 iterations (login and registration cost
+    ~1 ms, not ~35); an account stored with pyjabber's own 100 000 still logs in."""
+    db = tmp_path / "server.db"
+    async with EmbeddedServer(db=db) as server:
+        await probe_login(server.host, server.port, server.domain, user="fresh", password="pw")
+    salt = b"salt-of-old-acct"
+    digest = hashlib.pbkdf2_hmac("sha256", b"old-pw", salt, 100000)  # as pyjabber stores it
+    old = f"sha256$100000${binascii.hexlify(salt).decode()}${binascii.hexlify(digest).decode()}"
+    with sqlite3.connect(db) as con:
+        stored = dict(con.execute("select jid, hash_pwd from credentials"))
+        assert stored["fresh"].startswith(f"sha256${PASSWORD_ROUNDS}$")
+        con.execute("insert into credentials (jid, hash_pwd) values (?, ?)", ("old", old))
+    async with EmbeddedServer(db=db) as server:
+        await probe_login(server.host, server.port, server.domain, user="old", password="old-pw", register=False)
+        await probe_login(server.host, server.port, server.domain, user="fresh", password="pw", register=False)
+        with pytest.raises(LoginError):
+            await probe_login(server.host, server.port, server.domain, user="old", password="wrong", register=False)
+
+
+async def test_chat_user_keeps_its_connection_past_the_servers_silence_timeout():
+    """pyjabber drops a client silent for `connection_timeout` seconds and keeps the dropped
+    connection listed as online; a message to the bare JID during the reconnection was lost (a
+    hazard run waited forever for "finished"). The chat user's keep-alive pings prevent the drop."""
+    async with EmbeddedServer(connection_timeout=2) as server:
+        settings = server.settings()
+        quiet = ChatUser("quiet-user", settings, keepalive_s=0.5)
+        other = ChatUser("other-user", settings, keepalive_s=0.5)
+        await quiet.start()
+        await other.start()
+        first = str(quiet.boundjid)
+        try:
+            await asyncio.sleep(4.5)  # more than twice the timeout without a message
+            assert str(quiet.boundjid) == first  # same connection, never re-bound
+            await other.say("quiet-user", "still there?")
+            assert await quiet.wait_for(lambda t: t == "still there?", timeout=5) == "still there?"
+        finally:
+            await quiet.stop()
+            await other.stop()
