@@ -89,12 +89,13 @@ class _RoutingContainer:
 class RappAgent(Agent):
     def __init__(self, name: str, settings: XmppSettings | None = None, password: str | None = None):
         self.settings = settings or XmppSettings.from_env()
-        super().__init__(self.settings.jid(name), password or self.settings.password,
+        super().__init__(self.settings.jid(name), password or self.settings.password_for(name),
                          port=self.settings.port, verify_security=self.settings.verify_tls)
         self._container_real = self.container
         self.container = _RoutingContainer(self.container, self)
         self.tracer = tracer_for(self.settings.trace_file)
         self._pending: dict[str, asyncio.Queue] = {}
+        self._pending_peer: dict[str, str] = {}  # conversation -> bare JID asked
         self._named: dict[str, Any] = {}
         self.unhandled: list[Message] = []  # kept, not dropped, for inspection
         self.web_url: str | None = None  # SPADE's agent page when settings.web is on
@@ -289,6 +290,7 @@ class RappAgent(Agent):
         conv = msg.get_metadata(acl.CONVERSATION_ID)
         queue: asyncio.Queue = asyncio.Queue()
         self._pending[conv] = queue
+        self._pending_peer[conv] = bare(to)
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout
         name = content.action_name
@@ -303,6 +305,8 @@ class RappAgent(Agent):
                 if answer is None:
                     raise RequestFailed(f"{self.address} stopped while waiting for {name}",
                                         code="stopped", peer=to, action=name)
+                if isinstance(answer, Exception):  # fail_pending: the peer is known to be gone
+                    raise answer
                 perf = answer.get_metadata(acl.PERFORMATIVE)
                 if perf == Performative.AGREE.value:
                     continue
@@ -323,6 +327,15 @@ class RappAgent(Agent):
                                  code="timeout", peer=to, action=name) from None
         finally:
             self._pending.pop(conv, None)
+            self._pending_peer.pop(conv, None)
+
+    def fail_pending(self, peer: str, error: Exception) -> int:
+        """End every request waiting for an answer from `peer` with `error` (it is known to be
+        gone: no use waiting for the timeout). Returns how many."""
+        convs = [c for c, p in self._pending_peer.items() if p == bare(peer)]
+        for conv in convs:
+            self._pending[conv].put_nowait(error)
+        return len(convs)
 
     async def notify(self, to: str, content: Content, *, ontology: str, action: str,
                      performative: Performative = Performative.INFORM) -> None:

@@ -15,8 +15,8 @@ from .runtime import load_entry_point
 
 class CloudAgent(RappAgent):
     def __init__(self, name: str, *, manifest: Manifest, package_dir: str | Path, owner: str,
-                 token: str = "", settings=None):
-        super().__init__(name, settings)
+                 token: str = "", settings=None, password: str | None = None):
+        super().__init__(name, settings, password)
         self.manifest, self.package_dir = manifest, Path(package_dir)
         self.owner, self.token = owner, token
         self.service = None

@@ -38,6 +38,7 @@ from ontology import core as C
 from ontology import platform as P
 from ontology import store as S
 from ontology.registry import Done
+from ontology.spawn import RobotInfo, SpawnSpec
 from rapps.manifest import Manifest
 from rapps.package import Package, read_package, unpack_package
 
@@ -45,10 +46,12 @@ from .base import RappAgent
 from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template
 from .core_commands import RobotCommands
 from .core_fsm import build_core_fsm
-from .errors import Refusal, RequestError
+from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
+from .identity import EphemeralAccounts, Identity
 from .process import AgentProcess, InProcessAgent, Limits
+from .sandbox import Sandbox
 from .responder import Responder
 from .store_client import download_package
 
@@ -74,6 +77,7 @@ class DynamicSession:
     ended: asyncio.Event = field(default_factory=asyncio.Event)
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     end_reason: str = ""
+    account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
 
 
 class CoreAgent(RobotCommands, RappAgent):
@@ -85,8 +89,10 @@ class CoreAgent(RobotCommands, RappAgent):
                  workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
                  limits: Limits = Limits(), say_reports: bool = True,
                  safety_distance: float | None = 0.10, safety_period: float = 0.2,
-                 dynamic_mode: str = "process"):
+                 dynamic_mode: str = "process", sandbox: Sandbox | None = None):
         super().__init__(name, settings)
+        self.accounts = EphemeralAccounts(self.settings, owner=name)
+        self.sandbox = sandbox or Sandbox()
         self.robot_id, self.robot_type, self.robot = robot_id, robot_type, robot_api
         self.owner = self.settings.jid(owner)
         self.platform, self.store = self.settings.jid(platform), self.settings.jid(store)
@@ -158,6 +164,13 @@ class CoreAgent(RobotCommands, RappAgent):
         await self.request(self.store, S.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
                                                        owner=self.user))
         self.record_structure("register", robot=self.robot_id, platform=self.platform, store=self.store)
+        self._in_background(self._sweep_accounts(self.accounts.pending()))
+
+    async def _sweep_accounts(self, leftovers: dict[str, str]) -> None:
+        """Delete the ephemeral accounts a crashed earlier run of this Core left behind."""
+        gone = await self.accounts.sweep(leftovers)
+        if gone:
+            self.record_structure("accounts-swept", accounts=gone)
 
     async def _login(self) -> None:
         login = await self.request(self.platform, P.Login(user=self.user, password=self.password,
@@ -177,10 +190,18 @@ class CoreAgent(RobotCommands, RappAgent):
                               keywords=sorted(self.vocabulary))
 
     # -- s4 ------------------------------------------------------------------------------
+    async def refresh_catalogue(self) -> None:
+        reply = await self.request(self.store, S.ListPackages(robot_type=self.robot_type))
+        self.set_catalogue(reply.packages)
+
     async def interpret(self, text: str) -> tuple[str, dict]:
         words = re.findall(r"[\w'-]+", text.lower())
+        if len(words) == 1 and words[0] not in self.vocabulary or not self.catalogue:
+            await self.refresh_catalogue()  # a RApp published since s2
         if len(words) == 1 and words[0] in self.vocabulary:
             return self.vocabulary[words[0]], {}
+        if not self.catalogue:
+            raise RequestFailed(f"no application for a {self.robot_type} robot is in the Store", code="no-rapps")
         import ontology.services  # noqa: F401 - registers interpret_command
         from ontology.registry import lookup
         model = lookup(P.ONTOLOGY, "interpret_command")
@@ -192,7 +213,7 @@ class CoreAgent(RobotCommands, RappAgent):
 
     # -- s5 ------------------------------------------------------------------------------
     async def fetch_package(self, rapp: str) -> tuple[Package, bytes]:
-        info, data = await download_package(self, self.store, rapp)
+        info, data = await download_package(self, self.store, rapp, token=await self.fresh_token())
         package = await asyncio.to_thread(read_package, data, trusted_keys=self.trusted_keys,
                                           require_signature=self.require_signature)
         if self.robot_type not in package.manifest.robot_types:
@@ -206,27 +227,27 @@ class CoreAgent(RobotCommands, RappAgent):
         package, data = package_and_bytes
         m = package.manifest
         n = next(self._serial)
-        name = self._dynamic_name(m.name, n)
         workdir = self.workdir / f"{n:04d}-{m.name}"
-        pkg_dir = workdir / "package"
-        await asyncio.to_thread(unpack_package, data, pkg_dir, trusted_keys=self.trusted_keys,
+        await asyncio.to_thread(unpack_package, data, workdir / "package", trusted_keys=self.trusted_keys,
                                 require_signature=self.require_signature)
+        ident = await self.accounts.take(self._dynamic_prefix(m.name))
+        name = ident.name
         session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
-                                 manifest=m, workdir=workdir)
+                                 manifest=m, workdir=workdir, account=ident)
         self.dynamic = session
         app_token = await self.request(self.platform, P.IssueAppToken(
-            token=await self.fresh_token(), rapp=m.name, services=m.services, ttl_s=max(60.0, m.time_limit_s + 60)))
-        spec = {"kind": "dynamic", "name": name, "package_dir": str(pkg_dir), "core": self.address,
-                "platform": self.platform, "token": app_token.token, "params": params}
-        (workdir / "spec.json").write_text(__import__("json").dumps(spec))
+            token=await self.fresh_token(), rapp=m.name, services=m.services, holder_jid=session.jid,
+            ttl_s=max(60.0, m.time_limit_s + 60)))
+        spec = SpawnSpec(kind="dynamic", name=name, password=ident.password, package_dir="",
+                         core=self.address, platform=self.platform, token=app_token.token, params=params,
+                         robot=RobotInfo(robot_id=self.robot_id, robot_type=self.robot_type))
         if self.dynamic_mode == "inprocess":
             session.process = InProcessAgent(name, spec, workdir, self.settings)
         else:
-            session.process = AgentProcess(name, "agents.runtime", [str(workdir / "spec.json")], workdir,
-                                           env=self.settings.to_env(), limits=self.limits)
+            session.process = AgentProcess(name, spec, workdir, self.settings, self.limits, self.sandbox)
         await session.process.start()
         self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
-                              pid=session.process.pid)
+                              pid=session.process.pid, sandbox=getattr(session.process, "uid", None) is not None)
         watcher = asyncio.create_task(self._watch_process(session))
         try:
             await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)
@@ -235,35 +256,26 @@ class CoreAgent(RobotCommands, RappAgent):
         if session.ended.is_set():
             raise RuntimeError(f"{name} ended at start: {session.end_reason}")
         self._handoff()
-        self._register_ahead(self._dynamic_name(m.name, n + 1))
+        self.accounts.prepare(self._dynamic_prefix(m.name))  # the next run of this RApp only logs in
         del watcher
 
     async def stop(self) -> None:
         for task in list(self._background):
             task.cancel()
+        await self.accounts.close()
         await super().stop()
 
-    def _dynamic_name(self, rapp: str, n: int) -> str:
-        return f"dyn-{self.robot_id}-{rapp}-{n}".replace("_", "-")
+    def _dynamic_prefix(self, rapp: str) -> str:
+        return f"dyn-{self.robot_id}-{rapp}".replace("_", "-")
 
-    def _register_ahead(self, name: str) -> None:
-        """Register the identity the next run of this RApp will use while this one runs: that
-        hand-off then only logs in (the server hashes a password for every registration, ~35 ms
-        on pyjabber). Only where agents register themselves (auto_register)."""
-        if not self.settings.auto_register:
-            return
-        from xmpp_server.probe import LoginError, probe_login
-
-        async def register() -> None:
-            try:
-                await probe_login(self.settings.host, self.settings.port, self.settings.domain, user=name,
-                                  password=self.settings.password, register=True, timeout=10.0)
-            except LoginError as e:  # the Dynamic Agent registers itself as before
-                log.info("registering %s ahead failed: %s", name, e)
-
-        task = asyncio.create_task(register())
+    def _in_background(self, coro) -> None:
+        task = asyncio.create_task(coro)
         self._background.add(task)
         task.add_done_callback(self._background.discard)
+
+    async def _delete_account(self, session: DynamicSession) -> None:
+        gone = await self.accounts.delete(session.account.name, session.account.password)
+        self.record_structure("account-deleted" if gone else "account-kept", account=session.jid)
 
     def _handoff(self) -> None:
         self.deactivate("user-listener")
@@ -352,6 +364,8 @@ class CoreAgent(RobotCommands, RappAgent):
                               reason=session.end_reason, exit_code=session.process.returncode
                               if session.process else None)
         shutil.rmtree(session.workdir / "package", ignore_errors=True)
+        if session.account is not None:
+            self._in_background(self._delete_account(session))
         self._resume_if_needed()  # listening again before the user hears the task is over
         if session.state == "Finished":
             await self.tell_user(f"{session.rapp} finished.")

@@ -13,7 +13,6 @@ import asyncio
 import logging
 
 from behaviours import FSM, Behaviour, OneShot
-from ontology import store as S
 
 from .errors import RequestError
 
@@ -48,8 +47,7 @@ class Register(CoreState):  # s1: Platform and Store, retried with back-off unti
 
 class Vocabulary(CoreState):  # s2: the Store's RApps for this robot type; keywords -> RApp
     async def action(self):
-        reply = await self.core.request(self.core.store, S.ListPackages(robot_type=self.core.robot_type))
-        self.core.set_catalogue(reply.packages)
+        await self.core.refresh_catalogue()  # again in s4 when a command names no known RApp
 
 
 class Listen(Behaviour):  # s3: wait for the user's next command (chat or microphone)
@@ -69,6 +67,9 @@ class Interpret(CoreState):  # s4: isolated keyword -> RApp; a sentence -> Platf
             rapp, params = await self.core.interpret(text)
         except RequestError as e:
             await self.core.tell_user(f"Sorry, I did not understand \"{text}\": {e.reason}")
+            raise
+        except Exception as e:  # any failure reaches the user as one sentence
+            await self.core.tell_user(f"Sorry, I could not interpret \"{text}\": {_why(e)}")
             raise
         self.memory["rapp"], self.memory["params"] = rapp, params
 

@@ -12,10 +12,13 @@ from spade.behaviour import PeriodicBehaviour
 
 from behaviours import BehaviourHost, Outcome
 from ontology import core as C
+from ontology import platform as P
+from ontology.registry import parse_json
 from rapps.manifest import Manifest
 
 from .base import RappAgent
-from .errors import RequestError
+from .errors import CloudAgentLost, RequestError
+from .messages import bare
 from .runtime import load_entry_point
 
 log = logging.getLogger("rapp.dynamic")
@@ -31,8 +34,10 @@ class _Heartbeat(PeriodicBehaviour):
 
 class DynamicAgent(RappAgent):
     def __init__(self, name: str, *, manifest: Manifest, package_dir: str | Path, core: str,
-                 platform: str, token: str = "", params: dict | None = None, settings=None):
-        super().__init__(name, settings)
+                 platform: str, token: str = "", params: dict | None = None, robot=None,
+                 settings=None, password: str | None = None):
+        super().__init__(name, settings, password)
+        self.robot_info = robot  # ontology.spawn.RobotInfo: the robot this run supervises
         self.manifest = manifest
         self.package_dir = Path(package_dir)
         self.core, self.platform, self.token = core, platform, token
@@ -40,6 +45,22 @@ class DynamicAgent(RappAgent):
         self.beats = 0
         self.task = None
         self.memory: dict = {}
+
+    async def on_unhandled(self, msg, info) -> None:
+        """The Platform's notice that our Cloud Agent's process ended: fail what waits for it."""
+        if (info.ontology, info.action) == (P.ONTOLOGY, "cloud_agent_down") and bare(msg.sender) == bare(self.platform):
+            try:
+                down = P.CloudAgentDown.model_validate(parse_json(msg.body))
+            except Exception:  # noqa: BLE001 - malformed: kept as unhandled below
+                down = None
+            if down is not None:
+                code = "cloud-restarted" if down.restarted else "cloud-lost"
+                self.fail_pending(down.jid, CloudAgentLost(down.reason, code=code, peer=down.jid))
+                if self.task is not None:
+                    self.task.cloud.lost = None if down.restarted else down.reason
+                self.record_structure("cloud-down", cloud=down.jid, restarted=down.restarted)
+                return
+        await super().on_unhandled(msg, info)
 
     async def _status(self, state: C.TaskState, detail: str = "") -> None:
         try:

@@ -20,6 +20,11 @@ class RequestFailed(RequestError):
     """The responder agreed or tried, then answered failure."""
 
 
+class CloudAgentLost(RequestFailed):
+    """The RApp's Cloud Agent died (code "cloud-lost") or was restarted by the Platform
+    ("cloud-restarted": a call in flight was lost, a new call may succeed)."""
+
+
 class NotUnderstood(RequestError):
     """The responder could not parse or does not know the action."""
 

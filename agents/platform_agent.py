@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-import json
 import logging
-import secrets
 import shutil
 import tempfile
 import time
@@ -20,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import ontology.services  # noqa: F401 - registers the service models
+from ontology.spawn import SpawnSpec
+from xmpp_server.probe import LoginError
 from ontology import platform as P
 from ontology.registry import Done, actions
 
@@ -28,7 +28,10 @@ from .errors import Failure, Refusal, RequestError
 from .process import AgentProcess, Limits
 from .responder import Responder
 from .store_client import download_package
-from .store_repository import _check_password, hash_password
+from .identity import EphemeralAccounts, Identity
+from .messages import bare
+from .platform_users import DirectoryError, TokenInfo, UserDirectory
+from .sandbox import Sandbox
 
 log = logging.getLogger("rapp.platform")
 # what every RApp token may call besides the services its manifest declares
@@ -43,13 +46,20 @@ class CloudSession:
     owner: str
     user: str
     process: AgentProcess
+    account: Identity
+    supervisor: str | None  # the Core that issued the owner's app token
+    token: str  # the Cloud Agent's own token (revoked with it)
     ready: asyncio.Event = field(default_factory=asyncio.Event)
+    restartable: bool = False
+    restarted: bool = False
+    watcher: asyncio.Task | None = None
 
 
 class PlatformAgent(RappAgent):
     def __init__(self, name: str = "platform", *, store: str = "store", settings=None,
                  workdir: str | Path | None = None, max_pending: int = 64,
-                 limits: Limits = Limits(), services: dict | None = None, services_state=None):
+                 limits: Limits = Limits(), services: dict | None = None, services_state=None,
+                 data_dir: str | Path | None = None, sandbox: Sandbox | None = None):
         super().__init__(name, settings)
         from agents.services.context import ServiceState
 
@@ -60,9 +70,12 @@ class PlatformAgent(RappAgent):
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-platform-"))
         self.services = services
         self.state = services_state or ServiceState()
-        self.users: dict[str, str] = {}  # user -> password hash
-        self.tokens: dict[str, tuple[str, float]] = {}  # token -> (user, expires_at)
-        self.scopes: dict[str, tuple[str, frozenset[str]]] = {}  # app token -> (rapp, services)
+        # users and tokens survive a restart when data_dir is kept (SQLite, 0600)
+        self.data_dir = Path(data_dir) if data_dir else None
+        self.directory = UserDirectory(self.data_dir / "users.db" if self.data_dir else None)
+        self._tokens: dict[str, TokenInfo] = {}  # cache of the directory's answers
+        self.accounts = EphemeralAccounts(self.settings, owner=name)
+        self.sandbox = sandbox or Sandbox()
         self.robots: dict[str, P.RegisterRobot] = {}
         self.clouds: dict[str, CloudSession] = {}
         self.max_pending, self.pending = max_pending, 0
@@ -75,70 +88,94 @@ class PlatformAgent(RappAgent):
                     "list_services": self.list_services, "register_robot": self.register_robot,
                     "start_cloud_agent": self.start_cloud, "stop_cloud_agent": self.stop_cloud,
                     "release_cloud_agents": self.release_clouds, "cloud_ready": self.cloud_ready,
-                    "ping": self.ping, "issue_app_token": self.issue_app_token}
+                    "ping": self.ping, "issue_app_token": self.issue_app_token,
+                    "verify_token": self.verify_token}
         for name in self.services:
             handlers[name] = self.run_service
         responder = Responder(P.ONTOLOGY, handlers, check=self._check_token)
         self.activate("platform-service", responder, responder.make_template())
+        self._sweeper = asyncio.create_task(self._sweep_accounts(self.accounts.pending()))
 
     async def stop(self) -> None:
         for cloud in list(self.clouds.values()):
             await self._kill_cloud(cloud, "platform stopping")
         await super().stop()
+        self.directory.close()
+
+    async def _sweep_accounts(self, leftovers: dict[str, str]) -> None:
+        """Delete the Cloud Agents' accounts a crashed earlier run of this Platform left behind."""
+        gone = await self.accounts.sweep(leftovers)
+        if gone:
+            self.record_structure("accounts-swept", accounts=gone)
 
     # -- users and tokens ---------------------------------------------------------------------
-    def _check_token(self, req, ctx) -> None:
+    async def _check_token(self, req, ctx) -> None:
+        """Every service request carries a token, accepted only from the JID it was issued to
+        (the server-authenticated sender): a token read from a trace or a log is worthless."""
         if not isinstance(req, P.ServiceRequest):
             return
-        ctx.user = self.user_of(req.token)
-        scope = self.scopes.get(req.token)
-        if scope is not None:
-            rapp, allowed = scope
+        info = await self.token_info(req.token)
+        if info.holder != ctx.sender:
+            raise Refusal(f"this token was issued to another agent, not to {ctx.sender}", "bad-token")
+        ctx.user, ctx.token = info.user, info
+        if info.services is not None:
             if req.action_name == "issue_app_token":
                 raise Refusal("a RApp token cannot issue tokens", "permission")
-            if req.action_name not in allowed and req.action_name not in ALWAYS_ALLOWED:
-                raise Refusal(f"{rapp} did not declare the service {req.action_name!r} in its manifest",
+            if req.action_name not in info.services and req.action_name not in ALWAYS_ALLOWED:
+                raise Refusal(f"{info.rapp} did not declare the service {req.action_name!r} in its manifest",
                               "permission")
 
-    def user_of(self, token: str) -> str:
+    async def token_info(self, token: str) -> TokenInfo:
         if not token:
             raise Refusal("missing token: log in first and send the token with every call", "no-token")
-        entry = self.tokens.get(token)
-        if entry is None:
-            raise Refusal("unknown token", "bad-token")
-        user, expires = entry
-        if time.time() > expires:
-            self.tokens.pop(token, None)
-            self.scopes.pop(token, None)
+        info = self._tokens.get(token)
+        if info is None:
+            info = await asyncio.to_thread(self.directory.lookup, token)
+            if info is None:
+                raise Refusal("unknown token", "bad-token")
+            self._tokens[token] = info
+        if time.time() > info.expires_at:
+            self._tokens.pop(token, None)
+            await asyncio.to_thread(self.directory.revoke, token)
             raise Refusal("token expired: log in again", "expired-token")
-        return user
+        return info
+
+    async def _issue(self, user: str, ttl_s: float, **kw) -> tuple[str, float]:
+        return await asyncio.to_thread(self.directory.issue, user, ttl_s, **kw)
 
     async def register_user(self, req: P.RegisterUser, ctx) -> Done:
-        if req.user in self.users:
-            raise Refusal(f"user {req.user!r} already registered", "duplicate")
-        self.users[req.user] = await asyncio.to_thread(hash_password, req.password)
+        try:
+            await asyncio.to_thread(self.directory.add_user, req.user, req.password)
+        except DirectoryError as e:
+            code = "duplicate" if e.code == "duplicate" else "invalid"
+            raise Refusal(str(e) if code == "invalid" else f"user {req.user!r} already registered", code) from None
         return Done()
 
     async def login(self, req: P.Login, ctx) -> P.TokenReply:
-        stored = self.users.get(req.user)
-        if stored is None or not await asyncio.to_thread(_check_password, req.password, stored):
+        if not await asyncio.to_thread(self.directory.check_login, req.user, req.password):
             raise Refusal("unknown user or wrong password", "bad-login")
-        token = secrets.token_urlsafe(24)
-        expires = time.time() + req.ttl_s
-        self.tokens[token] = (req.user, expires)
+        token, expires = await self._issue(req.user, req.ttl_s, holder=ctx.sender)
         return P.TokenReply(token=token, expires_at=expires, user=req.user)
 
     async def issue_app_token(self, req: P.IssueAppToken, ctx) -> P.TokenReply:
         unknown = sorted(set(req.services) - set(actions(P.ONTOLOGY)))
         if unknown:
             raise Refusal(f"{req.rapp} declares unknown services: {', '.join(unknown)}", "unknown-service")
-        token = secrets.token_urlsafe(24)
-        expires = min(time.time() + req.ttl_s, self.tokens[req.token][1])
-        self.tokens[token] = (ctx.user, expires)
-        self.scopes[token] = (req.rapp, frozenset(req.services))
+        token, expires = await self._issue(ctx.user, req.ttl_s, holder=bare(req.holder_jid), rapp=req.rapp,
+                                           services=frozenset(req.services), issuer=ctx.sender,
+                                           not_after=ctx.token.expires_at)
         return P.TokenReply(token=token, expires_at=expires, user=ctx.user)
 
+    async def verify_token(self, req: P.VerifyToken, ctx) -> P.TokenOwner:
+        """For the Store (only): who holds a token a download request came with."""
+        if ctx.sender != self.store:
+            raise Refusal("only the Store verifies tokens", "forbidden")
+        info = await self.token_info(req.token)
+        return P.TokenOwner(user=info.user, holder=info.holder, rapp=info.rapp)
+
     async def register_robot(self, req: P.RegisterRobot, ctx) -> Done:
+        if bare(req.core_jid) != ctx.sender:
+            raise Refusal(f"{ctx.sender} cannot register a robot for {req.core_jid}", "forbidden")
         self.robots[req.robot_id] = req
         self.record_structure("register", robot=req.robot_id, robot_type=req.robot_type,
                               by=ctx.sender, at="platform")
@@ -175,7 +212,9 @@ class PlatformAgent(RappAgent):
 
     # -- Cloud Agents -----------------------------------------------------------------------------
     async def start_cloud(self, req: P.StartCloudAgent, ctx) -> P.CloudAgentReply:
-        owner = req.owner_jid or ctx.sender
+        owner = ctx.sender  # a Cloud Agent serves the agent that asked for it, nobody named in content
+        if req.owner_jid and bare(req.owner_jid) != owner:
+            raise Refusal(f"{owner} cannot start a Cloud Agent for {req.owner_jid}", "forbidden")
         try:
             info, data = await download_package(self, self.store, req.rapp, req.version)
         except RequestError as e:
@@ -185,20 +224,26 @@ class PlatformAgent(RappAgent):
         from rapps.package import unpack_package
 
         n = next(self._serial)
-        name = f"cloud-{info.name}-{n}".replace("_", "-")
         workdir = self.workdir / f"{n:04d}-{info.name}"
-        pkg_dir = workdir / "package"
-        await asyncio.to_thread(unpack_package, data, pkg_dir)
-        spec = {"kind": "cloud", "name": name, "package_dir": str(pkg_dir), "owner": owner,
-                "platform": self.address, "token": req.token}
-        workdir.joinpath("spec.json").write_text(json.dumps(spec))
-        proc = AgentProcess(name, "agents.runtime", [str(workdir / "spec.json")], workdir,
-                            env=self.settings.to_env(), limits=self.limits)
-        session = CloudSession(jid=self.settings.jid(name), rapp=info.name, version=info.version,
-                               owner=owner, user=ctx.user, process=proc)
+        await asyncio.to_thread(unpack_package, data, workdir / "package")
+        try:
+            ident = await self.accounts.create(f"cloud-{info.name}".replace("_", "-"))
+        except LoginError as e:
+            raise Failure(f"cannot create the Cloud Agent's account: {e}", "cloud-start") from None
+        jid = self.settings.jid(ident.name)
+        scope = ctx.token
+        token, _ = await self._issue(ctx.user, max(60.0, scope.expires_at - time.time()), holder=jid,
+                                     rapp=scope.rapp or info.name, services=scope.services,
+                                     issuer=ctx.sender, not_after=scope.expires_at)
+        spec = SpawnSpec(kind="cloud", name=ident.name, password=ident.password, package_dir="",
+                         owner=owner, platform=self.address, token=token)
+        proc = AgentProcess(ident.name, spec, workdir, self.settings, self.limits, self.sandbox)
+        session = CloudSession(jid=jid, rapp=info.name, version=info.version, owner=owner, user=ctx.user,
+                               process=proc, account=ident, supervisor=scope.issuer, token=token)
         self.clouds[session.jid] = session
         await proc.start()
-        self.record_structure("cloud-spawn", cloud=session.jid, rapp=info.name, owner=owner, pid=proc.pid)
+        self.record_structure("cloud-spawn", cloud=session.jid, rapp=info.name, owner=owner, pid=proc.pid,
+                              sandbox=proc.uid is not None)
         waiter = asyncio.create_task(session.ready.wait())
         exited = asyncio.create_task(proc.wait())
         done, _ = await asyncio.wait({waiter, exited}, timeout=self.settings.start_timeout + 10,
@@ -208,9 +253,44 @@ class PlatformAgent(RappAgent):
             exited.cancel()
             await self._kill_cloud(session, "did not start")
             raise Failure(f"Cloud Agent of {req.rapp} did not start: {proc.stderr_tail(500)}", "cloud-start")
-        exited.add_done_callback(lambda _: self.clouds.get(session.jid) and
-                                 asyncio.ensure_future(self._kill_cloud(session, "process exited")))
+        exited.cancel()
+        session.restartable = bool(info.manifest.get("cloud_restartable"))
+        session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)
+
+    async def _watch_cloud(self, session: CloudSession, spec: SpawnSpec, workdir: Path) -> None:
+        """A Cloud Agent whose process ends unasked: its Dynamic Agent is told at once (the SDK
+        raises CloudAgentLost); restarted once, same JID, where the manifest allows."""
+        while True:
+            code = await session.process.wait()
+            if self.clouds.get(session.jid) is not session:
+                return  # stopped on purpose
+            restart = session.restartable and not session.restarted
+            reason = f"Cloud Agent {session.jid} of {session.rapp} exited with code {code}"
+            self.record_structure("cloud-lost", cloud=session.jid, rapp=session.rapp, exit_code=code,
+                                  restart=restart)
+            if restart:
+                restart = await self._restart_cloud(session, spec, workdir)
+            await self.notify(session.owner, P.CloudAgentDown(jid=session.jid, reason=reason, restarted=restart),
+                              ontology=P.ONTOLOGY, action="cloud_agent_down")
+            if not restart:
+                await self._kill_cloud(session, "process exited")
+                return
+
+    async def _restart_cloud(self, session: CloudSession, spec: SpawnSpec, workdir: Path) -> bool:
+        """Start the Cloud Agent again under its JID; True once it serves (calls sent meanwhile
+        are failed by its Dynamic Agent when told, so none waits for a timeout)."""
+        session.restarted = True
+        session.ready.clear()
+        session.process = AgentProcess(spec.name, spec, workdir, self.settings, self.limits, self.sandbox)
+        await session.process.start()
+        self.record_structure("cloud-spawn", cloud=session.jid, rapp=session.rapp, owner=session.owner,
+                              pid=session.process.pid, restart=True)
+        try:
+            await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)
+            return True
+        except asyncio.TimeoutError:
+            return False
 
     async def cloud_ready(self, req: P.CloudReady, ctx) -> Done:
         session = self.clouds.get(ctx.sender)
@@ -219,26 +299,37 @@ class PlatformAgent(RappAgent):
         session.ready.set()
         return Done()
 
+    def _may_stop(self, session: CloudSession, sender: str) -> bool:
+        """Its Dynamic Agent, or the Core that supervises that Dynamic Agent (server identities)."""
+        return sender in (session.owner, session.supervisor)
+
     async def stop_cloud(self, req: P.StopCloudAgent, ctx) -> Done:
-        session = self.clouds.get(req.jid)
+        session = self.clouds.get(bare(req.jid))
         if session is None:
             raise Refusal(f"no Cloud Agent {req.jid}", "not_found")
-        if ctx.sender != session.owner and ctx.user != session.user:
+        if not self._may_stop(session, ctx.sender):
+            self.record_structure("refused", action="stop_cloud_agent", by=ctx.sender, cloud=session.jid)
             raise Refusal(f"{ctx.sender} does not own {req.jid}", "forbidden")
         await self._kill_cloud(session, f"stopped by {ctx.sender}")
         return Done()
 
     async def release_clouds(self, req: P.ReleaseCloudAgents, ctx) -> Done:
-        for session in [c for c in self.clouds.values() if c.owner == req.owner_jid]:
-            if ctx.user != session.user:
-                raise Refusal(f"{req.owner_jid}'s Cloud Agents belong to another user", "forbidden")
+        for session in [c for c in self.clouds.values() if c.owner == bare(req.owner_jid)]:
+            if not self._may_stop(session, ctx.sender):
+                raise Refusal(f"{req.owner_jid}'s Cloud Agents are not {ctx.sender}'s to stop", "forbidden")
             await self._kill_cloud(session, f"owner {req.owner_jid} ended")
         return Done()
 
     async def _kill_cloud(self, session: CloudSession, reason: str) -> None:
         if self.clouds.pop(session.jid, None) is None:
             return
+        if session.watcher is not None and session.watcher is not asyncio.current_task():
+            session.watcher.cancel()
         code = await session.process.stop(grace=1.0)
         self.record_structure("cloud-destroy", cloud=session.jid, rapp=session.rapp, reason=reason,
                               exit_code=code)
-        shutil.rmtree(session.process.workdir / "package", ignore_errors=True)
+        self._tokens.pop(session.token, None)
+        await asyncio.to_thread(self.directory.revoke, session.token)
+        gone = await self.accounts.delete(session.account.name, session.account.password)
+        self.record_structure("account-deleted" if gone else "account-kept", account=session.jid)
+        shutil.rmtree(session.process.workdir, ignore_errors=True)

@@ -1,8 +1,10 @@
 """Child processes for Dynamic and Cloud Agents (the paper's fork-exec), always reaped.
 
-Each child runs in its own session (so the whole group can be killed), its own working directory,
-with CPU-time and memory limits, stdout/stderr to files in that directory. `stop()` sends SIGTERM,
-then SIGKILL after a grace period, then waits: no zombie is ever left behind.
+Each child runs in its own session (so the whole group can be killed), in the sandbox of
+agents/sandbox.py (its own root, uid and working directory), with rlimits, stdout/stderr to files
+in that directory. `stop()` sends SIGTERM, then SIGKILL after a grace period, then waits: no zombie
+is ever left behind. `InProcessAgent` runs the same runtime as a task of the caller: no isolation
+at all, for tests and for measuring what the process costs.
 """
 from __future__ import annotations
 
@@ -15,6 +17,10 @@ import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+
+from ontology.spawn import SpawnSpec
+
+from .sandbox import APP_DIR, Sandbox
 
 
 def exit_future(proc: subprocess.Popen) -> asyncio.Future:
@@ -50,51 +56,68 @@ class Limits:
     cpu_seconds: int | None = 600
     memory_bytes: int | None = 2 * 1024**3
     open_files: int | None = 1024
+    processes: int | None = 128  # tasks (threads count); only under a sandbox uid of its own
+    file_size_bytes: int | None = 256 * 1024**2
 
-    def apply(self) -> None:  # runs in the child between fork and exec
-        if self.cpu_seconds:
-            resource.setrlimit(resource.RLIMIT_CPU, (self.cpu_seconds, self.cpu_seconds + 5))
-        if self.memory_bytes:
-            resource.setrlimit(resource.RLIMIT_AS, (self.memory_bytes, self.memory_bytes))
-        if self.open_files:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (self.open_files, self.open_files))
-
-
-def project_env(extra: dict[str, str] | None = None) -> dict[str, str]:
-    """The parent's environment, with this project importable and `extra` on top."""
-    env = dict(os.environ)
-    root = str(Path(__file__).resolve().parent.parent)
-    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    env.update(extra or {})
-    return env
+    def apply(self, own_uid: bool = True) -> None:  # runs in the child between fork and exec
+        limits = [(resource.RLIMIT_CPU, self.cpu_seconds, 5), (resource.RLIMIT_AS, self.memory_bytes, 0),
+                  (resource.RLIMIT_NOFILE, self.open_files, 0),
+                  (resource.RLIMIT_FSIZE, self.file_size_bytes, 0)]
+        if own_uid:  # RLIMIT_NPROC counts every process of the uid: only meaningful for a fresh one
+            limits.append((resource.RLIMIT_NPROC, self.processes, 0))
+        for which, value, slack in limits:
+            if value:
+                resource.setrlimit(which, (value, value + slack))
 
 
 class AgentProcess:
-    def __init__(self, name: str, module: str, args: list[str], workdir: Path,
-                 env: dict[str, str] | None = None, limits: Limits = Limits()):
+    """A Dynamic or Cloud Agent in a process of its own, in the sandbox (agents/sandbox.py): the
+    spec (with the run's one-time password) goes down an inherited pipe, the trace through an
+    append-only descriptor; the environment is an allow-list."""
+
+    def __init__(self, name: str, spec: SpawnSpec, workdir: Path, settings, limits: Limits = Limits(),
+                 sandbox: Sandbox | None = None):
         self.name = name
-        self.argv = [sys.executable, "-m", module, *args]
         self.workdir = Path(workdir)
-        self.env = project_env(env)
-        self.limits = limits
+        self.settings, self.limits = settings, limits
+        self.sandbox = sandbox or Sandbox()
+        self.uid = self.sandbox.new_uid()
+        package = f"{APP_DIR}/package" if self.uid is not None else str(self.workdir.resolve() / "package")
+        self.spec = spec.model_copy(update={"package_dir": package})
+        self.argv = [sys.executable, "-m", "agents.runtime"]
         self.proc: subprocess.Popen | None = None
         self._waiter: asyncio.Future | None = None
         self.returncode: int | None = None
 
     async def start(self) -> None:
-        # Popen + a waiting thread, not asyncio subprocesses: SPADE installs uvloop's loop policy,
+        # Popen + a pidfd, not asyncio subprocesses: SPADE installs uvloop's loop policy,
         # whose child watcher the standard loop cannot use.
-        self.workdir.mkdir(parents=True, exist_ok=True)
-        out = open(self.workdir / "stdout.log", "ab")
-        err = open(self.workdir / "stderr.log", "ab")
-        try:
-            self.proc = await asyncio.to_thread(
-                subprocess.Popen, self.argv, cwd=self.workdir, env=self.env, stdout=out, stderr=err,
-                stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=self.limits.apply)
-        finally:
-            out.close()
-            err.close()
+        self.proc = await asyncio.to_thread(self._popen)
         self._waiter = exit_future(self.proc)
+
+    def _popen(self) -> subprocess.Popen:
+        self.sandbox.prepare(self.workdir, self.uid)
+        spec_r, spec_w = os.pipe()
+        fds = [spec_r]
+        try:
+            data = self.spec.model_dump_json().encode()
+            if len(data) > 60_000:  # a pipe holds 64 KiB: the write below must not block
+                raise ValueError(f"spawn spec of {len(data)} bytes is too large")
+            os.write(spec_w, data)
+            os.close(spec_w)
+            extra = {"RAPP_SPEC_FD": str(spec_r)}
+            if self.settings.trace_file:  # append-only: the child can add lines, not read any
+                trace_fd = os.open(self.settings.trace_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+                fds.append(trace_fd)
+                extra["RAPP_TRACE_FD"] = str(trace_fd)
+            with open(self.workdir / "stdout.log", "ab") as out, open(self.workdir / "stderr.log", "ab") as err:
+                return subprocess.Popen(
+                    self.argv, cwd=self.workdir, env=self.sandbox.env(self.settings, extra), stdout=out,
+                    stderr=err, stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=fds,
+                    preexec_fn=self.sandbox.preexec(self.workdir, self.uid, self.limits))
+        finally:
+            for fd in fds:
+                os.close(fd)
 
     @property
     def pid(self) -> int | None:
@@ -118,6 +141,8 @@ class AgentProcess:
             except asyncio.TimeoutError:
                 self._signal(signal.SIGKILL)
         self._signal(signal.SIGKILL)  # leftovers in the group (grandchildren)
+        if self.uid is not None:
+            self._kill_uid()
         return await self.wait()
 
     def _signal(self, sig: int) -> None:
@@ -125,6 +150,16 @@ class AgentProcess:
             os.killpg(self.proc.pid, sig)
         except (ProcessLookupError, PermissionError):
             pass
+
+    def _kill_uid(self) -> None:
+        """Processes of this run's uid that left the process group (setsid) die too."""
+        for entry in os.scandir("/proc"):
+            if entry.name.isdigit():
+                try:
+                    if entry.stat().st_uid == self.uid:
+                        os.kill(int(entry.name), signal.SIGKILL)
+                except OSError:
+                    pass
 
     def stderr_tail(self, n: int = 2000) -> str:
         try:
@@ -138,8 +173,9 @@ class InProcessAgent:
     bytes, unpacking and runtime code, no isolation (no limits, a crash affects the caller).
     For fast tests and for measuring what the process costs."""
 
-    def __init__(self, name: str, spec: dict, workdir: Path, settings):
-        self.name, self.spec, self.workdir, self.settings = name, spec, Path(workdir), settings
+    def __init__(self, name: str, spec: SpawnSpec, workdir: Path, settings):
+        self.name, self.workdir, self.settings = name, Path(workdir), settings
+        self.spec = spec.model_copy(update={"package_dir": str(self.workdir / "package")})
         self.task: asyncio.Task | None = None
         self.agent = None
         self.returncode: int | None = None

@@ -14,7 +14,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from dataclasses import dataclass
-from typing import Awaitable, Callable
+from typing import Any, Awaitable, Callable
 
 from spade.behaviour import CyclicBehaviour
 from spade.message import Message
@@ -36,6 +36,7 @@ class RequestContext:
     info: AclInfo
     message: Message
     user: str = ""  # set by a check that authenticates the request (Platform tokens)
+    token: Any = None  # what that check knows of the token (agents.platform_users.TokenInfo)
 
 
 Handler = Callable[[Action, RequestContext], Awaitable[Content | None]]

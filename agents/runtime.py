@@ -1,21 +1,22 @@
 """Generic runtime of Dynamic and Cloud Agents: load a RApp's entry point from its unpacked
 package and run it as an agent with its own XMPP identity, in this process.
 
-    python -m agents.runtime SPEC.json      (what the Core / Platform spawn)
+    python -m agents.runtime      (what the Core / Platform start, agents/process.py)
 
-SPEC.json: {"kind": "dynamic"|"cloud", "name": ..., "package_dir": ..., "entry_point": "m:C",
-"core": ..., "platform": ..., "token": ..., "params": {...}, "owner": ...}. XMPP settings come from
-the environment (XmppSettings.to_env of the parent).
+The spec (ontology/spawn.py SpawnSpec, with the run's one-time password) arrives on an inherited
+pipe; where to connect comes from the allow-listed environment (agents/sandbox.py). The RApp's
+code is imported only after the agent has logged in.
 """
 from __future__ import annotations
 
 import asyncio
 import importlib
-import json
+import os
 import logging
 import sys
 from pathlib import Path
 
+from ontology.spawn import SpawnSpec
 from rapps.manifest import load_manifest
 
 
@@ -50,33 +51,30 @@ def _forget_other_copies(top: str, root: str) -> None:
                                                Path(p, top).exists())]
 
 
-def build_agent(spec: dict, settings=None):
-    """The Dynamic or Cloud Agent a spec describes (not started)."""
+def build_agent(spec: SpawnSpec, settings=None):
+    """The Dynamic or Cloud Agent a spec describes (not started), logging in with the run's own
+    account."""
     from xmpp_server.settings import XmppSettings
 
     settings = settings or XmppSettings.from_env()
-    manifest = load_manifest(Path(spec["package_dir"]) / "manifest.yaml")
-    if spec["kind"] == "dynamic":
+    manifest = load_manifest(Path(spec.package_dir) / "manifest.yaml")
+    if spec.kind == "dynamic":
         from .dynamic_agent import DynamicAgent
-        agent = DynamicAgent(spec["name"], manifest=manifest, package_dir=spec["package_dir"],
-                             core=spec["core"], platform=spec["platform"], token=spec.get("token", ""),
-                             params=spec.get("params", {}), settings=settings)
-    elif spec["kind"] == "cloud":
-        from .cloud_agent import CloudAgent
-        agent = CloudAgent(spec["name"], manifest=manifest, package_dir=spec["package_dir"],
-                           owner=spec.get("owner", ""), token=spec.get("token", ""), settings=settings)
-    else:
-        raise SystemExit(f"unknown agent kind {spec['kind']!r}")
-    return agent
+        return DynamicAgent(spec.name, manifest=manifest, package_dir=spec.package_dir, core=spec.core,
+                            platform=spec.platform, token=spec.token, params=spec.params,
+                            robot=spec.robot, settings=settings, password=spec.password)
+    from .cloud_agent import CloudAgent
+    return CloudAgent(spec.name, manifest=manifest, package_dir=spec.package_dir, owner=spec.owner,
+                      token=spec.token, settings=settings, password=spec.password)
 
 
-async def run_agent(agent, spec: dict) -> int:
-    if spec["kind"] == "cloud":
-        return await agent.run_to_end(spec["platform"])
+async def run_agent(agent, spec: SpawnSpec) -> int:
+    if spec.kind == "cloud":
+        return await agent.run_to_end(spec.platform)
     return await agent.run_to_end()
 
 
-async def run_spec(spec: dict) -> int:
+async def run_spec(spec: SpawnSpec) -> int:
     import signal
 
     agent = build_agent(spec)
@@ -91,14 +89,26 @@ async def run_spec(spec: dict) -> int:
         return 143
 
 
+def read_spec() -> SpawnSpec:
+    """The spec from the pipe the parent left open (RAPP_SPEC_FD), read once; the descriptor is
+    closed and its number forgotten, so RApp code finds neither."""
+    fd = int(os.environ.pop("RAPP_SPEC_FD"))
+    with os.fdopen(fd, "rb") as f:
+        return SpawnSpec.model_validate_json(f.read())
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 1:
-        print("usage: python -m agents.runtime SPEC.json", file=sys.stderr)
+    if argv or "RAPP_SPEC_FD" not in os.environ:
+        print("usage: python -m agents.runtime   (started by a Core or the Platform, which pass the "
+              "spec on the descriptor named by RAPP_SPEC_FD)", file=sys.stderr)
         return 2
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    spec = json.loads(Path(argv[0]).read_text())
-    return asyncio.run(run_spec(spec))
+    trace_fd = os.environ.pop("RAPP_TRACE_FD", None)
+    if trace_fd:
+        from .tracing import inherit_trace_fd
+        inherit_trace_fd(int(trace_fd))
+    return asyncio.run(run_spec(read_spec()))
 
 
 if __name__ == "__main__":

@@ -11,11 +11,12 @@ import uuid
 from pathlib import Path
 
 from ontology import store as S
+from ontology.platform import VerifyToken
 from ontology.registry import Done
 from rapps.chunks import ChunkError, Reassembler, split_chunks
 
 from .base import RappAgent
-from .errors import Failure, Refusal
+from .errors import Failure, Refusal, RequestError
 from .responder import Responder
 from .store_repository import StoreError, StoreRepository
 
@@ -34,8 +35,10 @@ def _details(info) -> S.PackageDetails:
 
 class StoreAgent(RappAgent):
     def __init__(self, name: str = "store", data_dir: str | Path = "store-data", settings=None,
-                 require_signature: bool = False):
+                 require_signature: bool = False, platform: str = "platform"):
         super().__init__(name, settings)
+        self.platform = self.settings.jid(platform)  # verifies download tokens; downloads freely
+        self._verified: dict[tuple[str, str], float] = {}  # (token, sender) -> when verified
         self.repo = StoreRepository(data_dir, require_signature=require_signature)
         self._uploads: dict[str, tuple[float, Reassembler]] = {}
         self._downloads: dict[tuple[str, str], tuple[float, list]] = {}
@@ -90,7 +93,26 @@ class StoreAgent(RappAgent):
         return S.Versions(name=req.name, versions=await self._repo(self.repo.versions, req.name))
 
     # -- download -----------------------------------------------------------------------------
+    async def _authorize_download(self, token: str, sender: str) -> None:
+        """Downloads need a Platform token held by the sender (as in the original Store); the
+        Platform itself is known by its server-authenticated JID."""
+        if sender == self.platform:
+            return
+        if not token:
+            raise Refusal("downloads need a Platform token: log in to the Platform first", "no-token")
+        now = time.monotonic()
+        if now - self._verified.get((token, sender), -1e9) < UPLOAD_TTL_S:
+            return
+        try:
+            owner = await self.request(self.platform, VerifyToken(token=token), timeout=10.0)
+        except RequestError as e:
+            raise Refusal(f"download refused: {e.reason}", "bad-token") from None
+        if owner.holder != sender:
+            raise Refusal(f"download refused: the token was issued to another agent, not {sender}", "bad-token")
+        self._verified[(token, sender)] = now
+
     async def download_info(self, req: S.DownloadBegin, ctx) -> S.DownloadInfo:
+        await self._authorize_download(req.token, ctx.sender)
         dl = await self._repo(self.repo.download, req.name, req.version)
         chunks = split_chunks(dl.data)
         self._downloads[(dl.manifest.name, dl.manifest.version)] = (time.monotonic(), chunks)
@@ -102,6 +124,7 @@ class StoreAgent(RappAgent):
                               manifest=dl.manifest.model_dump(mode="json"))
 
     async def download_chunk(self, req: S.DownloadChunk, ctx) -> S.ChunkData:
+        await self._authorize_download(req.token, ctx.sender)
         key = (req.name, req.version)
         if key not in self._downloads:
             dl = await self._repo(self.repo.download, req.name, req.version)
@@ -156,6 +179,8 @@ class StoreAgent(RappAgent):
         for table in (self._uploads, self._downloads):
             for key in [k for k, (t, _) in table.items() if now - t > UPLOAD_TTL_S]:
                 table.pop(key, None)
+        for key in [k for k, t in self._verified.items() if now - t > UPLOAD_TTL_S]:
+            self._verified.pop(key, None)
 
 
 def _store_errors(handler):

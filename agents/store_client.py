@@ -10,12 +10,14 @@ from .errors import RequestFailed
 
 
 async def download_package(agent: RappAgent, store: str, name: str, version: str | None = None,
-                           timeout: float = 10.0) -> tuple[S.DownloadInfo, bytes]:
-    """The package bytes, reassembled and checked against the Store's sha256."""
-    info = await agent.request(store, S.DownloadBegin(name=name, version=version), timeout=timeout)
+                           timeout: float = 10.0, token: str = "") -> tuple[S.DownloadInfo, bytes]:
+    """The package bytes, reassembled and checked against the Store's sha256. `token`: the
+    sender's Platform token (the Store refuses downloads without one, except to the Platform)."""
+    info = await agent.request(store, S.DownloadBegin(name=name, version=version, token=token), timeout=timeout)
     assembler = Reassembler(total=info.chunks, sha256=info.sha256, size=info.size)
     for i in range(info.chunks):
-        chunk = await agent.request(store, S.DownloadChunk(name=info.name, version=info.version, index=i),
+        chunk = await agent.request(store, S.DownloadChunk(name=info.name, version=info.version, index=i,
+                                                                    token=token),
                                     timeout=timeout)
         assembler.add(chunk.model_dump())
     data = assembler.result()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import threading
 import time
 from pathlib import Path
@@ -24,13 +25,14 @@ CONTENT_CAP = 2000  # characters of content kept per message
 
 
 class TraceWriter:
-    def __init__(self, path: str | Path | None):
+    def __init__(self, path: str | Path | None, fd: int | None = None):
         self.path = Path(path) if path else None
         self._lock = threading.Lock()
-        self._fd: int | None = None
-        if self.path:
+        self._fd: int | None = fd
+        if self.path and fd is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+            # 0600: a trace holds every message of the run (RApp processes get an append-only fd)
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
 
     @property
     def enabled(self) -> bool:
@@ -56,10 +58,21 @@ _writers_lock = threading.Lock()
 _NULL = TraceWriter(None)
 
 
+_inherited: TraceWriter | None = None
+
+
+def inherit_trace_fd(fd: int) -> None:
+    """A sandboxed RApp process writes the run's trace through a descriptor its parent opened
+    (append-only): its agents use it where they name no trace file."""
+    global _inherited
+    _inherited = TraceWriter(None, fd)
+
+
 def tracer_for(path: str | Path | None) -> TraceWriter:
-    """One shared writer per file per process; a disabled writer when path is None."""
+    """One shared writer per file per process; the inherited one, or a disabled writer, when
+    path is None."""
     if not path:
-        return _NULL
+        return _inherited or _NULL
     key = str(Path(path).resolve())
     with _writers_lock:
         w = _writers.get(key)
@@ -68,9 +81,14 @@ def tracer_for(path: str | Path | None) -> TraceWriter:
         return w
 
 
+_SECRET = re.compile(r'("(?:password|token)"\s*:\s*")[^"]*(")')
+
+
 def cap(text: str | None, limit: int = CONTENT_CAP) -> str:
+    """Message content as traced: secrets (password and token fields) masked, then capped."""
     if not text:
         return ""
+    text = _SECRET.sub(r"\1***\2", text) if ("password" in text or "token" in text) else text
     return text if len(text) <= limit else text[:limit] + f"...[+{len(text) - limit} chars]"
 
 

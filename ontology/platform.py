@@ -55,7 +55,21 @@ class IssueAppToken(ServiceRequest):
 
     rapp: str
     services: list[str]
+    holder_jid: str  # the run's Dynamic Agent: the only JID the Platform accepts the token from
     ttl_s: float = Field(default=3600.0, gt=0, le=24 * 3600)
+
+
+class TokenOwner(Content):
+    user: str
+    holder: str  # the only JID that may use the token
+    rapp: str | None = None
+
+
+@action("verify_token", ontology=ONTOLOGY, reply=TokenOwner, group="users")
+class VerifyToken(Action):
+    """The Store asks who holds a token that came with a download (answered to the Store only)."""
+
+    token: str
 
 
 @action("list_services", ontology=ONTOLOGY, reply=ServiceList, group="discovery")
@@ -73,7 +87,7 @@ class CloudAgentReply(Content):
 class StartCloudAgent(ServiceRequest):
     rapp: str
     version: str | None = None
-    owner_jid: str = ""  # the Dynamic Agent the Cloud Agent lives and dies with
+    owner_jid: str = ""  # must be the sender (the Dynamic Agent the Cloud Agent lives and dies with)
 
 
 @action("stop_cloud_agent", ontology=ONTOLOGY, reply=Done, group="cloud")
@@ -93,6 +107,16 @@ class CloudReady(Action):
     """Sent by a Cloud Agent once it serves requests."""
 
     jid: str
+
+
+@action("cloud_agent_down", ontology=ONTOLOGY, reply=Done, group="cloud")
+class CloudAgentDown(Action):
+    """The Platform tells a Dynamic Agent its Cloud Agent's process ended unasked (notification):
+    `restarted` when the manifest lets the Platform start it again once, under the same JID."""
+
+    jid: str
+    reason: str
+    restarted: bool = False
 
 
 @action("register_robot", ontology=ONTOLOGY, reply=Done, group="robots")

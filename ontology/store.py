@@ -105,6 +105,7 @@ class GetVersions(Action):
 class DownloadBegin(Action):
     name: str
     version: str | None = None
+    token: str = ""  # a Platform token held by the sender (the Platform itself needs none)
 
 
 @action("download_chunk", ontology=ONTOLOGY, reply=ChunkData, group="download")
@@ -112,6 +113,7 @@ class DownloadChunk(Action):
     name: str
     version: str
     index: int = Field(ge=0)
+    token: str = ""
 
 
 @action("upload_chunk", ontology=ONTOLOGY, reply=UploadTicket, group="publish")

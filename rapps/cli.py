@@ -80,13 +80,21 @@ async def _with_client(fn):
     from xmpp_server.settings import XmppSettings
     import uuid
 
+    from xmpp_server.credentials import generate_password
+    from xmpp_server.probe import LoginError, remove_account
+
     settings = XmppSettings.from_env()
-    client = RappAgent(f"cli-{uuid.uuid4().hex[:8]}", settings)
+    name, password = f"cli-{uuid.uuid4().hex[:8]}", generate_password()  # a throwaway account
+    client = RappAgent(name, settings, password=password)
     await client.start()
     try:
         return await fn(client, settings)
     finally:
         await client.stop()
+        try:
+            await remove_account(settings.host, settings.port, settings.domain, user=name, password=password)
+        except LoginError:
+            pass
 
 
 def cmd_store(a) -> int:

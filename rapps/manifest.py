@@ -69,6 +69,7 @@ class Manifest(BaseModel):
     phrases: list[str] = Field(default_factory=list)
     entry_point: str
     cloud_entry_point: str | None = None
+    cloud_restartable: bool = False  # the Platform starts a Cloud Agent that died once more
     services: list[str] = Field(default_factory=list)
     robot_api: list[str] = Field(default_factory=list)
     params: dict[str, Any] = Field(default_factory=dict)

@@ -26,11 +26,13 @@ from __future__ import annotations
 
 from typing import Any, Awaitable, Callable
 
-from agents.errors import RequestFailed
+from agents.errors import CloudAgentLost, RequestFailed
 from behaviours import Behaviour, OneShot
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import Content, lookup
+
+__all__ = ["Task", "Step", "CloudService", "CloudAgentLost", "RequestFailed"]
 
 
 class _Proxy:
@@ -76,6 +78,7 @@ class CloudProxy:
         self._agent, self._platform, self._token = agent, platform, token
         self._rapp, self._version, self._ontology = rapp, version, ontology
         self.address: str | None = None
+        self.lost: str | None = None  # why the Cloud Agent is gone (the Platform told its Dynamic Agent)
 
     async def start(self, timeout: float = 60.0) -> str:
         if self.address is None:
@@ -87,6 +90,10 @@ class CloudProxy:
         return self.address
 
     async def call(self, action: str, _timeout: float = 60.0, **fields) -> Content:
+        """The Cloud Agent's answer; CloudAgentLost when its process died (or, code
+        "cloud-restarted", when the Platform restarted it while this call was in flight)."""
+        if self.lost:
+            raise CloudAgentLost(self.lost, code="cloud-lost", peer=self.address or "")
         if self.address is None:
             await self.start()
         if not self._ontology:
@@ -95,7 +102,7 @@ class CloudProxy:
                                          timeout=_timeout)
 
     async def stop(self) -> None:
-        if self.address is not None:
+        if self.address is not None and not self.lost:
             address, self.address = self.address, None
             await self._agent.request(self._platform, P.StopCloudAgent(token=self._token, jid=address),
                                       timeout=15.0)
@@ -111,6 +118,7 @@ class Task:
         self.agent = runtime  # the DynamicAgent (a SPADE agent)
         self.params: dict[str, Any] = dict(runtime.params)
         self.manifest = runtime.manifest
+        self.robot_info = runtime.robot_info  # ontology.spawn.RobotInfo: robot_id, robot_type
         self.robot = RobotProxy(runtime, runtime.core)
         self.platform = PlatformProxy(runtime, runtime.platform, runtime.token)
         self.cloud = CloudProxy(runtime, runtime.platform, runtime.token, runtime.manifest.name,

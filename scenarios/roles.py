@@ -3,15 +3,22 @@
 machines: Store and Platform on a server, one Core per robot (docs/deployment.md).
 
     rapp agent store --data /var/lib/rapp/store
-    rapp agent platform --maps /var/lib/rapp/maps
-    rapp agent core --robot nao --robot-id nao1 --owner alice --house house --seed 1
+    rapp agent platform --data /var/lib/rapp/platform --maps /var/lib/rapp/maps
+    rapp agent core --robot nao --robot-id nao1 --owner alice --trust dev.pub --house house --seed 1
+
+Each agent logs in with its own password (RAPP_XMPP_PASSWORD, or its file in the credentials
+directory, generated on first start: xmpp_server/credentials.py). Data directories default to
+~/.local/share/rapp/<role> (XDG_DATA_HOME).
 """
 from __future__ import annotations
 
 import argparse
 import asyncio
 import contextlib
+import os
 import signal
+import sys
+from pathlib import Path
 
 from xmpp_server.settings import XmppSettings
 
@@ -32,10 +39,17 @@ async def _run_until_stopped(agents, cleanup=None) -> None:
         cleanup()
 
 
+def data_dir(role: str, given: str | None) -> Path:
+    if given:
+        return Path(given)
+    base = Path(os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share")
+    return base / "rapp" / role
+
+
 async def _store(a, settings) -> None:
     from agents.store_agent import StoreAgent
-    await _run_until_stopped([StoreAgent(a.name or "store", a.data, settings,
-                                         require_signature=a.require_signature)])
+    await _run_until_stopped([StoreAgent(a.name or "store", data_dir("store", a.data), settings,
+                                         require_signature=a.require_signature, platform=a.platform)])
 
 
 async def _platform(a, settings) -> None:
@@ -46,7 +60,54 @@ async def _platform(a, settings) -> None:
     if a.maps:
         print(f"maps preloaded: {', '.join(state.preload_maps(a.maps)) or 'none'}")
     await _run_until_stopped([PlatformAgent(a.name or "platform", store=a.store, settings=settings,
-                                            services_state=state)])
+                                            services_state=state, data_dir=data_dir("platform", a.data),
+                                            sandbox=sandbox(a))])
+
+
+def owner_password(a, settings) -> str:
+    """The owner's Platform/Store password: given, or generated once and kept (0600) in the
+    credentials directory; never a default anyone could guess."""
+    from xmpp_server.credentials import CredentialStore
+
+    if a.password:
+        return a.password
+    store = CredentialStore(settings.credentials_dir)
+    path = store.path(f"owner-{a.owner}")
+    existed = path.exists()
+    password = store.password(f"owner-{a.owner}")
+    if not existed:
+        print(f"generated a password for owner {a.owner!r}: it is in {path} (give it with --password "
+              f"to use your own)", flush=True)
+    return password
+
+
+def trust(a) -> dict:
+    """CoreAgent keyword arguments for package signatures: keys the owner trusts, or (loudly)
+    none for development."""
+    from rapps.package import load_public_key
+
+    if a.allow_unsigned:
+        print("WARNING: --allow-unsigned: this Core runs RApps nobody signed, from any Store owner",
+              file=sys.stderr, flush=True)
+        return {"trusted_keys": None, "require_signature": False}
+    if not a.trust:
+        raise SystemExit("rapp agent core: give --trust KEY (a public key file or base64 key of a "
+                         "signer you trust; repeatable) or, for development only, --allow-unsigned")
+    keys = [load_public_key(Path(k).read_bytes() if Path(k).exists() else k) for k in a.trust]
+    return {"trusted_keys": keys, "require_signature": True}
+
+
+def sandbox(a):
+    from agents.sandbox import Sandbox
+
+    box = Sandbox()
+    if not box.enabled:
+        if not a.allow_unsandboxed:
+            raise SystemExit(f"rapp agent {a.role}: RApps can only be sandboxed when the Core runs as root "
+                             "(agents/sandbox.py); use --allow-unsandboxed for development only")
+        print("WARNING: --allow-unsandboxed: RApp processes run with this user's rights",
+              file=sys.stderr, flush=True)
+    return box
 
 
 async def _core(a, settings) -> None:
@@ -58,7 +119,8 @@ async def _core(a, settings) -> None:
     robot_id = a.robot_id or f"{a.robot}1"
     core = CoreAgent(a.name or f"core-{robot_id}", robot_id=robot_id, robot_type=a.robot, robot_api=api,
                      owner=a.owner, platform=a.platform, store=a.store, user=a.owner,
-                     password=a.password or f"{a.owner}-pw", settings=settings)
+                     password=owner_password(a, settings), settings=settings, sandbox=sandbox(a),
+                     **trust(a))
     await _run_until_stopped([core], cleanup=world.close)
 
 
@@ -68,13 +130,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--name", help="the agent's account name (default: store / platform / core-ROBOT_ID)")
     p.add_argument("--store", default="store", help="the Store Agent's name or JID")
     p.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
-    p.add_argument("--data", default="store-data", help="store: data directory (SQLite + blobs)")
+    p.add_argument("--data", help="store, platform: data directory (default ~/.local/share/rapp/ROLE)")
     p.add_argument("--require-signature", action="store_true", help="store: refuse unsigned packages")
     p.add_argument("--maps", help="platform: directory of map_server YAML maps to preload")
     p.add_argument("--robot", choices=["nao", "elektron"], default="nao", help="core: robot model")
     p.add_argument("--robot-id")
     p.add_argument("--owner", default="owner", help="core: the user whose chat it listens to")
-    p.add_argument("--password", help="core: the owner's Platform/Store password")
+    p.add_argument("--password", help="core: the owner's Platform/Store password (default: generated "
+                                       "once, kept in the credentials directory)")
+    p.add_argument("--trust", action="append", default=[], metavar="KEY",
+                   help="core: public key (file or base64) of a RApp signer the owner trusts; repeatable")
+    p.add_argument("--allow-unsigned", action="store_true",
+                   help="core: DEVELOPMENT ONLY: run unsigned RApps from any Store owner")
+    p.add_argument("--allow-unsandboxed", action="store_true",
+                   help="core, platform: DEVELOPMENT ONLY: run RApps (Cloud Agents) without the "
+                        "sandbox when not root")
     p.add_argument("--house", default="small", help="core: simulated house (name or YAML file)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rtf", type=float, default=1.0, help="core: simulation real-time factor")

@@ -69,6 +69,10 @@ class RappSystem:
 
     async def start(self) -> "RappSystem":
         overrides = {"trace_file": self._trace_file, "force_xmpp": self._force_xmpp}
+        given = self._given_settings
+        if given is None or (given.credentials_dir is None and not given.password):
+            # every agent of this run has its own password, in a directory of this run
+            overrides["credentials_dir"] = self.workdir / "credentials"
         if self._given_settings is None:
             self.server = EmbeddedServer(db=self.workdir / "xmpp.db")
             await self.server.astart()

@@ -6,6 +6,21 @@ import pytest
 from xmpp_server import EmbeddedServer
 
 
+@pytest.fixture(scope="session", autouse=True)
+def credentials_dir(tmp_path_factory):
+    """Agents' password files of this test session (never the user's ~/.local/share/rapp)."""
+    import os
+
+    path = tmp_path_factory.mktemp("credentials")
+    old = os.environ.get("RAPP_CREDENTIALS_DIR")
+    os.environ["RAPP_CREDENTIALS_DIR"] = str(path)
+    yield path
+    if old is None:
+        os.environ.pop("RAPP_CREDENTIALS_DIR", None)
+    else:
+        os.environ["RAPP_CREDENTIALS_DIR"] = old
+
+
 @pytest.fixture(scope="session")
 async def xmpp_server():
     async with EmbeddedServer() as server:

@@ -183,10 +183,15 @@ async def test_trace_shows_structure_changes_in_order(system):
     last = next(i for i, r in enumerate(events) if i > first and r["event"] == "resume")
     order = [r["event"] for r in events[first:last + 1]]
     # Store serves the Core; a_dyn starts (Init) and takes over; Working; the Platform fetches
-    # the cloud part and spawns a_cloud; it is destroyed; Finished; a_dyn destroyed; supervision back
+    # the cloud part and spawns a_cloud; it is destroyed with its account; Finished; a_dyn
+    # destroyed; supervision back
     expected = ["download", "download", "spawn", "status", "handoff", "status", "download",
-                "cloud-spawn", "cloud-destroy", "status", "ended", "destroy", "resume"]
+                "cloud-spawn", "cloud-destroy", "account-deleted", "status", "ended", "destroy", "resume"]
     assert order == expected, " ".join(order)
+    spawn = events[first + 2]
+    deleted = [r["account"] for r in structure(read_trace(system.settings.trace_file))[first:]
+               if r["event"] == "account-deleted"]
+    assert spawn["dynamic"] in deleted, "the Dynamic Agent's one-run account is deleted after it ends"
     calls = [r for r in trace if r["kind"] == "message" and r["dir"] == "send"
              and r["receiver"] == core and r["ontology"] == "robot"]
     assert calls, "robot-API calls are in the trace"
@@ -198,14 +203,14 @@ async def test_store_data_survives_restart(xmpp_server, tmp_path, unique):
     from agents.store_client import publish_package
 
     name = unique("store")
-    store = StoreAgent(name, tmp_path / "store", settings)
-    client = RappAgent(unique("dev"), settings)
+    client = RappAgent(unique("dev"), settings)  # downloads as the Platform would (no token)
+    store = StoreAgent(name, tmp_path / "store", settings, platform=client.address)
     await store.start()
     await client.start()
     await client.request(store.address, S.RegisterOwner(owner="dev", password="pw"))
     await publish_package(client, store.address, "dev", "pw", build_package_bytes(FIXTURE))
     await store.stop()
-    again = StoreAgent(name, tmp_path / "store", settings)
+    again = StoreAgent(name, tmp_path / "store", settings, platform=client.address)
     await again.start()
     try:
         listed = await client.request(again.address, S.ListPackages(robot_type="nao"))

@@ -86,5 +86,10 @@ async def test_dynamic_process_has_resource_limits(system):
     cpu = next(l for l in limits.splitlines() if l.startswith("Max cpu time"))
     mem = next(l for l in limits.splitlines() if l.startswith("Max address space"))
     assert "unlimited" not in cpu and "unlimited" not in mem
-    assert os.readlink(f"/proc/{pid}/cwd") == str(core.dynamic.workdir)
+    for name in ("Max processes", "Max open files", "Max file size"):
+        line = next(l for l in limits.splitlines() if l.startswith(name))
+        assert "unlimited" not in line, line
+    # its working directory is the run's own (seen as /app inside the sandbox: same inode)
+    cwd, workdir = os.stat(f"/proc/{pid}/cwd"), os.stat(core.dynamic.workdir)
+    assert (cwd.st_dev, cwd.st_ino) == (workdir.st_dev, workdir.st_ino)
     await task

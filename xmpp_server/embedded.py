@@ -126,6 +126,53 @@ def _patch_password_rounds(rounds: int = PASSWORD_ROUNDS) -> None:
     SASL._rapp_rounds = rounds
 
 
+def _patch_account_removal() -> None:
+    """XEP-0077 account removal (`<query xmlns='jabber:iq:register'><remove/></query>` from a logged-in
+    client), which pyjabber 0.4.5 lacks (its PluginManager answers feature-not-implemented): the
+    account's credentials and roster rows are deleted, the answer is sent, then every stream of the
+    account is closed. Cores and the Platform delete the ephemeral accounts of RApp runs this way,
+    as they do on Prosody and ejabberd."""
+    from xml.etree import ElementTree as ET
+
+    from pyjabber.db.database import DB
+    from pyjabber.db.model import Model
+    from pyjabber.network.ConnectionManager import ConnectionManager
+    from pyjabber.plugins.PluginManager import PluginManager
+    from pyjabber.stanzas.IQ import IQ
+    from pyjabber.stanzas.error import StanzaError as SE
+    from sqlalchemy import delete
+
+    if getattr(PluginManager, "_rapp_removal", False):
+        return
+
+    class AccountRemoval:
+        @staticmethod
+        async def feed(jid, element):
+            query = element.find("{jabber:iq:register}query")
+            if element.attrib.get("type") != "set" or query is None or \
+                    query.find("{jabber:iq:register}remove") is None:
+                return SE.feature_not_implemented("query", "jabber:iq:register")
+            async with await DB.connection_async() as con:
+                async with con.begin():
+                    await con.execute(delete(Model.Credentials).where(Model.Credentials.c.jid == jid.user))
+                    await con.execute(delete(Model.Roster).where(Model.Roster.c.jid.in_([jid.user, jid.bare()])))
+            clients = [c for c in ConnectionManager()._peerList.values()
+                       if c.jid is not None and c.jid.bare() == jid.bare()]
+            loop = asyncio.get_running_loop()
+            for c in clients:  # after the answer below is written
+                loop.call_later(0.05, c.transport.close)
+            return ET.tostring(IQ(type_=IQ.TYPE.RESULT, id_=element.attrib.get("id"), to=str(jid)))
+
+    original_init = PluginManager.__init__
+
+    def init(self, jid) -> None:
+        original_init(self, jid)
+        self._plugins["jabber:iq:register"] = AccountRemoval()
+
+    PluginManager.__init__ = init
+    PluginManager._rapp_removal = True
+
+
 def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
                  db_path: str | None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S):
     """A pyjabber Server for `domain` listening on bind_host:port only."""
@@ -142,6 +189,7 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
     pjs.setup_query_local_ip = lambda: None  # no extra LAN listener
     _patch_starttls_race()
     _patch_password_rounds()
+    _patch_account_removal()
     defaults = Parameters()
     params = Parameters(
         host=domain,

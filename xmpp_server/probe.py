@@ -33,22 +33,29 @@ async def register_in_band(client: ClientXMPP) -> None:
 
 
 class _ProbeClient(ClientXMPP):
-    def __init__(self, jid: str, password: str, register: bool):
+    def __init__(self, jid: str, password: str, register: bool, then=None):
         super().__init__(jid, password, ssl_context=unverified_context())  # probes never verify certificates
         self.enable_direct_tls = False
         self.done: asyncio.Future = asyncio.get_running_loop().create_future()
+        self.then = then  # coroutine function run with the client once the session started
         self.add_event_handler("session_start", self._on_session)
         self.add_event_handler("failed_all_auth", self._on_fail)
         self.add_event_handler("disconnected", self._on_disconnect)
         self.add_event_handler("connection_failed", self._on_refused)
+        self.register_plugin("xep_0077")  # stanzas for registration and removal
         if register:
-            self.register_plugin("xep_0077")
             self.add_event_handler("register", self._register)
 
     async def _register(self, _event):  # slixmpp awaits only coroutine functions
         await register_in_band(self)
 
-    def _on_session(self, _):
+    async def _on_session(self, _):
+        try:
+            if self.then is not None:
+                await self.then(self)
+        except Exception as e:  # noqa: BLE001 - reported to the caller, not lost in a handler
+            if not self.done.done():
+                self.done.set_exception(LoginError(f"{self.boundjid.bare}: {type(e).__name__}: {e}"))
         if not self.done.done():
             self.done.set_result(True)
 
@@ -66,13 +73,15 @@ class _ProbeClient(ClientXMPP):
 
 
 async def probe_login(host: str, port: int, domain: str, *, user: str | None = None,
-                      password: str = "probe", register: bool = True, timeout: float = 5.0) -> float:
-    """Log in once; return the seconds it took. Raises LoginError on failure or timeout."""
+                      password: str = "probe", register: bool = True, timeout: float = 5.0,
+                      then=None) -> float:
+    """Log in once (and run `then(client)` in the session); return the seconds it took. Raises
+    LoginError on failure or timeout."""
     logging.getLogger("slixmpp").setLevel(logging.CRITICAL)
     user = user or f"probe-{uuid.uuid4().hex[:8]}"
     loop = asyncio.get_running_loop()
     t0 = loop.time()
-    client = _ProbeClient(f"{user}@{domain}", password, register)
+    client = _ProbeClient(f"{user}@{domain}", password, register, then)
     client.address = f"{host}:{port}"
     client.connect(host=host, port=port)
     try:
@@ -82,3 +91,22 @@ async def probe_login(host: str, port: int, domain: str, *, user: str | None = N
     finally:
         await close_client(client)
     return loop.time() - t0
+
+
+async def _remove_own_account(client: ClientXMPP) -> None:
+    iq = client.Iq()
+    iq["type"] = "set"
+    iq["register"]["remove"] = True
+    try:
+        await iq.send(timeout=5)
+    except IqError as e:
+        raise LoginError(f"the server refused to remove {client.boundjid.bare}: "
+                         f"{e.iq['error']['condition']}") from None
+
+
+async def remove_account(host: str, port: int, domain: str, *, user: str, password: str,
+                         timeout: float = 5.0) -> None:
+    """Delete an account (XEP-0077 `<remove/>`, logged in as that account). LoginError when it
+    cannot log in (already gone, wrong password) or the server refuses."""
+    await probe_login(host, port, domain, user=user, password=password, register=False,
+                      timeout=timeout, then=_remove_own_account)

@@ -8,7 +8,9 @@ agents run against the embedded server, Prosody or ejabberd by configuration alo
 | host           | RAPP_XMPP_HOST          | 127.0.0.1   | address the client connects to
 | port           | RAPP_XMPP_PORT          | 5222        |
 | domain         | RAPP_XMPP_DOMAIN        | localhost   | JID domain (user@domain)
-| password       | RAPP_XMPP_PASSWORD      | rapp-secret | agent account password
+| password       | RAPP_XMPP_PASSWORD      | (none)      | this process's agent password, given by the
+|                |                         |             | deployer; else its credentials file
+| credentials_dir| RAPP_CREDENTIALS_DIR    | ~/.local/share/rapp/credentials | per-agent password files
 | auto_register  | RAPP_XMPP_AUTO_REGISTER | true        | create accounts by in-band registration
 | verify_tls     | RAPP_XMPP_VERIFY_TLS    | false       |
 | force_xmpp     | RAPP_FORCE_XMPP         | false       | never use SPADE's in-process shortcut
@@ -28,6 +30,7 @@ _ENV = {
     "port": "RAPP_XMPP_PORT",
     "domain": "RAPP_XMPP_DOMAIN",
     "password": "RAPP_XMPP_PASSWORD",
+    "credentials_dir": "RAPP_CREDENTIALS_DIR",
     "auto_register": "RAPP_XMPP_AUTO_REGISTER",
     "verify_tls": "RAPP_XMPP_VERIFY_TLS",
     "force_xmpp": "RAPP_FORCE_XMPP",
@@ -41,7 +44,8 @@ class XmppSettings(BaseModel):
     host: str = "127.0.0.1"
     port: int = Field(default=5222, ge=1, le=65535)
     domain: str = "localhost"
-    password: str = "rapp-secret"
+    password: str | None = None
+    credentials_dir: Path | None = None
     auto_register: bool = True
     verify_tls: bool = False
     force_xmpp: bool = False
@@ -59,12 +63,23 @@ class XmppSettings(BaseModel):
     def jid(self, name: str) -> str:
         return name if "@" in name else f"{name}@{self.domain}"
 
-    def to_env(self) -> dict[str, str]:
-        """Environment that makes a child process connect the same way."""
+    def password_for(self, account: str) -> str:
+        """The password of `account` (a name or JID of this domain): the deployer's
+        `password` when set, else the account's own credentials file (xmpp_server/credentials.py)."""
+        from .credentials import CredentialStore
+
+        if self.password:
+            return self.password
+        return CredentialStore(self.credentials_dir).password(account.split("@")[0])
+
+    def to_env(self, fields=None) -> dict[str, str]:
+        """Environment that makes a trusted child process (a CLI, a benchmark helper) connect the
+        same way. Never a password: each process reads its own account's credentials file.
+        `fields` narrows it to those settings (the sandbox of a RApp process gets no paths)."""
         out = {}
         for f, var in _ENV.items():
             v = getattr(self, f)
-            if v is None:
+            if v is None or f == "password" or (fields is not None and f not in fields):
                 continue
             out[var] = str(v).lower() if isinstance(v, bool) else str(v)
         return out

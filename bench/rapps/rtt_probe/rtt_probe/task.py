@@ -52,14 +52,16 @@ class FloorPing:
 
     @classmethod
     async def start(cls, settings, echo: str) -> "FloorPing":
-        from scenarios.user import ChatUser
+        from xmpp_server.chat import ChatUser
+        from xmpp_server.credentials import generate_password
 
         class Pinger(ChatUser):
             def _on_message(self, msg):
                 if msg["body"] and probe.waiter is not None and not probe.waiter.done():
                     probe.waiter.set_result(None)
 
-        probe = cls(Pinger(f"floor-ping-{uuid.uuid4().hex[:8]}", settings), settings.jid(echo))
+        probe = cls(Pinger(f"floor-ping-{uuid.uuid4().hex[:8]}", settings, password=generate_password()),
+                    settings.jid(echo))
         await probe.user.start()
         return probe
 

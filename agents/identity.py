@@ -1,0 +1,126 @@
+"""Ephemeral XMPP identities for RApp runs (Dynamic and Cloud Agents).
+
+Each run gets a fresh account with a random name and a one-time password, created by in-band
+registration (XEP-0077) and deleted (XEP-0077 `<remove/>`) when the run ends in any way. The same
+two calls work on the embedded server, Prosody and ejabberd. Accounts not yet deleted are kept
+in a ledger (0600, in the creating agent's credentials directory), so the next start of a Core or
+Platform that crashed deletes its leftovers (`sweep`).
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+
+from xmpp_server.credentials import default_credentials_dir, generate_password, private_dir
+from xmpp_server.probe import LoginError, probe_login, remove_account
+
+log = logging.getLogger("rapp.identity")
+
+
+@dataclass(frozen=True)
+class Identity:
+    name: str  # the account's local part
+    password: str
+
+    def __repr__(self) -> str:  # never print the password
+        return f"Identity({self.name!r})"
+
+
+class EphemeralAccounts:
+    def __init__(self, settings, owner: str, timeout: float = 10.0):
+        """`owner`: the creating agent's account name (the ledger is named after it)."""
+        self.settings, self.timeout = settings, timeout
+        directory = Path(settings.credentials_dir) if settings.credentials_dir else default_credentials_dir()
+        self.ledger = directory / f"{owner}.ephemeral.json"
+        self._spare: dict[str, asyncio.Task] = {}
+
+    # -- ledger ---------------------------------------------------------------------------
+    def _read(self) -> dict[str, str]:
+        try:
+            return json.loads(self.ledger.read_text())
+        except (OSError, ValueError):
+            return {}
+
+    def _write(self, accounts: dict[str, str]) -> None:
+        private_dir(self.ledger.parent)
+        tmp = self.ledger.with_suffix(f".{os.getpid()}.tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            json.dump(accounts, f)
+        os.replace(tmp, self.ledger)
+
+    def pending(self) -> dict[str, str]:
+        return self._read()
+
+    # -- accounts -------------------------------------------------------------------------
+    async def create(self, prefix: str) -> Identity:
+        """A new account `<prefix>-<random>`, in the ledger before it exists on the server."""
+        ident = Identity(f"{prefix}-{secrets.token_hex(5)}", generate_password())
+        self._write({**self._read(), ident.name: ident.password})
+        s = self.settings
+        try:
+            await probe_login(s.host, s.port, s.domain, user=ident.name, password=ident.password,
+                              register=True, timeout=self.timeout)
+        except LoginError:
+            await asyncio.to_thread(self._forget, ident.name)
+            raise
+        return ident
+
+    def prepare(self, prefix: str) -> None:
+        """Create the next account for `prefix` in the background (a hand-off then only logs in)."""
+        if prefix not in self._spare:
+            self._spare[prefix] = asyncio.create_task(self.create(prefix))
+
+    async def take(self, prefix: str) -> Identity:
+        """The prepared account for `prefix`, or a new one."""
+        task = self._spare.pop(prefix, None)
+        if task is not None:
+            try:
+                return await task
+            except (LoginError, asyncio.CancelledError) as e:
+                log.info("prepared account for %s failed (%s); creating one now", prefix, e)
+        return await self.create(prefix)
+
+    async def delete(self, name: str, password: str | None = None) -> bool:
+        """Delete the account; True when gone (also when it no longer existed)."""
+        password = password or self._read().get(name)
+        if password is None:
+            return True
+        s = self.settings
+        try:
+            await remove_account(s.host, s.port, s.domain, user=name, password=password, timeout=self.timeout)
+        except LoginError as e:
+            if "authentication failed" not in str(e):  # server away: keep it for the next sweep
+                log.warning("could not delete account %s: %s", name, e)
+                return False
+        self._forget(name)
+        return True
+
+    def _forget(self, name: str) -> None:
+        accounts = self._read()
+        if accounts.pop(name, None) is not None:
+            self._write(accounts)
+
+    async def sweep(self, leftovers: dict[str, str] | None = None) -> list[str]:
+        """Delete every account the ledger lists (leftovers of a crash; pass `pending()` taken at
+        start so accounts of runs begun since are not touched). Returns their names."""
+        gone = []
+        for name, password in (self._read() if leftovers is None else leftovers).items():
+            if await self.delete(name, password):
+                gone.append(name)
+        return gone
+
+    async def close(self) -> None:
+        """Delete prepared, unused accounts."""
+        for prefix, task in list(self._spare.items()):
+            self._spare.pop(prefix, None)
+            try:
+                ident = await task
+            except (LoginError, asyncio.CancelledError):
+                continue
+            await self.delete(ident.name, ident.password)

@@ -1,0 +1,68 @@
+"""A Cloud Agent killed from outside (SIGKILL to its process) is noticed by the Platform and its
+Dynamic Agent is told within 2 s (the SDK raises CloudAgentLost); where the manifest says the
+cloud part is restartable, the Platform starts it once more under the same JID."""
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+
+import pytest
+
+from agents.tracing import read_trace
+from robots import RobotAPI, World
+from scenarios.system import RappSystem
+
+from .test_lifecycle import FIXTURE, state, variant, wait_until
+
+
+@pytest.fixture(scope="module")
+async def system(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("cloud-faults")
+    world = World.from_file("small", seed=7)
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+        await system.publish(FIXTURE)
+        await system.publish(variant(workdir, "cloud-lost", "cloudlost", use_cloud=True, behaviour="cloudwatch"))
+        src = variant(workdir, "cloud-again", "cloudagain", use_cloud=True, behaviour="cloudwatch", seconds=4)
+        (src / "manifest.yaml").write_text((src / "manifest.yaml").read_text() + "cloud_restartable: true\n")
+        await system.publish(src)
+        system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
+        await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
+        yield system
+    world.close()
+
+
+async def _kill_cloud_of(system, keyword: str, rapp: str) -> tuple[float, int]:
+    user, start = system.handle.user, len(system.handle.user.received)
+    await user.say(system.handle.core.address, keyword)
+    await user.wait_for(lambda t: t.startswith("watching cloud"), timeout=30, start=start)
+    session = next(c for c in system.platform.clouds.values() if c.rapp == rapp)
+    killed = asyncio.get_running_loop().time()
+    os.kill(session.process.pid, signal.SIGKILL)
+    return killed, start
+
+
+async def test_killed_cloud_agent_is_reported_to_its_dynamic_agent_within_2s(system):
+    killed, start = await _kill_cloud_of(system, "cloudlost", "cloud-lost")
+    user = system.handle.user
+    await user.wait_for(lambda t: t == "cloud lost: cloud-lost", timeout=5, start=start)
+    assert asyncio.get_running_loop().time() - killed <= 2.0
+    await user.wait_for(lambda t: t.startswith("cloud-lost finished"), timeout=20, start=start)
+    assert not any(c.rapp == "cloud-lost" for c in system.platform.clouds.values())
+
+
+async def test_restartable_cloud_agent_is_started_once_more(system):
+    _, start = await _kill_cloud_of(system, "cloudagain", "cloud-again")
+    user = system.handle.user
+    await user.wait_for(lambda t: t.startswith("cloud-again finished"), timeout=30, start=start)
+    texts = user.texts()[start:]
+    # calls go on: one in flight is answered by the new process (the server kept it) or fails
+    # with "cloud-restarted" and the next succeeds; none is lost, the task ends well
+    assert "echo done for owner-nao1, doubled 42" in texts and "cloud lost: cloud-lost" not in texts
+    trace = read_trace(system.settings.trace_file)
+    events = [r for r in trace if r["kind"] == "structure"]
+    lost = next(r for r in events if r["event"] == "cloud-lost" and r["rapp"] == "cloud-again")
+    assert lost["restart"] is True and lost["exit_code"] == -9
+    respawn = next(r for r in events if r["event"] == "cloud-spawn" and r.get("restart"))
+    told = next(r for r in events if r["event"] == "cloud-down" and r["cloud"] == respawn["cloud"])
+    assert told["restarted"] is True and respawn["cloud"] == lost["cloud"]  # the same JID

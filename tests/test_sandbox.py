@@ -1,0 +1,184 @@
+"""Hostile RApps (issue: RApps are untrusted code). A real server, real processes: each attack of
+tests/fixtures/hostile_app runs as a RApp on a robot and reports what it got; every attempt must
+be refused, the refusal visible (in the trace), the robot safe and the Core back in supervision.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from agents.sandbox import ENV_ALLOWED, available
+from agents.tracing import read_trace
+from robots import RobotAPI, World
+from scenarios.system import RappSystem
+from xmpp_server.probe import LoginError, probe_login
+
+from .test_lifecycle import FIXTURE, state, structure, variant, wait_until
+
+HOSTILE = Path(__file__).parent / "fixtures" / "hostile_app"
+ROOT = Path(__file__).resolve().parent.parent
+pytestmark = pytest.mark.skipif(not available(), reason="the RApp sandbox needs root (mount namespace, "
+                                                        "uid of its own); CI runs as root")
+
+
+def hostile(workdir: Path, attack: str, **params) -> Path:
+    dest = workdir / f"hostile-{attack}"
+    shutil.copytree(HOSTILE, dest)
+    manifest = yaml.safe_load((dest / "manifest.yaml").read_text())
+    manifest.update(name=f"hostile-{attack}".replace("_", "-"), keywords=["attack" + attack.replace("_", "")])
+    manifest["params"].update(attack=attack, **params)
+    (dest / "manifest.yaml").write_text(yaml.safe_dump(manifest))
+    return dest
+
+
+@pytest.fixture(scope="module")
+async def system(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("sandbox")
+    world = World.from_file("small", seed=4)
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+        await system.publish(FIXTURE)
+        await system.publish(variant(workdir, "cloud-linger", "cloudlinger", use_cloud=True,
+                                     behaviour="linger", seconds=12))
+        system.a = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
+        system.b = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao", name="nao2")), robot_id="nao2")
+        for h in (system.a, system.b):
+            await wait_until(lambda h=h: h.core.token and state(h.core) == "s3_listen", timeout=30)
+        system.workdir = workdir
+        yield system
+    world.close()
+
+
+def secrets_of(system) -> set[str]:
+    """Every secret of the run: the agents' passwords, the owners' passwords, the Cores' tokens."""
+    found = {p.read_text().strip() for p in (system.workdir / "credentials").glob("*.password")}
+    found |= {h.core.password for h in (system.a, system.b)} | {h.core.token for h in (system.a, system.b)}
+    assert len(found) >= 6 and all(found)
+    return found
+
+
+async def attack(system, name: str, handle=None, timeout: float = 60.0, **params) -> tuple[dict, str]:
+    """Publish and run the hostile RApp for `name`; its report (dict) and the Core's final line."""
+    handle = handle or system.a
+    await system.publish(hostile(system.workdir, name, **params))
+    await wait_until(lambda: state(handle.core) == "s3_listen"
+                     and "user-listener" in handle.core.active_behaviours(), timeout=30)
+    user, start = handle.user, len(handle.user.received)
+    await user.say(handle.core.address, f"attack{name.replace('_', '')}")
+    rapp = f"hostile-{name}".replace("_", "-")
+    end = await user.wait_for(lambda t: t.startswith(f"{rapp} finished") or t.startswith(f"{rapp} ended"),
+                              timeout=timeout, start=start)
+    reports = [t for t in user.texts()[start:] if t.startswith("{")]
+    return (json.loads(reports[-1]) if reports else {}), end
+
+
+async def assert_safe_and_supervising(handle) -> None:
+    """The robot does not move and the Core is back in supervision (within 2 s of the end)."""
+    assert not handle.api.moving_forward()
+    await wait_until(lambda: state(handle.core) == "s3_listen" and "user-listener" in handle.core.active_behaviours(),
+                     timeout=2.0, what="supervision back")
+    assert handle.core.dynamic is None
+
+
+async def test_a_no_secret_in_environment_files_or_parent_proc(system):
+    workdir = system.workdir
+    paths = [str(p) for p in (workdir / "credentials").glob("*")] + [
+        str(workdir / "trace.jsonl"), str(workdir / "xmpp.db"), str(workdir / "platform-data" / "users.db"),
+        str(workdir / "store" / "store.db")]
+    report, end = await attack(system, "secrets", paths=paths, globs=[f"{workdir}/**"])
+    assert "finished" in end, end
+    text = json.dumps(report)
+    for secret in secrets_of(system):
+        assert secret not in text, "a secret reached the RApp"
+    assert set(report["env"]) <= set(ENV_ALLOWED) | {
+        "PYTHONPATH", "PYTHONDONTWRITEBYTECODE", "PYTHONNOUSERSITE", "HOME", "TMPDIR", "MPLCONFIGDIR",
+        "RAPP_XMPP_HOST", "RAPP_XMPP_PORT", "RAPP_XMPP_DOMAIN", "RAPP_XMPP_AUTO_REGISTER",
+        "RAPP_XMPP_VERIFY_TLS", "RAPP_FORCE_XMPP", "RAPP_START_TIMEOUT"}, sorted(report["env"])
+    assert all(v.startswith("ERR") for v in report["files"].values()), report["files"]
+    assert report["uid"] != 0 and report["cwd"] == "/app"
+    assert report["listing"]["/proc"] == "ERR" and report["listing"]["/tmp"] == []
+    await assert_safe_and_supervising(system.a)
+
+
+async def test_b_cannot_log_in_as_any_agent(system):
+    accounts = [system.a.core.name, system.b.core.name, "platform", "store", "publisher",
+                system.a.user.boundjid.user]
+    report, end = await attack(system, "login", accounts=[a.split("@")[0] for a in accounts],
+                               paths=[str(p) for p in (system.workdir / "credentials").glob("*")])
+    assert "finished" in end, end
+    assert report["tried"] >= 2 and report["logged_in"] == []
+    await assert_safe_and_supervising(system.a)
+
+
+async def test_c_its_identity_is_gone_after_the_run(system):
+    report, end = await attack(system, "identity")
+    assert "finished" in end, end
+    jid, password = report["jid"], report["password"]
+    s = system.settings
+    await wait_until(lambda: any(r.get("account") == jid for r in structure(read_trace(s.trace_file))
+                                 if r["event"] == "account-deleted"), timeout=10, what="account deleted")
+    with pytest.raises(LoginError):
+        await probe_login(s.host, s.port, s.domain, user=jid.split("@")[0], password=password,
+                          register=False, timeout=5)
+    await assert_safe_and_supervising(system.a)
+
+
+async def test_d_another_users_token_is_refused(system):
+    report, end = await attack(system, "other_user", stolen_token=system.b.core.token)
+    assert "finished" in end, end
+    assert "issued to another agent" in report["refused"]
+    trace = read_trace(system.settings.trace_file)
+    assert any(r["kind"] == "message" and r["performative"] == "refuse" and r["dir"] == "send"
+               and r["agent"] == system.platform.address and "another agent" in r["content"] for r in trace)
+
+
+async def test_e_cannot_write_outside_its_directory(system):
+    targets = [str(system.workdir / "credentials" / "pwned"), "/tmp/rapp-pwned", str(ROOT / "agents" / "pwned.py"),
+               str(system.a.core.workdir / "pwned"), "/etc/rapp-pwned", str(system.workdir / "pwned")]
+    report, end = await attack(system, "write", targets=targets)
+    assert "finished" in end, end
+    writes = report["writes"]
+    assert writes.pop("own.txt") == "written"
+    writes.pop("/tmp/rapp-pwned")  # the sandbox's /tmp is its own (a tmpfs): nothing reaches the host's
+    assert all(v.startswith("ERR") for v in writes.values()), writes
+    assert not any(os.path.exists(t) for t in targets)
+
+
+@pytest.mark.parametrize("name, check", [
+    ("fork", lambda r: 0 < r["forked"] < 200 and "Resource temporarily unavailable" in r["error"]),
+    ("memory", lambda r: r["allocated"] == 0 and r["error"] == "MemoryError"),
+    ("sockets", lambda r: r["opened"] <= 1024 and "Too many open files" in r["error"]),
+])
+async def test_f_resource_limits_hold(system, name, check):
+    report, end = await attack(system, name)
+    assert check(report), report
+    await assert_safe_and_supervising(system.a)
+
+
+async def test_f_a_spinning_rapp_is_stopped_and_supervision_back_within_2s(system):
+    report, end = await attack(system, "spin", timeout=30)
+    assert "ended with a problem" in end and "heartbeat" in end, end
+    events = structure(read_trace(system.settings.trace_file), system.a.core.address)
+    ended = next(r for r in reversed(events) if r["event"] == "ended")
+    resume = next(r for r in reversed(events) if r["event"] == "resume")
+    assert 0 <= resume["t"] - ended["t"] <= 2.0, resume["t"] - ended["t"]
+    await assert_safe_and_supervising(system.a)
+
+
+async def test_g_cannot_stop_another_rapps_cloud_agent(system):
+    b = system.b
+    user, start = b.user, len(b.user.received)
+    await user.say(b.core.address, "cloudlinger")
+    await wait_until(lambda: any(c.rapp == "cloud-linger" for c in system.platform.clouds.values()), timeout=30)
+    target = next(c.jid for c in system.platform.clouds.values() if c.rapp == "cloud-linger")
+    report, end = await attack(system, "stop_cloud", target=target)
+    assert report["stopped"] is False and "does not own" in report["refused"], report
+    assert target in system.platform.clouds, "the other RApp's Cloud Agent still runs"
+    events = structure(read_trace(system.settings.trace_file), system.platform.address)
+    assert any(r["event"] == "refused" and r["cloud"] == target for r in events)
+    await user.wait_for(lambda t: t.startswith("cloud-linger finished"), timeout=40, start=start)
