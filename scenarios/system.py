@@ -20,7 +20,7 @@ from agents.platform_agent import PlatformAgent
 from agents.process import Limits
 from agents.store_agent import StoreAgent
 from agents.store_client import publish_package
-from rapps.package import build_package_bytes
+from rapps.package import build_package_bytes, generate_keypair
 from xmpp_server import EmbeddedServer, XmppSettings
 
 from .user import ChatUser
@@ -66,6 +66,8 @@ class RappSystem:
         self.platform: PlatformAgent | None = None
         self.publisher: RappAgent | None = None
         self.robots: list[RobotHandle] = []
+        # this run's package signer: what publish() builds is signed, what its Cores run must be
+        self.signing_key, self.public_key = generate_keypair()
 
     async def start(self) -> "RappSystem":
         overrides = {"trace_file": self._trace_file, "force_xmpp": self._force_xmpp}
@@ -89,11 +91,12 @@ class RappSystem:
         return self
 
     async def publish(self, src_dir: str | Path, owner: tuple[str, str] = DEVELOPER) -> str:
-        """Build the RApp in src_dir and publish it through the Store Agent (over XMPP)."""
+        """Build the RApp in src_dir, signed with this run's key, and publish it through the Store
+        Agent (over XMPP)."""
         from ontology.store import RegisterOwner
 
         await self.publisher.request(self.store.address, RegisterOwner(owner=owner[0], password=owner[1]))
-        data = await asyncio.to_thread(build_package_bytes, src_dir)
+        data = await asyncio.to_thread(build_package_bytes, src_dir, self.signing_key)
         details = await publish_package(self.publisher, self.store.address, owner[0], owner[1], data)
         return f"{details.summary.name} {details.summary.version}"
 
@@ -104,6 +107,8 @@ class RappSystem:
         user_name = user or f"owner-{robot_id}"
         chat = ChatUser(user_name, self.settings)
         await chat.start()
+        core_kw.setdefault("trusted_keys", [self.public_key])
+        core_kw.setdefault("require_signature", True)
         core = CoreAgent(f"core-{robot_id}", robot_id=robot_id, robot_type=robot_type, robot_api=api,
                          owner=user_name, platform="platform", store="store", user=user_name,
                          password=f"{user_name}-pw", settings=self.settings,

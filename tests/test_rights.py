@@ -135,7 +135,8 @@ async def test_core_verifies_signatures(tmp_path):
         await system.publisher.request(system.store.address, RegisterOwner(owner="dev", password="pw"))
         await publish_package(system.publisher, system.store.address, "dev", "pw",
                               build_package_bytes(signed, signing_key=key))
-        await system.publish(unsigned)
+        await publish_package(system.publisher, system.store.address, "dev", "pw",
+                              build_package_bytes(unsigned))  # system.publish would sign it
         trusting = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")),
                                           trusted_keys=[pub], require_signature=True)
         doubting = await system.add_robot("elektron", api=RobotAPI(world.add_robot("elektron")),

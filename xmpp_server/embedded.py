@@ -173,6 +173,102 @@ def _patch_account_removal() -> None:
     PluginManager._rapp_removal = True
 
 
+def _patch_session_routes() -> None:
+    """Route to live sessions only: an agent restarted under its own name is reachable at once.
+
+    pyjabber 0.4.5 (pinned) keeps every resource it ever saw in its presence table: a stream that
+    ends (clean `</stream>`, kill -9, timeout) is never removed from it, because the "lost
+    connection" notice goes to a queue nobody reads, and a killed client's peer entry stays listed
+    as online. A message to a bare JID goes to the resources of the highest `<priority/>`, compared
+    as text, any presence type: SPADE's logout sends `unavailable` with priority 0, a new login's
+    presence has none, so every later message to the bare JID went to the old, gone resource only,
+    and was dropped (a Core restarted under its name never heard the Platform nor its owner).
+
+    As a standard server does (RFC 6121 8.5.2, XEP-0160): when a client stream
+    ends, its resource and peer entry are removed; a message to a bare JID goes to the available,
+    connected resources of the highest non-negative priority (missing = 0, compared as numbers),
+    else it is stored offline. Stored messages are delivered on the client's initial presence:
+    pyjabber also flushed them at resource binding, before the client is online, into nothing.
+    Resource conflicts cannot arise: pyjabber binds a fresh random resource for every session."""
+    from pyjabber.features.presence.Enums import PresenceType
+    from pyjabber.features.presence.PresenceFeature import Presence
+    from pyjabber.network.ConnectionManager import ConnectionManager
+    from pyjabber.network.protocols.XMLProtocol import XMLProtocol
+    from pyjabber.queues.QueueManager import QueueName, get_queue
+    from pyjabber.stream.JID import JID
+    from pyjabber.stream.handlers.StanzaHandler import StanzaHandler
+
+    if getattr(Presence, "_rapp_routes", False):
+        return
+
+    def priority(entry) -> int:  # (resource, type, show, status, priority)
+        try:
+            return max(-128, min(127, int(entry[4])))
+        except (TypeError, ValueError):
+            return 0
+
+    def most_priority(self, jid):
+        live = [e for e in self.priority_by_jid(jid)
+                if e[1] == PresenceType.AVAILABLE and priority(e) >= 0
+                and self._connections.get_transport_online(JID(user=jid.user, domain=jid.domain, resource=e[0]))]
+        top = max((priority(e) for e in live), default=None)
+        return [e for e in live if priority(e) == top]
+
+    def forget(jid) -> None:
+        if jid is None or not jid.resource:
+            return
+        status = Presence()._online_status
+        left = [e for e in status.get(jid.bare(), []) if e[0] != jid.resource]
+        if left:
+            status[jid.bare()] = left
+        else:
+            status.pop(jid.bare(), None)
+
+    original_feed = Presence.feed
+
+    async def feed(self, jid, element):
+        try:
+            return await original_feed(self, jid, element)
+        finally:  # a presence parsed before its stream's end but handled after it
+            if isinstance(jid, JID) and not any(c.jid == jid for c in self._connections._peerList.values()):
+                forget(jid)
+
+    original_close = ConnectionManager.close
+
+    def close(self, peer) -> None:
+        client = self._peerList.get(peer)
+        original_close(self, peer)
+        forget(client.jid if client else None)
+
+    original_lost = XMLProtocol.connection_lost
+
+    def connection_lost(self, exc) -> None:
+        if not self._server_incoming and not self._timeout_flag:
+            client = self._connection_manager._peerList.pop(self._peer, None)
+            forget(client.jid if client else None)
+        original_lost(self, exc)
+
+    original_handler_init = StanzaHandler.__init__
+
+    def handler_init(self, transport) -> None:
+        # pyjabber's __init__ ends by queueing a "new connection" for the bound JID, whose stored
+        # messages the queue worker then writes to the client's online transports: none yet.
+        # The initial presence queues the same notice once the client is online.
+        queue = get_queue(QueueName.CONNECTIONS)
+        queue.put_nowait = lambda item: None  # shadows asyncio.Queue's method for this call only
+        try:
+            original_handler_init(self, transport)
+        finally:
+            del queue.put_nowait
+
+    Presence.most_priority = most_priority
+    Presence.feed = feed
+    ConnectionManager.close = close
+    XMLProtocol.connection_lost = connection_lost
+    StanzaHandler.__init__ = handler_init
+    Presence._rapp_routes = True
+
+
 def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
                  db_path: str | None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S):
     """A pyjabber Server for `domain` listening on bind_host:port only."""
@@ -190,6 +286,7 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
     _patch_starttls_race()
     _patch_password_rounds()
     _patch_account_removal()
+    _patch_session_routes()
     defaults = Parameters()
     params = Parameters(
         host=domain,
