@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import pytest
 
-from tests.test_lifecycle import check_full_lifecycle, lifecycle_system, run_command, structure
+from agents.tracing import read_trace
+from tests.test_lifecycle import check_full_lifecycle, lifecycle_system, run_command, structure, wait_until
 from xmpp_server.prosody import ProsodyServer, prosody_binary
 
 pytestmark = [
@@ -51,6 +52,9 @@ async def test_full_lifecycle_on_prosody(system):
     assert sent and all(r["path"] == "xmpp" for r in sent)
     assert any(r["receiver"] == system.platform.address and r["sender"] == spawn["dynamic"]
                and r["action"] == "ping" for r in sent), "the Dynamic Agent pinged the Platform"
+    # the run's one-time account was created and deleted through Prosody's in-band registration
+    await wait_until(lambda: any(r["event"] == "account-deleted" and r["account"] == spawn["dynamic"]
+                                 for r in structure(read_trace(system.settings.trace_file))), timeout=10)
     # the core is listening again: a second command runs too
     await run_command(system, "echo", "echo-app finished")
 
