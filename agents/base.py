@@ -107,6 +107,7 @@ class RappAgent(Agent):
 
     async def start(self, auto_register: bool | None = None) -> None:
         reg = self.settings.auto_register if auto_register is None else auto_register
+        self._early: list | None = []  # messages that arrive before setup() has activated behaviours
         try:
             await asyncio.wait_for(super().start(auto_register=reg), self.settings.start_timeout)
         except asyncio.TimeoutError:
@@ -125,6 +126,9 @@ class RappAgent(Agent):
             self.web_url = f"http://127.0.0.1:{self.web.port}/spade"
             web = {"web": self.web_url}
         self._stopping = False
+        early, self._early = self._early, None
+        for msg, info in early:  # e.g. the owner's chat to a Core restarted a moment ago
+            self._deliver(msg, info)
         self.client.add_event_handler("disconnected", self._on_disconnected)
         self.tracer.record("agent", event="started", agent=self.address, cls=type(self).__name__, **web)
 
@@ -216,11 +220,17 @@ class RappAgent(Agent):
 
     def _route(self, msg: Message, path: str):
         self._trace_message("recv", msg, path)
-        info = AclInfo.of(msg)
+        return self._deliver(msg, AclInfo.of(msg))
+
+    def _deliver(self, msg: Message, info: AclInfo):
         if len(msg.body or "") > MAX_BODY:
             return [self.submit(self._too_large(msg, info))]
         if info.performative in _ANSWER_VALUES and info.conversation_id in self._pending:
             self._pending[info.conversation_id].put_nowait(msg)
+            return []
+        early = getattr(self, "_early", None)
+        if early is not None:  # still starting: held until setup() has activated the behaviours
+            early.append((msg, info))
             return []
         tasks = []
         for behaviour in self.behaviours:

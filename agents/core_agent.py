@@ -37,6 +37,7 @@ from behaviours import BehaviourHost
 from ontology import core as C
 from ontology import platform as P
 from ontology import store as S
+from ontology.acl import Performative
 from ontology.registry import Done
 from ontology.spawn import RobotInfo, SpawnSpec
 from rapps.manifest import Manifest
@@ -50,7 +51,7 @@ from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
 from .identity import EphemeralAccounts, Identity
-from .process import AgentProcess, InProcessAgent, Limits
+from .process import AgentProcess, InProcessAgent, Limits, sweep_run_dirs
 from .sandbox import Sandbox
 from .responder import Responder
 from .store_client import download_package
@@ -98,6 +99,7 @@ class CoreAgent(RobotCommands, RappAgent):
         self.platform, self.store = self.settings.jid(platform), self.settings.jid(store)
         self.user, self.password = user, password
         self.token = ""
+        self._own_workdir = workdir is None  # a temporary one: removed whole at stop
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix=f"rapp-core-{robot_id}-"))
         self.trusted_keys, self.require_signature = trusted_keys, require_signature
         self.limits, self.say_reports = limits, say_reports
@@ -120,6 +122,7 @@ class CoreAgent(RobotCommands, RappAgent):
 
     # -- setup and behaviours ------------------------------------------------------------
     async def setup(self) -> None:
+        await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
         service = Responder(C.ONTOLOGY, {"task_status": self._on_status, "report": self._on_report,
                                          "get_state": self._on_get_state})
         self.activate("core-service", service, service.make_template())
@@ -194,6 +197,18 @@ class CoreAgent(RobotCommands, RappAgent):
         reply = await self.request(self.store, S.ListPackages(robot_type=self.robot_type))
         self.set_catalogue(reply.packages)
 
+    async def subscribe_catalogue(self) -> None:
+        """FIPA subscribe: the Store tells this Core of every publish and removal."""
+        await self.request(self.store, S.SubscribeCatalogue(robot_type=self.robot_type),
+                           performative=Performative.SUBSCRIBE)
+
+    async def on_unhandled(self, msg, info) -> None:
+        if (info.ontology, info.action) == (S.ONTOLOGY, "catalogue_changed") and bare(msg.sender) == self.store:
+            self.record_structure("catalogue-changed", content=(msg.body or "")[:200])
+            self._in_background(self.refresh_catalogue())
+            return
+        await super().on_unhandled(msg, info)
+
     async def interpret(self, text: str) -> tuple[str, dict]:
         words = re.findall(r"[\w'-]+", text.lower())
         if len(words) == 1 and words[0] not in self.vocabulary or not self.catalogue:
@@ -262,8 +277,13 @@ class CoreAgent(RobotCommands, RappAgent):
     async def stop(self) -> None:
         for task in list(self._background):
             task.cancel()
+        if self.dynamic is not None and self.dynamic.process is not None:
+            await self.dynamic.process.stop(grace=0.5)
+            if self.dynamic.account is not None:
+                await self.accounts.delete(self.dynamic.account.name, self.dynamic.account.password)
         await self.accounts.close()
         await super().stop()
+        await asyncio.to_thread(sweep_run_dirs, self.workdir, self._own_workdir)
 
     def _dynamic_prefix(self, rapp: str) -> str:
         return f"dyn-{self.robot_id}-{rapp}".replace("_", "-")
@@ -287,6 +307,8 @@ class CoreAgent(RobotCommands, RappAgent):
         if self.safety_distance:
             self.activate("safety", SafetyMonitor(self, period=self.safety_period))
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
+        # the owner knows at once (chat only: the loudspeaker is the RApp's now)
+        self._in_background(self.tell_user(f"Starting {self.dynamic.rapp}.", speak=False))
 
     def _beat(self, sender: str) -> None:
         d = self.dynamic
@@ -405,10 +427,10 @@ class CoreAgent(RobotCommands, RappAgent):
                            dynamic_agent=d.jid if d else None, rapp=d.rapp if d else None)
 
     # -- talking to the user ----------------------------------------------------------------
-    async def tell_user(self, text: str) -> None:
+    async def tell_user(self, text: str, speak: bool = True) -> None:
         self.told.append(text)
         await self.send(Message(to=self.owner, body=text))
-        if self.say_reports:
+        if self.say_reports and speak:
             try:
                 await self.robot.handle(ontology.robot.Say(text=text))
             except Exception:  # noqa: BLE001 - a robot without speech still gets the chat

@@ -48,6 +48,7 @@ class Register(CoreState):  # s1: Platform and Store, retried with back-off unti
 class Vocabulary(CoreState):  # s2: the Store's RApps for this robot type; keywords -> RApp
     async def action(self):
         await self.core.refresh_catalogue()  # again in s4 when a command names no known RApp
+        await self.core.subscribe_catalogue()  # and whenever the Store says it changed
 
 
 class Listen(Behaviour):  # s3: wait for the user's next command (chat or microphone)
@@ -65,8 +66,9 @@ class Interpret(CoreState):  # s4: isolated keyword -> RApp; a sentence -> Platf
         text = self.memory["command"]
         try:
             rapp, params = await self.core.interpret(text)
-        except RequestError as e:
-            await self.core.tell_user(f"Sorry, I did not understand \"{text}\": {e.reason}")
+        except RequestError as e:  # the Platform's reason names the command ("I did not understand ...")
+            await self.core.tell_user(f"Sorry, {e.reason}" if "understand" in e.reason
+                                      else f"Sorry, I did not understand \"{text}\": {e.reason}")
             raise
         except Exception as e:  # any failure reaches the user as one sentence
             await self.core.tell_user(f"Sorry, I could not interpret \"{text}\": {_why(e)}")

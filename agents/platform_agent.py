@@ -25,7 +25,7 @@ from ontology.registry import Done, actions
 
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError
-from .process import AgentProcess, Limits
+from .process import AgentProcess, Limits, sweep_run_dirs
 from .responder import Responder
 from .store_client import download_package
 from .identity import EphemeralAccounts, Identity
@@ -67,6 +67,7 @@ class PlatformAgent(RappAgent):
             from agents.services import SERVICES as services
 
         self.store = self.settings.jid(store)
+        self._own_workdir = workdir is None  # a temporary one: removed whole at stop
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-platform-"))
         self.services = services
         self.state = services_state or ServiceState()
@@ -84,6 +85,7 @@ class PlatformAgent(RappAgent):
         self._serial = itertools.count(1)
 
     async def setup(self) -> None:
+        await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
         handlers = {"register_user": self.register_user, "login": self.login,
                     "list_services": self.list_services, "register_robot": self.register_robot,
                     "start_cloud_agent": self.start_cloud, "stop_cloud_agent": self.stop_cloud,
@@ -101,6 +103,7 @@ class PlatformAgent(RappAgent):
             await self._kill_cloud(cloud, "platform stopping")
         await super().stop()
         self.directory.close()
+        await asyncio.to_thread(sweep_run_dirs, self.workdir, self._own_workdir)
 
     async def _sweep_accounts(self, leftovers: dict[str, str]) -> None:
         """Delete the Cloud Agents' accounts a crashed earlier run of this Platform left behind."""

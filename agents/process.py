@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import os
 import resource
+import shutil
 import signal
 import subprocess
 import sys
@@ -68,6 +69,17 @@ class Limits:
         for which, value, slack in limits:
             if value:
                 resource.setrlimit(which, (value, value + slack))
+
+
+def sweep_run_dirs(workdir: Path, remove_root: bool = False) -> None:
+    """Remove the run directories (`NNNN-<rapp>`: package, logs) under a Core's or Platform's work
+    directory: at stop, and at start for those a crash left behind."""
+    workdir = Path(workdir)
+    if remove_root:
+        shutil.rmtree(workdir, ignore_errors=True)
+        return
+    for run in workdir.glob("[0-9][0-9][0-9][0-9]-*"):
+        shutil.rmtree(run, ignore_errors=True)
 
 
 class AgentProcess:

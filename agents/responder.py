@@ -45,9 +45,10 @@ Check = Callable[[Action, RequestContext], Awaitable[None] | None]
 
 class Responder(CyclicBehaviour):
     def __init__(self, ontology: str, handlers: dict[str, Handler], *, agree: bool = False,
-                 concurrent: bool = True, check: Check | None = None):
+                 concurrent: bool = True, check: Check | None = None,
+                 performative: Performative = Performative.REQUEST):
         super().__init__()
-        self.ontology = ontology
+        self.ontology, self.performative = ontology, performative
         self.handlers = dict(handlers)
         self.agree = agree
         self.concurrent = concurrent
@@ -57,7 +58,7 @@ class Responder(CyclicBehaviour):
 
     def make_template(self) -> Template:
         # constructor metadata: assigning template.metadata later matches everything (spade 4.1.4)
-        return Template(metadata={"ontology": self.ontology, "performative": Performative.REQUEST.value})
+        return Template(metadata={"ontology": self.ontology, "performative": self.performative.value})
 
     async def run(self) -> None:
         msg = await self.receive(timeout=0.5)  # only messages queued before take_now existed

@@ -23,6 +23,7 @@ import ctypes
 import ctypes.util
 import os
 import secrets
+import signal
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +38,7 @@ ENV_ALLOWED = ("PATH", "LANG", "LC_ALL", "LC_CTYPE", "TZ")
 _CLONE_NEWNS = 0x00020000
 _MS_RDONLY, _MS_NOSUID, _MS_NODEV, _MS_REMOUNT = 0x1, 0x2, 0x4, 0x20
 _MS_BIND, _MS_REC, _MS_PRIVATE = 0x1000, 0x4000, 0x40000
-_PR_SET_NO_NEW_PRIVS = 38
+_PR_SET_PDEATHSIG, _PR_SET_NO_NEW_PRIVS = 1, 38
 
 
 class SandboxError(RuntimeError):
@@ -121,18 +122,21 @@ class Sandbox:
     def preexec(self, workdir: Path, uid: int | None, limits):
         """The function Popen runs in the child between fork and exec (as root)."""
         binds = self._binds(workdir) if uid is not None else []
-        libc = _libc()
+        libc, parent = _libc(), os.getpid()
 
         def run() -> None:
             try:
                 limits.apply(own_uid=uid is not None)
-                if uid is None:
-                    return
-                _enter(libc, Path(workdir) / ".root", binds, self.tmpfs_mb)
-                os.setgroups([])
-                os.setresgid(uid, uid, uid)
-                os.setresuid(uid, uid, uid)
-                _check(libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")
+                if uid is not None:
+                    _enter(libc, Path(workdir) / ".root", binds, self.tmpfs_mb)
+                    os.setgroups([])
+                    os.setresgid(uid, uid, uid)
+                    os.setresuid(uid, uid, uid)
+                    _check(libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")
+                if libc is not None:  # after the uid change, which clears it: dies with its Core/Platform
+                    _check(libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0), "parent-death signal")
+                    if os.getppid() != parent:
+                        os._exit(125)  # the parent died before the signal was armed
             except BaseException as e:  # noqa: BLE001 - say why in stderr.log, never exec unconfined
                 os.write(2, f"rapp sandbox: {type(e).__name__}: {e}\n".encode())
                 os._exit(126)

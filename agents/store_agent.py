@@ -11,6 +11,7 @@ import uuid
 from pathlib import Path
 
 from ontology import store as S
+from ontology.acl import Performative
 from ontology.platform import VerifyToken
 from ontology.registry import Done
 from rapps.chunks import ChunkError, Reassembler, split_chunks
@@ -21,6 +22,7 @@ from .responder import Responder
 from .store_repository import StoreError, StoreRepository
 
 UPLOAD_TTL_S = 300.0
+MAX_SUBSCRIBERS = 1000
 MAX_UPLOADS = 32
 
 
@@ -39,6 +41,7 @@ class StoreAgent(RappAgent):
         super().__init__(name, settings)
         self.platform = self.settings.jid(platform)  # verifies download tokens; downloads freely
         self._verified: dict[tuple[str, str], float] = {}  # (token, sender) -> when verified
+        self.subscribers: dict[str, str | None] = {}  # JID -> robot type it asked about
         self.repo = StoreRepository(data_dir, require_signature=require_signature)
         self._uploads: dict[str, tuple[float, Reassembler]] = {}
         self._downloads: dict[tuple[str, str], tuple[float, list]] = {}
@@ -53,6 +56,23 @@ class StoreAgent(RappAgent):
         }
         responder = Responder(S.ONTOLOGY, {k: _store_errors(v) for k, v in handlers.items()})
         self.activate("store-service", responder, responder.make_template())
+        subscriptions = Responder(S.ONTOLOGY, {"subscribe_catalogue": self.subscribe},
+                                  performative=Performative.SUBSCRIBE)
+        self.activate("store-subscriptions", subscriptions, subscriptions.make_template())
+
+    # -- subscriptions (FIPA subscribe): Cores learn of new and removed RApps at once -------
+    async def subscribe(self, req: S.SubscribeCatalogue, ctx) -> Done:
+        self.subscribers.pop(ctx.sender, None)
+        self.subscribers[ctx.sender] = req.robot_type
+        while len(self.subscribers) > MAX_SUBSCRIBERS:  # the oldest go first
+            self.subscribers.pop(next(iter(self.subscribers)))
+        return Done()
+
+    async def _tell_subscribers(self, event: str, name: str, versions: list[str], robot_types: list[str]) -> None:
+        note = S.CatalogueChanged(event=event, name=name, versions=versions)
+        for jid, robot_type in list(self.subscribers.items()):
+            if robot_type is None or not robot_types or robot_type in robot_types:  # removals: all
+                await self.notify(jid, note, ontology=S.ONTOLOGY, action="catalogue_changed")
 
     async def stop(self) -> None:
         await super().stop()
@@ -164,6 +184,7 @@ class StoreAgent(RappAgent):
             raise Refusal(f"upload incomplete or corrupt: {e}", "bad_chunk") from None
         info = await self._repo(self.repo.publish, req.owner, data)
         self.record_structure("publish", rapp=info.name, version=info.version, by=req.owner)
+        await self._tell_subscribers("published", info.name, [info.version], list(info.robot_types))
         return _details(info)
 
     async def delete(self, req: S.Delete, ctx) -> S.Deleted:
@@ -172,6 +193,7 @@ class StoreAgent(RappAgent):
         gone = await self._repo(self.repo.delete, req.name, req.version, owner=req.owner)
         for v in gone:
             self._downloads.pop((req.name, v), None)
+        await self._tell_subscribers("removed", req.name, gone, [])
         return S.Deleted(name=req.name, versions=gone)
 
     def _expire(self) -> None:

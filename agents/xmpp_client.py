@@ -52,7 +52,10 @@ def install() -> None:
     """Make SPADE agents in this process build their clients with RappXMPPClient."""
     import spade.agent
 
+    from xmpp_server.client_cleanup import remove_upload_dir_at_exit
+
     spade.agent.XMPPClient = RappXMPPClient
+    remove_upload_dir_at_exit()
 
 
 def drop_message_forms(client: ClientXMPP) -> None:

@@ -1,7 +1,7 @@
 """Store Agent messages: owners and robots, publishing, listing, search, download in chunks."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Literal, Any
 
 from pydantic import Field
 
@@ -137,3 +137,20 @@ class Delete(Action):
     password: str
     name: str
     version: str | None = None
+
+
+@action("subscribe_catalogue", ontology=ONTOLOGY, reply=Done, group="catalogue")
+class SubscribeCatalogue(Action):
+    """FIPA subscribe (performative subscribe): the sender is told of every publish and removal
+    (`catalogue_changed` notifications) until it logs out."""
+
+    robot_type: str | None = None
+
+
+@action("catalogue_changed", ontology=ONTOLOGY, reply=Done, group="catalogue")
+class CatalogueChanged(Action):
+    """Notification to subscribers: a RApp version was published or removed."""
+
+    event: Literal["published", "removed"]
+    name: str
+    versions: list[str] = []

@@ -5,6 +5,7 @@
     rapp run demo | hazard-detection --robot nao|elektron --seed N [--json FILE] | two-robots
     rapp package build DIR [-o OUT] [--key KEY.pem] | rapp package keygen KEY.pem
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
+    rapp platform upload-home --house H --user U --password P
     rapp trace show|export|html FILE [...]      (rapp trace FILE = show)
     rapp bench [--quick] [--json FILE]
     rapp doctor
@@ -130,6 +131,39 @@ def cmd_store(a) -> int:
     return asyncio.run(_with_client(run))
 
 
+# -- platform ---------------------------------------------------------------------------------
+def cmd_platform(a) -> int:
+    """What a robot owner uploads once: the home description and map of a house, as their own
+    user (logged in with their Platform password)."""
+    from ontology import platform as P
+
+    if not (a.user and a.password):
+        raise CliError("upload-home needs --user and --password (the owner's Platform login)")
+
+    async def run(client, settings):
+        from robots import World
+        from scenarios.home_setup import LAYOUTS, home_description, upload_home_over_xmpp
+
+        if a.house not in LAYOUTS:
+            raise CliError(f"no home description for house {a.house!r} (known: {', '.join(LAYOUTS)})")
+        platform = settings.jid(a.platform)
+        login = await client.request(platform, P.Login(user=a.user, password=a.password, ttl_s=600))
+        import tempfile
+
+        world = World.from_file(a.house, seed=0)
+        try:
+            with tempfile.TemporaryDirectory(prefix="rapp-home-") as tmp:
+                info, png, yaml_text = home_description(world, a.house, Path(tmp))
+        finally:
+            world.close()
+        await upload_home_over_xmpp(client, platform, login.token, info, png, yaml_text)
+        print(f"uploaded home {info.home_id!r} (map {info.map_id}, {len(info.hazards)} hazards, "
+              f"{len(info.landmarks)} landmarks) for {a.user}")
+        return 0
+
+    return asyncio.run(_with_client(run))
+
+
 # -- trace ------------------------------------------------------------------------------------
 def cmd_trace(argv: list[str]) -> int:
     actions = {"show", "export", "html"}
@@ -213,6 +247,13 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--robot-type")
     st.add_argument("--store", default="store", help="the Store Agent's name or JID")
 
+    pl = sub.add_parser("platform", help="talk to the Platform Agent as a robot owner")
+    pl.add_argument("action", choices=["upload-home"])
+    pl.add_argument("--house", default="small", help="house whose home description and map to upload")
+    pl.add_argument("--user", help="the owner's Platform user name")
+    pl.add_argument("--password", help="the owner's Platform password")
+    pl.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
+
     sub.add_parser("trace", help="show, export or render a message trace (rapp trace FILE)", add_help=False)
     sub.add_parser("bench", help="run the benchmarks (rapp bench --help)", add_help=False)
     sub.add_parser("agent", help="run one Store, Platform or Core agent here (rapp agent --help)",
@@ -242,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return {"server": cmd_server, "package": cmd_package, "store": cmd_store,
-                "doctor": cmd_doctor}[a.command](a)
+                "platform": cmd_platform, "doctor": cmd_doctor}[a.command](a)
     except KeyboardInterrupt:
         return 130
     except SystemExit:

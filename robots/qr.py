@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -14,7 +13,10 @@ PIXELS_PER_MODULE = 8
 
 
 def cache_dir() -> Path:
-    d = Path(os.environ.get("RAPP_ROBOTS_CACHE", Path(tempfile.gettempdir()) / f"rapp_robots_{os.getuid()}"))
+    """Generated URDFs and QR textures, reused across runs: RAPP_ROBOTS_CACHE, else the user's
+    cache directory (not /tmp, where another user could plant files first)."""
+    default = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rapp" / "robots"
+    d = Path(os.environ.get("RAPP_ROBOTS_CACHE") or default)
     d.mkdir(parents=True, exist_ok=True)
     return d
 

@@ -119,3 +119,35 @@ def upload_home(state: ServiceState, user: str, info: HomeInfo, png: bytes, yaml
     navigation.upload_map(UploadMap(map_id=info.map_id, png_b64=base64.b64encode(png).decode(),
                                     yaml_text=yaml_text), ctx)
     home_service.upload_info(UploadHomeInfo(info=info), ctx)
+
+
+async def upload_home_over_xmpp(agent, platform: str, token: str, info: HomeInfo, png: bytes,
+                                yaml_text: str) -> None:
+    """The same upload as the owner's app sends it: map, then home description, as Platform
+    service requests with the owner's token (deployments: `rapp agent core --house`,
+    `rapp platform upload-home`)."""
+    import base64
+
+    await agent.request(platform, UploadMap(token=token, map_id=info.map_id, yaml_text=yaml_text,
+                                            png_b64=base64.b64encode(png).decode()), timeout=30.0)
+    await agent.request(platform, UploadHomeInfo(token=token, info=info), timeout=30.0)
+
+
+async def ensure_home(core, world, house: str, out_dir) -> str:
+    """Upload the home description of `house` for the Core's owner unless the Platform has one:
+    what the owner does once before asking for hazard checks. Returns what was done."""
+    from agents.errors import RequestError
+    from ontology.services.home import GetHomeInfo
+
+    if house not in LAYOUTS:
+        return f"no home description for house {house!r} (known: {', '.join(LAYOUTS)}); upload one"
+    token = await core.fresh_token()
+    try:
+        await core.request(core.platform, GetHomeInfo(token=token, home_id="home"))
+        return f"home of {core.user} already on the Platform"
+    except RequestError as e:
+        if e.code != "unknown_home":
+            raise
+    info, png, yaml_text = home_description(world, house, out_dir)
+    await upload_home_over_xmpp(core, core.platform, token, info, png, yaml_text)
+    return f"uploaded the home description of {house!r} for {core.user}"

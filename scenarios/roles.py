@@ -23,7 +23,7 @@ from pathlib import Path
 from xmpp_server.settings import XmppSettings
 
 
-async def _run_until_stopped(agents, cleanup=None) -> None:
+async def _run_until_stopped(agents, cleanup=None, after_start=None) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -31,7 +31,10 @@ async def _run_until_stopped(agents, cleanup=None) -> None:
     for a in agents:
         await a.start()
         print(f"{a.address} running ({type(a).__name__}); Ctrl-C stops it", flush=True)
+    extra = asyncio.create_task(after_start()) if after_start else None
     await stop.wait()
+    if extra is not None:
+        extra.cancel()
     for a in agents:
         with contextlib.suppress(Exception):
             await a.stop()
@@ -56,11 +59,12 @@ async def _platform(a, settings) -> None:
     from agents.platform_agent import PlatformAgent
     from agents.services.context import ServiceState
 
-    state = ServiceState()
+    state = ServiceState(work_dir=data_dir("platform", a.data) / "services")  # per-user files (maildirs)
     if a.maps:
         print(f"maps preloaded: {', '.join(state.preload_maps(a.maps)) or 'none'}")
     await _run_until_stopped([PlatformAgent(a.name or "platform", store=a.store, settings=settings,
                                             services_state=state, data_dir=data_dir("platform", a.data),
+                                            workdir=a.workdir or data_dir("platform", a.data) / "work",
                                             sandbox=sandbox(a))])
 
 
@@ -120,8 +124,20 @@ async def _core(a, settings) -> None:
     core = CoreAgent(a.name or f"core-{robot_id}", robot_id=robot_id, robot_type=a.robot, robot_api=api,
                      owner=a.owner, platform=a.platform, store=a.store, user=a.owner,
                      password=owner_password(a, settings), settings=settings, sandbox=sandbox(a),
+                     workdir=a.workdir or data_dir(f"core-{robot_id}", None) / "work",
                      **trust(a))
-    await _run_until_stopped([core], cleanup=world.close)
+
+    async def home() -> None:  # the owner's home description, for RApps that need one
+        from scenarios.home_setup import ensure_home
+
+        while not core.token:
+            await asyncio.sleep(0.2)
+        try:
+            print(await ensure_home(core, world, a.house, core.workdir.parent / "home"), flush=True)
+        except Exception as e:  # noqa: BLE001 - the Core serves on without a home
+            print(f"home description not uploaded: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+
+    await _run_until_stopped([core], cleanup=world.close, after_start=home)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
     p.add_argument("--data", help="store, platform: data directory (default ~/.local/share/rapp/ROLE)")
     p.add_argument("--require-signature", action="store_true", help="store: refuse unsigned packages")
+    p.add_argument("--workdir", help="core, platform: where RApp runs unpack and log (default: "
+                                      "~/.local/share/rapp/<agent>/work; emptied at every stop and start)")
     p.add_argument("--maps", help="platform: directory of map_server YAML maps to preload")
     p.add_argument("--robot", choices=["nao", "elektron"], default="nao", help="core: robot model")
     p.add_argument("--robot-id")

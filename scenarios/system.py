@@ -22,6 +22,7 @@ from agents.store_agent import StoreAgent
 from agents.store_client import publish_package
 from rapps.package import build_package_bytes, generate_keypair
 from xmpp_server import EmbeddedServer, XmppSettings
+from xmpp_server.credentials import generate_password
 
 from .user import ChatUser
 
@@ -111,7 +112,7 @@ class RappSystem:
         core_kw.setdefault("require_signature", True)
         core = CoreAgent(f"core-{robot_id}", robot_id=robot_id, robot_type=robot_type, robot_api=api,
                          owner=user_name, platform="platform", store="store", user=user_name,
-                         password=f"{user_name}-pw", settings=self.settings,
+                         password=generate_password(), settings=self.settings,
                          workdir=self.workdir / f"core-{robot_id}", limits=self.limits, **core_kw)
         await core.start()
         handle = RobotHandle(robot_id, robot_type, core, chat, api)

@@ -251,3 +251,15 @@ async def test_command_heard_through_the_robots_microphone(system):
     commands = [r for r in read_trace(system.settings.trace_file)
                 if r["kind"] == "structure" and r["event"] == "command"]
     assert commands[-1]["text"] == "echo"
+
+
+async def test_core_learns_of_rapps_published_and_removed_while_it_runs(system, tmp_path):
+    """The Store tells subscribed Cores (FIPA subscribe) of each publish and removal."""
+    core = system.handle.core
+    await system.publish(variant(tmp_path, "late-echo", "lateecho"))
+    await wait_until(lambda: "lateecho" in core.vocabulary, timeout=5, what="vocabulary refreshed")
+    await run_command(system, "lateecho", "late-echo finished")
+    await system.publisher.request(system.store.address, S.Delete(owner="developer", password="developer-secret",
+                                                                   name="late-echo"))
+    await wait_until(lambda: "lateecho" not in core.vocabulary, timeout=5, what="removal seen")
+    assert any(r["event"] == "catalogue-changed" for r in structure(read_trace(system.settings.trace_file)))

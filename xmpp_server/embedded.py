@@ -287,6 +287,8 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
     _patch_password_rounds()
     _patch_account_removal()
     _patch_session_routes()
+    from .client_cleanup import remove_upload_dir_at_exit
+    remove_upload_dir_at_exit()
     defaults = Parameters()
     params = Parameters(
         host=domain,

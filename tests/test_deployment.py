@@ -1,0 +1,171 @@
+"""The deployment route of docs/deployment.md, as a deployer runs it: the server, Store, Platform
+and a Core as separate `rapp` processes; the owner a plain slixmpp client (no project code); a
+signed RApp published while the Core runs; the Core killed (SIGKILL) in the middle of a task and
+restarted under its name; the next task runs to its report; nothing is left in the temporary
+directory afterwards."""
+from __future__ import annotations
+
+import asyncio
+import os
+import re
+import signal
+import ssl
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import slixmpp
+from slixmpp.exceptions import IqError, IqTimeout
+
+from agents.sandbox import available
+from xmpp_server.ports import free_port
+
+from .test_cli import RAPP
+from .test_lifecycle import variant
+
+ROOT = Path(__file__).resolve().parent.parent
+FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
+pytestmark = pytest.mark.skipif(not available(), reason="`rapp agent core` runs RApps in the sandbox, "
+                                                        "which needs root; CI runs as root")
+
+
+class Owner(slixmpp.ClientXMPP):
+    """What any chat client does: register, log in, send and receive chat messages."""
+
+    def __init__(self, jid: str, password: str):
+        super().__init__(jid, password)
+        self.ssl_context.check_hostname = False
+        self.ssl_context.verify_mode = ssl.CERT_NONE  # the embedded server's self-signed certificate
+        self.register_plugin("xep_0077")
+        self.register_plugin("xep_0199")
+        self.texts: list[str] = []
+        self.ready = asyncio.Event()
+        self.add_event_handler("register", self._register)
+        self.add_event_handler("session_start", self._start)
+        self.add_event_handler("message", self._message)
+
+    async def _register(self, _):
+        iq = self.Iq()
+        iq["type"], iq["register"]["username"], iq["register"]["password"] = "set", self.boundjid.user, self.password
+        try:
+            await iq.send()
+        except (IqError, IqTimeout):
+            pass
+
+    def _start(self, _):
+        self.send_presence()
+        self.ready.set()
+
+    def _message(self, msg):
+        if msg["type"] in ("chat", "normal") and msg["body"]:
+            self.texts.append(msg["body"])
+
+    async def command(self, to: str, text: str, expect: str, timeout: float = 60.0) -> list[str]:
+        start = len(self.texts)
+        self.send_message(mto=to, mbody=text, mtype="chat")
+        return await self.wait_for(expect, start, timeout)
+
+    async def wait_for(self, expect: str, start: int, timeout: float = 60.0) -> list[str]:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while not any(expect in t for t in self.texts[start:]):
+            if loop.time() > deadline:
+                raise AssertionError(f"no {expect!r} within {timeout}s; got {self.texts[start:]}")
+            await asyncio.sleep(0.05)
+        return self.texts[start:]
+
+
+class Deployment:
+    def __init__(self, tmp: Path):
+        self.tmp, self.port = tmp, free_port("127.0.0.1")
+        (tmp / "tmp").mkdir()
+        self.env = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_")}
+        self.env.update(RAPP_XMPP_HOST="127.0.0.1", RAPP_XMPP_PORT=str(self.port), RAPP_XMPP_DOMAIN="localhost",
+                        XDG_DATA_HOME=str(tmp / "data"), RAPP_CREDENTIALS_DIR=str(tmp / "credentials"),
+                        TMPDIR=str(tmp / "tmp"), RAPP_TRACE_FILE=str(tmp / "trace.jsonl"))
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        log = open(self.tmp / f"{name}.log", "ab")
+        proc = subprocess.Popen([*RAPP, *args], cwd=self.tmp, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, start_new_session=True)
+        self.procs[name] = proc
+        return proc
+
+    async def wait_log(self, name: str, text: str, timeout: float = 60.0) -> None:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        path = self.tmp / f"{name}.log"
+        while text not in path.read_text(errors="replace"):
+            if self.procs[name].poll() is not None or loop.time() > deadline:
+                raise AssertionError(f"{name}: no {text!r}: {path.read_text(errors='replace')[-2000:]}")
+            await asyncio.sleep(0.1)
+
+    def run(self, *args: str) -> str:
+        res = subprocess.run([*RAPP, *args], cwd=self.tmp, env=self.env, capture_output=True, text=True,
+                             timeout=120, stdin=subprocess.DEVNULL)
+        assert res.returncode == 0, (args, res.stdout, res.stderr)
+        return res.stdout
+
+    def stop_all(self) -> None:
+        for proc in reversed(list(self.procs.values())):
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGTERM)
+        for proc in self.procs.values():
+            try:
+                proc.wait(15)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+
+async def test_deployment_survives_a_core_crash(tmp_path):
+    d = Deployment(tmp_path)
+    key = tmp_path / "dev.pem"
+    pub = re.search(r"public key (\S+)", d.run("package", "keygen", str(key))).group(1)
+    core_args = ["agent", "core", "--robot", "nao", "--robot-id", "nao1", "--owner", "alice",
+                 "--password", "alice-app-pw", "--trust", pub, "--house", "small", "--seed", "2"]
+    owner = Owner("alice@localhost", "alice-xmpp-pw")
+    try:
+        d.start("server", "server", "--port", str(d.port), "--db", str(tmp_path / "xmpp.db"))
+        await asyncio.sleep(1.0)
+        d.start("store", "agent", "store")
+        d.start("platform", "agent", "platform")
+        await d.wait_log("store", "running")
+        await d.wait_log("platform", "running")
+        d.start("core", *core_args)
+        await d.wait_log("core", "running")
+        owner.connect(host="127.0.0.1", port=d.port)
+        await asyncio.wait_for(owner.ready.wait(), 20)
+
+        # published while the Core runs: it learns the new RApps on the first command naming them
+        lingering = variant(tmp_path, "linger-echo", "lingerecho", behaviour="linger", seconds=30)
+        for src in (FIXTURE, lingering):
+            pkg = tmp_path / f"{src.name}.rapp"
+            d.run("package", "build", str(src), "--key", str(key), "-o", str(pkg))
+            d.run("store", "publish", str(pkg), "--owner", "dev", "--password", "dev-pw")
+        await owner.command("core-nao1@localhost", "echo", "echo-app finished", timeout=90)
+
+        # the Core dies in the middle of a task: its RApp dies with it; restarted under its name,
+        # it deletes the run's leftover account and work directory, and serves the next command
+        start = len(owner.texts)
+        await owner.command("core-nao1@localhost", "lingerecho", "Starting linger-echo")
+        d.procs["core"].send_signal(signal.SIGKILL)
+        d.procs["core"].wait()
+        work = tmp_path / "data" / "rapp" / "core-nao1" / "work"
+        assert any(work.glob("*linger-echo")), "the killed Core left its run directory"
+        d.start("core", *core_args)
+        await d.wait_log("core", "running")
+        texts = await owner.command("core-nao1@localhost", "echo", "echo-app finished", timeout=90)
+        assert not any("linger-echo finished" in t for t in owner.texts[start:])
+        assert not any(work.glob("*linger-echo")), "the restarted Core swept the crash's run directory"
+        assert texts[0].startswith("Starting echo-app")
+        ledger = tmp_path / "credentials" / "core-nao1.ephemeral.json"
+        assert ledger.exists() and "linger-echo" not in ledger.read_text()
+    finally:
+        owner.disconnect()
+        d.stop_all()
+    leftovers = list((tmp_path / "tmp").iterdir())
+    assert leftovers == [], leftovers
+    assert not any(work.iterdir()), "a clean stop empties the work directory"
