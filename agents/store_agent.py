@@ -172,9 +172,18 @@ class StoreAgent(RappAgent):
             raise Refusal(f"upload refused: {e}", "bad_chunk") from None
         return S.UploadTicket(upload_id=upload_id)
 
+    async def _check_owner(self, owner: str, password: str, sender: str) -> None:
+        """Owner operations are decided on the server-authenticated sender: the account bound to
+        the owner at its first publish; the owner's password is checked as well."""
+        if not await self._repo(self.repo.verify_owner, owner, password):
+            raise Refusal(f"owner {owner!r} unknown or wrong password", "forbidden")
+        bound = await self._repo(self.repo.bind_owner, owner, sender)
+        if bound != sender:
+            self.record_structure("refused", action="owner-operation", owner=owner, by=sender)
+            raise Refusal(f"owner {owner!r} publishes from {bound}, not from {sender}", "forbidden")
+
     async def publish(self, req: S.Publish, ctx) -> S.PackageDetails:
-        if not await self._repo(self.repo.verify_owner, req.owner, req.password):
-            raise Refusal(f"owner {req.owner!r} unknown or wrong password", "forbidden")
+        await self._check_owner(req.owner, req.password, ctx.sender)
         entry = self._uploads.pop(req.upload_id, None)
         if entry is None:
             raise Refusal(f"no upload {req.upload_id!r} in progress", "not_found")
@@ -188,8 +197,7 @@ class StoreAgent(RappAgent):
         return _details(info)
 
     async def delete(self, req: S.Delete, ctx) -> S.Deleted:
-        if not await self._repo(self.repo.verify_owner, req.owner, req.password):
-            raise Refusal(f"owner {req.owner!r} unknown or wrong password", "forbidden")
+        await self._check_owner(req.owner, req.password, ctx.sender)
         gone = await self._repo(self.repo.delete, req.name, req.version, owner=req.owner)
         for v in gone:
             self._downloads.pop((req.name, v), None)

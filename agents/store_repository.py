@@ -67,6 +67,10 @@ CREATE TABLE IF NOT EXISTS versions (
     PRIMARY KEY (name, version)
 );
 CREATE INDEX IF NOT EXISTS versions_sha ON versions(sha256);
+CREATE TABLE IF NOT EXISTS owner_jids (
+    owner TEXT PRIMARY KEY REFERENCES owners(name),
+    jid TEXT NOT NULL
+);
 """
 _VERSION_COLS = ("name, version, description, robot_types, keywords, phrases, manifest, sha256, size, "
                  "signer_key_id, signer_public_key, published_by, published_at, downloads")
@@ -254,6 +258,16 @@ class StoreRepository:
         """True iff the owner exists and the password matches its stored hash."""
         rows = self._query("SELECT password_hash FROM owners WHERE name=?", (name,))
         return bool(rows) and rows[0][0] is not None and _check_password(password, rows[0][0])
+
+    def bind_owner(self, name: str, jid: str) -> str:
+        """The XMPP account that publishes for `name`: bound at its first publish, then fixed.
+        Returns the bound JID (compare it with the sender)."""
+        with self._tx() as db:
+            row = db.execute("SELECT jid FROM owner_jids WHERE owner=?", (name,)).fetchone()
+            if row is not None:
+                return row[0]
+            db.execute("INSERT INTO owner_jids VALUES (?,?)", (name, jid))
+            return jid
 
     def register_robot(self, robot_id: str, robot_type: str, owner: str) -> Robot:
         """Register (or re-register, idempotently) a robot of a known type for a registered owner.

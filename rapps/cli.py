@@ -76,7 +76,9 @@ def cmd_package(a) -> int:
 
 
 # -- store ------------------------------------------------------------------------------------
-async def _with_client(fn):
+async def _with_client(fn, account: tuple[str, str] | None = None):
+    """Run `fn(client, settings)` with a client agent: logged in as `account` (name, password),
+    e.g. a Store owner's own account, or else as a throwaway account deleted afterwards."""
     from agents.base import RappAgent
     from xmpp_server.settings import XmppSettings
     import uuid
@@ -84,18 +86,21 @@ async def _with_client(fn):
     from xmpp_server.credentials import generate_password
     from xmpp_server.probe import LoginError, remove_account
 
+    import logging
+    logging.getLogger("slixmpp").setLevel(logging.CRITICAL)  # a failed login is reported as one line
     settings = XmppSettings.from_env()
-    name, password = f"cli-{uuid.uuid4().hex[:8]}", generate_password()  # a throwaway account
+    name, password = account or (f"cli-{uuid.uuid4().hex[:8]}", generate_password())
     client = RappAgent(name, settings, password=password)
     await client.start()
     try:
         return await fn(client, settings)
     finally:
         await client.stop()
-        try:
-            await remove_account(settings.host, settings.port, settings.domain, user=name, password=password)
-        except LoginError:
-            pass
+        if account is None:
+            try:
+                await remove_account(settings.host, settings.port, settings.domain, user=name, password=password)
+            except LoginError:
+                pass
 
 
 def cmd_store(a) -> int:
@@ -128,6 +133,14 @@ def cmd_store(a) -> int:
 
     if a.action in ("publish", "info", "remove") and not a.target:
         raise CliError(f"store {a.action} needs a target")
+    if a.action in ("publish", "remove"):  # owner operations come from the owner's own XMPP account
+        if not (a.owner and a.password):
+            raise CliError(f"store {a.action} needs --owner and --password")
+        from agents.errors import AgentStartError
+        try:
+            return asyncio.run(_with_client(run, account=(a.owner, a.password)))
+        except AgentStartError as e:
+            raise CliError(f"the XMPP server refused owner {a.owner!r} (wrong password?): {e}") from None
     return asyncio.run(_with_client(run))
 
 

@@ -116,6 +116,9 @@ async def test_store_downloads_need_the_senders_platform_token(settings, unique,
     try:
         await owner.request(store.address, S.RegisterOwner(owner="dev", password="pw"))
         await publish_package(owner, store.address, "dev", "pw", build_package_bytes(FIXTURE))
+        # owner operations are decided on the sender: the owner's password alone is not enough
+        with pytest.raises(RequestRefused, match="publishes from"):
+            await thief.request(store.address, S.Delete(owner="dev", password="pw", name="echo-app"))
         with pytest.raises(RequestRefused, match="Platform token"):
             await download_package(thief, store.address, "echo-app")
         await owner.request(platform.address, P.RegisterUser(user="ann", password="pw"))
