@@ -28,6 +28,7 @@ from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, lookup, parse_json, validate
 from xmpp_server.client_cleanup import end_filter_task
+from xmpp_server.compat import install_agent_patches
 from xmpp_server.ports import free_port
 from xmpp_server.settings import XmppSettings
 
@@ -35,42 +36,12 @@ from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefus
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, make_message, reply_to
 from .stanza import message_xml, read_message
-from .xmpp_client import install as _install_xmpp_client
 from .tracing import cap, tracer_for
 
 log = logging.getLogger("rapp.agent")
-_install_xmpp_client()  # one shared TLS context for unverified loopback logins (agents/xmpp_client.py)
 _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
 _OPENING_VALUES = frozenset(p.value for p in acl.OPENING)
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
-
-
-async def _cancellable_step(self) -> None:
-    """SPADE's CyclicBehaviour._step with one change: cancellation ends the behaviour.
-
-    SPADE 4.1.4 catches CancelledError inside the loop and goes on, so a behaviour of an agent
-    that was not stopped ignores cancellation forever (an event loop then never closes)."""
-    while not self._done() and not self.is_killed():
-        try:
-            await self._run()
-            await asyncio.sleep(0)
-        except asyncio.CancelledError:
-            self.kill()
-            self.is_running = False
-            raise
-        except Exception as e:  # noqa: BLE001 - SPADE's own contract: an error kills the behaviour
-            log.exception("behaviour %s failed", self)
-            self.kill(exit_code=e)
-    try:
-        await self.on_end()
-    except Exception as e:  # noqa: BLE001
-        log.exception("on_end of %s failed", self)
-        self.kill(exit_code=e)
-    self.is_running = False
-    self.agent.remove_behaviour(self)
-
-
-CyclicBehaviour._step = _cancellable_step
 
 
 class _RoutingContainer:
@@ -88,6 +59,7 @@ class _RoutingContainer:
 
 class RappAgent(Agent):
     def __init__(self, name: str, settings: XmppSettings | None = None, password: str | None = None):
+        install_agent_patches()  # xmpp_server/compat.py: checks the pins, then patches (once)
         self.settings = settings or XmppSettings.from_env()
         super().__init__(self.settings.jid(name), password or self.settings.password_for(name),
                          port=self.settings.port, verify_security=self.settings.verify_tls)

@@ -112,6 +112,7 @@ class CoreAgent(RobotCommands, RappAgent):
         self.supervisor: BehaviourHost | None = None
         self._serial = itertools.count(1)
         self._background: set[asyncio.Task] = set()
+        self._speech: asyncio.Task | None = None  # the last utterance queued on the loudspeaker
         self.locks = ResourceLocks()
         if dynamic_mode not in ("process", "inprocess"):
             raise ValueError(f"dynamic_mode must be 'process' or 'inprocess', not {dynamic_mode!r}")
@@ -428,13 +429,23 @@ class CoreAgent(RobotCommands, RappAgent):
 
     # -- talking to the user ----------------------------------------------------------------
     async def tell_user(self, text: str, speak: bool = True) -> None:
+        """Chat at once; speak beside listening: the Core never waits for its own sentence
+        (utterances queue behind one another, in order)."""
         self.told.append(text)
         await self.send(Message(to=self.owner, body=text))
         if self.say_reports and speak:
-            try:
-                await self.robot.handle(ontology.robot.Say(text=text))
-            except Exception:  # noqa: BLE001 - a robot without speech still gets the chat
-                pass
+            previous = self._speech
+            self._speech = asyncio.create_task(self._say_after(previous, text))
+            self._background.add(self._speech)
+            self._speech.add_done_callback(self._background.discard)
+
+    async def _say_after(self, previous: asyncio.Task | None, text: str) -> None:
+        if previous is not None:
+            await asyncio.gather(previous, return_exceptions=True)
+        try:
+            await self.robot.handle(ontology.robot.Say(text=text))
+        except Exception:  # noqa: BLE001 - a robot without speech still gets the chat
+            pass
 
     async def _busy_chat(self, text: str) -> None:
         d = self.dynamic

@@ -7,13 +7,13 @@ import sys
 
 from xmpp_server.settings import XmppSettings
 
-PINS = {"spade": "4.1.4", "pyjabber": "0.4.5", "slixmpp": None}
-
-
 def _check(name: str, fn) -> bool:
     try:
         detail = fn()
         print(f"  ok    {name}{': ' + detail if detail else ''}")
+        return True
+    except NoServer as e:
+        print(f"  note  {name}: {e}")
         return True
     except Exception as e:  # noqa: BLE001 - every failure is reported, none stops the others
         print(f"  FAIL  {name}: {e}")
@@ -21,13 +21,23 @@ def _check(name: str, fn) -> bool:
 
 
 def _versions() -> str:
-    from importlib.metadata import version
-    out = []
-    for dist, want in (("spade", "4.1.4"), ("pyjabber", "0.4.5"), ("slixmpp-multiplatform", "1.12.0")):
-        got = version(dist)
-        if got != want:
-            raise RuntimeError(f"{dist} {got} installed, {want} expected: pip install -e . again")
-        out.append(f"{dist} {got}")
+    """Every exact pin of the project's requirements against what is installed."""
+    from importlib.metadata import PackageNotFoundError, requires, version
+
+    from xmpp_server.compat import check_pins
+
+    check_pins()  # the ones xmpp_server/compat.py patches, with its message
+    pins = [r.split(";")[0].replace(" ", "").split("==") for r in requires("rapp-agents") or []
+            if "==" in r and "extra ==" not in r]
+    out, bad = [], []
+    for dist, want in pins:
+        try:
+            got = version(dist)
+        except PackageNotFoundError:
+            got = "missing"
+        (out if got == want else bad).append(f"{dist} {got}" + ("" if got == want else f" (pinned {want})"))
+    if bad:
+        raise RuntimeError(f"{', '.join(bad)}: run pip install -e . again")
     return ", ".join(out)
 
 
@@ -54,19 +64,31 @@ def _ompl() -> str:
     return "python bindings load"
 
 
+class NoServer(Exception):
+    """Nothing listens where the settings point: normal on a machine that only runs `rapp run`."""
+
+
 def _server(settings: XmppSettings) -> str:
+    import socket
+
     from xmpp_server.probe import probe_login
+    try:
+        socket.create_connection((settings.host, settings.port), timeout=2).close()
+    except OSError:
+        raise NoServer(f"no XMPP server at {settings.host}:{settings.port}. That is fine for `rapp run`, "
+                       f"which starts its own; for `rapp agent` start one with `rapp server --port "
+                       f"{settings.port}` (or Prosody/ejabberd) or set RAPP_XMPP_HOST/PORT/DOMAIN") from None
     try:
         dt = asyncio.run(probe_login(settings.host, settings.port, settings.domain, timeout=5))
     except Exception as e:
-        raise RuntimeError(f"{e}. Start one with `rapp server` or set RAPP_XMPP_HOST/PORT/DOMAIN") from None
+        raise RuntimeError(f"{e}. Check RAPP_XMPP_DOMAIN and the server's settings (docs/deployment.md)") from None
     return f"login to {settings.host}:{settings.port} (domain {settings.domain}) in {dt * 1000:.0f} ms"
 
 
 def run_checks() -> int:
     settings = XmppSettings.from_env()
     print(f"python {sys.version.split()[0]}")
-    results = [_check("pinned SPADE / pyjabber / slixmpp", _versions), _check("PyBullet", _pybullet),
+    results = [_check("pinned versions", _versions), _check("PyBullet", _pybullet),
                _check("OpenCV", _opencv), _check("OMPL", _ompl),
                _check("configured XMPP server accepts logins", lambda: _server(settings))]
     print("all good" if all(results) else f"{results.count(False)} problem(s) found")

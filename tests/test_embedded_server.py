@@ -11,7 +11,7 @@ import pytest
 
 from scenarios.user import ChatUser
 from xmpp_server import EmbeddedServer
-from xmpp_server.embedded import PASSWORD_ROUNDS
+from xmpp_server.compat import PASSWORD_ROUNDS
 from xmpp_server.probe import LoginError, probe_login
 
 

@@ -263,3 +263,18 @@ async def test_core_learns_of_rapps_published_and_removed_while_it_runs(system, 
                                                                    name="late-echo"))
     await wait_until(lambda: "lateecho" not in core.vocabulary, timeout=5, what="removal seen")
     assert any(r["event"] == "catalogue-changed" for r in structure(read_trace(system.settings.trace_file)))
+
+
+async def test_core_answers_while_the_robot_is_still_speaking(system):
+    """Speech runs beside listening: a long sentence does not delay the next command's answer."""
+    core = system.handle.core
+    await wait_until(lambda: state(core) == "s3_listen" and "user-listener" in core.active_behaviours())
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    await core.tell_user("this is a long sentence of twenty words " * 3)  # ~8 s of speech
+    assert loop.time() - t0 < 0.5
+    user, start = system.handle.user, len(system.handle.user.received)
+    t0 = loop.time()
+    await user.say(core.address, "please juggle three torches")
+    await user.wait_for(lambda t: t.startswith("Sorry"), timeout=10, start=start)
+    assert loop.time() - t0 < 1.0, "the command was answered while the robot spoke"

@@ -209,7 +209,9 @@ async def test_message_forms_stay_raw_xml_in_the_whole_process():
     from slixmpp import ClientXMPP
     from slixmpp.stanza import Message
 
-    from agents.xmpp_client import RappXMPPClient
+    from xmpp_server.compat import rapp_xmpp_client_class
+
+    RappXMPPClient = rapp_xmpp_client_class()
 
     RappXMPPClient("forms-a@localhost", "pw", False, True)  # in-band registration loads XEP-0004
     other = ClientXMPP("forms-b@localhost", "pw")

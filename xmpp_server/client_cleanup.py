@@ -23,27 +23,3 @@ async def end_filter_task(client: ClientXMPP | None) -> None:
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError, Exception):
             await task
-
-
-def remove_upload_dir_at_exit() -> None:
-    """pyjabber 0.4.5 makes a temporary directory (`pyjabber_xep0363_*`, for HTTP uploads nobody
-    uses here) when its upload module is imported, which SPADE does in every agent process, and
-    never removes it. Removed when this process exits (empty or not: nothing of ours is in it)."""
-    import atexit
-    import shutil
-    import sys
-
-    import os
-    from pathlib import Path
-
-    module = sys.modules.get("pyjabber.plugins.xep_0363.upload_server")
-    path = getattr(module, "TEMP_DIR", None)
-    if path and not getattr(module, "_rapp_cleanup", False):
-        atexit.register(shutil.rmtree, path, ignore_errors=True)
-        module._rapp_cleanup = True
-        for other in Path(path).parent.glob("pyjabber_xep0363_*"):  # of killed processes: unused, empty
-            if str(other) != path:
-                try:
-                    os.rmdir(other)
-                except OSError:
-                    pass

@@ -1,0 +1,432 @@
+"""Every patch of a third-party internal (SPADE, slixmpp, pyjabber), in one module, installed by one
+explicit call that first checks the installed versions against the pins:
+
+    install_agent_patches()    RappAgent.__init__ (every agent process)
+    install_server_patches()   xmpp_server.embedded.build_server (the embedded server process)
+
+Each patch is idempotent and names the upstream code it replaces; docs/spade-pitfalls.md lists them.
+A version other than the pinned one fails with PinMismatch: the patches repeat pinned upstream code.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+from importlib.metadata import PackageNotFoundError, version
+
+_log = logging.getLogger("rapp.compat")
+PINS = {"spade": "4.1.4", "pyjabber": "0.4.5", "slixmpp-multiplatform": "1.12.0"}
+
+
+class PinMismatch(RuntimeError):
+    pass
+
+
+def check_pins(*dists: str) -> dict[str, str]:
+    """The installed versions of `dists` (all pins when none given); PinMismatch unless pinned."""
+    found = {}
+    for dist in dists or tuple(PINS):
+        try:
+            found[dist] = version(dist)
+        except PackageNotFoundError:
+            raise PinMismatch(f"{dist} is not installed ({PINS[dist]} is pinned): pip install -e .") from None
+        if found[dist] != PINS[dist]:
+            raise PinMismatch(f"{dist} {found[dist]} is installed but {PINS[dist]} is pinned, and "
+                              f"xmpp_server/compat.py patches that version's internals: pip install -e .")
+    return found
+
+
+_installed: set[str] = set()
+
+
+def install_agent_patches() -> None:
+    """SPADE and slixmpp patches every agent process needs (once per process)."""
+    if "agent" in _installed:
+        return
+    check_pins("spade", "slixmpp-multiplatform", "pyjabber")
+    import spade.agent
+    from spade.behaviour import CyclicBehaviour
+
+    CyclicBehaviour._step = _cancellable_step
+    spade.agent.XMPPClient = rapp_xmpp_client_class()
+    _keep_forms_off_messages()
+    remove_upload_dir_at_exit()
+    _installed.add("agent")
+
+
+def install_server_patches() -> None:
+    """pyjabber patches of the embedded server (once per process)."""
+    if "server" in _installed:
+        return
+    check_pins("pyjabber")
+    import pyjabber.server as pjs
+
+    pjs.setup_query_local_ip = lambda: None  # no extra listener on the auto-detected LAN address
+    _patch_starttls_race()
+    _patch_password_rounds()
+    _patch_account_removal()
+    _patch_session_routes()
+    remove_upload_dir_at_exit()
+    _installed.add("server")
+
+
+def configure_server(server, bind_host: str):
+    """A pyjabber 0.4.5 Server (pinned) with its unauthenticated admin API (HTTP, port 9090) off and
+    bound to `bind_host` instead of its domain name: both are private attributes."""
+    server._http_server = None
+    server._host = bind_host
+    return server
+
+
+# -- SPADE ------------------------------------------------------------------------------------
+async def _cancellable_step(self) -> None:
+    """SPADE's CyclicBehaviour._step with one change: cancellation ends the behaviour.
+
+    SPADE 4.1.4 catches CancelledError inside the loop and goes on, so a behaviour of an agent
+    that was not stopped ignores cancellation forever (an event loop then never closes)."""
+    while not self._done() and not self.is_killed():
+        try:
+            await self._run()
+            await asyncio.sleep(0)
+        except asyncio.CancelledError:
+            self.kill()
+            self.is_running = False
+            raise
+        except Exception as e:  # noqa: BLE001 - SPADE's own contract: an error kills the behaviour
+            _log.exception("behaviour %s failed", self)
+            self.kill(exit_code=e)
+    try:
+        await self.on_end()
+    except Exception as e:  # noqa: BLE001
+        _log.exception("on_end of %s failed", self)
+        self.kill(exit_code=e)
+    self.is_running = False
+    self.agent.remove_behaviour(self)
+
+
+_client_class = None
+
+
+def rapp_xmpp_client_class():
+    """SPADE's XMPP client with a shared TLS context when certificates are not verified, and
+    message data forms left as XML.
+
+    slixmpp builds a fresh default SSL context for every client and loads the system CA store into it
+    twice (``create_default_context`` + ``set_default_verify_paths``): ~75 ms of every login, i.e. most
+    of an in-process Dynamic Agent's hand-off, spent on certificates that are never checked on loopback.
+    With ``verify_security`` off every client shares one context without CA paths; with it on, nothing
+    changes. The body repeats ``spade.xmpp_client.XMPPClient.__init__`` of spade 4.1.4 (pinned) with the
+    context passed through; revisit on any SPADE upgrade (docs/spade-pitfalls.md).
+    """
+    global _client_class
+    if _client_class is not None:
+        return _client_class
+    from slixmpp import ClientXMPP, __version__
+    from spade.xmpp_client import XMPPClient
+
+    from .tls import unverified_context
+
+    class RappXMPPClient(XMPPClient):
+        def __init__(self, jid, password, verify_security, auto_register):
+            if verify_security:
+                super().__init__(jid, password, verify_security, auto_register)
+            else:
+                self._init_unverified(jid, password, auto_register)
+            drop_message_forms(self)
+
+        def _init_unverified(self, jid, password, auto_register):
+            from packaging import version
+
+            ClientXMPP.__init__(self, jid, password, ssl_context=unverified_context())
+            self.logger = logging.getLogger("spade.Agent")
+            if version.parse(__version__) >= version.Version("1.10.0"):
+                self.enable_direct_tls = False
+            self.add_event_handler("session_start", self.session_start)
+            self.register_plugin("xep_0199")
+            if auto_register:
+                self.add_event_handler("register", self.register)
+                self.register_plugin("xep_0077")
+            self["xep_0199"].enable_keepalive(interval=55)
+            self.register_plugin("xep_0363")
+
+        def session_start(self, event):
+            # SPADE's session_start leaves the roster request's future unretrieved: an agent stopped
+            # (or a server gone) before the answer printed "Future exception was never retrieved"
+            self.send_presence()
+            self.get_roster().add_done_callback(lambda f: f.cancelled() or f.exception())
+
+    _client_class = RappXMPPClient
+    return _client_class
+
+
+# -- slixmpp ----------------------------------------------------------------------------------
+def drop_message_forms(client: ClientXMPP) -> None:
+    """Leave a message's data form as raw XML. Once any plugin loads XEP-0004 (in-band registration
+    does), slixmpp turns the form of every incoming message into stanza objects, one per field:
+    ~200 us per ACL message, whose metadata SPADE's Message.from_node then reads from the raw XML
+    anyway. The registration is class-wide: it is undone here and kept from coming back when any
+    other client of the process (a chat user, a benchmark's floor client) loads XEP-0004 later."""
+    from slixmpp.stanza import Message
+
+    _keep_forms_off_messages()
+    client.remove_handler("Data Form")
+    Message.plugin_tag_map.pop("{jabber:x:data}x", None)
+    Message.plugin_attrib_map.pop("form", None)
+
+
+def _keep_forms_off_messages() -> None:
+    from slixmpp.plugins.xep_0004 import dataforms
+    from slixmpp.plugins.xep_0004.stanza import Form
+    from slixmpp.stanza import Message
+
+    register = dataforms.register_stanza_plugin
+    if getattr(register, "keeps_forms_off_messages", False):
+        return
+
+    def register_except_message_forms(stanza, plugin, *args, **kwargs):
+        if not (stanza is Message and plugin is Form):
+            register(stanza, plugin, *args, **kwargs)
+
+    register_except_message_forms.keeps_forms_off_messages = True
+    dataforms.register_stanza_plugin = register_except_message_forms
+
+
+# -- pyjabber (SPADE imports it in every agent process; the embedded server runs it) ----------
+def remove_upload_dir_at_exit() -> None:
+    """pyjabber 0.4.5 makes a temporary directory (`pyjabber_xep0363_*`, for HTTP uploads nobody
+    uses here) when its upload module is imported, which SPADE does in every agent process, and
+    never removes it. Removed when this process exits (empty or not: nothing of ours is in it)."""
+    import atexit
+    import shutil
+    import sys
+
+    import os
+    from pathlib import Path
+
+    module = sys.modules.get("pyjabber.plugins.xep_0363.upload_server")
+    path = getattr(module, "TEMP_DIR", None)
+    if path and not getattr(module, "_rapp_cleanup", False):
+        atexit.register(shutil.rmtree, path, ignore_errors=True)
+        module._rapp_cleanup = True
+        for other in Path(path).parent.glob("pyjabber_xep0363_*"):  # of killed processes: unused, empty
+            if str(other) != path:
+                try:
+                    os.rmdir(other)
+                except OSError:
+                    pass
+
+
+_held: dict[int, list[bytes]] = {}
+
+
+def _patch_starttls_race() -> None:
+    """Hold client bytes that arrive while pyjabber upgrades a stream to TLS.
+
+    pyjabber resets its XML stack only after `loop.start_tls` returns, but the client's new
+    <stream:stream> can arrive (and be parsed into the old stack) before that: the login then
+    hangs. Bytes received during the upgrade are replayed once the reset has happened.
+    """
+    from pyjabber.network.protocols.XMLProtocol import XMLProtocol
+    from pyjabber.stream.negotiators.StreamNegotiator import StreamNegotiator
+
+    if getattr(StreamNegotiator, "_rapp_patched", False):
+        return
+    original_received = XMLProtocol.data_received
+    original_tls = StreamNegotiator._handle_tls
+
+    def data_received(self, data):
+        held = _held.get(id(self))
+        if held is not None:
+            held.append(data)
+            return
+        original_received(self, data)
+
+    async def handle_tls(self, element):
+        protocol = self._protocol
+        _held[id(protocol)] = []
+        try:
+            return await original_tls(self, element)
+        finally:
+            held = _held.pop(id(protocol), [])
+            if held:  # after the caller's stack reset, which runs before the loop turns again
+                asyncio.get_running_loop().call_soon(
+                    lambda: [original_received(protocol, d) for d in held])
+
+    XMLProtocol.data_received = data_received
+    StreamNegotiator._handle_tls = handle_tls
+    StreamNegotiator._rapp_patched = True
+
+
+PASSWORD_ROUNDS = 4096  # RFC 7677's minimum for SCRAM-SHA-256; pyjabber's own 100 000 cost ~35 ms
+
+
+def _patch_password_rounds(rounds: int = PASSWORD_ROUNDS) -> None:
+    """Store new accounts' password hashes with `rounds` PBKDF2 iterations.
+
+    pyjabber hashes with 100 000 iterations at registration and again at every login (the stored
+    count is used to verify): ~35 ms of server CPU each, most of an in-process Dynamic Agent's
+    hand-off. This embedded server is a loopback development server whose accounts are the
+    agents' own; verification still uses the count stored with each hash, so databases written
+    with pyjabber's count keep working. Repeats pyjabber 0.4.5's `SASL._store_hash_task` (pinned)."""
+    import bcrypt
+    from pyjabber import AppConfig
+    from pyjabber.db.database import DB
+    from pyjabber.db.model import Model
+    from pyjabber.features.SASL.SASL import SASL
+    from sqlalchemy import insert
+
+    if getattr(SASL, "_rapp_rounds", None) == rounds:
+        return
+
+    async def store_hash(self, password: str, jid_str: str):
+        in_memory = AppConfig.app_config.database_in_memory
+        hashed = await self._hash_scram_async(password=password, iterations=rounds,
+                                              salt=bcrypt.gensalt(rounds=8) if in_memory else bcrypt.gensalt())
+        async with await DB.connection_async() as con:
+            async with con.begin():
+                await con.execute(insert(Model.Credentials).values({"jid": jid_str, "hash_pwd": hashed}))
+
+    SASL._store_hash_task = store_hash
+    SASL._rapp_rounds = rounds
+
+
+def _patch_account_removal() -> None:
+    """XEP-0077 account removal (`<query xmlns='jabber:iq:register'><remove/></query>` from a logged-in
+    client), which pyjabber 0.4.5 lacks (its PluginManager answers feature-not-implemented): the
+    account's credentials and roster rows are deleted, the answer is sent, then every stream of the
+    account is closed. Cores and the Platform delete the ephemeral accounts of RApp runs this way,
+    as they do on Prosody and ejabberd."""
+    from xml.etree import ElementTree as ET
+
+    from pyjabber.db.database import DB
+    from pyjabber.db.model import Model
+    from pyjabber.network.ConnectionManager import ConnectionManager
+    from pyjabber.plugins.PluginManager import PluginManager
+    from pyjabber.stanzas.IQ import IQ
+    from pyjabber.stanzas.error import StanzaError as SE
+    from sqlalchemy import delete
+
+    if getattr(PluginManager, "_rapp_removal", False):
+        return
+
+    class AccountRemoval:
+        @staticmethod
+        async def feed(jid, element):
+            query = element.find("{jabber:iq:register}query")
+            if element.attrib.get("type") != "set" or query is None or \
+                    query.find("{jabber:iq:register}remove") is None:
+                return SE.feature_not_implemented("query", "jabber:iq:register")
+            async with await DB.connection_async() as con:
+                async with con.begin():
+                    await con.execute(delete(Model.Credentials).where(Model.Credentials.c.jid == jid.user))
+                    await con.execute(delete(Model.Roster).where(Model.Roster.c.jid.in_([jid.user, jid.bare()])))
+            clients = [c for c in ConnectionManager()._peerList.values()
+                       if c.jid is not None and c.jid.bare() == jid.bare()]
+            loop = asyncio.get_running_loop()
+            for c in clients:  # after the answer below is written
+                loop.call_later(0.05, c.transport.close)
+            return ET.tostring(IQ(type_=IQ.TYPE.RESULT, id_=element.attrib.get("id"), to=str(jid)))
+
+    original_init = PluginManager.__init__
+
+    def init(self, jid) -> None:
+        original_init(self, jid)
+        self._plugins["jabber:iq:register"] = AccountRemoval()
+
+    PluginManager.__init__ = init
+    PluginManager._rapp_removal = True
+
+
+def _patch_session_routes() -> None:
+    """Route to live sessions only: an agent restarted under its own name is reachable at once.
+
+    pyjabber 0.4.5 (pinned) keeps every resource it ever saw in its presence table: a stream that
+    ends (clean `</stream>`, kill -9, timeout) is never removed from it, because the "lost
+    connection" notice goes to a queue nobody reads, and a killed client's peer entry stays listed
+    as online. A message to a bare JID goes to the resources of the highest `<priority/>`, compared
+    as text, any presence type: SPADE's logout sends `unavailable` with priority 0, a new login's
+    presence has none, so every later message to the bare JID went to the old, gone resource only,
+    and was dropped (a Core restarted under its name never heard the Platform nor its owner).
+
+    As a standard server does (RFC 6121 8.5.2, XEP-0160): when a client stream
+    ends, its resource and peer entry are removed; a message to a bare JID goes to the available,
+    connected resources of the highest non-negative priority (missing = 0, compared as numbers),
+    else it is stored offline. Stored messages are delivered on the client's initial presence:
+    pyjabber also flushed them at resource binding, before the client is online, into nothing.
+    Resource conflicts cannot arise: pyjabber binds a fresh random resource for every session."""
+    from pyjabber.features.presence.Enums import PresenceType
+    from pyjabber.features.presence.PresenceFeature import Presence
+    from pyjabber.network.ConnectionManager import ConnectionManager
+    from pyjabber.network.protocols.XMLProtocol import XMLProtocol
+    from pyjabber.queues.QueueManager import QueueName, get_queue
+    from pyjabber.stream.JID import JID
+    from pyjabber.stream.handlers.StanzaHandler import StanzaHandler
+
+    if getattr(Presence, "_rapp_routes", False):
+        return
+
+    def priority(entry) -> int:  # (resource, type, show, status, priority)
+        try:
+            return max(-128, min(127, int(entry[4])))
+        except (TypeError, ValueError):
+            return 0
+
+    def most_priority(self, jid):
+        live = [e for e in self.priority_by_jid(jid)
+                if e[1] == PresenceType.AVAILABLE and priority(e) >= 0
+                and self._connections.get_transport_online(JID(user=jid.user, domain=jid.domain, resource=e[0]))]
+        top = max((priority(e) for e in live), default=None)
+        return [e for e in live if priority(e) == top]
+
+    def forget(jid) -> None:
+        if jid is None or not jid.resource:
+            return
+        status = Presence()._online_status
+        left = [e for e in status.get(jid.bare(), []) if e[0] != jid.resource]
+        if left:
+            status[jid.bare()] = left
+        else:
+            status.pop(jid.bare(), None)
+
+    original_feed = Presence.feed
+
+    async def feed(self, jid, element):
+        try:
+            return await original_feed(self, jid, element)
+        finally:  # a presence parsed before its stream's end but handled after it
+            if isinstance(jid, JID) and not any(c.jid == jid for c in self._connections._peerList.values()):
+                forget(jid)
+
+    original_close = ConnectionManager.close
+
+    def close(self, peer) -> None:
+        client = self._peerList.get(peer)
+        original_close(self, peer)
+        forget(client.jid if client else None)
+
+    original_lost = XMLProtocol.connection_lost
+
+    def connection_lost(self, exc) -> None:
+        if not self._server_incoming and not self._timeout_flag:
+            client = self._connection_manager._peerList.pop(self._peer, None)
+            forget(client.jid if client else None)
+        original_lost(self, exc)
+
+    original_handler_init = StanzaHandler.__init__
+
+    def handler_init(self, transport) -> None:
+        # pyjabber's __init__ ends by queueing a "new connection" for the bound JID, whose stored
+        # messages the queue worker then writes to the client's online transports: none yet.
+        # The initial presence queues the same notice once the client is online.
+        queue = get_queue(QueueName.CONNECTIONS)
+        queue.put_nowait = lambda item: None  # shadows asyncio.Queue's method for this call only
+        try:
+            original_handler_init(self, transport)
+        finally:
+            del queue.put_nowait
+
+    Presence.most_priority = most_priority
+    Presence.feed = feed
+    ConnectionManager.close = close
+    XMLProtocol.connection_lost = connection_lost
+    StanzaHandler.__init__ = handler_init
+    Presence._rapp_routes = True
