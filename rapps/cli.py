@@ -2,7 +2,9 @@
 
     rapp server [--host H] [--port P] [--domain D] [--db FILE | --memory]
     rapp agent store|platform|core [...]       (one agent on this machine, for deployments)
+    rapp new NAME [DIR] [--cloud]              (a RApp package to start from)
     rapp run demo | hazard-detection --robot nao|elektron --seed N [--json FILE] | two-robots
+    rapp run rapp DIR_OR_PACKAGE --robot nao|elektron --house NAME [--say TEXT]
     rapp package build DIR [-o OUT] [--key KEY.pem] | rapp package keygen KEY.pem
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
     rapp platform upload-home --house H --user U --password P
@@ -55,7 +57,10 @@ def cmd_run(a, rest: list[str]) -> int:
     if a.scenario == "two-robots":
         from scenarios.two_robots import main as two_main
         return two_main(rest)
-    raise CliError(f"unknown scenario {a.scenario!r} (known: demo, hazard-detection, hazard-table, two-robots)")
+    if a.scenario == "rapp":
+        from scenarios.run_rapp import main as rapp_main
+        return rapp_main(rest)
+    raise CliError(f"unknown scenario {a.scenario!r} (known: demo, hazard-detection, hazard-table, two-robots, rapp)")
 
 
 # -- package ----------------------------------------------------------------------------------
@@ -73,6 +78,18 @@ def cmd_package(a) -> int:
         print(f"private key {a.dir}; public key {pub} (id {public_key_id(pub)})")
         return 0
     raise CliError(f"unknown package action {a.action!r}")
+
+
+# -- new --------------------------------------------------------------------------------------
+def cmd_new(a) -> int:
+    from rapps.scaffold import create
+
+    try:
+        dest = create(a.name, a.dir, cloud=a.cloud)
+    except (ValueError, FileExistsError) as e:
+        raise CliError(str(e)) from None
+    print(f"created {dest}: try  rapp run rapp {dest}  and  pytest {dest}/tests")
+    return 0
 
 
 # -- store ------------------------------------------------------------------------------------
@@ -245,6 +262,11 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run a scenario (demo, hazard-detection, hazard-table, two-robots)")
     r.add_argument("scenario")
 
+    n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)")
+    n.add_argument("name", help="the RApp's name (lower case, dashes)")
+    n.add_argument("dir", nargs="?", help="where to create it (default: ./NAME)")
+    n.add_argument("--cloud", action="store_true", help="with a Cloud Agent part")
+
     k = sub.add_parser("package", help="build a RApp package or a signing key")
     k.add_argument("action", choices=["build", "keygen"])
     k.add_argument("dir", help="RApp source directory (build) or key file to write (keygen)")
@@ -286,6 +308,9 @@ def main(argv: list[str] | None = None) -> int:
         if argv and argv[0] == "agent":
             from scenarios.roles import main as agent_main
             return agent_main(argv[1:])
+        if argv[:1] == ["run"] and len(argv) > 1 and not argv[1].startswith("-"):
+            # the scenario parses the rest itself (so `rapp run SCENARIO --help` is its own help)
+            return cmd_run(argparse.Namespace(scenario=argv[1]), argv[2:])
         if argv and argv[0] == "bench":
             from bench.runner import main as bench_main
             return bench_main(argv[1:])
@@ -296,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return {"server": cmd_server, "package": cmd_package, "store": cmd_store,
-                "platform": cmd_platform, "doctor": cmd_doctor}[a.command](a)
+                "platform": cmd_platform, "new": cmd_new, "doctor": cmd_doctor}[a.command](a)
     except KeyboardInterrupt:
         return 130
     except SystemExit:

@@ -1,0 +1,125 @@
+"""`rapp new NAME [DIR] [--cloud]`: a RApp package to start from: manifest, a task with a two-state
+FSM, optionally a Cloud Agent part, and a test that runs it on the simulated robot. It builds,
+publishes and runs unchanged (`rapp run rapp DIR`)."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+MANIFEST = """\
+# {name}: made by `rapp new`. Fields: docs/sdk.md and rapps/manifest.py.
+name: {name}
+version: 0.1.0
+description: {title} (edit me).
+robot_types: [nao, elektron]
+keywords: [{keyword}]
+phrases:
+  - run {words}
+entry_point: {pkg}.task:{cls}Task
+{cloud_line}services: [ping]
+robot_api: [communication, navigation]
+params:
+  greeting: Hello from {name}
+time_limit_s: 120
+author: you
+"""
+
+TASK = '''\
+"""{title}: two behaviours, greet then report (edit them)."""
+from behaviours import FSM
+from rapps.sdk import Step, Task
+{cloud_import}
+
+class {cls}Task(Task):
+{cloud_attr}    def build(self):
+        fsm = FSM("{pkg}", initial="greet")
+        fsm.add_state("greet", Step(self.greet))
+        fsm.add_state("report", Step(self.finish), final=True)
+        fsm.add_transition("greet", "report")
+        return fsm
+
+    async def greet(self, memory):
+        await self.say(str(self.params["greeting"]))  # an Elektron has no speech: nothing is said
+        memory["pose"] = (await self.robot.get_global_pose()).model_dump()
+
+    async def finish(self, memory):
+        pong = await self.platform.ping()
+{cloud_call}        await self.report(f"{name} done for {{pong.user}} at {{memory['pose']}}", **extra)
+'''
+
+MODELS = '''\
+from ontology.registry import Action, Content, action
+
+ONTOLOGY = "cloud.{name}"
+
+
+class Doubled(Content):
+    value: int
+
+
+@action("double", ontology=ONTOLOGY, reply=Doubled)
+class Double(Action):
+    value: int
+'''
+
+CLOUD = '''\
+"""The Cloud Agent part of {name}: runs on the Platform, serves only this RApp's Dynamic Agent."""
+from rapps.sdk import CloudService
+
+from .models import ONTOLOGY, Doubled
+
+
+class {cls}Cloud(CloudService):
+    ontology = ONTOLOGY
+
+    async def double(self, req):
+        return Doubled(value=req.value * 2)
+'''
+
+TEST = '''\
+"""Runs {name} on the simulated robot: `pytest {rel}` from the project's checkout."""
+import json
+from pathlib import Path
+
+import pytest
+
+from scenarios.run_rapp import run_rapp
+
+HERE = Path(__file__).resolve().parent.parent
+pytestmark = pytest.mark.asyncio  # pytest-asyncio, installed with the project's test extras
+
+
+async def test_{pkg}_runs_on_a_simulated_nao(tmp_path):
+    result = await run_rapp(HERE, "nao", "small", 1, None, tmp_path, timeout_s=120)
+    assert result["ok"], result["end"]
+    assert any("{name} done" in r["text"] for r in result["reports"])
+    assert json.loads((tmp_path / "result.json").read_text())["ok"]
+'''
+
+
+def create(name: str, directory: str | Path | None = None, cloud: bool = False) -> Path:
+    if not re.fullmatch(r"[a-z][a-z0-9-]{1,40}", name):
+        raise ValueError(f"a RApp name is lower-case letters, digits and dashes, starting with a letter: {name!r}")
+    dest = Path(directory or name)
+    if dest.exists() and any(dest.iterdir()):
+        raise FileExistsError(f"{dest} exists and is not empty")
+    pkg = name.replace("-", "_")
+    cls = "".join(w.capitalize() for w in name.split("-"))
+    title = name.replace("-", " ").capitalize()
+    fill = dict(name=name, pkg=pkg, cls=cls, title=title, keyword=name.replace("-", ""),
+                words=name.replace("-", " "), rel=f"{dest}/tests",
+                cloud_line=f"cloud_entry_point: {pkg}.cloud:{cls}Cloud\n" if cloud else "",
+                cloud_import="\nfrom .models import ONTOLOGY\n" if cloud else "",
+                cloud_attr="    cloud_ontology = ONTOLOGY\n\n" if cloud else "",
+                cloud_call=("        extra = {\"doubled\": (await self.cloud.call(\"double\", value=21)).value}\n"
+                            if cloud else "        extra = {}\n"))
+    (dest / pkg).mkdir(parents=True, exist_ok=True)
+    (dest / "tests").mkdir(exist_ok=True)
+    (dest / "manifest.yaml").write_text(MANIFEST.format(**fill))
+    (dest / pkg / "__init__.py").write_text("")
+    (dest / pkg / "task.py").write_text(TASK.format(**fill))
+    if cloud:
+        (dest / pkg / "models.py").write_text(MODELS.format(**fill))
+        (dest / pkg / "cloud.py").write_text(CLOUD.format(**fill))
+    (dest / "tests" / f"test_{pkg}.py").write_text(TEST.format(**fill))
+    return dest

@@ -1,0 +1,105 @@
+"""`rapp run rapp DIR_OR_PACKAGE --robot nao|elektron --house NAME_OR_FILE [--seed S] [--say TEXT]`:
+run your own RApp on a simulated robot, as the hazard scenario runs its RApp.
+
+Builds the package (when given a directory; signed with a key of this run), publishes it to a fresh
+Store on the embedded server, uploads the house's home description and map for the owner, sends
+the owner's command (default: the RApp's first keyword) and waits until the RApp ends. Writes
+result.json (the RApp's reports as data), chat.txt and trace.jsonl to --out; exits 1 with the
+reason on one line when the RApp ends in error.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+from agents.tracing import read_trace
+from rapps.manifest import load_manifest
+from robots import RobotAPI, World
+from scenarios.home_setup import LAYOUTS, home_description, upload_home
+from scenarios.system import RappSystem, wait_until
+
+
+def _reports(trace: Path, core: str) -> list[dict]:
+    """What the RApp reported (text and data), from the trace: its requests to the Core."""
+    out = []
+    for r in read_trace(trace):
+        if r["kind"] == "message" and r["dir"] == "recv" and r["agent"] == core and r["action"] == "report":
+            try:
+                out.append(json.loads(r["content"]))
+            except ValueError:
+                out.append({"text": r["content"]})
+    return out
+
+
+async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None, out: Path,
+                   timeout_s: float) -> dict:
+    manifest_dir = src if src.is_dir() else None
+    world = World.from_file(house, seed=seed)
+    try:
+        api = RobotAPI(world.add_robot(robot))
+        async with RappSystem(out / "system", trace_file=out / "trace.jsonl") as system:
+            if manifest_dir is not None:
+                name = (await system.publish(src)).split()[0]
+                keywords = load_manifest(src).keywords
+            else:  # a built package: published as it is (the Cores then need --allow-unsigned)
+                from agents.store_client import publish_package
+                from ontology.store import RegisterOwner
+                from rapps.package import read_package
+                pkg = read_package(src.read_bytes())
+                name, keywords = pkg.manifest.name, pkg.manifest.keywords
+                await system.publisher.request(system.store.address, RegisterOwner(owner="developer",
+                                                                                   password="developer-secret"))
+                await publish_package(system.publisher, system.store.address, "developer", "developer-secret",
+                                      src.read_bytes())
+            user = f"owner-{robot}1"
+            if Path(house).stem in LAYOUTS:  # the owner's home description, as the Platform keeps it
+                info, png, yaml_text = home_description(world, Path(house).stem, out)
+                upload_home(system.platform.state, user, info, png, yaml_text)
+            kw = {} if manifest_dir is not None else {"require_signature": False, "trusted_keys": None}
+            handle = await system.add_robot(robot, api=api, user=user, **kw)
+            await wait_until(lambda: handle.core.supervisor.behaviour.current == "s3_listen", 30, "Core listening")
+            command = say or keywords[0]
+            print(f"[run] {robot} in {house}: owner says {command!r}", flush=True)
+            start = len(handle.user.received)
+            await handle.user.say(handle.core.address, command)
+            end = await handle.user.wait_for(
+                lambda t: t.startswith((f"{name} finished", f"{name} ended")) or t.startswith("Sorry")
+                or "could not get" in t or "did not start" in t, timeout=timeout_s, start=start)
+            texts = handle.user.texts()[start:]
+            for t in texts:
+                print(f"[chat] {t}", flush=True)
+            reports = _reports(out / "trace.jsonl", handle.core.address)
+        ok = end.startswith(f"{name} finished")
+        result = {"rapp": name, "robot": robot, "house": house, "seed": seed, "command": command,
+                  "ok": ok, "end": end, "reports": reports, "trace": str(out / "trace.jsonl")}
+        (out / "chat.txt").write_text("\n".join(texts) + "\n")
+        (out / "result.json").write_text(json.dumps(result, indent=1))
+        return result
+    finally:
+        world.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="rapp run rapp", description=__doc__.splitlines()[0])
+    p.add_argument("rapp", help="a RApp source directory (with manifest.yaml) or a built .rapp package")
+    p.add_argument("--robot", choices=["nao", "elektron"], default="nao")
+    p.add_argument("--house", default="small", help="house name (small, house) or YAML file")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--say", help="the owner's command (default: the RApp's first keyword)")
+    p.add_argument("--out", help="result folder (default: a new temporary directory)")
+    p.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for the RApp's end")
+    a = p.parse_args(argv)
+    src = Path(a.rapp)
+    if not src.exists():
+        print(f"rapp run rapp: {src} does not exist", file=sys.stderr)
+        return 2
+    out = Path(a.out or tempfile.mkdtemp(prefix="rapp-run-"))
+    out.mkdir(parents=True, exist_ok=True)
+    result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout))
+    print(f"{result['rapp']}: {'finished' if result['ok'] else 'ERROR'}: {result['end']}")
+    print(f"  result {out / 'result.json'}; chat {out / 'chat.txt'}; trace {out / 'trace.jsonl'}")
+    return 0 if result["ok"] else 1

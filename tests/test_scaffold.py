@@ -1,0 +1,39 @@
+"""`rapp new` makes a RApp that builds, runs on the simulated robot (`rapp run rapp`) and whose
+own generated test passes, unchanged."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from rapps.package import read_package
+
+from .test_cli import ROOT, arapp, rapp
+
+
+async def test_new_rapp_builds_runs_and_its_test_passes(tmp_path):
+    dest = tmp_path / "lamp-check"
+    res = rapp("new", "lamp-check", dest, "--cloud")
+    assert res.returncode == 0 and "rapp run rapp" in res.stdout, res.stderr
+    pkg = tmp_path / "lamp.rapp"
+    assert rapp("package", "build", dest, "-o", pkg).returncode == 0
+    package = read_package(pkg.read_bytes())
+    assert package.manifest.name == "lamp-check" and package.manifest.cloud_entry_point
+    assert not [p for p in package.paths if p.startswith("tests/")]  # its tests are not shipped
+
+    res = await arapp("run", "rapp", dest, "--robot", "nao", "--out", tmp_path / "out", timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert result["ok"] and result["reports"][0]["data"] == {"doubled": 42}
+
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(dest / "tests")],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0 and "1 passed" in res.stdout, res.stdout[-2000:]
+
+
+def test_new_refuses_a_bad_name_or_a_used_directory(tmp_path):
+    assert "lower-case" in rapp("new", "Bad_Name", tmp_path / "x").stderr
+    (tmp_path / "used").mkdir()
+    (tmp_path / "used" / "file").write_text("x")
+    res = rapp("new", "ok-name", tmp_path / "used")
+    assert res.returncode == 1 and "not empty" in res.stderr
