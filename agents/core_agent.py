@@ -327,8 +327,12 @@ class CoreAgent(RobotCommands, RappAgent):
 
     async def _watch_process(self, session: DynamicSession) -> None:
         code = await session.process.wait()
-        self._end(session, f"process exited with code {code}" if session.state not in
-                  ("Finished", "Error") else session.detail)
+        if session.state in ("Finished", "Error"):
+            self._end(session, session.detail)
+            return
+        lines = [ln for ln in session.process.stderr_tail(4000).splitlines() if ln.strip()]
+        why = next((ln for ln in reversed(lines) if "Error" in ln or "rapp sandbox" in ln), lines[-1] if lines else "")
+        self._end(session, f"process exited with code {code}" + (f": {why.strip()[:300]}" if why else ""))
 
     def _end(self, session: DynamicSession, reason: str) -> None:
         if not session.ended.is_set():
