@@ -68,6 +68,7 @@ class RappAgent(Agent):
         self.tracer = tracer_for(self.settings.trace_file)
         self._pending: dict[str, asyncio.Queue] = {}
         self._pending_peer: dict[str, str] = {}  # conversation -> bare JID asked
+        self._outbox: dict[str, Message] = {}  # conversation -> the request, until answered
         self._named: dict[str, Any] = {}
         self.unhandled: list[Message] = []  # kept, not dropped, for inspection
         self.web_url: str | None = None  # SPADE's agent page when settings.web is on
@@ -125,6 +126,7 @@ class RappAgent(Agent):
                     await asyncio.wait_for(started, max(2.0, delay))
                     self._reconnected_at = time.monotonic()
                     self.tracer.record("agent", event="reconnected", agent=self.address)
+                    self._resend_pending()
                     return
                 except asyncio.TimeoutError:
                     self.client.abort()
@@ -134,6 +136,14 @@ class RappAgent(Agent):
                     self.client.del_event_handler("session_start", handler)
         finally:
             self._reconnecting = False
+
+    def _resend_pending(self) -> None:
+        """After a reconnect, send every request still waiting for its answer again (same
+        conversation): a request or its answer may have died with the old connection. Responders
+        answer a repeated conversation from their store, so nothing is executed twice."""
+        for conv, msg in list(self._outbox.items()):
+            self.tracer.record("resend", agent=self.address, peer=str(msg.to), conversation_id=conv)
+            self.client.send(message_xml(msg))
 
     async def _abort_connection(self) -> None:
         if self.client is not None:
@@ -273,6 +283,7 @@ class RappAgent(Agent):
         queue: asyncio.Queue = asyncio.Queue()
         self._pending[conv] = queue
         self._pending_peer[conv] = bare(to)
+        self._outbox[conv] = msg
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout
         name = content.action_name
@@ -310,6 +321,7 @@ class RappAgent(Agent):
         finally:
             self._pending.pop(conv, None)
             self._pending_peer.pop(conv, None)
+            self._outbox.pop(conv, None)
 
     def fail_pending(self, peer: str, error: Exception) -> int:
         """End every request waiting for an answer from `peer` with `error` (it is known to be

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Awaitable, Callable
 
@@ -20,14 +22,17 @@ from spade.behaviour import CyclicBehaviour
 from spade.message import Message
 from spade.template import Template
 
+from ontology import acl
 from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, decode_request
 
 from .errors import Failure, Refusal
-from .messages import AclInfo, bare, reply_to
+from .messages import AclInfo, bare, copy_message, reply_to
 
 log = logging.getLogger("rapp.responder")
+KEEP_ANSWERS = 4096  # conversations whose final answer a responder keeps for a resent request
+KEEP_ANSWER_S = 300.0
 
 
 @dataclass
@@ -55,6 +60,10 @@ class Responder(CyclicBehaviour):
         self.check = check
         self._tasks: set[asyncio.Task] = set()
         self._order = asyncio.Lock()
+        # (sender, conversation) -> its final answer (None while it runs): a request sent again
+        # after a reconnect is answered from here, never executed twice
+        self._answers: OrderedDict[tuple[str, str], Message | None] = OrderedDict()
+        self._answered_at: dict[tuple[str, str], float] = {}
 
     def make_template(self) -> Template:
         # constructor metadata: assigning template.metadata later matches everything (spade 4.1.4)
@@ -65,8 +74,14 @@ class Responder(CyclicBehaviour):
         if msg is not None:
             self.take_now(msg)
 
-    def take_now(self, msg: Message) -> asyncio.Task:
+    def take_now(self, msg: Message) -> asyncio.Future:
         """Called by RappAgent's router: serve at once, without SPADE's queue hop."""
+        key = (bare(msg.sender), msg.get_metadata(acl.CONVERSATION_ID) or "")
+        if key[1] and key in self._answers:
+            return self._repeat(key, msg)
+        if key[1]:
+            self._answers[key] = None
+            self._expire_answers()
         if self.concurrent:
             task = asyncio.create_task(self.serve(msg))
         else:
@@ -118,8 +133,38 @@ class Responder(CyclicBehaviour):
             return
         await self._answer(msg, Performative.INFORM, result)
 
+    def _repeat(self, key, msg: Message) -> asyncio.Future:
+        answer = self._answers[key]
+        self.agent.tracer.record("duplicate", agent=self.agent.address, sender=key[0], conversation_id=key[1],
+                                 answered=answer is not None)
+        if answer is None:  # still running: its answer goes out when it is done
+            done = asyncio.get_running_loop().create_future()
+            done.set_result(None)
+            return done
+        task = asyncio.create_task(self.agent.send(copy_message(answer)))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    def _expire_answers(self) -> None:
+        """Answers are kept KEEP_ANSWER_S after they went out (a requester resends only after a
+        reconnect, well within it), and never more than KEEP_ANSWERS conversations."""
+        now = time.monotonic()
+        while self._answers:
+            key = next(iter(self._answers))
+            done_at = self._answered_at.get(key)
+            if len(self._answers) <= KEEP_ANSWERS and (done_at is None or now - done_at < KEEP_ANSWER_S):
+                break
+            self._answers.pop(key)
+            self._answered_at.pop(key, None)
+
     async def _answer(self, msg: Message, performative: Performative, content: Content | None) -> None:
-        await self.agent.send(reply_to(msg, content, performative))
+        reply = reply_to(msg, content, performative)
+        key = (bare(msg.sender), msg.get_metadata(acl.CONVERSATION_ID) or "")
+        if performative != Performative.AGREE and key in self._answers:
+            self._answers[key] = reply
+            self._answered_at[key] = time.monotonic()
+        await self.agent.send(reply)
 
     async def on_end(self) -> None:
         for t in list(self._tasks):

@@ -27,15 +27,25 @@ class ServerStartError(RuntimeError):
 
 
 def terminate(proc: subprocess.Popen, timeout: float) -> int:
-    """SIGTERM, then SIGKILL after `timeout`; always waits (no zombie)."""
+    """SIGTERM, then SIGKILL after `timeout`, to the server's whole process group (pyjabber forks
+    a worker pool that inherits the listening socket: left alone, a killed server's worker kept
+    the port and lived on as an orphan); always waits (no zombie)."""
     if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
+        _signal_group(proc, signal.SIGTERM)
         try:
             proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            proc.kill()
+            _signal_group(proc, signal.SIGKILL)
             proc.wait()
+    _signal_group(proc, signal.SIGKILL)  # workers of a server that died first
     return proc.returncode
+
+
+def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
 
 
 class ManagedServer:
