@@ -83,20 +83,34 @@ async def _one_run(server, requester, responder, gates, step: str, n: int, trace
     assert answered - back <= 2.0, (step, n, answered - back)
 
 
+SERVERS = ("embedded", "prosody")
+
+
+def _server(kind: str, tmp_path):
+    if kind == "embedded":
+        return EmbeddedServer(db=tmp_path / "xmpp.db")
+    from xmpp_server.prosody import ProsodyServer, prosody_binary
+    if prosody_binary() is None:
+        pytest.skip("prosody is not installed (apt-get install prosody)")
+    return ProsodyServer(workdir=tmp_path / "prosody")
+
+
+@pytest.mark.parametrize("kind", SERVERS)
 @pytest.mark.parametrize("step", STEPS)
-async def test_no_reply_lost_when_the_server_goes_away(tmp_path, step):
-    await _runs(tmp_path, step, int(os.environ.get("RAPP_DELIVERY_RUNS", "3")))
+async def test_no_reply_lost_when_the_server_goes_away(tmp_path, step, kind):
+    await _runs(tmp_path, step, kind, int(os.environ.get("RAPP_DELIVERY_RUNS", "3")))
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("kind", SERVERS)
 @pytest.mark.parametrize("step", STEPS)
-async def test_no_reply_lost_in_50_outages(tmp_path, step):
-    await _runs(tmp_path, step, 50)
+async def test_no_reply_lost_in_50_outages(tmp_path, step, kind):
+    await _runs(tmp_path, step, kind, 50)
 
 
-async def _runs(tmp_path, step: str, runs: int) -> None:
+async def _runs(tmp_path, step: str, kind: str, runs: int) -> None:
     trace = tmp_path / "trace.jsonl"
-    async with EmbeddedServer(db=tmp_path / "xmpp.db") as server:
+    async with _server(kind, tmp_path) as server:
         settings = server.settings(trace_file=trace, force_xmpp=True, credentials_dir=tmp_path / "creds")
         requester, responder = RappAgent("asker", settings), RappAgent("doer", settings)
         gates = Gates()
