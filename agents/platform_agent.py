@@ -70,7 +70,8 @@ class PlatformAgent(RappAgent):
         self._own_workdir = workdir is None  # a temporary one: removed whole at stop
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-platform-"))
         self.services = services
-        self.state = services_state or ServiceState()
+        # per-user service files (maildirs...) in the Platform's own work directory
+        self.state = services_state or ServiceState(work_dir=self.workdir / "services")
         # users and tokens survive a restart when data_dir is kept (SQLite, 0600)
         self.data_dir = Path(data_dir) if data_dir else None
         self.directory = UserDirectory(self.data_dir / "users.db" if self.data_dir else None)
