@@ -24,6 +24,7 @@ from robots import OdometryNoise, RobotAPI, World
 from .home_setup import DOOR_OPEN_DEG, home_description, home_map, hazard_overrides, upload_home
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
+from .progress import follow
 from .system import RappSystem, wait_until
 
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
@@ -63,7 +64,8 @@ def score_hazards(specs, truth, reports: dict) -> list[dict]:
 
 
 async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "house", json_path=None,
-                               out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0) -> dict:
+                               out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0,
+                               progress: bool = False) -> dict:
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     world = World.from_file(house, seed=seed, overrides=hazard_overrides(house, seed), rtf=rtf)
@@ -80,6 +82,9 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         async with RappSystem(out / "system", settings=settings, trace_file=trace,
                               platform_kw={"services_state": state}) as system:
             await system.publish(RAPP_DIR)
+            if progress:  # live lines from the trace: Core and RApp states, chat, the robot's pose
+                follower = asyncio.create_task(follow(trace, pose=lambda: recorder.robot.pose))
+                system.on_stop(follower.cancel)
             handle = await system.add_robot(robot, api=recorder, user=user)
             await wait_until(lambda: core_listening(handle.core), 30, "Core listening", interval=0.05)
             sim0, wall0 = world.time, time.monotonic()
@@ -150,9 +155,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here")
     ap.add_argument("--out", dest="out_dir", default=None, help="directory for plot, frames and trace")
     ap.add_argument("--rtf", type=float, default=0.0, help="real-time factor (0 = as fast as possible)")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines while it runs, only the summary")
     args = ap.parse_args(argv)
     result = asyncio.run(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
-                                              args.rtf))
+                                              args.rtf, progress=not args.quiet))
     print(summary(result))
     return 0 if result["all_correct"] else 1
 

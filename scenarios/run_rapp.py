@@ -20,6 +20,7 @@ from agents.tracing import read_trace
 from rapps.manifest import load_manifest
 from robots import RobotAPI, World
 from scenarios.home_setup import LAYOUTS, home_description, upload_home
+from scenarios.progress import follow
 from scenarios.system import RappSystem, wait_until
 
 
@@ -36,7 +37,7 @@ def _reports(trace: Path, core: str) -> list[dict]:
 
 
 async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None, out: Path,
-                   timeout_s: float) -> dict:
+                   timeout_s: float, progress: bool = False) -> dict:
     manifest_dir = src if src.is_dir() else None
     world = World.from_file(house, seed=seed)
     try:
@@ -59,6 +60,9 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
             if Path(house).stem in LAYOUTS:  # the owner's home description, as the Platform keeps it
                 info, png, yaml_text = home_description(world, Path(house).stem, out)
                 upload_home(system.platform.state, user, info, png, yaml_text)
+            if progress:  # live lines from the trace: Core and RApp states, chat, the robot's pose
+                follower = asyncio.create_task(follow(out / "trace.jsonl", pose=lambda: api.robot.pose))
+                system.on_stop(follower.cancel)
             kw = {} if manifest_dir is not None else {"require_signature": False, "trusted_keys": None}
             handle = await system.add_robot(robot, api=api, user=user, **kw)
             await wait_until(lambda: handle.core.supervisor.behaviour.current == "s3_listen", 30, "Core listening")
@@ -70,8 +74,6 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                 lambda t: t.startswith((f"{name} finished", f"{name} ended")) or t.startswith("Sorry")
                 or "could not get" in t or "did not start" in t, timeout=timeout_s, start=start)
             texts = handle.user.texts()[start:]
-            for t in texts:
-                print(f"[chat] {t}", flush=True)
             reports = _reports(out / "trace.jsonl", handle.core.address)
         ok = end.startswith(f"{name} finished")
         result = {"rapp": name, "robot": robot, "house": house, "seed": seed, "command": command,
@@ -92,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--say", help="the owner's command (default: the RApp's first keyword)")
     p.add_argument("--out", help="result folder (default: a new temporary directory)")
     p.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for the RApp's end")
+    p.add_argument("--quiet", action="store_true", help="no progress lines while it runs, only the summary")
     a = p.parse_args(argv)
     src = Path(a.rapp)
     if not src.exists():
@@ -99,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     out = Path(a.out or tempfile.mkdtemp(prefix="rapp-run-"))
     out.mkdir(parents=True, exist_ok=True)
-    result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout))
+    result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=not a.quiet))
     print(f"{result['rapp']}: {'finished' if result['ok'] else 'ERROR'}: {result['end']}")
     print(f"  result {out / 'result.json'}; chat {out / 'chat.txt'}; trace {out / 'trace.jsonl'}")
     return 0 if result["ok"] else 1

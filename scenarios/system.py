@@ -67,6 +67,7 @@ class RappSystem:
         self.platform: PlatformAgent | None = None
         self.publisher: RappAgent | None = None
         self.robots: list[RobotHandle] = []
+        self._on_stop: list = []  # callbacks run first at stop (e.g. ending a progress display)
         # this run's package signer: what publish() builds is signed, what its Cores run must be
         self.signing_key, self.public_key = generate_keypair()
 
@@ -119,7 +120,12 @@ class RappSystem:
         self.robots.append(handle)
         return handle
 
+    def on_stop(self, callback) -> None:
+        self._on_stop.append(callback)
+
     async def stop(self) -> None:
+        for callback in self._on_stop:
+            callback()
         for r in self.robots:
             with contextlib.suppress(Exception):
                 if r.core.dynamic is not None and r.core.dynamic.process is not None:
