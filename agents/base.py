@@ -41,6 +41,7 @@ from .tracing import cap, tracer_for
 log = logging.getLogger("rapp.agent")
 _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
 _OPENING_VALUES = frozenset(p.value for p in acl.OPENING)
+RESEND_EVERY_S, RESEND_FOR_S = 1.0, 30.0  # pending requests after a reconnect (see _resend_pending)
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
 
 
@@ -139,11 +140,25 @@ class RappAgent(Agent):
 
     def _resend_pending(self) -> None:
         """After a reconnect, send every request still waiting for its answer again (same
-        conversation): a request or its answer may have died with the old connection. Responders
-        answer a repeated conversation from their store, so nothing is executed twice."""
-        for conv, msg in list(self._outbox.items()):
-            self.tracer.record("resend", agent=self.address, peer=str(msg.to), conversation_id=conv)
-            self.client.send(message_xml(msg))
+        conversation): a request or its answer may have died with the old connection. Again every
+        RESEND_EVERY_S while it waits, for as long as RESEND_FOR_S: the peer may come back later
+        than this agent, and a server without offline storage (Prosody here) drops what is sent
+        to it meanwhile. Responders answer a repeated conversation from their store, so nothing is
+        executed twice."""
+        convs = list(self._outbox)
+        if convs:
+            self.submit(self._resend_loop(convs))
+
+    async def _resend_loop(self, convs: list[str]) -> None:
+        for _ in range(int(RESEND_FOR_S / RESEND_EVERY_S)):
+            waiting = [c for c in convs if c in self._outbox]
+            if not waiting or self._stopping or self.client is None:
+                return
+            for conv in waiting:
+                msg = self._outbox[conv]
+                self.tracer.record("resend", agent=self.address, peer=str(msg.to), conversation_id=conv)
+                self.client.send(message_xml(msg))
+            await asyncio.sleep(RESEND_EVERY_S)
 
     async def _abort_connection(self) -> None:
         if self.client is not None:

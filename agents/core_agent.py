@@ -112,6 +112,7 @@ class CoreAgent(RobotCommands, RappAgent):
         self.supervisor: BehaviourHost | None = None
         self._serial = itertools.count(1)
         self._background: set[asyncio.Task] = set()
+        self._deletions: set[asyncio.Task] = set()  # ephemeral accounts being deleted
         self._speech: asyncio.Task | None = None  # the last utterance queued on the loudspeaker
         self.locks = ResourceLocks()
         if dynamic_mode not in ("process", "inprocess"):
@@ -278,6 +279,8 @@ class CoreAgent(RobotCommands, RappAgent):
     async def stop(self) -> None:
         for task in list(self._background):
             task.cancel()
+        if self._deletions:
+            await asyncio.wait(list(self._deletions), timeout=5.0)
         if self.dynamic is not None and self.dynamic.process is not None:
             await self.dynamic.process.stop(grace=0.5)
             if self.dynamic.account is not None:
@@ -391,8 +394,10 @@ class CoreAgent(RobotCommands, RappAgent):
                               reason=session.end_reason, exit_code=session.process.returncode
                               if session.process else None)
         shutil.rmtree(session.workdir / "package", ignore_errors=True)
-        if session.account is not None:
-            self._in_background(self._delete_account(session))
+        if session.account is not None:  # awaited at stop, not cancelled (else the next start sweeps it)
+            deletion = asyncio.create_task(self._delete_account(session))
+            self._deletions.add(deletion)
+            deletion.add_done_callback(self._deletions.discard)
         self._resume_if_needed()  # listening again before the user hears the task is over
         if session.state == "Finished":
             await self.tell_user(f"{session.rapp} finished.")

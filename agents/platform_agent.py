@@ -236,9 +236,12 @@ class PlatformAgent(RappAgent):
             raise Failure(f"cannot create the Cloud Agent's account: {e}", "cloud-start") from None
         jid = self.settings.jid(ident.name)
         scope = ctx.token
+        # the Cloud Agent is RApp code: never more than its manifest declares
+        services = frozenset(info.manifest.get("services") or ()) & (scope.services or frozenset(
+            info.manifest.get("services") or ()))
         token, _ = await self._issue(ctx.user, max(60.0, scope.expires_at - time.time()), holder=jid,
-                                     rapp=scope.rapp or info.name, services=scope.services,
-                                     issuer=ctx.sender, not_after=scope.expires_at)
+                                     rapp=info.name, services=services, issuer=ctx.sender,
+                                     not_after=scope.expires_at)
         spec = SpawnSpec(kind="cloud", name=ident.name, password=ident.password, package_dir="",
                          owner=owner, platform=self.address, token=token)
         proc = AgentProcess(ident.name, spec, workdir, self.settings, self.limits, self.sandbox)

@@ -11,7 +11,6 @@ import re
 import signal
 import ssl
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest

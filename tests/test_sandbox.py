@@ -4,7 +4,6 @@ be refused, the refusal visible (in the trace), the robot safe and the Core back
 """
 from __future__ import annotations
 
-import asyncio
 import json
 import os
 import shutil

@@ -159,7 +159,7 @@ def rapp_xmpp_client_class():
 
 
 # -- slixmpp ----------------------------------------------------------------------------------
-def drop_message_forms(client: ClientXMPP) -> None:
+def drop_message_forms(client) -> None:
     """Leave a message's data form as raw XML. Once any plugin loads XEP-0004 (in-band registration
     does), slixmpp turns the form of every incoming message into stanza objects, one per field:
     ~200 us per ACL message, whose metadata SPADE's Message.from_node then reads from the raw XML
