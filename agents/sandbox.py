@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import os
 import secrets
 import signal
+import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,9 +47,19 @@ class SandboxError(RuntimeError):
     pass
 
 
+@functools.lru_cache(maxsize=1)
 def available() -> bool:
-    """Can this process build the sandbox (root with the capabilities it needs, Linux)?"""
-    return sys.platform.startswith("linux") and os.geteuid() == 0 and _libc() is not None
+    """Can this process build the sandbox? Root on Linux, and a mount namespace can really be made
+    (a root without CAP_SYS_ADMIN, as in an unprivileged container, cannot): tried once, in a
+    throwaway child."""
+    if not (sys.platform.startswith("linux") and os.geteuid() == 0 and _libc() is not None):
+        return False
+    probe = ("import ctypes, ctypes.util, sys; libc = ctypes.CDLL(ctypes.util.find_library('c')); "
+             f"sys.exit(0 if libc.unshare({_CLONE_NEWNS}) == 0 else 1)")
+    try:
+        return subprocess.run([sys.executable, "-c", probe], timeout=20, capture_output=True).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
 
 
 _LIBC = None
