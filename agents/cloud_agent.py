@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
-from rapps.manifest import Manifest
+from ontology.manifest import Manifest
 
 from .base import RappAgent
 from .errors import Refusal

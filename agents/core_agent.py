@@ -40,8 +40,8 @@ from ontology import store as S
 from ontology.acl import Performative
 from ontology.registry import Done
 from ontology.spawn import RobotInfo, SpawnSpec
-from rapps.manifest import Manifest
-from rapps.package import Package, read_package, unpack_package
+from ontology.manifest import Manifest
+from ontology.package import Package, read_package, unpack_package
 
 from .base import RappAgent
 from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template

@@ -14,7 +14,7 @@ from behaviours import BehaviourHost, Outcome
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import parse_json
-from rapps.manifest import Manifest
+from ontology.manifest import Manifest
 
 from .base import RappAgent
 from .errors import CloudAgentLost, RequestError

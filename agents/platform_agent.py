@@ -225,7 +225,7 @@ class PlatformAgent(RappAgent):
             raise Failure(f"cannot fetch {req.rapp} from the Store: {e.reason}", "store") from None
         if not info.manifest.get("cloud_entry_point"):
             raise Refusal(f"{req.rapp} has no Cloud Agent part", "no-cloud-part")
-        from rapps.package import unpack_package
+        from ontology.package import unpack_package
 
         n = next(self._serial)
         workdir = self.workdir / f"{n:04d}-{info.name}"

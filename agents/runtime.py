@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from ontology.spawn import SpawnSpec
-from rapps.manifest import load_manifest
+from ontology.manifest import load_manifest
 
 
 class EntryPointError(RuntimeError):

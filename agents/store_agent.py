@@ -1,6 +1,6 @@
 """Store Agent: the RAPP Store over XMPP, on a persistent StoreRepository (SQLite + blobs).
 
-Packages travel in base64 chunks (rapps/chunks.py): `download_info` then `download_chunk` per
+Packages travel in base64 chunks (ontology/chunks.py): `download_info` then `download_chunk` per
 index; publishing sends `upload_chunk`s then `publish`. Repository calls run in a worker thread.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from ontology import store as S
 from ontology.acl import Performative
 from ontology.platform import VerifyToken
 from ontology.registry import Done
-from rapps.chunks import ChunkError, Reassembler, split_chunks
+from ontology.chunks import ChunkError, Reassembler, split_chunks
 
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError

@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 from ontology import store as S
-from rapps.chunks import Reassembler, split_chunks
-from rapps.package import sha256_hex
+from ontology.chunks import Reassembler, split_chunks
+from ontology.package import sha256_hex
 
 from .base import RappAgent
 from .errors import RequestFailed

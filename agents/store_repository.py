@@ -26,8 +26,8 @@ from typing import Any, NamedTuple
 
 from pydantic import BaseModel
 
-from rapps.manifest import ROBOT_TYPES, Manifest, version_key
-from rapps.package import (DEFAULT_MAX_SIZE, Package, PackageError, load_public_key, public_key_b64,
+from ontology.manifest import ROBOT_TYPES, Manifest, version_key
+from ontology.package import (DEFAULT_MAX_SIZE, Package, PackageError, load_public_key, public_key_b64,
                            read_package, sha256_hex)
 
 _SCHEMA = """

@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 MANIFEST = """\
-# {name}: made by `rapp new`. Fields: docs/sdk.md and rapps/manifest.py.
+# {name}: made by `rapp new`. Fields: docs/sdk.md and ontology/manifest.py.
 name: {name}
 version: 0.1.0
 description: {title} (edit me).
@@ -26,8 +26,7 @@ author: you
 
 TASK = '''\
 """{title}: two behaviours, greet then report (edit them)."""
-from behaviours import FSM
-from rapps.sdk import Step, Task
+from rapps.sdk import FSM, Step, Task
 {cloud_import}
 
 class {cls}Task(Task):

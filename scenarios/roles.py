@@ -88,7 +88,7 @@ def owner_password(a, settings) -> str:
 def trust(a) -> dict:
     """CoreAgent keyword arguments for package signatures: keys the owner trusts, or (loudly)
     none for development."""
-    from rapps.package import load_public_key
+    from ontology.package import load_public_key
 
     if a.allow_unsigned:
         print("WARNING: --allow-unsigned: this Core runs RApps nobody signed, from any Store owner",

@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 
 from agents.tracing import read_trace
-from rapps.manifest import load_manifest
+from ontology.manifest import load_manifest
 from robots import RobotAPI, World
 from scenarios.home_setup import LAYOUTS, home_description, upload_home
 from scenarios.progress import follow
@@ -49,7 +49,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
             else:  # a built package: published as it is (the Cores then need --allow-unsigned)
                 from agents.store_client import publish_package
                 from ontology.store import RegisterOwner
-                from rapps.package import read_package
+                from ontology.package import read_package
                 pkg = read_package(src.read_bytes())
                 name, keywords = pkg.manifest.name, pkg.manifest.keywords
                 await system.publisher.request(system.store.address, RegisterOwner(owner="developer",

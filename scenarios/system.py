@@ -20,7 +20,7 @@ from agents.platform_agent import PlatformAgent
 from agents.process import Limits
 from agents.store_agent import StoreAgent
 from agents.store_client import publish_package
-from rapps.package import build_package_bytes, generate_keypair
+from ontology.package import build_package_bytes, generate_keypair
 from xmpp_server import EmbeddedServer, XmppSettings
 from xmpp_server.credentials import generate_password
 

@@ -15,14 +15,14 @@ from pathlib import Path
 
 import pytest
 
-from rapps.package import SignatureStatus, read_package
+from ontology.package import SignatureStatus, read_package
 from scenarios.system import RappSystem
 from xmpp_server.ports import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
 _SCRIPT = Path(sys.executable).with_name("rapp")
-RAPP = [str(_SCRIPT)] if _SCRIPT.exists() else [sys.executable, "-m", "rapps.cli"]
+RAPP = [str(_SCRIPT)] if _SCRIPT.exists() else [sys.executable, "-m", "cli.main"]
 
 
 def rapp(*args, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess:

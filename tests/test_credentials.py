@@ -104,7 +104,7 @@ async def test_tokens_survive_a_platform_restart_and_bind_to_their_holder(settin
 
 async def test_store_downloads_need_the_senders_platform_token(settings, unique, tmp_path):
     from agents.store_client import download_package, publish_package
-    from rapps.package import build_package_bytes
+    from ontology.package import build_package_bytes
 
     from .test_lifecycle import FIXTURE
 

@@ -199,7 +199,7 @@ async def test_trace_shows_structure_changes_in_order(system):
 
 async def test_store_data_survives_restart(xmpp_server, tmp_path, unique):
     settings = xmpp_server.settings()
-    from rapps.package import build_package_bytes
+    from ontology.package import build_package_bytes
     from agents.store_client import publish_package
 
     name = unique("store")

@@ -9,7 +9,7 @@ import yaml
 
 from agents.locks import LockError, ResourceLocks
 from agents.tracing import read_trace
-from rapps.package import build_package_bytes, generate_keypair
+from ontology.package import build_package_bytes, generate_keypair
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 

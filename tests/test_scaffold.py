@@ -6,7 +6,7 @@ import json
 import subprocess
 import sys
 
-from rapps.package import read_package
+from ontology.package import read_package
 
 from .test_cli import ROOT, arapp, rapp
 

@@ -8,7 +8,7 @@ import random
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from rapps.chunks import CHUNK_RAW_SIZE, Chunk, ChunkError, Reassembler, join_chunks, split_chunks
+from ontology.chunks import CHUNK_RAW_SIZE, Chunk, ChunkError, Reassembler, join_chunks, split_chunks
 
 
 def test_round_trip_any_order():

@@ -7,7 +7,7 @@ import pytest
 import yaml
 from hypothesis import given, settings, strategies as st
 
-from rapps.manifest import (ROBOT_TYPES, Manifest, ManifestError, load_manifest, manifest_from_dict,
+from ontology.manifest import (ROBOT_TYPES, Manifest, ManifestError, load_manifest, manifest_from_dict,
                             parse_manifest, version_key)
 from tests.rapps.helpers import manifest
 

@@ -11,14 +11,14 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from rapps.package import (
+from ontology.package import (
     BuildError, CorruptArchiveError, DestinationExistsError, EntryPointError, InvalidManifestError,
     MissingManifestError, PackageError, PackageTooLargeError, SignatureError, SignatureStatus,
     TooManyFilesError, UnsafeEntryError, UnsafePathError, build_package, build_package_bytes,
     content_digest, generate_keypair, load_private_key, private_key_to_pem, public_key_b64,
     public_key_id, read_package, sha256_hex, unpack_package,
 )
-from rapps.manifest import ManifestError
+from ontology.manifest import ManifestError
 from tests.rapps.helpers import make_archive, make_src, valid_entries
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "rapps" / "examples" / "hello"

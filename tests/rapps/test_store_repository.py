@@ -6,7 +6,7 @@ import sqlite3
 import pytest
 
 from agents.store_repository import StoreError, StoreRepository
-from rapps.package import build_package_bytes, generate_keypair, read_package
+from ontology.package import build_package_bytes, generate_keypair, read_package
 from tests.rapps.helpers import make_src
 
 

@@ -1,6 +1,5 @@
 """Cognitive game: choose a test, ask each question, listen for the answer, record the score."""
-from behaviours import FSM
-from rapps.sdk import Step, Task
+from rapps.sdk import FSM, Step, Task
 
 NUMBERS = [str(n) for n in range(0, 301)]  # spoken numbers the microphone listens for
 

@@ -1,6 +1,5 @@
 """E-mail reader: fetch the user's unread mail and read it out."""
-from behaviours import FSM
-from rapps.sdk import Step, Task
+from rapps.sdk import FSM, Step, Task
 
 MAX_BODY = 300  # characters read aloud per message
 

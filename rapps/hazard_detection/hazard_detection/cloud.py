@@ -13,15 +13,14 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from agents.services import localization as L
-from agents.services.images import decode_image
 from rapps.sdk import CloudService
+from rapps.sdk import vision as L
 
 from .models import ONTOLOGY, Localization, Observation, Observations, Observe, SolvePose
 
 
 def observe(req: Observe) -> Observations:
-    img = decode_image(req.image_b64)
+    img = L.decode_image(req.image_b64)
     gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     K, dist = L.camera_matrix(req.camera)
     T_robot_cam = np.asarray(req.camera_to_robot, float)

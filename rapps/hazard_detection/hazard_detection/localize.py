@@ -6,9 +6,7 @@ from __future__ import annotations
 
 import math
 
-from agents.errors import RequestFailed
-from behaviours import FSM
-from rapps.sdk import Step
+from rapps.sdk import FSM, RequestFailed, Step
 
 # head joints, sweep limit (rad) and the pitch to look at landmarks at 0.7 m (positive = down), per robot model
 HEADS = {

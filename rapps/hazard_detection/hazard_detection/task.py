@@ -6,9 +6,7 @@ from __future__ import annotations
 
 import math
 
-from agents.errors import RequestFailed
-from behaviours import FSM
-from rapps.sdk import Step, Task
+from rapps.sdk import FSM, RequestFailed, Step, Task
 
 from .localize import Localizer
 from .models import ONTOLOGY

@@ -1,6 +1,5 @@
 """Weather reporter: fetch current weather and forecast, speak them, report them to the user."""
-from behaviours import FSM
-from rapps.sdk import Step, Task
+from rapps.sdk import FSM, Step, Task
 
 
 class WeatherTask(Task):

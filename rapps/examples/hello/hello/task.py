@@ -1,6 +1,5 @@
 """Task of the ``hello`` example RApp: the smallest complete task built on the SDK."""
-from behaviours import FSM
-from rapps.sdk import Step, Task
+from rapps.sdk import FSM, Step, Task
 
 
 class HelloTask(Task):

@@ -1,7 +1,6 @@
 """The RApp SDK: what a RApp author subclasses.
 
-    from behaviours import FSM
-    from rapps.sdk import Task, Step
+    from rapps.sdk import FSM, Task, Step
 
     class HelloTask(Task):
         def build(self):
@@ -17,7 +16,9 @@
 `self.platform.<service>(**fields)` a Platform service (the token is added for you),
 `self.cloud` the RApp's own Cloud Agent (`await self.cloud.start()` then
 `await self.cloud.call("action", **fields)`), `self.params` the parameters of the user's command.
-Errors arrive as agents.errors.RequestRefused / RequestFailed / NotUnderstood / RequestTimeout.
+Errors arrive as RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (all RequestError),
+re-exported here: a RApp package imports only this SDK and the ontology (see docs/architecture.md).
+`rapps.sdk.vision` holds the image and QR-geometry helpers the Platform's own services use.
 
 A Cloud Agent part subclasses CloudService and registers its actions with @action under
 `ontology=<its ONTOLOGY>`; each handler is `async def <action>(self, request) -> reply`.
@@ -26,13 +27,14 @@ from __future__ import annotations
 
 from typing import Any, Awaitable, Callable
 
-from agents.errors import CloudAgentLost, RequestFailed
-from behaviours import Behaviour, OneShot
+from agents.errors import CloudAgentLost, NotUnderstood, RequestError, RequestFailed, RequestRefused, RequestTimeout
+from behaviours import FSM, Behaviour, OneShot
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import Content, lookup
 
-__all__ = ["Task", "Step", "CloudService", "CloudAgentLost", "RequestFailed"]
+__all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "CloudAgentLost", "RequestError", "RequestFailed",
+           "RequestRefused", "NotUnderstood", "RequestTimeout"]
 
 
 class _Proxy:

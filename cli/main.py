@@ -65,7 +65,7 @@ def cmd_run(a, rest: list[str]) -> int:
 
 # -- package ----------------------------------------------------------------------------------
 def cmd_package(a) -> int:
-    from rapps.package import build_package, generate_keypair, private_key_to_pem, public_key_id
+    from ontology.package import build_package, generate_keypair, private_key_to_pem, public_key_id
 
     if a.action == "build":
         out = build_package(a.dir, a.output, signing_key=a.key)

@@ -1,0 +1,1 @@
+"""The `rapp` command line: the top floor, beside scenarios and bench (see docs/architecture.md)."""
