@@ -40,6 +40,7 @@ from ontology import store as S
 from ontology.acl import Performative
 from ontology.registry import Done
 from ontology.spawn import RobotInfo, SpawnSpec
+from robots.interface import check_robot
 from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
 
@@ -51,7 +52,7 @@ from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
 from .identity import EphemeralAccounts, Identity
-from .process import AgentProcess, InProcessAgent, Limits, sweep_run_dirs
+from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .sandbox import Sandbox
 from .responder import Responder
 from .store_client import download_package
@@ -71,7 +72,7 @@ class DynamicSession:
     version: str
     manifest: Manifest
     workdir: Path
-    process: AgentProcess | None = None
+    process: AgentProcess | InProcessAgent | None = None
     state: str = "Spawned"
     detail: str = ""
     last_beat: float = field(default_factory=time.monotonic)
@@ -94,7 +95,7 @@ class CoreAgent(RobotCommands, RappAgent):
         super().__init__(name, settings)
         self.accounts = EphemeralAccounts(self.settings, owner=name)
         self.sandbox = sandbox or Sandbox()
-        self.robot_id, self.robot_type, self.robot = robot_id, robot_type, robot_api
+        self.robot_id, self.robot_type, self.robot = robot_id, robot_type, check_robot(robot_api)
         self.owner = self.settings.jid(owner)
         self.platform, self.store = self.settings.jid(platform), self.settings.jid(store)
         self.user, self.password = user, password
@@ -115,8 +116,7 @@ class CoreAgent(RobotCommands, RappAgent):
         self._deletions: set[asyncio.Task] = set()  # ephemeral accounts being deleted
         self._speech: asyncio.Task | None = None  # the last utterance queued on the loudspeaker
         self.locks = ResourceLocks()
-        if dynamic_mode not in ("process", "inprocess"):
-            raise ValueError(f"dynamic_mode must be 'process' or 'inprocess', not {dynamic_mode!r}")
+        check_spawn_mode(dynamic_mode, "dynamic_mode")
         self.dynamic_mode = dynamic_mode
         self.estop_reason: str | None = None
         self.driving = False  # a move_vel velocity is in force
@@ -134,8 +134,8 @@ class CoreAgent(RobotCommands, RappAgent):
         self.activate("supervisor", self.supervisor)
 
     def _listen_to_microphone(self) -> None:
-        mic = getattr(getattr(self.robot, "robot", None), "microphone", None)
-        if mic is not None and hasattr(mic, "listen"):
+        mic = self.robot.microphone
+        if mic is not None:
             self.activate("microphone-listener", MicrophoneListener(mic, self._command_heard))
 
     async def _command_heard(self, text: str) -> None:
@@ -257,14 +257,13 @@ class CoreAgent(RobotCommands, RappAgent):
             ttl_s=max(60.0, m.time_limit_s + 60)))
         spec = SpawnSpec(kind="dynamic", name=name, password=ident.password, package_dir="",
                          core=self.address, platform=self.platform, token=app_token.token, params=params,
-                         robot=RobotInfo(robot_id=self.robot_id, robot_type=self.robot_type))
-        if self.dynamic_mode == "inprocess":
-            session.process = InProcessAgent(name, spec, workdir, self.settings)
-        else:
-            session.process = AgentProcess(name, spec, workdir, self.settings, self.limits, self.sandbox)
+                         robot=RobotInfo(robot_id=self.robot_id, robot_type=self.robot_type,
+                                         capabilities=sorted(self.robot.capabilities())))
+        session.process = spawn_agent(spec, workdir, self.settings, mode=self.dynamic_mode, limits=self.limits,
+                                      sandbox=self.sandbox)
         await session.process.start()
         self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
-                              pid=session.process.pid, sandbox=getattr(session.process, "uid", None) is not None)
+                              pid=session.process.pid, sandbox=session.process.uid is not None)
         watcher = asyncio.create_task(self._watch_process(session))
         try:
             await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)

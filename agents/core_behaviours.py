@@ -83,8 +83,7 @@ class SafetyMonitor(PeriodicBehaviour):
         core = self.core
         if core.estop_reason is not None or (core.locks.holder("base") is None and not core.driving):
             return  # latched already, or the base is not being driven
-        moving_forward = getattr(core.robot, "moving_forward", None)
-        if moving_forward is not None and not moving_forward():
+        if not core.robot.moving_forward():
             return  # turning on the spot or standing: a wall beside a sideways-angled sonar is no danger
         nearest = await core.nearest_obstacle()
         if nearest is not None and nearest < core.safety_distance:

@@ -25,7 +25,7 @@ from ontology.registry import Done, actions
 
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError
-from .process import AgentProcess, Limits, sweep_run_dirs
+from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .responder import Responder
 from .store_client import download_package
 from .identity import EphemeralAccounts, Identity
@@ -45,7 +45,7 @@ class CloudSession:
     version: str
     owner: str
     user: str
-    process: AgentProcess
+    process: AgentProcess | InProcessAgent
     account: Identity
     supervisor: str | None  # the Core that issued the owner's app token
     token: str  # the Cloud Agent's own token (revoked with it)
@@ -59,8 +59,10 @@ class PlatformAgent(RappAgent):
     def __init__(self, name: str = "platform", *, store: str = "store", settings=None,
                  workdir: str | Path | None = None, max_pending: int = 64,
                  limits: Limits = Limits(), services: dict | None = None, services_state=None,
-                 data_dir: str | Path | None = None, sandbox: Sandbox | None = None):
+                 data_dir: str | Path | None = None, sandbox: Sandbox | None = None,
+                 cloud_mode: str = "process"):
         super().__init__(name, settings)
+        self.cloud_mode = check_spawn_mode(cloud_mode, "cloud_mode")
         from agents.services.context import ServiceState
 
         if services is None:
@@ -244,7 +246,7 @@ class PlatformAgent(RappAgent):
                                      not_after=scope.expires_at)
         spec = SpawnSpec(kind="cloud", name=ident.name, password=ident.password, package_dir="",
                          owner=owner, platform=self.address, token=token)
-        proc = AgentProcess(ident.name, spec, workdir, self.settings, self.limits, self.sandbox)
+        proc = self._spawn(spec, workdir)
         session = CloudSession(jid=jid, rapp=info.name, version=info.version, owner=owner, user=ctx.user,
                                process=proc, account=ident, supervisor=scope.issuer, token=token)
         self.clouds[session.jid] = session
@@ -264,6 +266,10 @@ class PlatformAgent(RappAgent):
         session.restartable = bool(info.manifest.get("cloud_restartable"))
         session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)
+
+    def _spawn(self, spec: SpawnSpec, workdir: Path):
+        return spawn_agent(spec, workdir, self.settings, mode=self.cloud_mode, limits=self.limits,
+                           sandbox=self.sandbox)
 
     async def _watch_cloud(self, session: CloudSession, spec: SpawnSpec, workdir: Path) -> None:
         """A Cloud Agent whose process ends unasked: its Dynamic Agent is told at once (the SDK
@@ -289,10 +295,10 @@ class PlatformAgent(RappAgent):
         are failed by its Dynamic Agent when told, so none waits for a timeout)."""
         session.restarted = True
         session.ready.clear()
-        session.process = AgentProcess(spec.name, spec, workdir, self.settings, self.limits, self.sandbox)
+        session.process = self._spawn(spec, workdir)
         await session.process.start()
         self.record_structure("cloud-spawn", cloud=session.jid, rapp=session.rapp, owner=session.owner,
-                              pid=session.process.pid, restart=True)
+                              pid=session.process.pid, sandbox=session.process.uid is not None, restart=True)
         try:
             await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)
             return True

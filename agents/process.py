@@ -185,6 +185,8 @@ class InProcessAgent:
     bytes, unpacking and runtime code, no isolation (no limits, a crash affects the caller).
     For fast tests and for measuring what the process costs."""
 
+    uid = None  # never sandboxed
+
     def __init__(self, name: str, spec: SpawnSpec, workdir: Path, settings):
         self.name, self.workdir, self.settings = name, Path(workdir), settings
         self.spec = spec.model_copy(update={"package_dir": str(self.workdir / "package")})
@@ -231,3 +233,22 @@ class InProcessAgent:
     def stderr_tail(self, n: int = 2000) -> str:
         exc = self.task.exception() if self.task is not None and self.task.done() and not self.task.cancelled() else None
         return f"{type(exc).__name__}: {exc}" if exc else ""
+
+
+SPAWN_MODES = ("process", "inprocess")
+
+
+def check_spawn_mode(mode: str, what: str = "mode") -> str:
+    if mode not in SPAWN_MODES:
+        raise ValueError(f"{what} must be 'process' or 'inprocess', not {mode!r}")
+    return mode
+
+
+def spawn_agent(spec: SpawnSpec, workdir: Path, settings, *, mode: str = "process", limits: Limits = Limits(),
+                sandbox: Sandbox | None = None) -> AgentProcess | InProcessAgent:
+    """The one way Dynamic Agents (by the Core) and Cloud Agents (by the Platform) are made from an
+    unpacked package in `workdir/package`: a sandboxed process, or a task of this process for tests
+    and for measuring what the process costs. Not started yet: `await agent.start()`."""
+    if check_spawn_mode(mode) == "inprocess":
+        return InProcessAgent(spec.name, spec, workdir, settings)
+    return AgentProcess(spec.name, spec, workdir, settings, limits, sandbox)

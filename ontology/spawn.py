@@ -15,6 +15,8 @@ class RobotInfo(BaseModel):
 
     robot_id: str
     robot_type: str
+    # what the robot has, of robots.interface.CAPABILITIES: speech, microphone, camera, head, sonars, laser
+    capabilities: list[str] = Field(default_factory=list)
 
 
 class SpawnSpec(BaseModel):

@@ -66,6 +66,18 @@ class RobotAPI:
             if r.controllers.get(key) is ctrl:
                 del r.controllers[key]
 
+    # ------------------------------------------------------------------ robots.interface.RobotInterface
+    @property
+    def microphone(self):
+        return self.robot.microphone
+
+    def capabilities(self) -> frozenset[str]:
+        r = self.robot
+        have = {"speech": r.loudspeaker is not None, "microphone": r.microphone is not None,
+                "camera": bool(r.cameras), "head": bool(r.spec.head_yaw), "sonars": bool(r.sonars),
+                "laser": r.laser is not None}
+        return frozenset(k for k, v in have.items() if v)
+
     def moving_forward(self, min_speed: float = 0.02) -> bool:
         """A base motion is running and its last step drove forward (m/s above min_speed): what a
         forward-looking range sensor must watch. Turning on the spot is not moving forward."""

@@ -35,6 +35,17 @@ class RecordingAPI:
         self.frames: list[Path] = []
         self._last = ""
 
+    # robots.interface.RobotInterface: what is not recorded goes to the real API
+    @property
+    def microphone(self):
+        return self.api.microphone
+
+    def moving_forward(self, min_speed: float = 0.02) -> bool:
+        return self.api.moving_forward(min_speed)
+
+    def capabilities(self) -> frozenset[str]:
+        return self.api.capabilities()
+
     async def handle(self, req):
         name = req.action_name
         try:

@@ -31,7 +31,8 @@ class SpyAPI:
 
     def __init__(self, api: RobotAPI):
         self.api, self.core, self.calls = api, None, []
-        self.robot = api.robot  # the Core finds the microphone here, as on a RobotAPI
+        self.microphone = api.microphone
+        self.moving_forward, self.capabilities = api.moving_forward, api.capabilities
 
     async def handle(self, req):
         self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
@@ -223,10 +224,12 @@ async def test_store_data_survives_restart(xmpp_server, tmp_path, unique):
 
 
 async def test_in_process_mode_runs_the_same_package_bytes(system):
-    """The same download, verification, unpacking and runtime code, as a task of the Core's process."""
+    """The same download, verification, unpacking and runtime code, as a task of the Core's process
+    (Dynamic Agent) and of the Platform's (Cloud Agent): one spawn mechanism, two modes."""
     world = World.from_file("small", seed=8)
     handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")), robot_id="nao-inproc",
                                     dynamic_mode="inprocess")
+    system.platform.cloud_mode = "inprocess"
     try:
         await wait_until(lambda: handle.core.vocabulary and state(handle.core) == "s3_listen")
         for _ in range(2):  # twice: the second run imports the RApp again from its new directory
@@ -236,9 +239,14 @@ async def test_in_process_mode_runs_the_same_package_bytes(system):
         assert any("doubled 42" in t for t in handle.user.texts())
         spawns = [r for r in structure(read_trace(system.settings.trace_file))
                   if r["event"] == "spawn" and r["dynamic"].startswith("dyn-nao-inproc")]
-        assert len(spawns) == 2 and all(r["pid"] == os.getpid() for r in spawns)
+        assert len(spawns) == 2 and all(r["pid"] == os.getpid() and not r["sandbox"] for r in spawns)
+        clouds = [r for r in structure(read_trace(system.settings.trace_file))
+                  if r["event"] == "cloud-spawn" and r["owner"].startswith("dyn-nao-inproc")]
+        assert len(clouds) == 2 and all(r["pid"] == os.getpid() for r in clouds)
         await wait_until(lambda: handle.core.active_behaviours() >= {"supervisor", "user-listener"})
+        await wait_until(lambda: not system.platform.clouds, what="in-process Cloud Agents destroyed")
     finally:
+        system.platform.cloud_mode = "process"
         world.close()
 
 

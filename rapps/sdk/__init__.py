@@ -120,7 +120,7 @@ class Task:
         self.agent = runtime  # the DynamicAgent (a SPADE agent)
         self.params: dict[str, Any] = dict(runtime.params)
         self.manifest = runtime.manifest
-        self.robot_info = runtime.robot_info  # ontology.spawn.RobotInfo: robot_id, robot_type
+        self.robot_info = runtime.robot_info  # ontology.spawn.RobotInfo: robot_id, robot_type, capabilities
         self.robot = RobotProxy(runtime, runtime.core)
         self.platform = PlatformProxy(runtime, runtime.platform, runtime.token)
         self.cloud = CloudProxy(runtime, runtime.platform, runtime.token, runtime.manifest.name,

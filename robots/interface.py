@@ -1,0 +1,40 @@
+"""What a Core needs from its robot, as a typed Protocol: the simulated RobotAPI implements it, and
+so must a driver of a real robot (or a test's wrapper). The Core checks it once, at construction,
+instead of probing attributes while it runs."""
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+# What a RApp may ask its runtime about (ontology.spawn.RobotInfo.capabilities)
+CAPABILITIES = ("speech", "microphone", "camera", "head", "sonars", "laser")
+
+
+@runtime_checkable
+class Microphone(Protocol):
+    async def listen(self, timeout: float) -> str | None:
+        """The next utterance heard (text), or None when nothing was heard within `timeout` s."""
+
+
+@runtime_checkable
+class RobotInterface(Protocol):
+    async def handle(self, req) -> Any:
+        """Carry out one ontology.robot request model; return its reply model or raise
+        robots.errors.RobotError (InvalidArgument, UnsupportedOperation, MotionInterrupted...)."""
+
+    def moving_forward(self, min_speed: float = 0.02) -> bool:
+        """A base motion runs forward now: what the Core's forward-range safety check watches."""
+
+    def capabilities(self) -> frozenset[str]:
+        """The subset of CAPABILITIES this robot has."""
+
+    @property
+    def microphone(self) -> Microphone | None:
+        """Where the owner's spoken commands are heard, or None (chat only)."""
+
+
+def check_robot(api: object) -> RobotInterface:
+    """`api` if it implements RobotInterface; else a TypeError naming what is missing."""
+    if isinstance(api, RobotInterface):
+        return api
+    missing = [n for n in ("handle", "moving_forward", "capabilities", "microphone") if not hasattr(api, n)]
+    raise TypeError(f"{type(api).__name__} is not a robots.interface.RobotInterface: missing {', '.join(missing)}")
