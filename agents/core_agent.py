@@ -77,6 +77,7 @@ class DynamicSession:
     detail: str = ""
     last_beat: float = field(default_factory=time.monotonic)
     ended: asyncio.Event = field(default_factory=asyncio.Event)
+    hung: bool = False  # ended for missing heartbeats: killed without a grace period
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     end_reason: str = ""
     account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
@@ -358,6 +359,7 @@ class CoreAgent(RobotCommands, RappAgent):
             if getattr(self, "_reconnecting", False) or now - getattr(self, "_reconnected_at", 0) < 2.0:
                 session.last_beat = now  # our own link was down: silence proves nothing
             if now - session.last_beat > HEARTBEAT_TIMEOUT_S and session.state != "Finished":
+                session.hung = True  # its loop does not run: it cannot log out, no grace
                 self._end(session, f"no heartbeat for {now - session.last_beat:.1f}s (hung?)")
             elif now - start > limit:
                 self._end(session, f"time limit of {limit:g}s exceeded")
@@ -383,22 +385,22 @@ class CoreAgent(RobotCommands, RappAgent):
                     await asyncio.wait_for(session.process.wait(), 2.0)
                 except asyncio.TimeoutError:
                     pass
-            await session.process.stop(grace=1.0)
+            await session.process.stop(grace=0.05 if session.hung else 1.0)
+        self.record_structure("destroy", dynamic=session.jid, rapp=session.rapp, state=session.state,
+                              reason=session.end_reason, exit_code=session.process.returncode
+                              if session.process else None)
+        self._resume_if_needed()  # supervising again at once; the rest is clean-up
         try:
             await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),
                                timeout=5.0)
         except RequestError as e:
             log.info("no cloud agent to stop for %s: %s", session.jid, e)
-        self.record_structure("destroy", dynamic=session.jid, rapp=session.rapp, state=session.state,
-                              reason=session.end_reason, exit_code=session.process.returncode
-                              if session.process else None)
         shutil.rmtree(session.workdir / "package", ignore_errors=True)
         if session.account is not None:  # awaited at stop, not cancelled (else the next start sweeps it)
             deletion = asyncio.create_task(self._delete_account(session))
             self._deletions.add(deletion)
             deletion.add_done_callback(self._deletions.discard)
-        self._resume_if_needed()  # listening again before the user hears the task is over
-        if session.state == "Finished":
+        if session.state == "Finished":  # told once its Cloud Agents are gone too
             await self.tell_user(f"{session.rapp} finished.")
         else:
             await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}")

@@ -5,7 +5,7 @@
 Every benchmark measures the project and a floor (or peer) side by side in the same run and reports
 their ratio. Each benchmark runs in a child process of its own (a fresh XMPP server, event loop and
 PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick finishes in under
-3 minutes on a 2-core machine. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf
+3 minutes on a 2-core machine. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery
 (metric names such as robot_rtt or plan_astar select their benchmark).
 """
 from __future__ import annotations
@@ -24,9 +24,10 @@ from pathlib import Path
 
 from .common import ROOT, log, metric, table
 
-BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf"]
+BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf", "recovery"]
 FULL_TIMEOUT_S = {"fleet": 1800}  # 21 hazard-detection runs in two rounds
-ALIASES = {"robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
+ALIASES = {"recovery_killed_told": "recovery", "recovery_hung_back": "recovery",
+           "recovery_reconnect": "recovery", "recovery_command_answered": "recovery", "robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
            "fleet_service_p95": "fleet", "sim": "sim_rtf"}
 
 
@@ -85,6 +86,11 @@ def bench_sim_rtf(quick: bool, tiny: bool) -> list[dict]:
                           ratio_meaning="floor/value (>1: slower than floor)"))
         log(f"sim_rtf {n} robot(s): rtf {rtf:.2f}, floor {floor:.2f}")
     return out
+
+
+def bench_recovery(quick: bool, tiny: bool) -> list[dict]:
+    from . import recovery
+    return asyncio.run(recovery.run(quick, rounds=1 if tiny else None, restarts=1 if tiny else None))
 
 
 def _child(name: str, quick: bool, tiny: bool, out: str) -> int:
@@ -157,6 +163,11 @@ GOALS = {
     # quick sizes stop below the goal: a fleet that passed all of them is not judged
     "fleet": (">= 20 robots", lambda m: m["value"] >= 20 or (None if m.get("capped_by_sizes") else False)),
     "sim_rtf_4": (">= 1 x realtime", lambda m: m["value"] >= 1.0),
+    # issue #23: worst case over every injected fault, absolute
+    "recovery_killed_told": ("<= 1000 ms", lambda m: m["value"] <= 1000.0),
+    "recovery_hung_back": ("<= 2000 ms", lambda m: m["value"] <= 2000.0),
+    "recovery_reconnect": ("<= 2000 ms", lambda m: m["value"] <= 2000.0),
+    "recovery_command_answered": ("<= 500 ms", lambda m: m["value"] <= 500.0),
 }
 
 
