@@ -30,7 +30,8 @@ def _imports(path: Path) -> list[tuple[int, str]]:
 
 def _rapp_package_dirs() -> list[Path]:
     """Code of every RApp package in the tree (a folder holding manifest.yaml)."""
-    return sorted(m.parent for m in [*ROOT.glob("rapps/**/manifest.yaml"), *ROOT.glob("tests/fixtures/*/manifest.yaml")])
+    return sorted(m.parent for m in [*ROOT.glob("rapps/**/manifest.yaml"), *ROOT.glob("bench/rapps/*/manifest.yaml"),
+                                         *ROOT.glob("tests/fixtures/*/manifest.yaml")])
 
 
 def _project_modules(pkg: str) -> list[Path]:

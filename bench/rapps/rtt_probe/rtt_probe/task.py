@@ -11,8 +11,7 @@ import time
 import uuid
 from pathlib import Path
 
-from behaviours import FSM
-from rapps.sdk import Step, Task
+from rapps.sdk import FSM, Step, Task
 
 
 class ProbeTask(Task):
