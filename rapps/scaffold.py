@@ -17,7 +17,7 @@ phrases:
   - run {words}
 entry_point: {pkg}.task:{cls}Task
 {cloud_line}services: [ping]
-robot_api: [communication, navigation]
+robot_api: [communication, navigation, vision]
 params:
   greeting: Hello from {name}
 time_limit_s: 120
@@ -40,10 +40,12 @@ class {cls}Task(Task):
     async def greet(self, memory):
         await self.say(str(self.params["greeting"]))  # an Elektron has no speech: nothing is said
         memory["pose"] = (await self.robot.get_global_pose()).model_dump()
+        image = await self.robot.capture_image()  # `rapp run rapp` keeps it in its frames/ folder
+        memory["image"] = f"{{image.width}}x{{image.height}}"
 
     async def finish(self, memory):
         pong = await self.platform.ping()
-{cloud_call}        await self.report(f"{name} done for {{pong.user}} at {{memory['pose']}}", **extra)
+{cloud_call}        await self.report(f"{name} done for {{pong.user}} at {{memory['pose']}}, saw {{memory['image']}}", **extra)
 '''
 
 MODELS = '''\

@@ -12,15 +12,21 @@ import numpy as np  # noqa: E402
 
 
 def plot_hazard_run(path: str | Path, grid, paths: list[dict], localizations: list[dict],
-                    landmarks: dict, hazards: list[dict], hazard_specs: list, title: str = "") -> Path:
+                    landmarks: dict, hazards: list[dict], hazard_specs: list, title: str = "",
+                    trajectory: list | None = None) -> Path:
     """grid: robots.gridmap.GridMap; paths: recorder paths (poses, trajectory); hazards: result rows;
-    hazard_specs: HazardSpec list (standing poses and look-at points)."""
+    hazard_specs: HazardSpec list (standing poses and look-at points); trajectory: the whole run's
+    true (x, y) poses, drawn under the rest."""
     path = Path(path)
     h, w = grid.image.shape
     x0, y0 = grid.origin[0], grid.origin[1]
     extent = (x0, x0 + w * grid.resolution, y0, y0 + h * grid.resolution)
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
     ax.imshow(grid.image, cmap="gray", vmin=0, vmax=255, extent=extent, origin="upper")
+    if trajectory:
+        t = np.asarray(trajectory, float)
+        ax.plot(t[:, 0], t[:, 1], "-", color="tab:gray", lw=0.8, alpha=0.8, label="whole run (true)")
+        ax.plot(t[0, 0], t[0, 1], "o", color="tab:gray", ms=5)
     for i, p in enumerate(paths):
         poses, traj = np.asarray(p["poses"]), np.asarray(p["trajectory"])
         ax.plot(poses[:, 0], poses[:, 1], "--", color="tab:blue", lw=1.2, label="planned" if i == 0 else None)

@@ -26,9 +26,11 @@ def distance_to_polyline(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
 
 
 class RecordingAPI:
-    def __init__(self, api, frames_dir: str | Path | None = None, sample_s: float = 0.1):
+    def __init__(self, api, frames_dir: str | Path | None = None, sample_s: float = 0.1,
+                 every_capture: bool = False):
         self.api, self.robot, self.world = api, api.robot, api.world
         self.frames_dir = Path(frames_dir) if frames_dir else None
+        self.every_capture = every_capture  # else only captures right after look_at_point (checks)
         self.sample_s = sample_s
         self.localizations: list[dict] = []  # time, estimate, truth, error_m
         self.paths: list[dict] = []  # poses (planned leg), trajectory (true), tracking_error_m
@@ -54,7 +56,7 @@ class RecordingAPI:
             if name == "move_along_path":
                 return await self._follow(req)
             reply = await self.api.handle(req)
-            if name == "capture_image" and self._last == "look_at_point":
+            if name == "capture_image" and (self.every_capture or self._last == "look_at_point"):
                 self._save_frame(reply)
             return reply
         finally:
@@ -93,7 +95,7 @@ class RecordingAPI:
         if self.frames_dir is None:
             return
         self.frames_dir.mkdir(parents=True, exist_ok=True)
-        path = self.frames_dir / f"check_{len(self.frames) + 1:02d}.png"
+        path = self.frames_dir / f"{'frame' if self.every_capture else 'check'}_{len(self.frames) + 1:02d}.png"
         path.write_bytes(base64.b64decode(image.data_b64))
         self.frames.append(path)
 

@@ -4,8 +4,9 @@ run your own RApp on a simulated robot, as the hazard scenario runs its RApp.
 Builds the package (when given a directory; signed with a key of this run), publishes it to a fresh
 Store on the embedded server, uploads the house's home description and map for the owner, sends
 the owner's command (default: the RApp's first keyword) and waits until the RApp ends. Writes
-result.json (the RApp's reports as data), chat.txt and trace.jsonl to --out; exits 1 with the
-reason on one line when the RApp ends in error.
+result.json (the RApp's reports as data), chat.txt, trace.jsonl, run.png (the map, the robot's
+whole true trajectory, its planned legs and localizations) and frames/ (every image the RApp
+captured) to --out; exits 1 with the reason on one line when the RApp ends in error.
 """
 from __future__ import annotations
 
@@ -19,8 +20,11 @@ from pathlib import Path
 from agents.tracing import read_trace
 from ontology.manifest import load_manifest
 from robots import RobotAPI, World
-from scenarios.home_setup import LAYOUTS, home_description, upload_home
+from robots.gridmap import build_grid_map
+from scenarios.home_setup import LAYOUTS, home_description, home_map, upload_home
+from scenarios.plots import plot_hazard_run
 from scenarios.progress import follow
+from scenarios.recorder import RecordingAPI
 from scenarios.system import RappSystem, wait_until
 
 
@@ -36,12 +40,29 @@ def _reports(trace: Path, core: str) -> list[dict]:
     return out
 
 
+async def _sample_poses(api, into: list, period_s: float = 0.2) -> None:
+    """The robot's true (x, y) through the whole run, for the plot (simulation time)."""
+    while True:
+        into.append(tuple(api.robot.pose[:2]))
+        await api.world.sleep(period_s)
+
+
+def _plot(out: Path, world, house: str, recorder: RecordingAPI, trajectory: list, title: str) -> Path:
+    grid = home_map(world, Path(house).stem) if Path(house).stem in LAYOUTS else build_grid_map(world.plan)
+    return plot_hazard_run(out / "run.png", grid, recorder.paths, recorder.localizations, {}, [], [],
+                           title=title, trajectory=trajectory)
+
+
 async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None, out: Path,
                    timeout_s: float, progress: bool = False) -> dict:
     manifest_dir = src if src.is_dir() else None
     world = World.from_file(house, seed=seed)
+    trajectory: list = []
+    sampler: asyncio.Task | None = None
     try:
-        api = RobotAPI(world.add_robot(robot))
+        # every image the RApp captures is kept in out/frames; legs and localizations are recorded
+        api = RecordingAPI(RobotAPI(world.add_robot(robot)), frames_dir=out / "frames", every_capture=True)
+        sampler = asyncio.create_task(_sample_poses(api, trajectory))
         async with RappSystem(out / "system", trace_file=out / "trace.jsonl") as system:
             if manifest_dir is not None:
                 name = (await system.publish(src)).split()[0]
@@ -75,13 +96,19 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                 or "could not get" in t or "did not start" in t, timeout=timeout_s, start=start)
             texts = handle.user.texts()[start:]
             reports = _reports(out / "trace.jsonl", handle.core.address)
+        sampler.cancel()
         ok = end.startswith(f"{name} finished")
+        plot = await asyncio.to_thread(_plot, out, world, house, api, trajectory, f"{name} on {robot} in {house}, "
+                                       f"seed {seed}: {'finished' if ok else 'error'}")
         result = {"rapp": name, "robot": robot, "house": house, "seed": seed, "command": command,
-                  "ok": ok, "end": end, "reports": reports, "trace": str(out / "trace.jsonl")}
+                  "ok": ok, "end": end, "reports": reports, "trace": str(out / "trace.jsonl"),
+                  "plot": str(plot), "frames": [str(f) for f in api.frames]}
         (out / "chat.txt").write_text("\n".join(texts) + "\n")
         (out / "result.json").write_text(json.dumps(result, indent=1))
         return result
     finally:
+        if sampler is not None:
+            sampler.cancel()
         world.close()
 
 
@@ -105,4 +132,6 @@ def main(argv: list[str] | None = None) -> int:
     result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=not a.quiet))
     print(f"{result['rapp']}: {'finished' if result['ok'] else 'ERROR'}: {result['end']}")
     print(f"  result {out / 'result.json'}; chat {out / 'chat.txt'}; trace {out / 'trace.jsonl'}")
+    print(f"  plot {result['plot']}; {len(result['frames'])} frames captured"
+          + (f" in {out / 'frames'}" if result["frames"] else ""))
     return 0 if result["ok"] else 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 from ontology.package import read_package
 
@@ -25,6 +26,10 @@ async def test_new_rapp_builds_runs_and_its_test_passes(tmp_path):
     assert res.returncode == 0, res.stdout + res.stderr
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     assert result["ok"] and result["reports"][0]["data"] == {"doubled": 42}
+    # the same outputs as the hazard run: a plot of the run and the frames the RApp captured
+    assert Path(result["plot"]).read_bytes()[:4] == b"\x89PNG"
+    assert len(result["frames"]) == 1 and Path(result["frames"][0]).read_bytes()[:4] == b"\x89PNG"
+    assert "saw 320x240" in result["reports"][0]["text"]
 
     res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(dest / "tests")],
                          cwd=ROOT, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
