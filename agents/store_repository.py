@@ -246,14 +246,6 @@ class StoreRepository:
             db.execute("INSERT INTO owners VALUES (?,?,?,?)", (name, password_hash, public_key, time.time()))
         return Owner(name=name, public_key=public_key, has_password=password_hash is not None)
 
-    def get_owner(self, name: str) -> Owner:
-        """The owner record; "not_found" if unknown."""
-        rows = self._query("SELECT * FROM owners WHERE name=?", (name,))
-        if not rows:
-            raise StoreError(f"owner {name!r} is not registered", "not_found")
-        r = rows[0]
-        return Owner(name=r["name"], public_key=r["public_key"], has_password=r["password_hash"] is not None)
-
     def verify_owner(self, name: str, password: str) -> bool:
         """True iff the owner exists and the password matches its stored hash."""
         rows = self._query("SELECT password_hash FROM owners WHERE name=?", (name,))

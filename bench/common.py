@@ -9,7 +9,6 @@ import asyncio
 import math
 import os
 import sys
-import time
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -93,14 +92,6 @@ def quiet_logs() -> None:
 
     for name in ("slixmpp", "spade", "rapp", "aiosasl", "asyncio"):
         logging.getLogger(name).setLevel(logging.ERROR)
-
-
-class Stopwatch:
-    def __init__(self):
-        self.t0 = time.perf_counter()
-
-    def __call__(self) -> float:
-        return time.perf_counter() - self.t0
 
 
 def child_env(settings) -> dict[str, str]:

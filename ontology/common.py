@@ -10,8 +10,3 @@ class Reason(Content):
     reason: str
     code: str = "error"
 
-
-class Agreed(Content):
-    """Content of agree: the responder accepted and will inform later."""
-
-    eta_s: float | None = None

@@ -10,17 +10,14 @@ from __future__ import annotations
 from pydantic import Field
 
 from .registry import Action, Content, Done, action, actions
+from .services.common import Pose2D  # one Pose2D for robot and Platform messages
+
+__all__ = ["Pose2D"]  # re-exported: robot messages use the Platform's pose model
 
 ONTOLOGY = "robot"
 
 
 # ---------------------------------------------------------------- reply / shared contents
-class Pose2D(Content):
-    x: float
-    y: float
-    theta: float = 0.0
-
-
 class WordSpotted(Content):
     """First matching word heard, or word=None when the timeout expired."""
 

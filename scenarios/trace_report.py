@@ -17,10 +17,12 @@ from collections import Counter, defaultdict, deque
 from collections.abc import Iterable
 
 from agents.tracing import read_trace
+from ontology.acl import Performative
 
-FINAL = ("inform", "failure", "refuse", "not-understood")  # answers that close a request
-OPENING = ("request", "query-ref")  # performatives that expect a final answer
-NOTE_KINDS = ("structure", "agent", "behaviour", "state", "timeout", "dropped")
+# the ontology's performatives, as the trace's strings
+FINAL = tuple(p.value for p in (Performative.INFORM, Performative.FAILURE, Performative.REFUSE,
+                                Performative.NOT_UNDERSTOOD))  # answers that close a request
+OPENING = (Performative.REQUEST.value, Performative.QUERY_REF.value)  # expect a final answer
 
 
 # -- names ----------------------------------------------------------------------------------------

@@ -8,7 +8,6 @@
 
 Each ServiceSpec.run(request, ctx) is synchronous, takes the registered request model and returns
 its reply model, raising agents.services.errors.ServiceError(reason, code) on bad input.
-`cpu_heavy` marks services better run in a process / dedicated thread pool.
 """
 from __future__ import annotations
 
@@ -29,45 +28,44 @@ class ServiceSpec:
     request: type[Action]
     reply: type[Content]
     run: Callable[[Action, ServiceContext], Content]
-    cpu_heavy: bool = False
 
 
-_IMPLS: dict[str, tuple[Callable, bool]] = {
-    "path_planning_upload_map": (navigation.upload_map, False),
-    "path_planning_list_maps": (navigation.list_maps, False),
-    "path_planning_plan_path_2d": (navigation.plan_path_2d, True),
-    "qr_detection": (localization.qr_detection, True),
-    "compute_global_pose": (localization.compute_global_pose, False),
-    "hazard_detection_door_check": (hazard.door_check, True),
-    "hazard_detection_light_check": (hazard.light_check, False),
-    "home_upload_info": (home.upload_info, False),
-    "home_get_info": (home.get_info, False),
-    "face_detection": (vision.face_detection, True),
-    "human_detection": (vision.human_detection, True),
-    "object_detection_learn_object": (vision.learn_object, True),
-    "object_detection_find_objects": (vision.find_objects, True),
-    "object_detection_clear_models": (vision.clear_objects, False),
-    "interpret_command": (interpretation.interpret_command, False),
-    "weather_report_current": (information.weather_current, False),
-    "weather_report_forecast": (information.weather_forecast, False),
-    "news_explore": (information.news_explore, False),
-    "email_send": (email.email_send, False),
-    "email_fetch": (email.email_fetch, False),
-    "ontology_subclasses_of": (knowledge.subclasses_of, False),
-    "ontology_superclasses_of": (knowledge.superclasses_of, False),
-    "ontology_is_subclass_of": (knowledge.is_subclass_of, False),
-    "cognitive_test_chooser": (cognitive.choose_test, False),
-    "cognitive_record_performance": (cognitive.record_performance, False),
-    "cognitive_get_history": (cognitive.get_history, False),
+_IMPLS: dict[str, Callable] = {
+    "path_planning_upload_map": navigation.upload_map,
+    "path_planning_list_maps": navigation.list_maps,
+    "path_planning_plan_path_2d": navigation.plan_path_2d,
+    "qr_detection": localization.qr_detection,
+    "compute_global_pose": localization.compute_global_pose,
+    "hazard_detection_door_check": hazard.door_check,
+    "hazard_detection_light_check": hazard.light_check,
+    "home_upload_info": home.upload_info,
+    "home_get_info": home.get_info,
+    "face_detection": vision.face_detection,
+    "human_detection": vision.human_detection,
+    "object_detection_learn_object": vision.learn_object,
+    "object_detection_find_objects": vision.find_objects,
+    "object_detection_clear_models": vision.clear_objects,
+    "interpret_command": interpretation.interpret_command,
+    "weather_report_current": information.weather_current,
+    "weather_report_forecast": information.weather_forecast,
+    "news_explore": information.news_explore,
+    "email_send": email.email_send,
+    "email_fetch": email.email_fetch,
+    "ontology_subclasses_of": knowledge.subclasses_of,
+    "ontology_superclasses_of": knowledge.superclasses_of,
+    "ontology_is_subclass_of": knowledge.is_subclass_of,
+    "cognitive_test_chooser": cognitive.choose_test,
+    "cognitive_record_performance": cognitive.record_performance,
+    "cognitive_get_history": cognitive.get_history,
 }
 
 
-def _spec(name: str, fn: Callable, heavy: bool) -> ServiceSpec:
+def _spec(name: str, fn: Callable) -> ServiceSpec:
     req = lookup("platform", name)
-    return ServiceSpec(name, req, req.reply_model, fn, heavy)  # type: ignore[arg-type]
+    return ServiceSpec(name, req, req.reply_model, fn)  # type: ignore[arg-type]
 
 
-SERVICES: dict[str, ServiceSpec] = {n: _spec(n, fn, heavy) for n, (fn, heavy) in _IMPLS.items()}
+SERVICES: dict[str, ServiceSpec] = {n: _spec(n, fn) for n, fn in _IMPLS.items()}
 
 
 def run_service(name: str, request: Action, ctx: ServiceContext) -> Content:

@@ -14,18 +14,6 @@ class Pose2D(Content):
     theta: float = 0.0
 
 
-class Pose3D(Content):
-    """Position (m) and orientation as a quaternion (x, y, z, w)."""
-
-    x: float
-    y: float
-    z: float
-    qx: float = 0.0
-    qy: float = 0.0
-    qz: float = 0.0
-    qw: float = 1.0
-
-
 class CameraIntrinsics(Content):
     """Pinhole intrinsics in pixels; `dist` are OpenCV distortion coefficients (may be empty)."""
 
