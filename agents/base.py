@@ -37,6 +37,7 @@ from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefus
 from .messages import AclInfo, bare, copy_message, make_message, reply_to
 from .stanza import message_xml, read_message
 from .tracing import cap, tracer_for
+from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.agent")
 _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
@@ -243,11 +244,11 @@ class RappAgent(Agent):
             try:
                 lookup(info.ontology, info.action)
             except ContentError as e:
-                await self.send(reply_to(msg, Reason(reason=str(e), code="unknown-action"),
+                await self.send(reply_to(msg, Reason(reason=str(e), code=ErrorCode.UNKNOWN_ACTION),
                                          Performative.NOT_UNDERSTOOD))
                 return
             reason = self.not_serving_reason(info)
-            await self.send(reply_to(msg, Reason(reason=reason, code="not-serving"), Performative.REFUSE))
+            await self.send(reply_to(msg, Reason(reason=reason, code=ErrorCode.NOT_SERVING), Performative.REFUSE))
             return
         await self.on_unhandled(msg, info)
 
@@ -255,7 +256,7 @@ class RappAgent(Agent):
         reason = f"message of {len(msg.body)} characters exceeds the limit of {MAX_BODY}"
         if info.performative in _OPENING_VALUES:
             msg.body = ""
-            await self.send(reply_to(msg, Reason(reason=reason, code="too-large"), Performative.NOT_UNDERSTOOD))
+            await self.send(reply_to(msg, Reason(reason=reason, code=ErrorCode.TOO_LARGE), Performative.NOT_UNDERSTOOD))
         else:
             self.tracer.record("dropped", agent=self.address, sender=bare(msg.sender), reason=reason)
 
@@ -312,7 +313,7 @@ class RappAgent(Agent):
                     answer = await queue.get()
                 if answer is None:
                     raise RequestFailed(f"{self.address} stopped while waiting for {name}",
-                                        code="stopped", peer=to, action=name)
+                                        code=ErrorCode.STOPPED, peer=to, action=name)
                 if isinstance(answer, Exception):  # fail_pending: the peer is known to be gone
                     raise answer
                 perf = answer.get_metadata(acl.PERFORMATIVE)
@@ -323,7 +324,7 @@ class RappAgent(Agent):
                         return validate(content.reply_model or Content, parse_json(answer.body))
                     except ContentError as e:
                         raise RequestFailed(f"{to} answered {name} with bad content: {e}",
-                                            code="bad-reply", peer=to, action=name) from None
+                                            code=ErrorCode.BAD_REPLY, peer=to, action=name) from None
                 reason = _reason_of(answer)
                 err = {Performative.REFUSE.value: RequestRefused,
                        Performative.NOT_UNDERSTOOD.value: NotUnderstood}.get(perf, RequestFailed)
@@ -332,7 +333,7 @@ class RappAgent(Agent):
             self.tracer.record("timeout", agent=self.address, peer=to, action=name,
                                conversation_id=conv, timeout_s=timeout)
             raise RequestTimeout(f"{to} did not answer {name} within {timeout:g}s",
-                                 code="timeout", peer=to, action=name) from None
+                                 code=ErrorCode.TIMEOUT, peer=to, action=name) from None
         finally:
             self._pending.pop(conv, None)
             self._pending_peer.pop(conv, None)
@@ -416,7 +417,7 @@ def _reason_of(msg: Message) -> Reason:
     try:
         return Reason.model_validate(parse_json(msg.body))
     except Exception:  # noqa: BLE001 - a peer's malformed error still becomes an error
-        return Reason(reason=(msg.body or "no reason given")[:500], code="unknown")
+        return Reason(reason=(msg.body or "no reason given")[:500], code=ErrorCode.UNKNOWN)
 
 
 __all__ = ["RappAgent", "CyclicBehaviour", "FSMBehaviour"]

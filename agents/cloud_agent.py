@@ -11,6 +11,7 @@ from .base import RappAgent
 from .errors import Refusal
 from .responder import Responder
 from .runtime import load_entry_point
+from ontology.errors import ErrorCode
 
 
 class CloudAgent(RappAgent):
@@ -30,7 +31,7 @@ class CloudAgent(RappAgent):
 
     def _only_owner(self, req, ctx) -> None:
         if self.owner and ctx.sender != self.owner:
-            raise Refusal(f"this Cloud Agent serves {self.owner} only", "forbidden")
+            raise Refusal(f"this Cloud Agent serves {self.owner} only", ErrorCode.FORBIDDEN)
 
     async def run_to_end(self, platform: str) -> int:
         from ontology.platform import CloudReady

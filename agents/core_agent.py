@@ -56,6 +56,7 @@ from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spa
 from .sandbox import Sandbox
 from .responder import Responder
 from .store_client import download_package
+from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.core")
 HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 2 s
@@ -161,7 +162,7 @@ class CoreAgent(RobotCommands, RappAgent):
         try:
             await self.request(self.platform, P.RegisterUser(user=self.user, password=self.password))
         except RequestError as e:
-            if e.code != "duplicate":
+            if e.code != ErrorCode.DUPLICATE:
                 raise
         await self._login()
         await self.request(self.platform, P.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
@@ -219,7 +220,7 @@ class CoreAgent(RobotCommands, RappAgent):
         if len(words) == 1 and words[0] in self.vocabulary:
             return self.vocabulary[words[0]], {}
         if not self.catalogue:
-            raise RequestFailed(f"no application for a {self.robot_type} robot is in the Store", code="no-rapps")
+            raise RequestFailed(f"no application for a {self.robot_type} robot is in the Store", code=ErrorCode.NO_RAPPS)
         import ontology.services  # noqa: F401 - registers interpret_command
         from ontology.registry import lookup
         model = lookup(P.ONTOLOGY, "interpret_command")
@@ -413,7 +414,7 @@ class CoreAgent(RobotCommands, RappAgent):
     def _from_dynamic(self, ctx) -> DynamicSession:
         d = self.dynamic
         if d is None or ctx.sender != bare(d.jid):
-            raise Refusal(f"{ctx.sender} is not the current Dynamic Agent", "not-supervisor")
+            raise Refusal(f"{ctx.sender} is not the current Dynamic Agent", ErrorCode.NOT_SUPERVISOR)
         return d
 
     async def _on_status(self, req: C.TaskStatus, ctx) -> Done:

@@ -11,6 +11,7 @@ from .errors import Failure, Refusal
 from .locks import ACTION_DEVICE, LockError, ResourceLocks
 from .messages import bare
 from .responder import Responder
+from ontology.errors import ErrorCode
 
 if TYPE_CHECKING:
     from robots.api import RobotAPI
@@ -53,13 +54,13 @@ class RobotCommands:
     def _only_supervisor(self, req, ctx) -> None:
         d = self.dynamic
         if d is None or ctx.sender != bare(d.jid) or d.ended.is_set():
-            raise Refusal(f"{ctx.sender} is not the current supervisor of {self.robot_id}", "not-supervisor")
+            raise Refusal(f"{ctx.sender} is not the current supervisor of {self.robot_id}", ErrorCode.NOT_SUPERVISOR)
         if req.group != "resources" and req.group not in d.manifest.robot_api:
             raise Refusal(f"{d.rapp} did not declare the robot-API group {req.group!r} "
-                          f"(needed by {req.action_name}) in its manifest", "permission")
+                          f"(needed by {req.action_name}) in its manifest", ErrorCode.PERMISSION)
         if self.estop_reason and req.action_name in MOTION_ACTIONS:
             raise Refusal(f"emergency stop ({self.estop_reason}): nothing moves until the user says "
-                          f"\"resume\"", "estop")
+                          f"\"resume\"", ErrorCode.ESTOP)
 
     async def _robot_call(self, req, ctx):
         if req.action_name == "lock_resource":
@@ -74,21 +75,21 @@ class RobotCommands:
             async with self.locks.hold(ACTION_DEVICE.get(req.action_name), ctx.sender, timeout=60.0):
                 return await self.robot.handle(req)
         except LockError as e:
-            raise Refusal(str(e), "locked") from None
+            raise Refusal(str(e), ErrorCode.LOCKED) from None
 
     async def _lock(self, req, owner: str):
         try:
             ok = (await self.locks.lock(req.resource, owner, req.timeout_s) if req.wait
                   else self.locks.try_lock(req.resource, owner))
         except LockError as e:
-            raise Refusal(str(e), "unknown-resource") from None
+            raise Refusal(str(e), ErrorCode.UNKNOWN_RESOURCE) from None
         return ontology.robot.LockState(resource=req.resource, held=ok, holder=self.locks.holder(req.resource))
 
     def _free(self, req, owner: str):
         try:
             self.locks.free(req.resource, owner)
         except LockError as e:
-            raise Failure(str(e), "not-holder") from None
+            raise Failure(str(e), ErrorCode.NOT_HOLDER) from None
         return ontology.robot.LockState(resource=req.resource, held=False, holder=self.locks.holder(req.resource))
 
     # -- emergency stop (paper 003) -----------------------------------------------------------

@@ -14,6 +14,7 @@ from behaviours import BehaviourHost, Outcome
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import parse_json
+from ontology.errors import ErrorCode
 from ontology.manifest import Manifest
 
 from .base import RappAgent
@@ -54,7 +55,7 @@ class DynamicAgent(RappAgent):
             except Exception:  # noqa: BLE001 - malformed: kept as unhandled below
                 down = None
             if down is not None:
-                code = "cloud-restarted" if down.restarted else "cloud-lost"
+                code = ErrorCode.CLOUD_RESTARTED if down.restarted else ErrorCode.CLOUD_LOST
                 self.fail_pending(down.jid, CloudAgentLost(down.reason, code=code, peer=down.jid))
                 if self.task is not None:
                     self.task.cloud.lost = None if down.restarted else down.reason

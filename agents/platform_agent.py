@@ -32,6 +32,7 @@ from .identity import EphemeralAccounts, Identity
 from .messages import bare
 from .platform_users import DirectoryError, TokenInfo, UserDirectory
 from .sandbox import Sandbox
+from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.platform")
 # what every RApp token may call besides the services its manifest declares
@@ -122,28 +123,28 @@ class PlatformAgent(RappAgent):
             return
         info = await self.token_info(req.token)
         if info.holder != ctx.sender:
-            raise Refusal(f"this token was issued to another agent, not to {ctx.sender}", "bad-token")
+            raise Refusal(f"this token was issued to another agent, not to {ctx.sender}", ErrorCode.BAD_TOKEN)
         ctx.user, ctx.token = info.user, info
         if info.services is not None:
             if req.action_name == "issue_app_token":
-                raise Refusal("a RApp token cannot issue tokens", "permission")
+                raise Refusal("a RApp token cannot issue tokens", ErrorCode.PERMISSION)
             if req.action_name not in info.services and req.action_name not in ALWAYS_ALLOWED:
                 raise Refusal(f"{info.rapp} did not declare the service {req.action_name!r} in its manifest",
-                              "permission")
+                              ErrorCode.PERMISSION)
 
     async def token_info(self, token: str) -> TokenInfo:
         if not token:
-            raise Refusal("missing token: log in first and send the token with every call", "no-token")
+            raise Refusal("missing token: log in first and send the token with every call", ErrorCode.NO_TOKEN)
         info = self._tokens.get(token)
         if info is None:
             info = await asyncio.to_thread(self.directory.lookup, token)
             if info is None:
-                raise Refusal("unknown token", "bad-token")
+                raise Refusal("unknown token", ErrorCode.BAD_TOKEN)
             self._tokens[token] = info
         if time.time() > info.expires_at:
             self._tokens.pop(token, None)
             await asyncio.to_thread(self.directory.revoke, token)
-            raise Refusal("token expired: log in again", "expired-token")
+            raise Refusal("token expired: log in again", ErrorCode.EXPIRED_TOKEN)
         return info
 
     async def _issue(self, user: str, ttl_s: float, **kw) -> tuple[str, float]:
@@ -153,20 +154,20 @@ class PlatformAgent(RappAgent):
         try:
             await asyncio.to_thread(self.directory.add_user, req.user, req.password)
         except DirectoryError as e:
-            code = "duplicate" if e.code == "duplicate" else "invalid"
-            raise Refusal(str(e) if code == "invalid" else f"user {req.user!r} already registered", code) from None
+            code = ErrorCode.DUPLICATE if e.code == ErrorCode.DUPLICATE else ErrorCode.INVALID
+            raise Refusal(str(e) if code == ErrorCode.INVALID else f"user {req.user!r} already registered", code) from None
         return Done()
 
     async def login(self, req: P.Login, ctx) -> P.TokenReply:
         if not await asyncio.to_thread(self.directory.check_login, req.user, req.password):
-            raise Refusal("unknown user or wrong password", "bad-login")
+            raise Refusal("unknown user or wrong password", ErrorCode.BAD_LOGIN)
         token, expires = await self._issue(req.user, req.ttl_s, holder=ctx.sender)
         return P.TokenReply(token=token, expires_at=expires, user=req.user)
 
     async def issue_app_token(self, req: P.IssueAppToken, ctx) -> P.TokenReply:
         unknown = sorted(set(req.services) - set(actions(P.ONTOLOGY)))
         if unknown:
-            raise Refusal(f"{req.rapp} declares unknown services: {', '.join(unknown)}", "unknown-service")
+            raise Refusal(f"{req.rapp} declares unknown services: {', '.join(unknown)}", ErrorCode.UNKNOWN_SERVICE)
         token, expires = await self._issue(ctx.user, req.ttl_s, holder=bare(req.holder_jid), rapp=req.rapp,
                                            services=frozenset(req.services), issuer=ctx.sender,
                                            not_after=ctx.token.expires_at)
@@ -175,13 +176,13 @@ class PlatformAgent(RappAgent):
     async def verify_token(self, req: P.VerifyToken, ctx) -> P.TokenOwner:
         """For the Store (only): who holds a token a download request came with."""
         if ctx.sender != self.store:
-            raise Refusal("only the Store verifies tokens", "forbidden")
+            raise Refusal("only the Store verifies tokens", ErrorCode.FORBIDDEN)
         info = await self.token_info(req.token)
         return P.TokenOwner(user=info.user, holder=info.holder, rapp=info.rapp)
 
     async def register_robot(self, req: P.RegisterRobot, ctx) -> Done:
         if bare(req.core_jid) != ctx.sender:
-            raise Refusal(f"{ctx.sender} cannot register a robot for {req.core_jid}", "forbidden")
+            raise Refusal(f"{ctx.sender} cannot register a robot for {req.core_jid}", ErrorCode.FORBIDDEN)
         self.robots[req.robot_id] = req
         self.record_structure("register", robot=req.robot_id, robot_type=req.robot_type,
                               by=ctx.sender, at="platform")
@@ -205,13 +206,13 @@ class PlatformAgent(RappAgent):
         from agents.services.errors import ServiceError
 
         if self.pending >= self.max_pending:
-            raise Refusal(f"platform busy: {self.pending} calls in progress, retry shortly", "busy")
+            raise Refusal(f"platform busy: {self.pending} calls in progress, retry shortly", ErrorCode.BUSY)
         spec = self.services[req.action_name]
         self.pending += 1
         try:
             return await asyncio.to_thread(spec.run, req, ServiceContext(user=ctx.user, state=self.state))
         except ServiceError as e:
-            raise Failure(str(getattr(e, "reason", e)), getattr(e, "code", "service-error")) from None
+            raise Failure(str(getattr(e, "reason", e)), getattr(e, "code", ErrorCode.SERVICE_ERROR)) from None
         finally:
             self.pending -= 1
             self.served += 1
@@ -220,13 +221,13 @@ class PlatformAgent(RappAgent):
     async def start_cloud(self, req: P.StartCloudAgent, ctx) -> P.CloudAgentReply:
         owner = ctx.sender  # a Cloud Agent serves the agent that asked for it, nobody named in content
         if req.owner_jid and bare(req.owner_jid) != owner:
-            raise Refusal(f"{owner} cannot start a Cloud Agent for {req.owner_jid}", "forbidden")
+            raise Refusal(f"{owner} cannot start a Cloud Agent for {req.owner_jid}", ErrorCode.FORBIDDEN)
         try:
             info, data = await download_package(self, self.store, req.rapp, req.version)
         except RequestError as e:
-            raise Failure(f"cannot fetch {req.rapp} from the Store: {e.reason}", "store") from None
+            raise Failure(f"cannot fetch {req.rapp} from the Store: {e.reason}", ErrorCode.STORE) from None
         if not info.manifest.get("cloud_entry_point"):
-            raise Refusal(f"{req.rapp} has no Cloud Agent part", "no-cloud-part")
+            raise Refusal(f"{req.rapp} has no Cloud Agent part", ErrorCode.NO_CLOUD_PART)
         from ontology.package import unpack_package
 
         n = next(self._serial)
@@ -235,7 +236,7 @@ class PlatformAgent(RappAgent):
         try:
             ident = await self.accounts.create(f"cloud-{info.name}".replace("_", "-"))
         except LoginError as e:
-            raise Failure(f"cannot create the Cloud Agent's account: {e}", "cloud-start") from None
+            raise Failure(f"cannot create the Cloud Agent's account: {e}", ErrorCode.CLOUD_START) from None
         jid = self.settings.jid(ident.name)
         scope = ctx.token
         # the Cloud Agent is RApp code: never more than its manifest declares
@@ -261,7 +262,7 @@ class PlatformAgent(RappAgent):
         if not session.ready.is_set():
             exited.cancel()
             await self._kill_cloud(session, "did not start")
-            raise Failure(f"Cloud Agent of {req.rapp} did not start: {proc.stderr_tail(500)}", "cloud-start")
+            raise Failure(f"Cloud Agent of {req.rapp} did not start: {proc.stderr_tail(500)}", ErrorCode.CLOUD_START)
         exited.cancel()
         session.restartable = bool(info.manifest.get("cloud_restartable"))
         session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
@@ -308,7 +309,7 @@ class PlatformAgent(RappAgent):
     async def cloud_ready(self, req: P.CloudReady, ctx) -> Done:
         session = self.clouds.get(ctx.sender)
         if session is None:
-            raise Refusal(f"{ctx.sender} is not a Cloud Agent of this Platform", "unknown-cloud")
+            raise Refusal(f"{ctx.sender} is not a Cloud Agent of this Platform", ErrorCode.UNKNOWN_CLOUD)
         session.ready.set()
         return Done()
 
@@ -319,17 +320,17 @@ class PlatformAgent(RappAgent):
     async def stop_cloud(self, req: P.StopCloudAgent, ctx) -> Done:
         session = self.clouds.get(bare(req.jid))
         if session is None:
-            raise Refusal(f"no Cloud Agent {req.jid}", "not_found")
+            raise Refusal(f"no Cloud Agent {req.jid}", ErrorCode.NOT_FOUND)
         if not self._may_stop(session, ctx.sender):
             self.record_structure("refused", action="stop_cloud_agent", by=ctx.sender, cloud=session.jid)
-            raise Refusal(f"{ctx.sender} does not own {req.jid}", "forbidden")
+            raise Refusal(f"{ctx.sender} does not own {req.jid}", ErrorCode.FORBIDDEN)
         await self._kill_cloud(session, f"stopped by {ctx.sender}")
         return Done()
 
     async def release_clouds(self, req: P.ReleaseCloudAgents, ctx) -> Done:
         for session in [c for c in self.clouds.values() if c.owner == bare(req.owner_jid)]:
             if not self._may_stop(session, ctx.sender):
-                raise Refusal(f"{req.owner_jid}'s Cloud Agents are not {ctx.sender}'s to stop", "forbidden")
+                raise Refusal(f"{req.owner_jid}'s Cloud Agents are not {ctx.sender}'s to stop", ErrorCode.FORBIDDEN)
             await self._kill_cloud(session, f"owner {req.owner_jid} ended")
         return Done()
 

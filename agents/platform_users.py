@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .store_repository import _check_password, hash_password
+from ontology.errors import ErrorCode
 
 _USER = re.compile(r"[A-Za-z0-9._@-]{1,64}")
 _SCHEMA = """
@@ -100,7 +101,7 @@ class UserDirectory:
         try:
             self._run("INSERT INTO users VALUES (?,?,?)", (user, hashed, time.time()))
         except sqlite3.IntegrityError:
-            raise DirectoryError(f"user {user!r} already registered", "duplicate") from None
+            raise DirectoryError(f"user {user!r} already registered", ErrorCode.DUPLICATE) from None
 
     def has_user(self, user: str) -> bool:
         return bool(self._run("SELECT 1 FROM users WHERE name=?", (user,))[0])

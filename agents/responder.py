@@ -29,6 +29,7 @@ from ontology.registry import Action, Content, ContentError, decode_request
 
 from .errors import Failure, Refusal
 from .messages import AclInfo, bare, copy_message, reply_to
+from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.responder")
 KEEP_ANSWERS = 4096  # conversations whose final answer a responder keeps for a resent request
@@ -103,7 +104,7 @@ class Responder(CyclicBehaviour):
             if handler is None:
                 raise ContentError(f"action {info.action!r} is not served by {self.agent.address}")
         except ContentError as e:
-            await self._answer(msg, Performative.NOT_UNDERSTOOD, Reason(reason=str(e), code="not-understood"))
+            await self._answer(msg, Performative.NOT_UNDERSTOOD, Reason(reason=str(e), code=ErrorCode.NOT_UNDERSTOOD))
             return
         try:
             if self.check is not None:
@@ -120,10 +121,10 @@ class Responder(CyclicBehaviour):
             await self._answer(msg, Performative.FAILURE, Reason(reason=e.reason, code=e.code))
             return
         except asyncio.CancelledError:
-            await self._answer(msg, Performative.FAILURE, Reason(reason="cancelled", code="cancelled"))
+            await self._answer(msg, Performative.FAILURE, Reason(reason="cancelled", code=ErrorCode.CANCELLED))
             raise
         except Exception as e:  # noqa: BLE001 - any handler bug becomes a failure, the agent lives on
-            code = getattr(e, "code", "error")
+            code = getattr(e, "code", ErrorCode.ERROR)
             if hasattr(e, "code"):  # a typed domain error (robot, service, store): no traceback
                 log.info("%s failed: %s", info.action, e)
             else:

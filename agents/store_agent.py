@@ -20,6 +20,7 @@ from .base import RappAgent
 from .errors import Failure, Refusal, RequestError
 from .responder import Responder
 from .store_repository import StoreError, StoreRepository
+from ontology.errors import ErrorCode
 
 UPLOAD_TTL_S = 300.0
 MAX_SUBSCRIBERS = 1000
@@ -87,7 +88,7 @@ class StoreAgent(RappAgent):
             await self._repo(self.repo.register_owner, req.owner, password=req.password,
                              public_key=req.public_key)
         except StoreError as e:
-            if e.code != "duplicate" or not await self._repo(self.repo.verify_owner, req.owner, req.password):
+            if e.code != ErrorCode.DUPLICATE or not await self._repo(self.repo.verify_owner, req.owner, req.password):
                 raise
         return Done()
 
@@ -119,16 +120,16 @@ class StoreAgent(RappAgent):
         if sender == self.platform:
             return
         if not token:
-            raise Refusal("downloads need a Platform token: log in to the Platform first", "no-token")
+            raise Refusal("downloads need a Platform token: log in to the Platform first", ErrorCode.NO_TOKEN)
         now = time.monotonic()
         if now - self._verified.get((token, sender), -1e9) < UPLOAD_TTL_S:
             return
         try:
             owner = await self.request(self.platform, VerifyToken(token=token), timeout=10.0)
         except RequestError as e:
-            raise Refusal(f"download refused: {e.reason}", "bad-token") from None
+            raise Refusal(f"download refused: {e.reason}", ErrorCode.BAD_TOKEN) from None
         if owner.holder != sender:
-            raise Refusal(f"download refused: the token was issued to another agent, not {sender}", "bad-token")
+            raise Refusal(f"download refused: the token was issued to another agent, not {sender}", ErrorCode.BAD_TOKEN)
         self._verified[(token, sender)] = now
 
     async def download_info(self, req: S.DownloadBegin, ctx) -> S.DownloadInfo:
@@ -161,7 +162,7 @@ class StoreAgent(RappAgent):
         try:
             if upload_id not in self._uploads:
                 if len(self._uploads) >= MAX_UPLOADS:
-                    raise Refusal("too many uploads in progress; try again later", "busy")
+                    raise Refusal("too many uploads in progress; try again later", ErrorCode.BUSY)
                 self._uploads[upload_id] = (time.monotonic(),
                                             Reassembler(total=req.chunk.total, sha256=req.chunk.sha256,
                                                         size=req.chunk.size,
@@ -169,28 +170,28 @@ class StoreAgent(RappAgent):
             self._uploads[upload_id][1].add(req.chunk.model_dump())
         except ChunkError as e:
             self._uploads.pop(upload_id, None)
-            raise Refusal(f"upload refused: {e}", "bad_chunk") from None
+            raise Refusal(f"upload refused: {e}", ErrorCode.BAD_CHUNK) from None
         return S.UploadTicket(upload_id=upload_id)
 
     async def _check_owner(self, owner: str, password: str, sender: str) -> None:
         """Owner operations are decided on the server-authenticated sender: the account bound to
         the owner at its first publish; the owner's password is checked as well."""
         if not await self._repo(self.repo.verify_owner, owner, password):
-            raise Refusal(f"owner {owner!r} unknown or wrong password", "forbidden")
+            raise Refusal(f"owner {owner!r} unknown or wrong password", ErrorCode.FORBIDDEN)
         bound = await self._repo(self.repo.bind_owner, owner, sender)
         if bound != sender:
             self.record_structure("refused", action="owner-operation", owner=owner, by=sender)
-            raise Refusal(f"owner {owner!r} publishes from {bound}, not from {sender}", "forbidden")
+            raise Refusal(f"owner {owner!r} publishes from {bound}, not from {sender}", ErrorCode.FORBIDDEN)
 
     async def publish(self, req: S.Publish, ctx) -> S.PackageDetails:
         await self._check_owner(req.owner, req.password, ctx.sender)
         entry = self._uploads.pop(req.upload_id, None)
         if entry is None:
-            raise Refusal(f"no upload {req.upload_id!r} in progress", "not_found")
+            raise Refusal(f"no upload {req.upload_id!r} in progress", ErrorCode.NOT_FOUND)
         try:
             data = entry[1].result()
         except ChunkError as e:
-            raise Refusal(f"upload incomplete or corrupt: {e}", "bad_chunk") from None
+            raise Refusal(f"upload incomplete or corrupt: {e}", ErrorCode.BAD_CHUNK) from None
         info = await self._repo(self.repo.publish, req.owner, data)
         self.record_structure("publish", rapp=info.name, version=info.version, by=req.owner)
         await self._tell_subscribers("published", info.name, [info.version], list(info.robot_types))
@@ -220,7 +221,7 @@ def _store_errors(handler):
         try:
             return await handler(req, ctx)
         except StoreError as e:
-            if e.code == "corrupt":
+            if e.code == ErrorCode.CORRUPT:
                 raise Failure(str(e), e.code) from None
             raise Refusal(str(e), e.code) from None
 

@@ -29,6 +29,7 @@ from pydantic import BaseModel
 from ontology.manifest import ROBOT_TYPES, Manifest, version_key
 from ontology.package import (DEFAULT_MAX_SIZE, Package, PackageError, load_public_key, public_key_b64,
                            read_package, sha256_hex)
+from ontology.errors import ErrorCode
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS owners (
@@ -232,17 +233,17 @@ class StoreRepository:
         an ed25519 public key (base64 raw). An owner with a public key may only publish packages
         signed by that key. "duplicate" if the name is taken."""
         if not isinstance(name, str) or not name.strip() or len(name) > 128:
-            raise StoreError(f"invalid owner name {name!r}", "invalid")
+            raise StoreError(f"invalid owner name {name!r}", ErrorCode.INVALID)
         if password is not None:
             password_hash = hash_password(password)
         if public_key is not None:
             try:
                 public_key = public_key_b64(load_public_key(public_key))
             except ValueError as exc:
-                raise StoreError(str(exc), "invalid") from None
+                raise StoreError(str(exc), ErrorCode.INVALID) from None
         with self._tx() as db:
             if db.execute("SELECT 1 FROM owners WHERE name=?", (name,)).fetchone():
-                raise StoreError(f"owner {name!r} already registered", "duplicate")
+                raise StoreError(f"owner {name!r} already registered", ErrorCode.DUPLICATE)
             db.execute("INSERT INTO owners VALUES (?,?,?,?)", (name, password_hash, public_key, time.time()))
         return Owner(name=name, public_key=public_key, has_password=password_hash is not None)
 
@@ -265,15 +266,15 @@ class StoreRepository:
         """Register (or re-register, idempotently) a robot of a known type for a registered owner.
         "forbidden" if the robot id belongs to another owner."""
         if not isinstance(robot_id, str) or not robot_id.strip() or len(robot_id) > 256:
-            raise StoreError(f"invalid robot id {robot_id!r}", "invalid")
+            raise StoreError(f"invalid robot id {robot_id!r}", ErrorCode.INVALID)
         if robot_type not in ROBOT_TYPES:
-            raise StoreError(f"unknown robot type {robot_type!r}; known: {sorted(ROBOT_TYPES)}", "invalid")
+            raise StoreError(f"unknown robot type {robot_type!r}; known: {sorted(ROBOT_TYPES)}", ErrorCode.INVALID)
         with self._tx() as db:
             if not db.execute("SELECT 1 FROM owners WHERE name=?", (owner,)).fetchone():
-                raise StoreError(f"owner {owner!r} is not registered", "not_found")
+                raise StoreError(f"owner {owner!r} is not registered", ErrorCode.NOT_FOUND)
             row = db.execute("SELECT owner FROM robots WHERE robot_id=?", (robot_id,)).fetchone()
             if row and row[0] != owner:
-                raise StoreError(f"robot {robot_id!r} is registered to another owner", "forbidden")
+                raise StoreError(f"robot {robot_id!r} is registered to another owner", ErrorCode.FORBIDDEN)
             db.execute("INSERT OR REPLACE INTO robots VALUES (?,?,?,?)",
                        (robot_id, robot_type, owner, time.time()))
         return Robot(robot_id=robot_id, robot_type=robot_type, owner=owner)
@@ -282,7 +283,7 @@ class StoreRepository:
         """The robot record; "not_found" if unknown."""
         rows = self._query("SELECT robot_id, robot_type, owner FROM robots WHERE robot_id=?", (robot_id,))
         if not rows:
-            raise StoreError(f"robot {robot_id!r} is not registered", "not_found")
+            raise StoreError(f"robot {robot_id!r} is not registered", ErrorCode.NOT_FOUND)
         return Robot(**dict(rows[0]))
 
     def robots(self, owner: str | None = None) -> list[Robot]:
@@ -304,14 +305,14 @@ class StoreRepository:
             pkg = read_package(package_bytes, max_size=self.max_package_size,
                                require_signature=self.require_signature)
         except (PackageError, TypeError) as exc:
-            raise StoreError(f"invalid package: {exc}", "invalid_package") from None
+            raise StoreError(f"invalid package: {exc}", ErrorCode.INVALID_PACKAGE) from None
         m = pkg.manifest
         rows = self._query("SELECT public_key FROM owners WHERE name=?", (owner,))
         if not rows:
-            raise StoreError(f"owner {owner!r} is not registered", "forbidden")
+            raise StoreError(f"owner {owner!r} is not registered", ErrorCode.FORBIDDEN)
         owner_key = rows[0][0]
         if owner_key is not None and pkg.public_key != owner_key:
-            raise StoreError(f"owner {owner!r} must publish packages signed with its registered key", "forbidden")
+            raise StoreError(f"owner {owner!r} must publish packages signed with its registered key", ErrorCode.FORBIDDEN)
         with self._lock:
             self._write_blob(pkg.sha256, bytes(package_bytes))
             try:
@@ -328,10 +329,10 @@ class StoreRepository:
             if row is None:
                 db.execute("INSERT INTO packages VALUES (?,?,?)", (m.name, owner, now))
             elif row[0] != owner:
-                raise StoreError(f"package {m.name!r} belongs to another owner", "forbidden")
+                raise StoreError(f"package {m.name!r} belongs to another owner", ErrorCode.FORBIDDEN)
             if db.execute("SELECT 1 FROM versions WHERE name=? AND version=?",
                           (m.name, m.version)).fetchone():
-                raise StoreError(f"{m.name} {m.version} is already published", "duplicate")
+                raise StoreError(f"{m.name} {m.version} is already published", ErrorCode.DUPLICATE)
             major, minor, patch = m.version_tuple
             db.execute(
                 f"INSERT INTO versions ({_VERSION_COLS}, major, minor, patch) "
@@ -359,7 +360,7 @@ class StoreRepository:
         """Latest version of every package, sorted by name. With ``robot_type``: for each package,
         its latest version supporting that robot type (packages never supporting it are omitted)."""
         if robot_type is not None and robot_type not in ROBOT_TYPES:
-            raise StoreError(f"unknown robot type {robot_type!r}; known: {sorted(ROBOT_TYPES)}", "invalid")
+            raise StoreError(f"unknown robot type {robot_type!r}; known: {sorted(ROBOT_TYPES)}", ErrorCode.INVALID)
         return [self._summary(r) for r in self._latest_rows(robot_type)]
 
     def search(self, keyword: str, robot_type: str | None = None) -> list[PackageSummary]:
@@ -367,7 +368,7 @@ class StoreRepository:
         (case-insensitive). Exact name/keyword matches come first, then by name."""
         needle = (keyword or "").strip().lower()
         if not needle:
-            raise StoreError("empty search keyword", "invalid")
+            raise StoreError("empty search keyword", ErrorCode.INVALID)
         exact, partial = [], []
         for s in self.list(robot_type):
             if needle == s.name or needle in s.keywords:
@@ -389,18 +390,18 @@ class StoreRepository:
         if version is None:
             rows = self._query(f"SELECT * FROM versions WHERE name=? ORDER BY {_ORDER} LIMIT 1", (name,))
             if not rows:
-                raise StoreError(f"no package named {name!r}", "not_found")
+                raise StoreError(f"no package named {name!r}", ErrorCode.NOT_FOUND)
         else:
             rows = self._query("SELECT * FROM versions WHERE name=? AND version=?", (name, version))
             if not rows:
-                raise StoreError(f"package {name!r} has no version {version!r}", "not_found")
+                raise StoreError(f"package {name!r} has no version {version!r}", ErrorCode.NOT_FOUND)
         return rows[0]
 
     def versions(self, name: str) -> list[str]:
         """Published versions of ``name``, newest first; "not_found" if none."""
         rows = self._query(f"SELECT version FROM versions WHERE name=? ORDER BY {_ORDER}", (name,))
         if not rows:
-            raise StoreError(f"no package named {name!r}", "not_found")
+            raise StoreError(f"no package named {name!r}", ErrorCode.NOT_FOUND)
         return [r[0] for r in rows]
 
     def info(self, name: str, version: str | None = None) -> PackageInfo:
@@ -420,9 +421,9 @@ class StoreRepository:
         try:
             data = self.blob_path(sha).read_bytes()
         except OSError:
-            raise StoreError(f"blob of {name} {row['version']} is missing", "corrupt") from None
+            raise StoreError(f"blob of {name} {row['version']} is missing", ErrorCode.CORRUPT) from None
         if sha256_hex(data) != sha:
-            raise StoreError(f"blob of {name} {row['version']} is damaged (sha256 mismatch)", "corrupt")
+            raise StoreError(f"blob of {name} {row['version']} is damaged (sha256 mismatch)", ErrorCode.CORRUPT)
         with self._tx() as db:
             db.execute("UPDATE versions SET downloads = downloads + 1 WHERE name=? AND version=?",
                        (name, row["version"]))
@@ -435,16 +436,16 @@ class StoreRepository:
         with self._tx() as db:
             row = db.execute("SELECT owner FROM packages WHERE name=?", (name,)).fetchone()
             if row is None:
-                raise StoreError(f"no package named {name!r}", "not_found")
+                raise StoreError(f"no package named {name!r}", ErrorCode.NOT_FOUND)
             if row[0] != owner:
-                raise StoreError(f"only the owner of {name!r} may delete it", "forbidden")
+                raise StoreError(f"only the owner of {name!r} may delete it", ErrorCode.FORBIDDEN)
             if version is None:
                 rows = db.execute("SELECT version, sha256 FROM versions WHERE name=?", (name,)).fetchall()
             else:
                 rows = db.execute("SELECT version, sha256 FROM versions WHERE name=? AND version=?",
                                   (name, version)).fetchall()
                 if not rows:
-                    raise StoreError(f"package {name!r} has no version {version!r}", "not_found")
+                    raise StoreError(f"package {name!r} has no version {version!r}", ErrorCode.NOT_FOUND)
             for r in rows:
                 db.execute("DELETE FROM versions WHERE name=? AND version=?", (name, r[0]))
             if not db.execute("SELECT 1 FROM versions WHERE name=? LIMIT 1", (name,)).fetchone():

@@ -15,6 +15,7 @@ import hashlib
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from .errors import ErrorCode
 
 CHUNK_RAW_SIZE = 48 * 1024  # raw bytes per chunk: ~64 KiB of base64, fits an XMPP stanza
 DEFAULT_MAX_TRANSFER = 64 * 1024 * 1024
@@ -49,16 +50,16 @@ class Chunk(BaseModel):
             return cls.model_validate(obj)
         except ValidationError as exc:
             raise ChunkError(f"malformed chunk: {exc.errors()[0]['loc']}: {exc.errors()[0]['msg']}",
-                             "malformed") from None
+                             ErrorCode.MALFORMED) from None
 
     def raw(self) -> bytes:
         """Decoded bytes, checked against ``part_sha256``."""
         try:
             raw = base64.b64decode(self.data, validate=True)
         except (binascii.Error, ValueError):
-            raise ChunkError(f"chunk {self.index}: invalid base64", "malformed") from None
+            raise ChunkError(f"chunk {self.index}: invalid base64", ErrorCode.MALFORMED) from None
         if hashlib.sha256(raw).hexdigest() != self.part_sha256:
-            raise ChunkError(f"chunk {self.index}: content does not match its sha256", "corrupt")
+            raise ChunkError(f"chunk {self.index}: content does not match its sha256", ErrorCode.CORRUPT)
         return raw
 
 
@@ -89,7 +90,7 @@ class Reassembler:
         self._parts: dict[int, bytes] = {}
         self._received = 0
         if size is not None and size > max_size:
-            raise ChunkError(f"transfer of {size} bytes exceeds limit {max_size}", "too_large")
+            raise ChunkError(f"transfer of {size} bytes exceeds limit {max_size}", ErrorCode.TOO_LARGE)
 
     def add(self, chunk: Chunk | dict) -> bool:
         """Add one chunk; return True when the transfer is complete. `ChunkError` if invalid."""
@@ -100,18 +101,18 @@ class Reassembler:
                 setattr(self, attr, getattr(chunk, attr))
             elif getattr(chunk, attr) != expected:
                 raise ChunkError(f"chunk {chunk.index}: {attr} {getattr(chunk, attr)!r} does not match "
-                                 f"the transfer ({expected!r})", "mismatch")
+                                 f"the transfer ({expected!r})", ErrorCode.MISMATCH)
         if self.size > self.max_size:
-            raise ChunkError(f"transfer of {self.size} bytes exceeds limit {self.max_size}", "too_large")
+            raise ChunkError(f"transfer of {self.size} bytes exceeds limit {self.max_size}", ErrorCode.TOO_LARGE)
         if chunk.index >= self.total:
-            raise ChunkError(f"chunk index {chunk.index} out of range (total {self.total})", "out_of_range")
+            raise ChunkError(f"chunk index {chunk.index} out of range (total {self.total})", ErrorCode.OUT_OF_RANGE)
         raw = chunk.raw()
         if chunk.index in self._parts:
             if self._parts[chunk.index] != raw:
-                raise ChunkError(f"chunk {chunk.index} received twice with different content", "duplicate")
+                raise ChunkError(f"chunk {chunk.index} received twice with different content", ErrorCode.DUPLICATE)
             return self.complete
         if self._received + len(raw) > self.size:
-            raise ChunkError(f"chunks exceed the announced size {self.size}", "too_large")
+            raise ChunkError(f"chunks exceed the announced size {self.size}", ErrorCode.TOO_LARGE)
         self._parts[chunk.index] = raw
         self._received += len(raw)
         return self.complete
@@ -129,10 +130,10 @@ class Reassembler:
     def result(self) -> bytes:
         """The payload; `ChunkError` if incomplete or if its size/sha256 do not match."""
         if not self.complete:
-            raise ChunkError(f"transfer incomplete: missing chunks {self.missing()[:10]}", "incomplete")
+            raise ChunkError(f"transfer incomplete: missing chunks {self.missing()[:10]}", ErrorCode.INCOMPLETE)
         data = b"".join(self._parts[i] for i in range(self.total))  # type: ignore[arg-type]
         if len(data) != self.size:
-            raise ChunkError(f"reassembled {len(data)} bytes, expected {self.size}", "size_mismatch")
+            raise ChunkError(f"reassembled {len(data)} bytes, expected {self.size}", ErrorCode.SIZE_MISMATCH)
         if hashlib.sha256(data).hexdigest() != self.sha256:
             raise ChunkError("reassembled payload does not match its sha256", "sha256_mismatch")
         return data

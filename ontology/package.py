@@ -40,6 +40,7 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
+from .errors import ErrorCode
 from .manifest import (
     MANIFEST_NAMES,
     Manifest,
@@ -72,73 +73,73 @@ DEFAULT_MAX_FILES = 1000
 class PackageError(Exception):
     """Base of every package refusal; ``code`` is a short machine-readable reason."""
 
-    code = "invalid_package"
+    code = ErrorCode.INVALID_PACKAGE
 
 
 class CorruptArchiveError(PackageError):
     """Not a readable gzip/tar archive."""
 
-    code = "corrupt"
+    code = ErrorCode.CORRUPT
 
 
 class PackageTooLargeError(PackageError):
     """Archive, one file or the unpacked total exceeds its limit."""
 
-    code = "too_large"
+    code = ErrorCode.TOO_LARGE
 
 
 class TooManyFilesError(PackageError):
     """More entries than allowed."""
 
-    code = "too_many_files"
+    code = ErrorCode.TOO_MANY_FILES
 
 
 class UnsafePathError(PackageError):
     """Entry name is absolute, contains '..', is malformed, duplicated or conflicting."""
 
-    code = "unsafe_path"
+    code = ErrorCode.UNSAFE_PATH
 
 
 class UnsafeEntryError(PackageError):
     """Entry is not a regular file: symlink, hard link, device, fifo..."""
 
-    code = "unsafe_entry"
+    code = ErrorCode.UNSAFE_ENTRY
 
 
 class MissingManifestError(PackageError):
     """No ``manifest.yaml``/``manifest.json`` at the archive root."""
 
-    code = "missing_manifest"
+    code = ErrorCode.MISSING_MANIFEST
 
 
 class InvalidManifestError(PackageError, ManifestError):
     """The manifest is present but invalid (message gives the field and reason)."""
 
-    code = "invalid_manifest"
+    code = ErrorCode.INVALID_MANIFEST
 
 
 class EntryPointError(PackageError):
     """An entry point's module is not in the archive."""
 
-    code = "entry_point_missing"
+    code = ErrorCode.ENTRY_POINT_MISSING
 
 
 class SignatureError(PackageError):
     """Signature malformed, not matching the content, or missing/untrusted when required."""
 
-    code = "bad_signature"
+    code = ErrorCode.BAD_SIGNATURE
 
 
 class DestinationExistsError(PackageError):
     """Unpack destination exists and is not empty (and overwrite was not asked)."""
 
-    code = "destination_exists"
+    code = ErrorCode.DESTINATION_EXISTS
 
 
 class BuildError(PackageError):
     """A source directory cannot be packaged."""
 
-    code = "build_failed"
+    code = ErrorCode.BUILD_FAILED
 
 
 # ---------------------------------------------------------------------------------- keys

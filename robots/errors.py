@@ -1,11 +1,13 @@
 """Typed errors of the simulated robots; the Core turns them into FIPA failure/refuse replies."""
 from __future__ import annotations
 
+from ontology.errors import ErrorCode
+
 
 class RobotError(Exception):
     """Base of every robot-side error. `code` is a short machine-readable tag."""
 
-    code = "robot_error"
+    code = ErrorCode.ROBOT_ERROR
 
     def __init__(self, message: str):
         super().__init__(message)
@@ -15,28 +17,28 @@ class RobotError(Exception):
 class UnsupportedOperation(RobotError):
     """The robot's hardware cannot do this (e.g. lateral velocity on a differential drive)."""
 
-    code = "unsupported"
+    code = ErrorCode.UNSUPPORTED
 
 
 class InvalidArgument(RobotError):
     """Unknown joint, camera, posture, resolution or an out-of-range value."""
 
-    code = "invalid_argument"
+    code = ErrorCode.INVALID_ARGUMENT
 
 
 class MotionBlocked(RobotError):
     """An obstacle stopped the base before the motion finished."""
 
-    code = "blocked"
+    code = ErrorCode.BLOCKED
 
 
 class MotionInterrupted(RobotError):
     """The motion was pre-empted by move_stop, rest or a newer motion command."""
 
-    code = "interrupted"
+    code = ErrorCode.INTERRUPTED
 
 
 class WorldClosed(RobotError):
     """The world was closed while the call was pending."""
 
-    code = "world_closed"
+    code = ErrorCode.WORLD_CLOSED

@@ -38,6 +38,8 @@ import numpy as np
 
 from .errors import RobotError, WorldClosed
 
+from ontology.errors import ErrorCode
+
 START_TIMEOUT = 60.0  # s for a render process to build its scene
 RENDER_TIMEOUT = 300.0  # s for one frame (1280x960 takes ~2 s on a loaded machine)
 
@@ -265,7 +267,7 @@ class _Worker:
 class RenderError(RobotError):
     """Rendering failed (the render process reported an exception, or died twice in a row)."""
 
-    code = "render_failed"
+    code = ErrorCode.RENDER_FAILED
 
 
 def _kill_all(workers: list[_Worker]) -> None:

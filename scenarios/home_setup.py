@@ -20,6 +20,7 @@ from agents.services import home as home_service
 from agents.services import navigation
 from agents.services.context import ServiceContext, ServiceState
 from ontology.services.home import DoorShape, HazardSpec, HomeInfo, LandmarkSpec, UploadHomeInfo
+from ontology.errors import ErrorCode
 from ontology.services.navigation import UploadMap
 from robots.gridmap import OCCUPIED, build_grid_map
 
@@ -146,7 +147,7 @@ async def ensure_home(core, world, house: str, out_dir) -> str:
         await core.request(core.platform, GetHomeInfo(token=token, home_id="home"))
         return f"home of {core.user} already on the Platform"
     except RequestError as e:
-        if e.code != "unknown_home":
+        if e.code != ErrorCode.UNKNOWN_HOME:
             raise
     info, png, yaml_text = home_description(world, house, out_dir)
     await upload_home_over_xmpp(core, core.platform, token, info, png, yaml_text)

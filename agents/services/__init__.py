@@ -20,6 +20,7 @@ from ontology.registry import Action, Content, lookup
 from . import cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation, vision
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 @dataclass(frozen=True)
@@ -72,9 +73,9 @@ def run_service(name: str, request: Action, ctx: ServiceContext) -> Content:
     """Run a service by action name after checking the request type (ServiceError otherwise)."""
     spec = SERVICES.get(name)
     if spec is None:
-        raise ServiceError(f"unknown service {name!r}", "unknown_service")
+        raise ServiceError(f"unknown service {name!r}", ErrorCode.UNKNOWN_SERVICE)
     if not isinstance(request, spec.request):
-        raise ServiceError(f"service {name!r} expects {spec.request.__name__}", "bad_request")
+        raise ServiceError(f"service {name!r} expects {spec.request.__name__}", ErrorCode.BAD_REQUEST)
     return spec.run(request, ctx)
 
 

@@ -12,6 +12,7 @@ from ontology.services.knowledge import (
 
 from .context import ServiceContext
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 class ExerciseStore:
@@ -63,7 +64,7 @@ def record_performance(req: RecordPerformance, ctx: ServiceContext) -> ScoreReco
     s = store(ctx)
     t = s.tests.get(req.test_id)
     if t is None:
-        raise ServiceError(f"unknown test {req.test_id!r}", "unknown_test")
+        raise ServiceError(f"unknown test {req.test_id!r}", ErrorCode.UNKNOWN_TEST)
     rec = ScoreRecord(test_id=t["id"], type=t["type"], difficulty=t["difficulty"], score=req.score, time=time.time())
     s.add(ctx.user, rec)
     return rec

@@ -12,6 +12,7 @@ from ontology.services.email import EmailFetch, EmailList, EmailMessage, EmailSe
 
 from .context import ServiceContext
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 _lock = threading.Lock()
 USER_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -27,7 +28,7 @@ def email_send(req: EmailSend, ctx: ServiceContext) -> Done:
     users = [r.split("@", 1)[0] for r in req.recipients]
     bad = [r for r, u in zip(req.recipients, users) if not USER_RE.match(u)]
     if bad:
-        raise ServiceError(f"invalid recipient(s): {', '.join(bad)}", "bad_recipient")
+        raise ServiceError(f"invalid recipient(s): {', '.join(bad)}", ErrorCode.BAD_RECIPIENT)
     msg = email.message.EmailMessage()
     msg["From"] = ctx.user
     msg["To"] = ", ".join(req.recipients)

@@ -21,6 +21,7 @@ from ontology.services.hazard import DoorAngle, DoorCheck, DoorGeometry, LightCh
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
+from ontology.errors import ErrorCode
 
 
 def light_level(gray: np.ndarray) -> int:
@@ -137,7 +138,7 @@ def door_check(req: DoorCheck, ctx: ServiceContext) -> DoorAngle:
     if req.geometry is not None:
         T = np.asarray(req.geometry.camera_to_world, float)
         if T.shape != (4, 4):
-            raise ServiceError("geometry.camera_to_world must be a 4x4 matrix", "bad_transform")
+            raise ServiceError("geometry.camera_to_world must be a 4x4 matrix", ErrorCode.BAD_TRANSFORM)
         angle = door_angle_geometry(gray, req.geometry)
         if angle is not None:
             return DoorAngle(door_angle=round(min(angle, 90.0), 1), method="geometry")

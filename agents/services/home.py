@@ -7,6 +7,7 @@ from ontology.services.home import GetHomeInfo, HomeInfo, UploadHomeInfo
 
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 class HomeStore:
@@ -37,5 +38,5 @@ def upload_info(req: UploadHomeInfo, ctx: ServiceContext) -> HomeInfo:
 def get_info(req: GetHomeInfo, ctx: ServiceContext) -> HomeInfo:
     info = homes(ctx.state).get(ctx.user, req.home_id)
     if info is None:
-        raise ServiceError(f"no home {req.home_id!r} uploaded for user {ctx.user!r}", "unknown_home")
+        raise ServiceError(f"no home {req.home_id!r} uploaded for user {ctx.user!r}", ErrorCode.UNKNOWN_HOME)
     return info

@@ -8,13 +8,14 @@ import cv2
 import numpy as np
 
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 def b64_bytes(text: str, field: str = "image") -> bytes:
     try:
         return base64.b64decode(text, validate=True)
     except (binascii.Error, ValueError):
-        raise ServiceError(f"{field} is not valid base64", "bad_image") from None
+        raise ServiceError(f"{field} is not valid base64", ErrorCode.BAD_IMAGE) from None
 
 
 def decode_image(b64: str, field: str = "image_b64", gray: bool = False) -> np.ndarray:
@@ -22,7 +23,7 @@ def decode_image(b64: str, field: str = "image_b64", gray: bool = False) -> np.n
     data = b64_bytes(b64, field)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
     if img is None or img.size == 0:
-        raise ServiceError(f"{field} could not be decoded as an image (PNG or JPEG expected)", "bad_image")
+        raise ServiceError(f"{field} could not be decoded as an image (PNG or JPEG expected)", ErrorCode.BAD_IMAGE)
     return img
 
 

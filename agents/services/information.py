@@ -11,6 +11,7 @@ from ontology.services.information import (
 
 from .context import ServiceContext
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 class WeatherProvider(ABC):
@@ -35,7 +36,7 @@ class LocalWeather(WeatherProvider):
             return self.data[city.strip().lower()]
         except KeyError:
             known = ", ".join(v["city"] for v in self.data.values())
-            raise ServiceError(f"no weather data for city {city!r} (known: {known})", "unknown_city") from None
+            raise ServiceError(f"no weather data for city {city!r} (known: {known})", ErrorCode.UNKNOWN_CITY) from None
 
     def current(self, city: str) -> CurrentWeather:
         d = self._city(city)

@@ -15,6 +15,7 @@ from ontology.services.interpretation import InterpretCommand, Interpretation
 
 from .context import DATA_DIR, ServiceContext
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 @lru_cache(maxsize=1)
@@ -68,13 +69,13 @@ def interpret(text: str, robot_type: str, rapps) -> Interpretation:
                 score += 1
         scored.append((score, r.name, matched))
     if not scored:
-        raise ServiceError(f"no application is available for robot type {robot_type!r}", "no_rapp")
+        raise ServiceError(f"no application is available for robot type {robot_type!r}", ErrorCode.NO_RAPP)
     scored.sort(key=lambda s: -s[0])
     best = scored[0]
     if best[0] == 0:
-        raise ServiceError(f"I did not understand '{text}': it matches no application", "not_understood")
+        raise ServiceError(f"I did not understand '{text}': it matches no application", ErrorCode.NOT_UNDERSTOOD)
     if len(scored) > 1 and scored[1][0] == best[0]:
-        raise ServiceError(f"'{text}' could mean {best[1]} or {scored[1][1]}; please say it differently", "ambiguous")
+        raise ServiceError(f"'{text}' could mean {best[1]} or {scored[1][1]}; please say it differently", ErrorCode.AMBIGUOUS)
     params = {}
     city = extract_city(text)
     if city:

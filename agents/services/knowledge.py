@@ -9,6 +9,7 @@ from ontology.services.knowledge import ClassList, IsSubclass, IsSubclassOf, Sub
 
 from .context import DATA_DIR, ServiceContext
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 @lru_cache(maxsize=1)
@@ -23,7 +24,7 @@ def _known(cls: str) -> str:
     for k in h:  # case-insensitive fallback
         if k.lower() == cls.lower():
             return k
-    raise ServiceError(f"unknown class {cls!r} in the household ontology", "unknown_class")
+    raise ServiceError(f"unknown class {cls!r} in the household ontology", ErrorCode.UNKNOWN_CLASS)
 
 
 def superclasses(cls: str, recursive: bool = True) -> list[str]:

@@ -19,6 +19,7 @@ from ontology.services.localization import (
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
+from ontology.errors import ErrorCode
 
 
 def camera_matrix(cam: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -49,7 +50,7 @@ def code_pose(corners: np.ndarray, size: float, K: np.ndarray, dist: np.ndarray)
     ok, rvec, tvec = cv2.solvePnP(code_corners_3d(size), corners.reshape(4, 1, 2).astype(np.float64),
                                   K, dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
     if not ok:
-        raise ServiceError("pose estimation of the QR code failed", "pose_failed")
+        raise ServiceError("pose estimation of the QR code failed", ErrorCode.POSE_FAILED)
     return transform(cv2.Rodrigues(rvec)[0], tvec)
 
 
@@ -156,7 +157,7 @@ def planar(T: np.ndarray) -> tuple[float, float, float]:
 def _matrix(rows, what: str) -> np.ndarray:
     T = np.asarray(rows, float)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ServiceError(f"{what} must be a finite 4x4 matrix", "bad_transform")
+        raise ServiceError(f"{what} must be a finite 4x4 matrix", ErrorCode.BAD_TRANSFORM)
     return T
 
 
@@ -184,7 +185,7 @@ def compute_global_pose(req: ComputeGlobalPose, ctx: ServiceContext) -> Pose2D:
             poses.append(planar(robot_pose_from_code(_matrix(obs.pose_in_camera, "pose_in_camera"), T_robot_cam, lm)))
     if not poses:
         known = ", ".join(o.text for o in req.observations)
-        raise ServiceError(f"none of the observed codes ({known}) is in the landmark map", "unknown_marker")
+        raise ServiceError(f"none of the observed codes ({known}) is in the landmark map", ErrorCode.UNKNOWN_MARKER)
     p = np.asarray(poses)
     theta = math.atan2(np.sin(p[:, 2]).mean(), np.cos(p[:, 2]).mean())
     return Pose2D(x=float(p[:, 0].mean()), y=float(p[:, 1].mean()), theta=theta)

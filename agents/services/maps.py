@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from .errors import ServiceError
+from ontology.errors import ErrorCode
 
 
 @dataclass(eq=False)
@@ -68,12 +69,12 @@ def parse_map(map_id: str, png: bytes, yaml_text: str, shared: bool = False) -> 
     try:
         meta = yaml.safe_load(yaml_text)
     except yaml.YAMLError as e:
-        raise ServiceError(f"map YAML is not valid YAML: {e}", "bad_map") from None
+        raise ServiceError(f"map YAML is not valid YAML: {e}", ErrorCode.BAD_MAP) from None
     if not isinstance(meta, dict) or "resolution" not in meta or "origin" not in meta:
-        raise ServiceError("map YAML needs at least 'resolution' and 'origin'", "bad_map")
+        raise ServiceError("map YAML needs at least 'resolution' and 'origin'", ErrorCode.BAD_MAP)
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
     if img is None:
-        raise ServiceError("map image could not be decoded (expected PNG/PGM)", "bad_map")
+        raise ServiceError("map image could not be decoded (expected PNG/PGM)", ErrorCode.BAD_MAP)
     try:
         res = float(meta["resolution"])
         origin = tuple(float(v) for v in meta["origin"])[:3]
@@ -81,9 +82,9 @@ def parse_map(map_id: str, png: bytes, yaml_text: str, shared: bool = False) -> 
         blocked = grid_from_image(img, float(meta.get("occupied_thresh", 0.65)),
                                   float(meta.get("free_thresh", 0.196)), int(meta.get("negate", 0)))
     except (TypeError, ValueError) as e:
-        raise ServiceError(f"map YAML has a bad value: {e}", "bad_map") from None
+        raise ServiceError(f"map YAML has a bad value: {e}", ErrorCode.BAD_MAP) from None
     if res <= 0:
-        raise ServiceError("map resolution must be positive", "bad_map")
+        raise ServiceError("map resolution must be positive", ErrorCode.BAD_MAP)
     return GridMap(map_id, blocked, res, origin, shared)  # type: ignore[arg-type]
 
 

@@ -4,7 +4,7 @@ and per-user object learning and recognition (ORB features, BFMatcher, RANSAC ho
 The HOG detector crashes the process (segfault) on images smaller than its 64x128 window, so
 images are padded first; the padding (a replicated border) also finds people cut by the frame.
 OpenCV 5's main package moved CascadeClassifier and HOGDescriptor out of objdetect; with such a
-build face and human detection raise ServiceError(code="unavailable").
+build face and human detection raise ServiceError(code=ErrorCode.UNAVAILABLE).
 """
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ from ontology.services.vision import (
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
+from ontology.errors import ErrorCode
 
 _local = threading.local()  # OpenCV detectors are not shared between threads
 
@@ -42,7 +43,7 @@ def _cascade_path() -> str | None:
 
 def face_detector():
     if not hasattr(cv2, "CascadeClassifier") or _cascade_path() is None:
-        raise ServiceError("face detection is unavailable: this OpenCV build has no Haar cascades", "unavailable")
+        raise ServiceError("face detection is unavailable: this OpenCV build has no Haar cascades", ErrorCode.UNAVAILABLE)
     if not hasattr(_local, "face"):
         _local.face = cv2.CascadeClassifier(_cascade_path())
     return _local.face
@@ -50,7 +51,7 @@ def face_detector():
 
 def people_detector():
     if not hasattr(cv2, "HOGDescriptor"):
-        raise ServiceError("human detection is unavailable: this OpenCV build has no HOG detector", "unavailable")
+        raise ServiceError("human detection is unavailable: this OpenCV build has no HOG detector", ErrorCode.UNAVAILABLE)
     if not hasattr(_local, "hog"):
         _local.hog = cv2.HOGDescriptor()
         _local.hog.setSVMDetector(cv2.HOGDescriptor_getDefaultPeopleDetector())
@@ -117,7 +118,7 @@ def learn_object(req: LearnObject, ctx: ServiceContext) -> Done:
     gray = decode_image(req.image_b64, gray=True)
     pts, desc = orb_features(gray, 1000)
     if desc is None or len(pts) < 10:
-        raise ServiceError("the object image has too little texture to learn (fewer than 10 features)", "no_features")
+        raise ServiceError("the object image has too little texture to learn (fewer than 10 features)", ErrorCode.NO_FEATURES)
     store = models(ctx)
     with store.lock:
         store.models.setdefault(ctx.user, {})[req.name] = (pts, desc, gray.shape[::-1])
@@ -130,7 +131,7 @@ def find_objects(req: FindObjects, ctx: ServiceContext) -> FoundObjects:
     with store.lock:
         learned = dict(store.models.get(ctx.user, {}))
     if not learned:
-        raise ServiceError("no objects learned yet for this user", "no_models")
+        raise ServiceError("no objects learned yet for this user", ErrorCode.NO_MODELS)
     pts, desc = orb_features(gray)
     found = []
     if desc is not None and len(pts) >= 4:

@@ -17,7 +17,8 @@
 `self.cloud` the RApp's own Cloud Agent (`await self.cloud.start()` then
 `await self.cloud.call("action", **fields)`), `self.params` the parameters of the user's command.
 Errors arrive as RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (all RequestError),
-re-exported here: a RApp package imports only this SDK and the ontology (see docs/architecture.md).
+re-exported here with their codes (`e.code == ErrorCode.FORBIDDEN`): a RApp package imports only this
+SDK and the ontology (see docs/architecture.md).
 `rapps.sdk.vision` holds the image and QR-geometry helpers the Platform's own services use.
 
 A Cloud Agent part subclasses CloudService and registers its actions with @action under
@@ -32,9 +33,10 @@ from behaviours import FSM, Behaviour, OneShot
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import Content, lookup
+from ontology.errors import ErrorCode
 
 __all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "CloudAgentLost", "RequestError", "RequestFailed",
-           "RequestRefused", "NotUnderstood", "RequestTimeout"]
+           "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode"]
 
 
 class _Proxy:
@@ -95,7 +97,7 @@ class CloudProxy:
         """The Cloud Agent's answer; CloudAgentLost when its process died (or, code
         "cloud-restarted", when the Platform restarted it while this call was in flight)."""
         if self.lost:
-            raise CloudAgentLost(self.lost, code="cloud-lost", peer=self.address or "")
+            raise CloudAgentLost(self.lost, code=ErrorCode.CLOUD_LOST, peer=self.address or "")
         if self.address is None:
             await self.start()
         if not self._ontology:
@@ -140,7 +142,7 @@ class Task:
             try:
                 await self.robot.say(text=line)
             except RequestFailed as e:
-                if e.code != "unsupported":
+                if e.code != ErrorCode.UNSUPPORTED:
                     raise
                 return False
         return True

@@ -85,7 +85,7 @@ def test_size_limit():
     chunks = split_chunks(b"z" * 100, 10)
     with pytest.raises(ChunkError) as exc:
         Reassembler(max_size=50).add(chunks[0])
-    assert exc.value.code == "too_large"
+    assert exc.value.code == "too-large"
 
 
 @settings(max_examples=50, deadline=None)

@@ -34,7 +34,7 @@ def test_phrases(ctx, text, rapp, params):
 def test_unknown_and_robot_filter(ctx):
     with pytest.raises(ServiceError, match="did not understand") as e:
         interpret_command(InterpretCommand(text="make me a sandwich", robot_type="nao", rapps=RAPPS), ctx)
-    assert e.value.code == "not_understood"
+    assert e.value.code == "not-understood"
     only_nao = [RAppDescription(name="x", keywords=["lights"], robot_types=["nao"])]
     with pytest.raises(ServiceError, match="no application"):
         interpret_command(InterpretCommand(text="lights", robot_type="elektron", rapps=only_nao), ctx)

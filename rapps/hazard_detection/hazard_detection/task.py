@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from rapps.sdk import FSM, RequestFailed, Step, Task
+from rapps.sdk import FSM, ErrorCode, RequestFailed, Step, Task
 
 from .localize import Localizer
 from .models import ONTOLOGY
@@ -151,7 +151,7 @@ class HazardTask(Task):
         try:
             await self.robot.move_along_path(poses=[p.model_dump() for p in leg], _timeout=900.0)
         except RequestFailed as e:
-            if e.code != "blocked" or memory["blocked"] >= MAX_BLOCKED:
+            if e.code != ErrorCode.BLOCKED or memory["blocked"] >= MAX_BLOCKED:
                 raise
             memory["blocked"] += 1
             return "blocked"
