@@ -128,11 +128,13 @@ class HazardTask(Task):
         pose = await self.robot.get_global_pose()
         reply = await self.platform.path_planning_plan_path_2d(
             map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
-            start=pose.model_dump(), goal=hazard.stand.model_dump())
+            start=pose, goal=hazard.stand)
         if reply.plan_found != PLAN_FOUND:
+            memory["error"] = f"(no path: {reply.reason})"  # said in the report of this hazard
             raise RuntimeError(f"no path to {hazard.id}: {reply.reason}")
         memory["replans"] += 1
         if memory["replans"] > 40:
+            memory["error"] = "(gave up after 40 plans)"
             raise RuntimeError(f"could not reach {hazard.id}")
         localized = bool(memory.get("localizations")) and memory["localizations"][-1] is not None
         action, memory["turn"], leg = next_leg_action(
@@ -149,9 +151,10 @@ class HazardTask(Task):
     async def move_leg(self, memory) -> str:
         leg = memory["leg"]
         try:
-            await self.robot.move_along_path(poses=[p.model_dump() for p in leg], _timeout=900.0)
+            await self.robot.move_along_path(poses=leg, _timeout=900.0)
         except RequestFailed as e:
             if e.code != ErrorCode.BLOCKED or memory["blocked"] >= MAX_BLOCKED:
+                memory["error"] = f"(motion failed: {e.reason})"
                 raise
             memory["blocked"] += 1
             return "blocked"
@@ -165,7 +168,7 @@ class HazardTask(Task):
         pass
 
     def robot_type(self) -> str:
-        return self.localizer.head["yaw"] == "HeadYaw" and "nao" or "elektron"
+        return self.robot_info.robot_type  # told by the runtime, not guessed
 
     # -- s5: look and check -----------------------------------------------------------------
     async def check_hazard(self, memory):
@@ -173,14 +176,20 @@ class HazardTask(Task):
         await self.robot.look_at_point(x=h.look_at[0], y=h.look_at[1], z=h.look_at[2])
         res = self.params["check_resolution"] if h.type == "door" else "320x240"
         image = await self.robot.capture_image(resolution=res)
-        if h.type == "door":
-            result = await self.check_door(h, image, res)
-        else:
-            reply = await self.platform.hazard_detection_light_check(image_b64=image.data_b64)
-            result = {"id": h.id, "type": "lamp", "state": "on" if reply.lamp_on else "off",
-                      "light_level": reply.light_level, "hazard": reply.lamp_on}
+        try:
+            result = await self._check(h, image, res)
+        except RequestFailed as e:
+            memory["error"] = f"(check failed: {e.reason})"
+            raise
         memory["results"].append(result)
         await self.report(describe(result), hazard=result)
+
+    async def _check(self, h, image, res) -> dict:
+        if h.type == "door":
+            return await self.check_door(h, image, res)
+        reply = await self.platform.hazard_detection_light_check(image_b64=image.data_b64)
+        return {"id": h.id, "type": "lamp", "state": "on" if reply.lamp_on else "off",
+                "light_level": reply.light_level, "hazard": reply.lamp_on}
 
     async def check_door(self, h, image, res) -> dict:
         info = await self.robot.get_camera_info(resolution=res)
@@ -195,7 +204,7 @@ class HazardTask(Task):
 
     async def unreachable(self, memory):
         h = memory["hazard"]
-        reason = memory.get("error", "")
+        reason = memory.pop("error", "")  # this hazard's, never a stale one
         result = {"id": h.id, "type": h.type, "state": "unknown", "hazard": None}
         memory["results"].append(result)
         await self.report(describe(result) + (f" {reason}" if reason else ""), hazard=result)
