@@ -6,9 +6,10 @@ from typing import TYPE_CHECKING
 
 import ontology.robot  # also registers the robot-API models the command server serves
 from ontology.registry import actions
+from ontology.robot_actions import facts
 
 from .errors import Failure, Refusal
-from .locks import ACTION_DEVICE, LockError, ResourceLocks
+from .locks import LockError, ResourceLocks, device_of
 from .messages import bare
 from .responder import Responder
 from ontology.errors import ErrorCode
@@ -19,9 +20,6 @@ if TYPE_CHECKING:
     from .core_agent import DynamicSession
 
 log = logging.getLogger("rapp.core")
-# what must not move while the emergency stop is latched
-MOTION_ACTIONS = {"move_to", "move_vel", "move_along_path", "look_at_point", "move_joint",
-                  "take_predefined_posture", "rest"}
 
 
 class RobotCommands:
@@ -30,6 +28,7 @@ class RobotCommands:
 
     - supervisor-only commands: a request is served only for the current, not yet ended Dynamic
       Agent, and only in the robot-API groups its manifest declares (`_only_supervisor`);
+    - per-action facts (device, motion, effect on a velocity) come from ontology/robot_actions.py;
     - resource locks: each command takes the lock of its device (agents/locks.py); the Dynamic
       Agent may also lock and free resources itself (lock_resource / free_resource);
     - the e-stop latch: `emergency_stop()` halts every effector and refuses motion until
@@ -58,7 +57,7 @@ class RobotCommands:
         if req.group != "resources" and req.group not in d.manifest.robot_api:
             raise Refusal(f"{d.rapp} did not declare the robot-API group {req.group!r} "
                           f"(needed by {req.action_name}) in its manifest", ErrorCode.PERMISSION)
-        if self.estop_reason and req.action_name in MOTION_ACTIONS:
+        if self.estop_reason and facts(req.action_name).motion:  # nothing moves while latched
             raise Refusal(f"emergency stop ({self.estop_reason}): nothing moves until the user says "
                           f"\"resume\"", ErrorCode.ESTOP)
 
@@ -67,12 +66,13 @@ class RobotCommands:
             return await self._lock(req, ctx.sender)
         if req.action_name == "free_resource":
             return self._free(req, ctx.sender)
-        if req.action_name == "move_vel":  # a velocity keeps the base moving after the call returns
+        drive = facts(req.action_name).drive
+        if drive == "sets":  # a velocity keeps the base moving after the call returns
             self.driving = any(abs(getattr(req, f, 0.0) or 0.0) > 1e-9 for f in ("x", "y", "theta"))
-        elif req.action_name in ("move_stop", "move_to", "move_along_path"):
+        elif drive == "ends":
             self.driving = False
         try:
-            async with self.locks.hold(ACTION_DEVICE.get(req.action_name), ctx.sender, timeout=60.0):
+            async with self.locks.hold(device_of(req.action_name), ctx.sender, timeout=60.0):
                 return await self.robot.handle(req)
         except LockError as e:
             raise Refusal(str(e), ErrorCode.LOCKED) from None

@@ -1,13 +1,15 @@
 """Errors an initiator sees when a FIPA-Request does not end in inform."""
 from __future__ import annotations
 
+from ontology.errors import ErrorCode
+
 
 class AgentStartError(RuntimeError):
     """The agent could not log in to the XMPP server in time."""
 
 
 class RequestError(RuntimeError):
-    def __init__(self, reason: str, *, code: str = "error", peer: str = "", action: str = ""):
+    def __init__(self, reason: str, *, code: str = ErrorCode.ERROR, peer: str = "", action: str = ""):
         super().__init__(reason)
         self.reason, self.code, self.peer, self.action = reason, code, peer, action
 
@@ -36,7 +38,7 @@ class RequestTimeout(RequestError):
 class Refusal(Exception):
     """Raised by a responder handler to answer `refuse` with this reason."""
 
-    def __init__(self, reason: str, code: str = "refused"):
+    def __init__(self, reason: str, code: str = ErrorCode.REFUSED):
         super().__init__(reason)
         self.reason, self.code = reason, code
 
@@ -44,6 +46,6 @@ class Refusal(Exception):
 class Failure(Exception):
     """Raised by a responder handler to answer `failure` with this reason."""
 
-    def __init__(self, reason: str, code: str = "failed"):
+    def __init__(self, reason: str, code: str = ErrorCode.FAILED):
         super().__init__(reason)
         self.reason, self.code = reason, code

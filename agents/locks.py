@@ -9,15 +9,15 @@ import asyncio
 import contextlib
 from dataclasses import dataclass, field
 
-DEVICES = ("base", "head", "joints", "camera", "speaker", "microphone")
+from ontology.robot_actions import DEVICES, facts
 
-# which device a robot-API action uses (None: reads that need no exclusive use)
-ACTION_DEVICE = {
-    "move_to": "base", "move_vel": "base", "move_along_path": "base",
-    "look_at_point": "head", "move_joint": "joints", "take_predefined_posture": "joints",
-    "rest": "joints", "capture_image": "camera", "set_camera_param": "camera",
-    "set_camera_params": "camera", "say": "speaker", "word_spotting": "microphone",
-}
+__all__ = ["DEVICES", "LockError", "ResourceLocks", "device_of"]
+
+
+def device_of(action_name: str) -> str | None:
+    """The device a robot-API command locks while it runs (its row in ontology/robot_actions.py);
+    None for commands that need no exclusive use."""
+    return facts(action_name).device
 
 
 class LockError(RuntimeError):

@@ -36,7 +36,7 @@ _SIDECARS = ("-wal", "-shm", "-journal")
 class DirectoryError(Exception):
     """A directory operation was refused; ``code`` is "duplicate" or "invalid"."""
 
-    def __init__(self, message: str, code: str = "invalid") -> None:
+    def __init__(self, message: str, code: str = ErrorCode.INVALID) -> None:
         super().__init__(message)
         self.code = code
 

@@ -152,7 +152,7 @@ class StoreAgent(RappAgent):
             self._downloads[key] = (time.monotonic(), split_chunks(dl.data))
         _, chunks = self._downloads[key]
         if req.index >= len(chunks):
-            raise Refusal(f"chunk {req.index} out of range (package has {len(chunks)})", "out_of_range")
+            raise Refusal(f"chunk {req.index} out of range (package has {len(chunks)})", ErrorCode.OUT_OF_RANGE)
         return S.ChunkData(**chunks[req.index].model_dump())
 
     # -- publish ------------------------------------------------------------------------------

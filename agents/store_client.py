@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from ontology import store as S
 from ontology.chunks import Reassembler, split_chunks
+from ontology.errors import ErrorCode
 from ontology.package import sha256_hex
 
 from .base import RappAgent
@@ -22,7 +23,7 @@ async def download_package(agent: RappAgent, store: str, name: str, version: str
         assembler.add(chunk.model_dump())
     data = assembler.result()
     if sha256_hex(data) != info.sha256:  # Reassembler checks too; keep the contract explicit
-        raise RequestFailed(f"package {name} failed its sha256 check", code="sha256_mismatch")
+        raise RequestFailed(f"package {name} failed its sha256 check", code=ErrorCode.SHA256_MISMATCH)
     return info, data
 
 

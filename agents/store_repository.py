@@ -81,7 +81,7 @@ _ORDER = "major DESC, minor DESC, patch DESC"
 class StoreError(Exception):
     """A Store operation was refused; ``code`` is the machine-readable reason."""
 
-    def __init__(self, message: str, code: str = "invalid") -> None:
+    def __init__(self, message: str, code: str = ErrorCode.INVALID) -> None:
         super().__init__(message)
         self.code = code
 

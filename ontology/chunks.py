@@ -24,7 +24,7 @@ DEFAULT_MAX_TRANSFER = 64 * 1024 * 1024
 class ChunkError(ValueError):
     """A chunk or a reassembled transfer is invalid; ``code`` is a short reason."""
 
-    def __init__(self, message: str, code: str = "bad_chunk") -> None:
+    def __init__(self, message: str, code: str = ErrorCode.BAD_CHUNK) -> None:
         super().__init__(message)
         self.code = code
 
@@ -135,7 +135,7 @@ class Reassembler:
         if len(data) != self.size:
             raise ChunkError(f"reassembled {len(data)} bytes, expected {self.size}", ErrorCode.SIZE_MISMATCH)
         if hashlib.sha256(data).hexdigest() != self.sha256:
-            raise ChunkError("reassembled payload does not match its sha256", "sha256_mismatch")
+            raise ChunkError("reassembled payload does not match its sha256", ErrorCode.SHA256_MISMATCH)
         return data
 
 

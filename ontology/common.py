@@ -1,6 +1,7 @@
 """Replies shared by every ontology: FIPA error performatives carry one of these."""
 from __future__ import annotations
 
+from .errors import ErrorCode
 from .registry import Content
 
 
@@ -8,5 +9,5 @@ class Reason(Content):
     """Content of refuse, failure and not-understood: a human-readable reason and a short code."""
 
     reason: str
-    code: str = "error"
+    code: str = ErrorCode.ERROR
 

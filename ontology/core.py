@@ -46,6 +46,6 @@ class CoreState(Content):
     rapp: str | None = None
 
 
-@action("get_state", ontology=ONTOLOGY, reply=CoreState, group="inspect")
+@action("get_state", ontology=ONTOLOGY, reply=CoreState, group="inspect", idempotent=True)
 class GetState(Action):
     pass

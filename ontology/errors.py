@@ -35,6 +35,7 @@ class ErrorCode(StrEnum):
     ENTRY_POINT_MISSING = "entry_point_missing"
     ESTOP = "estop"
     EXPIRED_TOKEN = "expired-token"
+    FAILED = "failed"  # the default of a responder's Failure
     FORBIDDEN = "forbidden"
     INCOMPLETE = "incomplete"
     INTERRUPTED = "interrupted"
@@ -60,9 +61,11 @@ class ErrorCode(StrEnum):
     OUT_OF_RANGE = "out_of_range"
     PERMISSION = "permission"
     POSE_FAILED = "pose_failed"
+    REFUSED = "refused"  # the default of a responder's Refusal
     RENDER_FAILED = "render_failed"
     ROBOT_ERROR = "robot_error"
     SERVICE_ERROR = "service-error"
+    SHA256_MISMATCH = "sha256_mismatch"
     SIZE_MISMATCH = "size_mismatch"
     STOPPED = "stopped"
     STORE = "store"
@@ -80,6 +83,7 @@ class ErrorCode(StrEnum):
     UNKNOWN_HOME = "unknown_home"
     UNKNOWN_MARKER = "unknown_marker"
     UNKNOWN_TEST = "unknown_test"
+    UNKNOWN_TEST_TYPE = "unknown_test_type"
     UNSAFE_ENTRY = "unsafe_entry"
     UNSAFE_PATH = "unsafe_path"
     UNSUPPORTED = "unsupported"

@@ -72,7 +72,7 @@ class VerifyToken(Action):
     token: str
 
 
-@action("list_services", ontology=ONTOLOGY, reply=ServiceList, group="discovery")
+@action("list_services", ontology=ONTOLOGY, reply=ServiceList, group="discovery", idempotent=True)
 class ListServices(Action):
     in_group: str | None = None
 
@@ -131,6 +131,6 @@ class Pong(Content):
     t: float
 
 
-@action("ping", ontology=ONTOLOGY, reply=Pong, group="diagnostics")
+@action("ping", ontology=ONTOLOGY, reply=Pong, group="diagnostics", idempotent=True)
 class Ping(ServiceRequest):
     """The cheapest service: checks the token and answers (round-trip measurements)."""

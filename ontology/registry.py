@@ -29,7 +29,8 @@ class Action(Content):
     reply_model: ClassVar[type[Content] | None] = None
     # robot-API group or platform service name the action belongs to (for permissions)
     group: ClassVar[str] = ""
-    # a read without side effects: safe to send again after a timeout (e.g. a server restart)
+    # a read without side effects: safe to send again after a timeout (e.g. a server restart);
+    # declared where the action is registered (robot actions: ontology/robot_actions.py), never guessed
     idempotent: ClassVar[bool] = False
 
 
@@ -44,15 +45,13 @@ class ContentError(ValueError):
 
 
 _actions: dict[tuple[str, str], type[Action]] = {}
-# actions named like reads are idempotent unless registered otherwise
-READ_PREFIXES = ("get_", "list_", "capture_", "ping", "info", "versions", "search", "download_",
-                 "path_planning_plan", "qr_detection", "compute_", "hazard_detection_", "face_",
-                 "human_", "ontology_", "weather_", "news_")
 
 
 def action(name: str, *, ontology: str, reply: type[Content] = Done, group: str = "",
-           idempotent: bool | None = None):
-    """Class decorator registering an Action model under (ontology, name)."""
+           idempotent: bool = False):
+    """Class decorator registering an Action model under (ontology, name). `idempotent=True` marks a
+    read without side effects (the requester re-sends it after a timeout); nothing is inferred from
+    the name."""
 
     def register(cls: type[Action]) -> type[Action]:
         key = (ontology, name)
@@ -62,7 +61,7 @@ def action(name: str, *, ontology: str, reply: type[Content] = Done, group: str 
         cls.ontology_name = ontology
         cls.reply_model = reply
         cls.group = group or ontology
-        cls.idempotent = name.startswith(READ_PREFIXES) if idempotent is None else idempotent
+        cls.idempotent = idempotent
         _actions[key] = cls
         return cls
 

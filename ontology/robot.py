@@ -10,11 +10,19 @@ from __future__ import annotations
 from pydantic import Field
 
 from .registry import Action, Content, Done, action, actions
+from .robot_actions import ACTION_FACTS, DEVICES, ActionFacts, facts
 from .services.common import Pose2D  # one Pose2D for robot and Platform messages
 
-__all__ = ["Pose2D"]  # re-exported: robot messages use the Platform's pose model
+# re-exported: robot messages use the Platform's pose model; the per-action facts live in robot_actions
+__all__ = ["Pose2D", "ACTION_FACTS", "DEVICES", "ActionFacts", "facts"]
 
 ONTOLOGY = "robot"
+
+
+def robot_action(name: str, *, reply: type[Content] = Done):
+    """@action for the robot ontology: group and idempotency come from the action's row in ACTION_FACTS."""
+    row = ACTION_FACTS[name]
+    return action(name, ontology=ONTOLOGY, reply=reply, group=row.group, idempotent=row.idempotent)
 
 
 # ---------------------------------------------------------------- reply / shared contents
@@ -87,33 +95,33 @@ class LaserScan(Content):
 
 
 # ---------------------------------------------------------------- communication
-@action("say", ontology=ONTOLOGY, reply=Done, group="communication")
+@robot_action("say", reply=Done)
 class Say(Action):
     text: str
     language: str = "en"
 
 
-@action("word_spotting", ontology=ONTOLOGY, reply=WordSpotted, group="communication")
+@robot_action("word_spotting", reply=WordSpotted)
 class WordSpotting(Action):
     words: list[str]
     timeout: float = 10.0  # wall-clock seconds (speech comes from a person or a scenario script)
 
 
 # ---------------------------------------------------------------- vision
-@action("capture_image", ontology=ONTOLOGY, reply=Image, group="vision")
+@robot_action("capture_image", reply=Image)
 class CaptureImage(Action):
     camera: str = ""  # "" = the robot's main camera
     resolution: str = "320x240"  # "WxH" or QQVGA/QVGA/VGA
 
 
-@action("set_camera_param", ontology=ONTOLOGY, reply=CameraParams, group="vision")
+@robot_action("set_camera_param", reply=CameraParams)
 class SetCameraParam(Action):
     camera: str = ""
     name: str
     value: float
 
 
-@action("set_camera_params", ontology=ONTOLOGY, reply=CameraParams, group="vision")
+@robot_action("set_camera_params", reply=CameraParams)
 class SetCameraParams(Action):
     camera: str = ""
     brightness: float | None = None
@@ -123,14 +131,14 @@ class SetCameraParams(Action):
     auto_exposure: bool | None = None
 
 
-@action("get_camera_info", ontology=ONTOLOGY, reply=CameraInfo, group="vision")
+@robot_action("get_camera_info", reply=CameraInfo)
 class GetCameraInfo(Action):
     camera: str = ""
     resolution: str = "320x240"
 
 
 # ---------------------------------------------------------------- navigation
-@action("move_to", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("move_to", reply=Done)
 class MoveTo(Action):
     """Relative motion in the robot frame at call time."""
 
@@ -139,7 +147,7 @@ class MoveTo(Action):
     theta: float = 0.0
 
 
-@action("move_vel", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("move_vel", reply=Done)
 class MoveVel(Action):
     """Continuous velocity in the robot frame (m/s, rad/s) until move_stop; y must be 0 on diff drive."""
 
@@ -148,71 +156,71 @@ class MoveVel(Action):
     theta: float = 0.0
 
 
-@action("move_stop", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("move_stop", reply=Done)
 class MoveStop(Action):
     pass
 
 
-@action("move_along_path", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("move_along_path", reply=Done)
 class MoveAlongPath(Action):
     poses: list[Pose2D]
 
 
-@action("look_at_point", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("look_at_point", reply=Done)
 class LookAtPoint(Action):
     x: float
     y: float
     z: float
 
 
-@action("get_global_pose", ontology=ONTOLOGY, reply=Pose2D, group="navigation")
+@robot_action("get_global_pose", reply=Pose2D)
 class GetGlobalPose(Action):
     pass
 
 
-@action("set_global_pose", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("set_global_pose", reply=Done)
 class SetGlobalPose(Action):
     x: float
     y: float
     theta: float = 0.0
 
 
-@action("get_transform", ontology=ONTOLOGY, reply=Transform, group="navigation")
+@robot_action("get_transform", reply=Transform)
 class GetTransform(Action):
     chain: str = "camera"  # camera name, "camera", "head", "laser", "sonar_left", "sonar_right"
     space: str = "robot"  # "robot" (base frame) or "global" (via the estimated pose)
 
 
-@action("move_joint", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("move_joint", reply=Done)
 class MoveJoint(Action):
     joints: list[str]
     angles: list[float]
     speed: float = 0.5  # fraction of the joints' maximum speed (0..1]
 
 
-@action("get_joint_angles", ontology=ONTOLOGY, reply=JointAngles, group="navigation")
+@robot_action("get_joint_angles", reply=JointAngles)
 class GetJointAngles(Action):
     joints: list[str] = Field(default_factory=list)  # empty = all
 
 
-@action("take_predefined_posture", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("take_predefined_posture", reply=Done)
 class TakePredefinedPosture(Action):
     posture: str
     speed: float = 0.5
 
 
-@action("rest", ontology=ONTOLOGY, reply=Done, group="navigation")
+@robot_action("rest", reply=Done)
 class Rest(Action):
     pass
 
 
 # ---------------------------------------------------------------- sensors
-@action("get_sonars", ontology=ONTOLOGY, reply=SonarReading, group="sensors")
+@robot_action("get_sonars", reply=SonarReading)
 class GetSonars(Action):
     pass
 
 
-@action("get_laser_scan", ontology=ONTOLOGY, reply=LaserScan, group="sensors")
+@robot_action("get_laser_scan", reply=LaserScan)
 class GetLaserScan(Action):
     pass
 
@@ -223,7 +231,7 @@ class LockState(Content):
     holder: str | None = None
 
 
-@action("lock_resource", ontology=ONTOLOGY, reply=LockState, group="resources")
+@robot_action("lock_resource", reply=LockState)
 class LockResource(Action):
     """Paper 003: lock (wait up to timeout_s) or try-lock (wait=False) a device: base, head,
     joints, camera, speaker, microphone. Served by the Core, not by the robot."""
@@ -233,7 +241,7 @@ class LockResource(Action):
     timeout_s: float = Field(default=10.0, ge=0, le=600)
 
 
-@action("free_resource", ontology=ONTOLOGY, reply=LockState, group="resources")
+@robot_action("free_resource", reply=LockState)
 class FreeResource(Action):
     resource: str
 

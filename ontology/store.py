@@ -79,36 +79,36 @@ class RegisterRobot(Action):
     owner: str
 
 
-@action("list_packages", ontology=ONTOLOGY, reply=PackageList, group="catalogue")
+@action("list_packages", ontology=ONTOLOGY, reply=PackageList, group="catalogue", idempotent=True)
 class ListPackages(Action):
     robot_type: str | None = None
 
 
-@action("search", ontology=ONTOLOGY, reply=PackageList, group="catalogue")
+@action("search", ontology=ONTOLOGY, reply=PackageList, group="catalogue", idempotent=True)
 class Search(Action):
     keyword: str = Field(min_length=1, max_length=200)
     robot_type: str | None = None
 
 
-@action("info", ontology=ONTOLOGY, reply=PackageDetails, group="catalogue")
+@action("info", ontology=ONTOLOGY, reply=PackageDetails, group="catalogue", idempotent=True)
 class Info(Action):
     name: str
     version: str | None = None
 
 
-@action("versions", ontology=ONTOLOGY, reply=Versions, group="catalogue")
+@action("versions", ontology=ONTOLOGY, reply=Versions, group="catalogue", idempotent=True)
 class GetVersions(Action):
     name: str
 
 
-@action("download_info", ontology=ONTOLOGY, reply=DownloadInfo, group="download")
+@action("download_info", ontology=ONTOLOGY, reply=DownloadInfo, group="download", idempotent=True)
 class DownloadBegin(Action):
     name: str
     version: str | None = None
     token: str = ""  # a Platform token held by the sender (the Platform itself needs none)
 
 
-@action("download_chunk", ontology=ONTOLOGY, reply=ChunkData, group="download")
+@action("download_chunk", ontology=ONTOLOGY, reply=ChunkData, group="download", idempotent=True)
 class DownloadChunk(Action):
     name: str
     version: str

@@ -51,7 +51,7 @@ def choose_test(req: ChooseCognitiveTest, ctx: ServiceContext) -> CognitiveTest:
     of_type = [t for t in s.tests.values() if t["type"] == req.test_type]
     if not of_type:
         types = sorted({t["type"] for t in s.tests.values()})
-        raise ServiceError(f"unknown test type {req.test_type!r} (known: {', '.join(types)})", "unknown_test_type")
+        raise ServiceError(f"unknown test type {req.test_type!r} (known: {', '.join(types)})", ErrorCode.UNKNOWN_TEST_TYPE)
     level = req.difficulty or adaptive_difficulty(s.records(ctx.user, req.test_type))
     pool = [t for t in of_type if t["difficulty"] == level] or \
         sorted(of_type, key=lambda t: abs(t["difficulty"] - level))[:1]

@@ -28,7 +28,7 @@ class DoorAngle(Content):
     method: str  # "geometry" or "image"
 
 
-@action("hazard_detection_door_check", ontology="platform", reply=DoorAngle, group=GROUP)
+@action("hazard_detection_door_check", ontology="platform", reply=DoorAngle, group=GROUP, idempotent=True)
 class DoorCheck(ServiceRequest):
     image_b64: str
     geometry: DoorGeometry | None = None
@@ -39,7 +39,7 @@ class LightLevel(Content):
     lamp_on: bool
 
 
-@action("hazard_detection_light_check", ontology="platform", reply=LightLevel, group=GROUP)
+@action("hazard_detection_light_check", ontology="platform", reply=LightLevel, group=GROUP, idempotent=True)
 class LightCheck(ServiceRequest):
     image_b64: str
     on_threshold: int = Field(default=30, ge=0, le=100)

@@ -17,7 +17,7 @@ class CurrentWeather(Content):
     wind_kmh: float
 
 
-@action("weather_report_current", ontology="platform", reply=CurrentWeather, group=GROUP)
+@action("weather_report_current", ontology="platform", reply=CurrentWeather, group=GROUP, idempotent=True)
 class WeatherCurrent(ServiceRequest):
     city: str = Field(min_length=1)
 
@@ -34,7 +34,7 @@ class Forecast(Content):
     days: list[ForecastDay]
 
 
-@action("weather_report_forecast", ontology="platform", reply=Forecast, group=GROUP)
+@action("weather_report_forecast", ontology="platform", reply=Forecast, group=GROUP, idempotent=True)
 class WeatherForecast(ServiceRequest):
     city: str = Field(min_length=1)
     days: int = Field(default=3, ge=1, le=10)
@@ -51,7 +51,7 @@ class NewsReply(Content):
     stories: list[NewsStory]
 
 
-@action("news_explore", ontology="platform", reply=NewsReply, group=GROUP)
+@action("news_explore", ontology="platform", reply=NewsReply, group=GROUP, idempotent=True)
 class NewsExplore(ServiceRequest):
     keywords: list[str] = []
     topic: str = ""

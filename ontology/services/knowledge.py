@@ -11,13 +11,13 @@ class ClassList(Content):
     classes: list[str]
 
 
-@action("ontology_subclasses_of", ontology="platform", reply=ClassList, group="knowledge")
+@action("ontology_subclasses_of", ontology="platform", reply=ClassList, group="knowledge", idempotent=True)
 class SubclassesOf(ServiceRequest):
     cls: str
     recursive: bool = True
 
 
-@action("ontology_superclasses_of", ontology="platform", reply=ClassList, group="knowledge")
+@action("ontology_superclasses_of", ontology="platform", reply=ClassList, group="knowledge", idempotent=True)
 class SuperclassesOf(ServiceRequest):
     cls: str
     recursive: bool = True
@@ -27,7 +27,7 @@ class IsSubclass(Content):
     result: bool
 
 
-@action("ontology_is_subclass_of", ontology="platform", reply=IsSubclass, group="knowledge")
+@action("ontology_is_subclass_of", ontology="platform", reply=IsSubclass, group="knowledge", idempotent=True)
 class IsSubclassOf(ServiceRequest):
     child: str
     parent: str

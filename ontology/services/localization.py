@@ -24,7 +24,7 @@ class QRDetections(Content):
     codes: list[QRDetection]
 
 
-@action("qr_detection", ontology="platform", reply=QRDetections, group="vision")
+@action("qr_detection", ontology="platform", reply=QRDetections, group="vision", idempotent=True)
 class QRDetect(ServiceRequest):
     """Find and decode QR codes; with intrinsics also each code's pose (code frame: origin at the
     code centre, x right, y up on the printed code, z out of its face)."""
@@ -48,7 +48,7 @@ class MarkerObservation(Content):
     pose_in_camera: Matrix4
 
 
-@action("compute_global_pose", ontology="platform", reply=Pose2D, group=GROUP)
+@action("compute_global_pose", ontology="platform", reply=Pose2D, group=GROUP, idempotent=True)
 class ComputeGlobalPose(ServiceRequest):
     """Robot pose from marker observations (averaged over those found in the landmark map)."""
 

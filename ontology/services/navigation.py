@@ -53,7 +53,7 @@ class PlanPathReply(Content):
     clearance_m: float = 0.0  # margin kept beyond the robot's footprint along this path
 
 
-@action("path_planning_plan_path_2d", ontology="platform", reply=PlanPathReply, group=GROUP)
+@action("path_planning_plan_path_2d", ontology="platform", reply=PlanPathReply, group=GROUP, idempotent=True)
 class PlanPath2D(ServiceRequest):
     """Plan from start to goal for a robot type ("nao", "elektron") with an algorithm
     ("astar", "dijkstra", "rrtconnect", "rrtstar", "bitstar", "prmstar")."""

@@ -20,12 +20,12 @@ class Detections(Content):
     boxes: list[Box]
 
 
-@action("face_detection", ontology="platform", reply=Detections, group=GROUP)
+@action("face_detection", ontology="platform", reply=Detections, group=GROUP, idempotent=True)
 class FaceDetect(ServiceRequest):
     image_b64: str
 
 
-@action("human_detection", ontology="platform", reply=Detections, group=GROUP)
+@action("human_detection", ontology="platform", reply=Detections, group=GROUP, idempotent=True)
 class HumanDetect(ServiceRequest):
     image_b64: str
 
