@@ -3,13 +3,9 @@
 Agents of several processes (Core, Dynamic, Cloud) append to the same file; each line is written
 with one write() on a file opened in append mode, so lines from different processes do not mix.
 
-Record kinds:
-  message    dir=send|recv, sender, receiver, performative, conversation_id, ontology, action,
-             message_id, in_reply_to, path=direct|xmpp, size, content (capped)
-  agent      event=started|stopped|start-failed
-  behaviour  event=activated|deactivated, behaviour
-  structure  event=register|download|spawn|handoff|cloud-spawn|cloud-destroy|finish|destroy|resume|..
-  state      event=enter, fsm, state (FSM states of embodied behaviours)
+The records (their kinds, fields and event names: ontology.trace.RecordKind, StructureEvent...) are
+typed in ontology/trace.py. Writing does not validate them (a record is written for every
+message); `read_trace(path, validate=True)` does.
 """
 from __future__ import annotations
 
@@ -20,6 +16,8 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
+
+from ontology.trace import RecordKind, parse_record
 
 CONTENT_CAP = 2000  # characters of content kept per message
 
@@ -38,7 +36,7 @@ class TraceWriter:
     def enabled(self) -> bool:
         return self._fd is not None
 
-    def record(self, kind: str, **fields: Any) -> None:
+    def record(self, kind: RecordKind | str, **fields: Any) -> None:
         if self._fd is None:
             return
         rec = {"t": round(time.time(), 6), "kind": kind, "pid": os.getpid(), **fields}
@@ -92,8 +90,9 @@ def cap(text: str | None, limit: int = CONTENT_CAP) -> str:
     return text if len(text) <= limit else text[:limit] + f"...[+{len(text) - limit} chars]"
 
 
-def read_trace(path: str | Path) -> list[dict]:
-    """All records of a trace file in time order; unreadable lines are skipped, not fatal."""
+def read_trace(path: str | Path, validate: bool = False) -> list[dict]:
+    """All records of a trace file in time order; unreadable lines are skipped, not fatal, and so
+    are, with `validate`, records that are not an ontology.trace.TraceRecord."""
     out = []
     with open(path, encoding="utf-8") as f:
         for line in f:
@@ -101,8 +100,11 @@ def read_trace(path: str | Path) -> list[dict]:
             if not line:
                 continue
             try:
-                out.append(json.loads(line))
-            except json.JSONDecodeError:
+                rec = json.loads(line)
+                if validate:
+                    parse_record(rec)
+            except ValueError:  # json.JSONDecodeError and pydantic.ValidationError are ValueErrors
                 continue
+            out.append(rec)
     out.sort(key=lambda r: r.get("t", 0))
     return out

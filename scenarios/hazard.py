@@ -19,6 +19,10 @@ import time
 from pathlib import Path
 
 from agents.services.context import ServiceState
+from agents.tracing import read_trace
+from ontology import core as C
+from ontology.trace import Direction, RecordKind
+from rapps.hazard_detection.hazard_detection.models import HazardReport
 from robots import OdometryNoise, RobotAPI, World
 
 from .home_setup import DOOR_OPEN_DEG, home_description, home_map, hazard_overrides, upload_home
@@ -30,7 +34,8 @@ from .system import RappSystem, wait_until
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
 COMMAND = "check the hazards"
 FINISHED = ("hazard-detection finished", "hazard-detection ended")  # how the Core ends the task
-REPORT_RE = re.compile(r"Hazard (\S+) \((door|lamp)\): (\w+)(?:, ([\d.]+) degrees)?")
+REPORT_RE = re.compile(r"Hazard (\S+) \((door|lamp)\): (\w+)(?:, ([\d.]+) degrees)?")  # the chat text
+CAPPED = re.compile(r"\.\.\.\[\+\d+ chars\]$")  # agents.tracing.cap's mark on a long content
 
 
 def core_listening(core) -> bool:
@@ -38,8 +43,31 @@ def core_listening(core) -> bool:
     return bool(core.vocabulary) and sup is not None and sup.behaviour.current == "s3_listen"
 
 
+def hazard_reports(records: list[dict], core: str) -> list[HazardReport]:
+    """What the RApp found at each hazard, in the order it reported: the data of its reports to
+    the Core (`data["hazard"]`, a HazardReport), from the Core's side of the run's trace."""
+    out = []
+    for r in records:
+        if (r["kind"] == RecordKind.MESSAGE and r["dir"] == Direction.RECV and r["agent"] == core
+                and r["ontology"] == C.ONTOLOGY and r["action"] == C.Report.action_name
+                and r["performative"] == "request"):
+            if CAPPED.search(r["content"]):  # the long final summary; a hazard's report is short
+                continue
+            data = C.Report.model_validate_json(r["content"]).data
+            if "hazard" in data:
+                out.append(HazardReport.model_validate(data["hazard"]))
+    return out
+
+
+def reported(reports: list[HazardReport]) -> dict[str, dict]:
+    """Per hazard, what the RApp reported: state and (doors) the estimated angle, to the tenth of a
+    degree the user was told."""
+    return {r.id: {"state": r.state, "angle": None if r.angle_deg is None else round(r.angle_deg, 1)}
+            for r in reports}
+
+
 def parse_reports(texts: list[str]) -> dict[str, dict]:
-    """Per hazard, what the user was told: state and (doors) the estimated angle."""
+    """Per hazard, what the user was told in the chat: state and (doors) the estimated angle."""
     out = {}
     for text in texts:
         m = REPORT_RE.search(text)
@@ -95,8 +123,9 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 raise RuntimeError(f"the Core did not start the RApp: {end}")
             sim_s, wall_s = world.time - sim0, time.monotonic() - wall0
             texts = handle.user.texts()
-        rows = score_hazards(info.hazards, world.ground_truth(), parse_reports(texts))
-        for row, frame in zip(rows_in_report_order(rows, texts), recorder.frames):
+        reports = hazard_reports(read_trace(trace, validate=True), handle.core.address)
+        rows = score_hazards(info.hazards, world.ground_truth(), reported(reports))
+        for row, frame in zip(rows_in_order(rows, [r.id for r in reports]), recorder.frames):
             frame.rename(frame.with_name(f"{row['id']}.png"))
         result = {
             "robot": robot, "seed": seed, "hazards": rows,
@@ -123,11 +152,15 @@ def finite(value: float, digits: int = 4) -> float | None:
     return round(value, digits) if math.isfinite(value) else None
 
 
-def rows_in_report_order(rows: list[dict], texts: list[str]) -> list[dict]:
-    """Rows in the order the hazards were checked (= order of the saved frames)."""
+def rows_in_order(rows: list[dict], ids: list[str]) -> list[dict]:
+    """Rows in the order of `ids`: the order the hazards were checked (= order of the saved frames)."""
     by_id = {r["id"]: r for r in rows}
-    order = [m.group(1) for m in map(REPORT_RE.search, texts) if m]
-    return [by_id[i] for i in order if i in by_id]
+    return [by_id[i] for i in ids if i in by_id]
+
+
+def rows_in_report_order(rows: list[dict], texts: list[str]) -> list[dict]:
+    """Rows in the order the chat reported the hazards."""
+    return rows_in_order(rows, [m.group(1) for m in map(REPORT_RE.search, texts) if m])
 
 
 def cm(value: float | None) -> str:

@@ -15,20 +15,23 @@ import sys
 import time
 from pathlib import Path
 
-SHOWN = {"spawn", "handoff", "cloud-spawn", "cloud-destroy", "cloud-lost", "ended", "destroy", "resume",
-         "catalogue-changed"}
+from ontology.trace import CHAT, Direction, RecordKind, StructureEvent, parse_record
+
+_E = StructureEvent
+SHOWN = {_E.SPAWN, _E.HANDOFF, _E.CLOUD_SPAWN, _E.CLOUD_DESTROY, _E.CLOUD_LOST, _E.ENDED, _E.DESTROY, _E.RESUME,
+         _E.CATALOGUE_CHANGED}
 
 
 def describe(rec: dict) -> str | None:
     """One line for a trace record worth showing, else None."""
     kind, agent = rec.get("kind"), str(rec.get("agent", "")).split("@")[0]
-    if kind == "state" and rec.get("event") == "enter":
+    if kind == RecordKind.STATE and rec.get("event") == "enter":
         who = "core" if rec.get("fsm") == "core" else f"rapp {rec.get('fsm')}"
         return f"{who}: {rec.get('state')}"
-    if kind == "structure" and rec.get("event") in SHOWN:
+    if kind == RecordKind.STRUCTURE and rec.get("event") in SHOWN:
         detail = rec.get("dynamic") or rec.get("cloud") or rec.get("to") or rec.get("reason") or ""
         return f"{agent}: {rec['event']} {str(detail).split('@')[0]}".rstrip()
-    if kind == "message" and rec.get("performative") == "chat" and rec.get("dir") == "send":
+    if kind == RecordKind.MESSAGE and rec.get("performative") == CHAT and rec.get("dir") == Direction.SEND:
         return f"chat {agent} -> {str(rec.get('receiver', '')).split('@')[0]}: {rec.get('content', '')}"
     return None
 
@@ -51,9 +54,11 @@ async def follow(trace: str | Path, pose=None, out=None, pose_every: float = 5.0
         offset += complete
         for line in data[:complete].splitlines():
             try:
-                text = describe(json.loads(line))
+                rec = json.loads(line)
+                parse_record(rec)  # a record of ontology.trace, else skipped like a broken line
             except ValueError:
                 continue
+            text = describe(rec)
             if text:
                 print(f"[{time.monotonic() - t0:6.1f}s] {text}", file=out, flush=True)
 

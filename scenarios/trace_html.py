@@ -21,29 +21,31 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from agents.tracing import read_trace
+from ontology.trace import CHAT, OPENING_OR_CHAT, AgentEvent, BehaviourEvent, RecordKind, StructureEvent
 from scenarios.trace_report import display_names, note_label, participants, timeline
 
-_CREATED = {"spawn", "cloud-spawn", "register", "download", "started"}
-_DESTROYED = {"destroy", "cloud-destroy", "finish", "stopped", "start-failed"}
+_CREATED = {StructureEvent.SPAWN, StructureEvent.CLOUD_SPAWN, StructureEvent.REGISTER, StructureEvent.DOWNLOAD,
+            AgentEvent.STARTED}
+_DESTROYED = {StructureEvent.DESTROY, StructureEvent.CLOUD_DESTROY, AgentEvent.STOPPED, AgentEvent.START_FAILED}
 
 
 def note_category(rec: dict) -> str:
     """Colour class of a non-message record: created, destroyed, handoff, handback, activated,
     deactivated, state, problem or structure."""
     kind, event = rec.get("kind"), rec.get("event", "")
-    if kind in ("timeout", "dropped"):
+    if kind in (RecordKind.TIMEOUT, RecordKind.DROPPED):
         return "problem"
-    if kind == "state":
+    if kind == RecordKind.STATE:
         return "state"
-    if kind == "behaviour":
-        return "activated" if event == "activated" else "deactivated"
+    if kind == RecordKind.BEHAVIOUR:
+        return "activated" if event == BehaviourEvent.ACTIVATED else "deactivated"
     if event in _CREATED:
         return "created"
     if event in _DESTROYED:
         return "destroyed"
-    if event == "handoff":
+    if event == StructureEvent.HANDOFF:
         return "handoff"
-    if event in ("resume", "handback", "return"):
+    if event == StructureEvent.RESUME:
         return "handback"
     return "structure"
 
@@ -57,8 +59,8 @@ def page_data(records: Iterable[dict], title: str = "") -> dict:
     out = []
     for it in items:
         it = dict(it)
-        if it.get("kind") == "message":
-            it["_label"] = " ".join(x for x in (it.get("performative") or "chat", it.get("action")) if x)
+        if it.get("kind") == RecordKind.MESSAGE:
+            it["_label"] = " ".join(x for x in (it.get("performative") or CHAT, it.get("action")) if x)
         else:
             it["_label"] = note_label(it, names)
             it["_category"] = note_category(it)
@@ -177,7 +179,7 @@ _JS = r"""
   const DATA = JSON.parse(document.getElementById("trace-data").textContent);
   const NS = "http://www.w3.org/2000/svg";
   const COL = 170, GUTTER = 80, HEAD = 34, MSG_ROW = 36, NOTE_ROW = 24, PAD = 10;
-  const OPENING = ["request", "query-ref", "subscribe", "chat"];
+  const OPENING = {{OPENING}};
   const COLOURS = {request: "#1f5fbf", "query-ref": "#1f5fbf", subscribe: "#1f5fbf",
     agree: "#777", inform: "#2b8a3e", confirm: "#2b8a3e", failure: "#c92a2a",
     refuse: "#d9480f", "not-understood": "#862e9c", cancel: "#a61e4d", chat: "#222"};
@@ -413,6 +415,8 @@ _JS = r"""
 })();
 """
 
+_JS = _JS.replace("{{OPENING}}", json.dumps(OPENING_OR_CHAT))  # the ontology's, in the page's code
+
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description="Render a trace (JSON Lines) as an HTML page.")
@@ -421,7 +425,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--title")
     a = p.parse_args(argv)
     out = Path(a.output or Path(a.trace).with_suffix(".html"))
-    out.write_text(render_html(read_trace(a.trace), a.title or Path(a.trace).name), encoding="utf-8")
+    out.write_text(render_html(read_trace(a.trace, validate=True), a.title or Path(a.trace).name), encoding="utf-8")
     print(out)
 
 

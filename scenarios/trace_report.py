@@ -17,12 +17,7 @@ from collections import Counter, defaultdict, deque
 from collections.abc import Iterable
 
 from agents.tracing import read_trace
-from ontology.acl import Performative
-
-# the ontology's performatives, as the trace's strings
-FINAL = tuple(p.value for p in (Performative.INFORM, Performative.FAILURE, Performative.REFUSE,
-                                Performative.NOT_UNDERSTOOD))  # answers that close a request
-OPENING = (Performative.REQUEST.value, Performative.QUERY_REF.value)  # expect a final answer
+from ontology.trace import CHAT, EXPECT_ANSWER, FINAL_ANSWERS, RecordKind
 
 
 # -- names ----------------------------------------------------------------------------------------
@@ -106,7 +101,7 @@ def message_events(records: Iterable[dict]) -> list[dict]:
     id is empty), whichever of the two was written first."""
     events: list[dict] = []
     waiting: dict[tuple, dict[str, deque]] = defaultdict(lambda: {"send": deque(), "recv": deque()})
-    for rec in sorted((r for r in records if r.get("kind") == "message"), key=lambda r: r.get("t", 0)):
+    for rec in sorted((r for r in records if r.get("kind") == RecordKind.MESSAGE), key=lambda r: r.get("t", 0)):
         direction = "recv" if rec.get("dir") == "recv" else "send"
         other = "send" if direction == "recv" else "recv"
         queues = waiting[_message_key(rec)]
@@ -115,7 +110,7 @@ def message_events(records: Iterable[dict]) -> list[dict]:
             _merge(ev, rec, direction)
             continue
         ev = {k: v for k, v in rec.items() if k not in ("dir", "agent", "pid")}
-        ev.update(kind="message", sender=bare(rec.get("sender")), receiver=bare(rec.get("receiver")),
+        ev.update(kind=RecordKind.MESSAGE.value, sender=bare(rec.get("sender")), receiver=bare(rec.get("receiver")),
                   send_t=None, recv_t=None, latency=None, seen=direction)
         ev[f"{direction}_t"] = rec.get("t")
         queues[direction].append(ev)
@@ -139,7 +134,7 @@ def _merge(ev: dict, rec: dict, direction: str) -> None:
 def timeline(records: Iterable[dict]) -> list[dict]:
     """Deduplicated message events and non-message records, in time order."""
     records = list(records)
-    items = message_events(records) + [r for r in records if r.get("kind") != "message"]
+    items = message_events(records) + [r for r in records if r.get("kind") != RecordKind.MESSAGE]
     items.sort(key=lambda r: r.get("t", 0))
     return items
 
@@ -159,7 +154,7 @@ def display_names(jids: Iterable[str]) -> dict[str, str]:
 # -- labels -------------------------------------------------------------------------------------
 def message_label(ev: dict) -> str:
     """'request move_to', 'inform move_to', 'chat'."""
-    return " ".join(x for x in (ev.get("performative") or "chat", ev.get("action") or "") if x)
+    return " ".join(x for x in (ev.get("performative") or CHAT, ev.get("action") or "") if x)
 
 
 def note_label(rec: dict, names: dict[str, str] | None = None) -> str:
@@ -171,15 +166,15 @@ def note_label(rec: dict, names: dict[str, str] | None = None) -> str:
 
     kind, event, agent = rec.get("kind", ""), rec.get("event", ""), rec.get("agent", "")
     skip = {"t", "kind", "pid", "event", "agent", "cls"}
-    if kind == "behaviour":
+    if kind == RecordKind.BEHAVIOUR:
         return f"{rec.get('behaviour', '?')} {event} on {name(agent)}"
-    if kind == "agent":
+    if kind == RecordKind.AGENT:
         return f"{name(agent)} {event}" + (f" ({rec['reason']})" if rec.get("reason") else "")
-    if kind == "state":
+    if kind == RecordKind.STATE:
         return f"{name(agent)} {rec.get('fsm', '')} -> {rec.get('state', '')}"
-    if kind == "timeout":
+    if kind == RecordKind.TIMEOUT:
         return f"timeout {name(agent)} waiting {rec.get('action', '')} from {name(rec.get('peer'))}"
-    if kind == "dropped":
+    if kind == RecordKind.DROPPED:
         return f"dropped by {name(agent)}: {rec.get('performative', '')} from {name(rec.get('sender'))}"
     fields = {k: v for k, v in rec.items() if k not in skip}
     subject = next((k for k, v in fields.items() if isinstance(v, str) and "@" in v), None)
@@ -212,13 +207,13 @@ def table(records: Iterable[dict]) -> str:
             f"{'action':<18} {'conv':<8} {'path':<6} {'size':>6} {'lat ms':>7}")
     lines = [head, "-" * len(head)]
     for it in items:
-        if it.get("kind") == "message":
+        if it.get("kind") == RecordKind.MESSAGE:
             lat = "" if it["latency"] is None else f"{it['latency'] * 1000:.1f}"
             path = (it.get("path") or "") + ("" if it["seen"] == "both" else f"({it['seen']})")
             lines.append(
                 f"{_ms(it.get('t'), t0):>9}  {names.get(it['sender'], it['sender']):<{width}} → "
                 f"{names.get(it['receiver'], it['receiver']):<{width}}  "
-                f"{it.get('performative') or 'chat':<14} {_short(it.get('action') or '', 18):<18} "
+                f"{it.get('performative') or CHAT:<14} {_short(it.get('action') or '', 18):<18} "
                 f"{short_conv(it.get('conversation_id')):<8} {path:<6} {it.get('size', ''):>6} {lat:>7}")
         else:
             lines.append(f"{_ms(it.get('t'), t0):>9}  == {note_label(it, names)} ==")
@@ -233,7 +228,7 @@ def sequence_text(records: Iterable[dict], col_width: int | None = None) -> str:
     if not items:
         return "(empty trace)"
     t0 = items[0].get("t", 0)
-    jids = participants(it for it in items if it.get("kind") == "message") or participants(items)
+    jids = participants(it for it in items if it.get("kind") == RecordKind.MESSAGE) or participants(items)
     names = display_names(jids)
     width = col_width or max([len(n) for n in names.values()] + [10]) + 4
     gutter = 10
@@ -253,7 +248,7 @@ def sequence_text(records: Iterable[dict], col_width: int | None = None) -> str:
     lines = ["".join(header).rstrip(), "".join(blank()).rstrip()]
     for it in items:
         stamp = _ms(it.get("t"), t0).rjust(gutter - 2) + "  "
-        if it.get("kind") != "message":
+        if it.get("kind") != RecordKind.MESSAGE:
             lines.append(stamp + f"== {note_label(it, names)} ==")
             continue
         a, b = x.get(it["sender"]), x.get(it["receiver"])
@@ -295,8 +290,8 @@ def mermaid(records: Iterable[dict]) -> str:
     lines = ["sequenceDiagram"]
     lines += [f"    participant {ids[j]} as {mermaid_escape(names[j])}" for j in jids]
     for it in items:
-        if it.get("kind") == "message":
-            arrow = "->>" if (it.get("performative") or "chat") in OPENING + ("chat",) else "-->>"
+        if it.get("kind") == RecordKind.MESSAGE:
+            arrow = "->>" if (it.get("performative") or CHAT) in EXPECT_ANSWER | {CHAT} else "-->>"
             if it["seen"] != "both":
                 arrow = arrow.replace(">>", ")")  # async arrow: seen by one side only
             lines.append(f"    {ids[it['sender']]}{arrow}{ids[it['receiver']]}: "
@@ -314,10 +309,10 @@ def unanswered_requests(records: Iterable[dict]) -> list[dict]:
     events = message_events(records)
     out = []
     for ev in events:
-        if ev.get("performative") not in OPENING:
+        if ev.get("performative") not in EXPECT_ANSWER:
             continue
         answered = any(
-            other.get("performative") in FINAL and other.get("conversation_id") == ev.get("conversation_id")
+            other.get("performative") in FINAL_ANSWERS and other.get("conversation_id") == ev.get("conversation_id")
             and other["sender"] == ev["receiver"] and other.get("t", 0) >= ev.get("t", 0)
             for other in events)
         if not answered:
@@ -340,16 +335,16 @@ def summary(records: Iterable[dict]) -> dict:
     conversations = Counter(ev.get("conversation_id") or "" for ev in events)
     return {
         "messages": len(events),
-        "per_performative": dict(Counter(ev.get("performative") or "chat" for ev in events)),
+        "per_performative": dict(Counter(ev.get("performative") or CHAT for ev in events)),
         "per_agent": {k: dict(v) for k, v in per_agent.items()},
         "conversations": dict(conversations),
         "structure": [{"t_ms": round((r.get("t", 0) - t0) * 1000, 3), "event": r.get("event"),
                        "agent": r.get("agent"), "label": note_label(r)}
-                      for r in records if r.get("kind") == "structure"],
+                      for r in records if r.get("kind") == RecordKind.STRUCTURE],
         "unanswered": unanswered_requests(records),
         "one_sided": sum(ev["seen"] != "both" for ev in events),
-        "timeouts": sum(r.get("kind") == "timeout" for r in records),
-        "dropped": sum(r.get("kind") == "dropped" for r in records),
+        "timeouts": sum(r.get("kind") == RecordKind.TIMEOUT for r in records),
+        "dropped": sum(r.get("kind") == RecordKind.DROPPED for r in records),
     }
 
 
@@ -363,7 +358,7 @@ def main(argv: list[str] | None = None) -> None:
     view.add_argument("--sequence", action="store_true")
     view.add_argument("--summary", action="store_true")
     a = p.parse_args(argv)
-    recs = filter_records(read_trace(a.trace), a.agent, a.conv)
+    recs = filter_records(read_trace(a.trace, validate=True), a.agent, a.conv)
     if a.mermaid:
         print(mermaid(recs), end="")
     elif a.sequence:

@@ -4,9 +4,10 @@ again until the head limit, then once more with the body turned half round; then
 robot (the odometry estimate stays if the pose is still too uncertain)."""
 from __future__ import annotations
 
+import functools
 import math
 
-from rapps.sdk import FSM, RequestFailed, Step
+from rapps.sdk import FSM, RequestError, RequestFailed, Step
 
 # head joints, sweep limit (rad) and the pitch to look at landmarks at 0.7 m (positive = down), per robot model
 HEADS = {
@@ -22,6 +23,21 @@ def sweep_angles(step: float, limit: float) -> list[float]:
         out += [k * step, -k * step]
         k += 1
     return out
+
+
+def noting_failure(step):
+    """A localization step that, when a request fails, leaves why in memory["error"]: a hazard the
+    robot was walking to is then reported unreachable with it (task.unreachable)."""
+
+    @functools.wraps(step)
+    async def run(self, memory):
+        try:
+            return await step(self, memory)
+        except RequestError as e:
+            memory["error"] = f"(localization failed: {e.reason})"
+            raise
+
+    return run
 
 
 class Localizer:
@@ -51,6 +67,7 @@ class Localizer:
         fsm.add_transition("l4_detect", "l2_turn_head", when=lambda m, o: not o.value)
         return fsm
 
+    @noting_failure
     async def prepare(self, memory):
         robot, params = self.task.robot, self.task.params
         if self.head is None:
@@ -64,6 +81,7 @@ class Localizer:
         memory["localization"] = memory["prior"] = None
         memory["looked_behind"] = not params.get("look_behind", True)
 
+    @noting_failure
     async def turn_around(self, memory):
         """No certain pose within the head's reach: turn the body half round and sweep again (codes
         seen before the turn are dropped: their camera-to-robot transforms no longer hold)."""
@@ -73,6 +91,7 @@ class Localizer:
         memory["observations"] = []
         memory["localization"] = memory["prior"] = None
 
+    @noting_failure
     async def turn_head(self, memory) -> bool:
         """Next head position of the sweep; False when the head limit is reached."""
         if not memory["sweep"]:
@@ -82,11 +101,13 @@ class Localizer:
                                          angles=[yaw, self.head["tilt"]], speed=0.8)
         return True
 
+    @noting_failure
     async def capture(self, memory):
         robot = self.task.robot
         memory["frame"] = await robot.capture_image(resolution=self.task.params["localize_resolution"])
         memory["camera_to_robot"] = (await robot.get_transform(chain="camera", space="robot")).matrix
 
+    @noting_failure
     async def detect(self, memory) -> bool:
         """Landmarks in this frame (on the Cloud Agent), then the pose from every code seen so far;
         True when that pose is certain enough to stop sweeping (its position standard deviation at
@@ -115,6 +136,7 @@ class Localizer:
         return bool(found.found and found.std_m is not None and found.std_theta_rad is not None
                     and found.std_m <= float(params[param_m]) and found.std_theta_rad <= float(params[param_rad]))
 
+    @noting_failure
     async def set_pose(self, memory):
         """Set the sweep's pose on the robot if it is certain enough (localize_max_std_m); otherwise
         the odometry estimate stays."""

@@ -1,4 +1,6 @@
-"""Messages between the hazard-detection task and its Cloud Agent."""
+"""Messages between the hazard-detection task and its Cloud Agent, and the data of its reports."""
+from typing import Literal
+
 from ontology.registry import Action, Content, action
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.home import LandmarkSpec
@@ -50,3 +52,16 @@ class SolvePose(Action):
     observations: list[Observation]
     landmarks: dict[str, LandmarkSpec]
     prior: Pose2D | None = None  # current estimate: picks between a single code's ambiguous poses
+
+
+class HazardReport(Content):
+    """What the task found at one hazard: the data of its report to the Core (`data["hazard"]`; the
+    report's text says the same to the user), read back by scenarios/hazard.py to score the run."""
+
+    id: str
+    type: Literal["door", "lamp"]
+    state: Literal["open", "closed", "on", "off", "unknown"]  # unknown: not reached or not checked
+    hazard: bool | None  # None when unknown
+    angle_deg: float | None = None  # doors: the estimated opening angle
+    method: str | None = None  # doors: how the angle was estimated
+    light_level: float | None = None  # lamps

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import math
 
-from rapps.sdk import FSM, ErrorCode, RequestFailed, Step, Task
+from rapps.sdk import FSM, ErrorCode, RequestError, RequestFailed, Step, Task
 
 from .localize import Localizer
-from .models import ONTOLOGY
+from .models import ONTOLOGY, HazardReport
 
 PLAN_FOUND = 1
 FINAL_LEG_SLACK = 1.25  # the whole rest of the path is one leg when at most this many legs long
@@ -146,14 +146,19 @@ class HazardTask(Task):
     async def turn(self, memory):
         memory["leg_final"] = False
         memory["leg_turned"] = True
-        await self.robot.move_to(x=0.0, y=0.0, theta=memory["turn"], _timeout=60.0)
+        try:
+            await self.robot.move_to(x=0.0, y=0.0, theta=memory["turn"], _timeout=60.0)
+        except RequestError as e:
+            memory["error"] = f"(motion failed: {e.reason})"
+            raise
 
     async def move_leg(self, memory) -> str:
         leg = memory["leg"]
         try:
             await self.robot.move_along_path(poses=leg, _timeout=900.0)
-        except RequestFailed as e:
-            if e.code != ErrorCode.BLOCKED or memory["blocked"] >= MAX_BLOCKED:
+        except RequestError as e:
+            blocked = isinstance(e, RequestFailed) and e.code == ErrorCode.BLOCKED
+            if not blocked or memory["blocked"] >= MAX_BLOCKED:
                 memory["error"] = f"(motion failed: {e.reason})"
                 raise
             memory["blocked"] += 1
@@ -162,7 +167,11 @@ class HazardTask(Task):
 
     async def back_off(self, memory):
         memory["leg_final"] = False
-        await self.robot.move_to(x=-float(self.params["back_off_m"]), _timeout=60.0)
+        try:
+            await self.robot.move_to(x=-float(self.params["back_off_m"]), _timeout=60.0)
+        except RequestError as e:
+            memory["error"] = f"(motion failed: {e.reason})"
+            raise
 
     async def arrived(self, memory):
         pass
@@ -173,25 +182,25 @@ class HazardTask(Task):
     # -- s5: look and check -----------------------------------------------------------------
     async def check_hazard(self, memory):
         h = memory["hazard"]
-        await self.robot.look_at_point(x=h.look_at[0], y=h.look_at[1], z=h.look_at[2])
         res = self.params["check_resolution"] if h.type == "door" else "320x240"
-        image = await self.robot.capture_image(resolution=res)
         try:
+            await self.robot.look_at_point(x=h.look_at[0], y=h.look_at[1], z=h.look_at[2])
+            image = await self.robot.capture_image(resolution=res)
             result = await self._check(h, image, res)
-        except RequestFailed as e:
+        except RequestError as e:
             memory["error"] = f"(check failed: {e.reason})"
             raise
         memory["results"].append(result)
-        await self.report(describe(result), hazard=result)
+        await self.report(describe(result), hazard=result.model_dump())
 
-    async def _check(self, h, image, res) -> dict:
+    async def _check(self, h, image, res) -> HazardReport:
         if h.type == "door":
             return await self.check_door(h, image, res)
         reply = await self.platform.hazard_detection_light_check(image_b64=image.data_b64)
-        return {"id": h.id, "type": "lamp", "state": "on" if reply.lamp_on else "off",
-                "light_level": reply.light_level, "hazard": reply.lamp_on}
+        return HazardReport(id=h.id, type="lamp", state="on" if reply.lamp_on else "off",
+                            light_level=reply.light_level, hazard=reply.lamp_on)
 
-    async def check_door(self, h, image, res) -> dict:
+    async def check_door(self, h, image, res) -> HazardReport:
         info = await self.robot.get_camera_info(resolution=res)
         tf = await self.robot.get_transform(chain="camera", space="global")
         K = info.K
@@ -199,34 +208,37 @@ class HazardTask(Task):
                         hinge=h.door.hinge, closed_yaw_deg=h.door.closed_yaw_deg, width_m=h.door.width_m)
         reply = await self.platform.hazard_detection_door_check(image_b64=image.data_b64, geometry=geometry)
         is_open = reply.door_angle > float(self.params["door_open_deg"])
-        return {"id": h.id, "type": "door", "state": "open" if is_open else "closed",
-                "angle_deg": reply.door_angle, "method": reply.method, "hazard": is_open}
+        return HazardReport(id=h.id, type="door", state="open" if is_open else "closed",
+                            angle_deg=reply.door_angle, method=reply.method, hazard=is_open)
 
     async def unreachable(self, memory):
+        """s5 failed on the way or at the check: the hazard is reported unknown, with the reason the
+        failing step left in memory["error"] (planning, motion, localization or the check)."""
         h = memory["hazard"]
         reason = memory.pop("error", "")  # this hazard's, never a stale one
-        result = {"id": h.id, "type": h.type, "state": "unknown", "hazard": None}
+        result = HazardReport(id=h.id, type=h.type, state="unknown", hazard=None)
         memory["results"].append(result)
-        await self.report(describe(result) + (f" {reason}" if reason else ""), hazard=result)
+        await self.report(describe(result) + (f" {reason}" if reason else ""), hazard=result.model_dump())
 
     # -- s6/s7 ------------------------------------------------------------------------------
     async def report_hazards(self, memory):
         results = memory["results"]
-        found = [r for r in results if r["hazard"]]
+        found = [r for r in results if r.hazard]
         if found:
-            text = "Hazards found: " + "; ".join(
-                f"the {r['type']} {r['id']} is {r['state']}" for r in found) + "."
+            text = "Hazards found: " + "; ".join(f"the {r.type} {r.id} is {r.state}" for r in found) + "."
         else:
             text = f"No hazards: all {len(results)} checked doors are closed and lamps off."
-        await self.report(text, hazards=results, localizations=memory.get("localizations", []))
+        await self.report(text, hazards=[r.model_dump() for r in results],
+                          localizations=memory.get("localizations", []))
 
     async def done(self, memory):
         await self.say("Hazard check finished.")
 
 
-def describe(r: dict) -> str:
-    """One line per hazard; the scenario parses it: 'Hazard <id> (<type>): <state>[, <n> degrees]'."""
-    text = f"Hazard {r['id']} ({r['type']}): {r['state']}"
-    if r["type"] == "door" and r.get("angle_deg") is not None:
-        text += f", {r['angle_deg']:.1f} degrees"
+def describe(r: HazardReport) -> str:
+    """One line per hazard for the user: 'Hazard <id> (<type>): <state>[, <n> degrees].' (the
+    report's data carries the same as a HazardReport)."""
+    text = f"Hazard {r.id} ({r.type}): {r.state}"
+    if r.type == "door" and r.angle_deg is not None:
+        text += f", {r.angle_deg:.1f} degrees"
     return text + "."

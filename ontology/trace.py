@@ -1,0 +1,219 @@
+"""The records of a run trace (agents/tracing.py writes them, one JSON object a line).
+
+Every record has `t` (wall-clock seconds), `kind`, `pid` (the writing process) and, except for
+records of no agent, `agent` (the writer's address). The kinds:
+
+  message    one per message and side: dir=send|recv, sender, receiver, performative (or "chat"),
+             conversation_id, ontology, action, message_id, in_reply_to, path=direct|xmpp, size,
+             content (secrets masked, capped)
+  agent      event=started|stopped|start-failed|disconnected|reconnected
+  behaviour  event=activated|deactivated, behaviour
+  structure  event=StructureEvent (below), then the event's own fields (rapp, dynamic, cloud, ...)
+  state      event=enter, fsm, state (FSM states of embodied behaviours)
+  timeout    peer, action, conversation_id, timeout_s (a request not answered in time)
+  retry      peer, action, attempt (an idempotent request sent again)
+  resend     peer, conversation_id (a request sent again after reconnecting)
+  dropped    sender, reason[, performative, conversation_id] (a message nobody took)
+  duplicate  sender, conversation_id, answered (a request received twice)
+
+Writing is not validated (a record is written for every message); `parse_record` validates a
+record when a trace is read (agents.tracing.read_trace(..., validate=True)).
+"""
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+
+from .acl import OPENING, Performative
+
+CHAT = "chat"  # the performative field of a plain chat message (no FIPA performative)
+
+
+class RecordKind(StrEnum):
+    MESSAGE = "message"
+    AGENT = "agent"
+    BEHAVIOUR = "behaviour"
+    STRUCTURE = "structure"
+    STATE = "state"
+    TIMEOUT = "timeout"
+    RETRY = "retry"
+    RESEND = "resend"
+    DROPPED = "dropped"
+    DUPLICATE = "duplicate"
+
+
+class StructureEvent(StrEnum):
+    """Every `event` of a structure record the agents write (record_structure); tests/
+    test_trace_records.py fails on a record_structure("...") literal that is not here."""
+
+    # the Core
+    INIT = "init"  # its FSM starts
+    REGISTER = "register"  # robot registered with the Platform/Store (also written by them)
+    ACCOUNTS_SWEPT = "accounts-swept"  # leftover XMPP accounts of dead agents deleted (Core, Platform)
+    VOCABULARY = "vocabulary"  # the RApps and keywords it understands
+    CATALOGUE_CHANGED = "catalogue-changed"  # the Store's catalogue changed
+    COMMAND = "command"  # the owner's command text
+    DOWNLOAD = "download"  # a package downloaded (Core) / served (Store)
+    SPAWN = "spawn"  # a Dynamic Agent started
+    HANDOFF = "handoff"  # supervision handed to the Dynamic Agent
+    STATUS = "status"  # the Dynamic Agent's task status
+    ENDED = "ended"  # the task ended (finished, error, lost)
+    DESTROY = "destroy"  # the Dynamic Agent stopped
+    RESUME = "resume"  # the Core supervises again
+    ACCOUNT_DELETED = "account-deleted"  # a Dynamic/Cloud Agent's XMPP account deleted
+    ACCOUNT_KEPT = "account-kept"  # ... or not (deletion failed)
+    ESTOP = "estop"  # emergency stop
+    ESTOP_RELEASED = "estop-released"
+    # the Store
+    PUBLISH = "publish"  # a package published
+    REFUSED = "refused"  # an operation refused to a caller without the right (Store, Platform)
+    # the Platform
+    CLOUD_SPAWN = "cloud-spawn"  # a Cloud Agent started (or restarted)
+    CLOUD_LOST = "cloud-lost"  # a Cloud Agent's process died
+    CLOUD_DESTROY = "cloud-destroy"  # a Cloud Agent stopped
+    # the Dynamic Agent
+    CLOUD_DOWN = "cloud-down"  # its Cloud Agent is gone (restarted or not)
+
+
+class AgentEvent(StrEnum):
+    STARTED = "started"
+    STOPPED = "stopped"
+    START_FAILED = "start-failed"
+    DISCONNECTED = "disconnected"
+    RECONNECTED = "reconnected"
+
+
+class BehaviourEvent(StrEnum):
+    ACTIVATED = "activated"
+    DEACTIVATED = "deactivated"
+
+
+class Direction(StrEnum):
+    SEND = "send"
+    RECV = "recv"
+
+
+class DeliveryPath(StrEnum):
+    DIRECT = "direct"  # in-process, from agent to agent
+    XMPP = "xmpp"  # through the XMPP server
+
+
+# as the trace spells them (the views compare strings): the answers that close a request (agree
+# only advances it), the requests the trace views expect such an answer to, and what the HTML view
+# draws as an opening arrow
+FINAL_ANSWERS = frozenset(p.value for p in (Performative.INFORM, Performative.FAILURE, Performative.REFUSE,
+                                            Performative.NOT_UNDERSTOOD))
+EXPECT_ANSWER = frozenset(p.value for p in (Performative.REQUEST, Performative.QUERY_REF))
+OPENING_OR_CHAT = [p.value for p in Performative if p in OPENING] + [CHAT]
+
+
+class _Record(BaseModel):
+    # a field added to a record later does not make older readers drop it; a missing one does
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    t: float
+    pid: int
+    agent: str = ""
+
+
+class MessageRecord(_Record):
+    """A message as one side saw it (every message is traced by its sender and its receiver,
+    except the chat of an external XMPP client: by one side only)."""
+
+    kind: Literal[RecordKind.MESSAGE]
+    dir: Direction
+    agent: str
+    sender: str
+    receiver: str
+    performative: Performative | Literal["chat"]
+    conversation_id: str
+    ontology: str
+    action: str
+    message_id: str
+    in_reply_to: str
+    path: DeliveryPath
+    size: int
+    content: str
+
+
+class StructureRecord(_Record):
+    """A change of the system's structure or supervision; its other fields depend on the event."""
+
+    kind: Literal[RecordKind.STRUCTURE]
+    event: StructureEvent
+    agent: str
+
+
+class AgentRecord(_Record):
+    kind: Literal[RecordKind.AGENT]
+    event: AgentEvent
+    agent: str
+
+
+class BehaviourRecord(_Record):
+    kind: Literal[RecordKind.BEHAVIOUR]
+    event: BehaviourEvent
+    agent: str
+    behaviour: str
+
+
+class StateRecord(_Record):
+    kind: Literal[RecordKind.STATE]
+    event: Literal["enter"]
+    fsm: str
+    state: str
+
+
+class TimeoutRecord(_Record):
+    kind: Literal[RecordKind.TIMEOUT]
+    peer: str
+    action: str
+    conversation_id: str
+    timeout_s: float
+
+
+class RetryRecord(_Record):
+    kind: Literal[RecordKind.RETRY]
+    peer: str
+    action: str
+    attempt: int
+
+
+class ResendRecord(_Record):
+    kind: Literal[RecordKind.RESEND]
+    peer: str
+    conversation_id: str
+
+
+class DroppedRecord(_Record):
+    kind: Literal[RecordKind.DROPPED]
+    sender: str
+    reason: str
+
+
+class DuplicateRecord(_Record):
+    kind: Literal[RecordKind.DUPLICATE]
+    sender: str
+    conversation_id: str
+    answered: bool
+
+
+TraceRecord = Annotated[Union[MessageRecord, StructureRecord, AgentRecord, BehaviourRecord, StateRecord,
+                              TimeoutRecord, RetryRecord, ResendRecord, DroppedRecord, DuplicateRecord],
+                        Field(discriminator="kind")]
+_ADAPTER: TypeAdapter = TypeAdapter(TraceRecord)
+
+
+def parse_record(rec: dict[str, Any]) -> TraceRecord:
+    """The typed record; pydantic.ValidationError (a ValueError) when `rec` is not one."""
+    return _ADAPTER.validate_python(rec)
+
+
+def is_valid(rec: Any) -> bool:
+    try:
+        _ADAPTER.validate_python(rec)
+    except ValueError:
+        return False
+    return True

@@ -1,0 +1,160 @@
+"""The hazard task's reports: a checked or unreachable hazard is reported as text for the user and as
+a HazardReport in the report's data; an unreachable one says why (planning, motion, localization or
+the check failed). The task's own steps and FSMs run; only the agents it talks to are faked."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from agents.errors import RequestFailed, RequestTimeout
+from behaviours.behaviour import Context
+from ontology import core as C
+from ontology.errors import ErrorCode
+from ontology.manifest import load_manifest
+from ontology.registry import Done
+from ontology.robot import CameraInfo, JointAngles
+from ontology.services.common import Pose2D
+from ontology.services.home import DoorShape, HazardSpec, HomeInfo
+from ontology.services.navigation import PlanPathReply
+from ontology.spawn import RobotInfo
+from rapps.hazard_detection.hazard_detection.models import HazardReport
+from rapps.hazard_detection.hazard_detection.task import HazardTask, describe
+
+RAPP = Path(__file__).resolve().parents[2] / "rapps" / "hazard_detection"
+DOOR = HazardSpec(id="d1", type="door", stand=Pose2D(x=0.5, y=0.0, theta=0.0), look_at=[1.0, 0.0, 0.5],
+                  door=DoorShape(hinge=[1.0, -0.45], closed_yaw_deg=90.0))
+
+
+class FakeRuntime:
+    """The Dynamic Agent as the task sees it, its requests to the Core and the Platform answered by
+    `answers` (action name -> reply, or an exception to raise); unnamed actions get a default reply."""
+
+    core, platform, token, address = "core@localhost", "platform@localhost", "token", "dyn@localhost"
+
+    def __init__(self, **answers):
+        self.manifest = load_manifest(RAPP)
+        self.params = dict(self.manifest.params)
+        self.robot_info = RobotInfo(robot_id="nao1", robot_type="nao")
+        self.answers = answers
+        self.reports: list[C.Report] = []
+
+    async def request(self, to, content, timeout=None):
+        if isinstance(content, C.Report):
+            self.reports.append(content)
+            return Done()
+        answer = self.answers.get(content.action_name)
+        if isinstance(answer, Exception):
+            raise answer
+        if answer is not None:
+            return answer
+        if content.reply_model is Pose2D:
+            return Pose2D(x=0.0, y=0.0, theta=0.0)
+        return content.reply_model()
+
+
+def plan(found: bool = True) -> PlanPathReply:
+    if not found:
+        return PlanPathReply(plan_found=0, reason="the goal is inside an obstacle")
+    return PlanPathReply(plan_found=1, path=[Pose2D(x=0.0, y=0.0, theta=0.0), Pose2D(x=0.5, y=0.0, theta=0.0)])
+
+
+def memory_at_start() -> dict:
+    return {"home": HomeInfo(home_id="home", map_id="m"), "hazard": DOOR, "results": [], "replans": 0,
+            "blocked": 0, "localizations": [{"x": 0.0, "y": 0.0, "theta": 0.0}]}
+
+
+async def go_to_hazard(runtime: FakeRuntime) -> tuple[HazardTask, dict]:
+    """s4/s5 as the task's FSM runs them: navigation (its own sub-FSM, with the re-localization
+    sub-FSM), and when it fails s5_unreachable, which reports."""
+    task = HazardTask(runtime)
+    top = task.build()
+    assert any(t.source == "s4_5_go_to_hazard" and t.target == "s5_unreachable" and t.on_error
+               for t in top.transitions)
+    memory = memory_at_start()
+    outcome = await task.build_navigation().run(Context(memory=memory))
+    assert outcome.error, "the navigation was meant to fail"
+    await task.unreachable(memory)
+    return task, memory
+
+
+def the_report(runtime: FakeRuntime) -> tuple[str, HazardReport]:
+    assert len(runtime.reports) == 1
+    report = C.Report.model_validate_json(runtime.reports[0].model_dump_json())  # as the Core gets it
+    return report.text, HazardReport.model_validate(report.data["hazard"])
+
+
+async def test_no_path_is_said_in_the_report():
+    runtime = FakeRuntime(path_planning_plan_path_2d=plan(found=False))
+    _, memory = await go_to_hazard(runtime)
+    text, data = the_report(runtime)
+    assert text == "Hazard d1 (door): unknown. (no path: the goal is inside an obstacle)"
+    assert data == HazardReport(id="d1", type="door", state="unknown", hazard=None)
+    assert "error" not in memory  # said once, for this hazard only
+
+
+async def test_failed_motion_is_said_in_the_report():
+    runtime = FakeRuntime(path_planning_plan_path_2d=plan(),
+                          move_along_path=RequestFailed("a wheel is stuck", code=ErrorCode.ERROR))
+    await go_to_hazard(runtime)
+    text, data = the_report(runtime)
+    assert text == "Hazard d1 (door): unknown. (motion failed: a wheel is stuck)"
+    assert data.state == "unknown" and data.hazard is None
+
+
+async def test_failed_localization_is_said_in_the_report():
+    # the leg is walked; re-localizing at its end, the head does not move
+    runtime = FakeRuntime(path_planning_plan_path_2d=plan(),
+                          get_joint_angles=JointAngles(joints=["HeadYaw", "HeadPitch"], angles=[0.0, 0.0]),
+                          get_camera_info=CameraInfo(camera="top", width=4, height=3,
+                                                     K=[[2.0, 0, 2.0], [0, 2.0, 1.5], [0, 0, 1]],
+                                                     P=[[2.0, 0, 2.0, 0], [0, 2.0, 1.5, 0], [0, 0, 1, 0]],
+                                                     hfov_deg=90.0, vfov_deg=73.7),
+                          move_joint=RequestTimeout("no answer to move_joint within 30s"))
+    await go_to_hazard(runtime)
+    text, _ = the_report(runtime)
+    assert text == "Hazard d1 (door): unknown. (localization failed: no answer to move_joint within 30s)"
+
+
+async def test_failed_check_is_said_in_the_report():
+    runtime = FakeRuntime(capture_image=RequestFailed("camera busy", code=ErrorCode.BUSY))
+    task, memory = HazardTask(runtime), memory_at_start()
+    with pytest.raises(RequestFailed):
+        await task.check_hazard(memory)
+    await task.unreachable(memory)
+    text, _ = the_report(runtime)
+    assert text == "Hazard d1 (door): unknown. (check failed: camera busy)"
+
+
+def test_report_text_and_data_say_the_same():
+    door = HazardReport(id="d1", type="door", state="open", hazard=True, angle_deg=37.26, method="edges")
+    assert describe(door) == "Hazard d1 (door): open, 37.3 degrees."
+    lamp = HazardReport(id="l1", type="lamp", state="off", hazard=False, light_level=0.1)
+    assert describe(lamp) == "Hazard l1 (lamp): off."
+    assert HazardReport.model_validate(door.model_dump()) == door
+
+
+def test_the_scenario_reads_the_reports_data_from_the_trace():
+    """scenarios/hazard.py scores the data of the reports the Core received (its side of the trace);
+    what it reads is what the chat told the user."""
+    from agents.tracing import cap
+    from scenarios.hazard import hazard_reports, parse_reports, reported
+
+    found = [HazardReport(id="d1", type="door", state="open", hazard=True, angle_deg=37.26, method="edges"),
+             HazardReport(id="l1", type="lamp", state="unknown", hazard=None)]
+    summary = C.Report(text="Hazards found: the door d1 is open.", data={"hazards": [f.model_dump() for f in found],
+                                                                            "localizations": [{"x": 1.0}] * 200})
+    reports = [C.Report(text=describe(f), data={"hazard": f.model_dump()}) for f in found] + [summary]
+
+    def received(report: C.Report, agent: str = "core@localhost") -> dict:
+        body = report.model_dump_json()
+        return {"t": 1.0, "kind": "message", "pid": 1, "dir": "recv", "agent": agent, "sender": "dyn@localhost",
+                "receiver": agent, "performative": "request", "conversation_id": "c-1", "ontology": "core",
+                "action": "report", "message_id": "m-1", "in_reply_to": "", "path": "xmpp", "size": len(body),
+                "content": cap(body)}
+
+    records = [received(r) for r in reports] + [received(reports[0], agent="core-other@localhost")]
+    assert records[2]["content"].endswith("chars]")  # the long summary is capped in the trace: skipped
+    assert hazard_reports(records, "core@localhost") == found
+    assert reported(found) == parse_reports([r.text for r in reports]) == {
+        "d1": {"state": "open", "angle": 37.3}, "l1": {"state": "unknown", "angle": None}}
