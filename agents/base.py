@@ -31,13 +31,13 @@ from xmpp_server.client_cleanup import end_filter_task
 from xmpp_server.compat import install_agent_patches
 from xmpp_server.ports import free_port
 from xmpp_server.settings import XmppSettings
+from ontology.errors import ErrorCode
 
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, make_message, reply_to
 from .stanza import message_xml, read_message
 from .tracing import cap, tracer_for
-from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.agent")
 _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)

@@ -6,12 +6,12 @@ import asyncio
 from pathlib import Path
 
 from ontology.manifest import Manifest
+from ontology.errors import ErrorCode
 
 from .base import RappAgent
 from .errors import Refusal
 from .responder import Responder
 from .runtime import load_entry_point
-from ontology.errors import ErrorCode
 
 
 class CloudAgent(RappAgent):

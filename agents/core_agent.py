@@ -43,6 +43,7 @@ from ontology.spawn import RobotInfo, SpawnSpec
 from robots.interface import check_robot
 from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
+from ontology.errors import ErrorCode
 
 from .base import RappAgent
 from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template
@@ -56,7 +57,6 @@ from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spa
 from .sandbox import Sandbox
 from .responder import Responder
 from .store_client import download_package
-from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.core")
 HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 2 s

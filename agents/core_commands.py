@@ -7,12 +7,12 @@ from typing import TYPE_CHECKING
 import ontology.robot  # also registers the robot-API models the command server serves
 from ontology.registry import actions
 from ontology.robot_actions import facts
+from ontology.errors import ErrorCode
 
 from .errors import Failure, Refusal
 from .locks import LockError, ResourceLocks, device_of
 from .messages import bare
 from .responder import Responder
-from ontology.errors import ErrorCode
 
 if TYPE_CHECKING:
     from robots.api import RobotAPI

@@ -22,6 +22,7 @@ from ontology.spawn import SpawnSpec
 from xmpp_server.probe import LoginError
 from ontology import platform as P
 from ontology.registry import Done, actions
+from ontology.errors import ErrorCode
 
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError
@@ -32,7 +33,6 @@ from .identity import EphemeralAccounts, Identity
 from .messages import bare
 from .platform_users import DirectoryError, TokenInfo, UserDirectory
 from .sandbox import Sandbox
-from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.platform")
 # what every RApp token may call besides the services its manifest declares

@@ -19,9 +19,9 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from ontology.errors import ErrorCode
 
 from .store_repository import _check_password, hash_password
-from ontology.errors import ErrorCode
 
 _USER = re.compile(r"[A-Za-z0-9._@-]{1,64}")
 _SCHEMA = """

@@ -26,10 +26,10 @@ from ontology import acl
 from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, decode_request
+from ontology.errors import ErrorCode
 
 from .errors import Failure, Refusal
 from .messages import AclInfo, bare, copy_message, reply_to
-from ontology.errors import ErrorCode
 
 log = logging.getLogger("rapp.responder")
 KEEP_ANSWERS = 4096  # conversations whose final answer a responder keeps for a resent request

@@ -15,12 +15,12 @@ from ontology.acl import Performative
 from ontology.platform import VerifyToken
 from ontology.registry import Done
 from ontology.chunks import ChunkError, Reassembler, split_chunks
+from ontology.errors import ErrorCode
 
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError
 from .responder import Responder
 from .store_repository import StoreError, StoreRepository
-from ontology.errors import ErrorCode
 
 UPLOAD_TTL_S = 300.0
 MAX_SUBSCRIBERS = 1000

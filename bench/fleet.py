@@ -17,6 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ontology.trace import FINAL_ANSWERS
+
 from .common import log, metric, ms, percentile, quiet_logs, ratio
 
 GOAL = 20
@@ -31,7 +33,7 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
             continue
         if r["dir"] == "send" and r["performative"] == "request":
             sends[r["conversation_id"]] = r
-        elif r["dir"] == "recv" and r["performative"] in ("inform", "refuse", "failure", "not-understood"):
+        elif r["dir"] == "recv" and r["performative"] in FINAL_ANSWERS:
             answers.setdefault(r["conversation_id"], r)
     lat = {"platform": [], "robot": [], "other": []}
     missing, lost_status = [], []

@@ -75,18 +75,13 @@ class Bench:
         await self.user.wait_for(lambda t: match in t, timeout=timeout, start=start)
         return next(t for t, _, text in self.user.received[start:] if match in text)
 
-    async def answered_after(self, back_at: float, sent_at: float, start: int) -> float:
-        t = await self.message("Sorry", start)
-        return t - max(back_at, sent_at)
-
     async def command_answered(self, report_start: int, report: str) -> tuple[float, float]:
         """Send a command as soon as the failure report arrives; (report time, answer latency)."""
         told = await self.message(report, report_start)
         start = len(self.user.received)
         sent = time.time()
         await self.user.say(self.core.address, UNKNOWN_COMMAND)
-        await self.message("Sorry", start)
-        answer = next(t for t, _, text in self.user.received[start:] if "Sorry" in text)
+        answer = await self.message("Sorry", start)
         resume = [r["t"] for r in self._records("structure", "resume", told - 5.0)]
         back = min(resume) if resume else sent
         await _wait(self.supervising, 10, "supervision back")
@@ -124,17 +119,16 @@ class Bench:
         await asyncio.to_thread(server.stop)
         await asyncio.sleep(0.5)
         await server.astart()
-        back = time.time()
+        back, back_mono = time.time(), time.monotonic()
         floor = await probe_login(settings.host, settings.port, settings.domain)
-        await _wait(lambda: self._records("agent", "reconnected", back - 0.1)
-                    and any(r["agent"] == self.core.address
-                            for r in self._records("agent", "reconnected", back - 0.1)), 30, "Core reconnected")
-        rec = next(r["t"] for r in self._records("agent", "reconnected", back - 0.1) if r["agent"] == self.core.address)
+        # the Core notes when its session is back (RappAgent._reconnect): no trace polling here
+        await _wait(lambda: getattr(self.core, "_reconnected_at", 0.0) > back_mono - 0.1, 30, "Core reconnected")
+        rec = back + (self.core._reconnected_at - back_mono)  # as wall-clock time
         await _wait(lambda: self.user.is_connected(), 30, "owner reconnected")
         start = len(self.user.received)
         sent = time.time()
         await self.user.say(self.core.address, UNKNOWN_COMMAND)
-        answered = await self.answered_after(rec, sent, start)
+        answered = await self.message("Sorry", start) - max(rec, sent)
         return max(0.0, rec - back), floor, answered
 
 

@@ -46,6 +46,8 @@ REPLY_BY = "reply_by"
 
 # performatives that open a conversation (the receiver must answer them)
 OPENING = {Performative.REQUEST, Performative.QUERY_REF, Performative.SUBSCRIBE}
+# answers that close a request (agree only advances it)
+FINAL = {Performative.INFORM, Performative.FAILURE, Performative.REFUSE, Performative.NOT_UNDERSTOOD}
 # performatives that may close or advance one (routed to the waiting initiator)
 ANSWERS = {
     Performative.AGREE,

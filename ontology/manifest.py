@@ -15,10 +15,10 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from .robot_actions import ROBOT_API_GROUPS  # the groups a Dynamic Agent may call on its Core Agent
+
 #: Robot types a RApp may target (one place; the Core/Store refuse anything else).
 ROBOT_TYPES: frozenset[str] = frozenset({"nao", "elektron"})
-#: Robot-API groups a Dynamic Agent may call on its Core Agent.
-ROBOT_API_GROUPS: frozenset[str] = frozenset({"communication", "vision", "navigation", "sensors"})
 #: Manifest file names looked up (in this order) in a source directory or an archive.
 MANIFEST_NAMES: tuple[str, ...] = ("manifest.yaml", "manifest.json")
 

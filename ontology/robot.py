@@ -10,11 +10,8 @@ from __future__ import annotations
 from pydantic import Field
 
 from .registry import Action, Content, Done, action, actions
-from .robot_actions import ACTION_FACTS, DEVICES, ActionFacts, facts
-from .services.common import Pose2D  # one Pose2D for robot and Platform messages
-
-# re-exported: robot messages use the Platform's pose model; the per-action facts live in robot_actions
-__all__ = ["Pose2D", "ACTION_FACTS", "DEVICES", "ActionFacts", "facts"]
+from .robot_actions import ACTION_FACTS
+from .services.common import Pose2D  # noqa: F401 - one Pose2D for robot and Platform messages
 
 ONTOLOGY = "robot"
 

@@ -26,7 +26,7 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
-from .acl import OPENING, Performative
+from .acl import FINAL, OPENING, Performative
 
 CHAT = "chat"  # the performative field of a plain chat message (no FIPA performative)
 
@@ -103,8 +103,7 @@ class DeliveryPath(StrEnum):
 # as the trace spells them (the views compare strings): the answers that close a request (agree
 # only advances it), the requests the trace views expect such an answer to, and what the HTML view
 # draws as an opening arrow
-FINAL_ANSWERS = frozenset(p.value for p in (Performative.INFORM, Performative.FAILURE, Performative.REFUSE,
-                                            Performative.NOT_UNDERSTOOD))
+FINAL_ANSWERS = frozenset(p.value for p in FINAL)
 EXPECT_ANSWER = frozenset(p.value for p in (Performative.REQUEST, Performative.QUERY_REF))
 OPENING_OR_CHAT = [p.value for p in Performative if p in OPENING] + [CHAT]
 

@@ -36,9 +36,10 @@ from typing import Any
 
 import numpy as np
 
+from ontology.errors import ErrorCode
+
 from .errors import RobotError, WorldClosed
 
-from ontology.errors import ErrorCode
 
 START_TIMEOUT = 60.0  # s for a render process to build its scene
 RENDER_TIMEOUT = 300.0  # s for one frame (1280x960 takes ~2 s on a loaded machine)

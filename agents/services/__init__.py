@@ -16,11 +16,11 @@ from typing import Callable
 
 import ontology.services as _models  # noqa: F401  (registers the actions)
 from ontology.registry import Action, Content, lookup
+from ontology.errors import ErrorCode
 
 from . import cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation, vision
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 @dataclass(frozen=True)

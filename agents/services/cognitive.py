@@ -9,10 +9,10 @@ import time
 from ontology.services.knowledge import (
     ChooseCognitiveTest, CognitiveHistory, CognitiveTest, GetHistory, RecordPerformance, ScoreRecord,
 )
+from ontology.errors import ErrorCode
 
 from .context import ServiceContext
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 class ExerciseStore:

@@ -9,10 +9,10 @@ import threading
 
 from ontology.registry import Done
 from ontology.services.email import EmailFetch, EmailList, EmailMessage, EmailSend
+from ontology.errors import ErrorCode
 
 from .context import ServiceContext
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 _lock = threading.Lock()
 USER_RE = re.compile(r"^[A-Za-z0-9_.-]+$")

@@ -17,11 +17,11 @@ import cv2
 import numpy as np
 
 from ontology.services.hazard import DoorAngle, DoorCheck, DoorGeometry, LightCheck, LightLevel
+from ontology.errors import ErrorCode
 
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
-from ontology.errors import ErrorCode
 
 
 def light_level(gray: np.ndarray) -> int:

@@ -4,10 +4,10 @@ from __future__ import annotations
 import threading
 
 from ontology.services.home import GetHomeInfo, HomeInfo, UploadHomeInfo
+from ontology.errors import ErrorCode
 
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 class HomeStore:

@@ -6,9 +6,9 @@ import binascii
 
 import cv2
 import numpy as np
+from ontology.errors import ErrorCode
 
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 def b64_bytes(text: str, field: str = "image") -> bytes:

@@ -8,10 +8,10 @@ from pathlib import Path
 from ontology.services.information import (
     CurrentWeather, Forecast, ForecastDay, NewsExplore, NewsReply, NewsStory, WeatherCurrent, WeatherForecast,
 )
+from ontology.errors import ErrorCode
 
 from .context import ServiceContext
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 class WeatherProvider(ABC):

@@ -12,10 +12,10 @@ import re
 from functools import lru_cache
 
 from ontology.services.interpretation import InterpretCommand, Interpretation
+from ontology.errors import ErrorCode
 
 from .context import DATA_DIR, ServiceContext
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 @lru_cache(maxsize=1)

@@ -6,10 +6,10 @@ import json
 from functools import lru_cache
 
 from ontology.services.knowledge import ClassList, IsSubclass, IsSubclassOf, SubclassesOf, SuperclassesOf
+from ontology.errors import ErrorCode
 
 from .context import DATA_DIR, ServiceContext
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 @lru_cache(maxsize=1)

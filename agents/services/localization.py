@@ -15,11 +15,11 @@ from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.localization import (
     ComputeGlobalPose, Landmark, QRDetect, QRDetection, QRDetections,
 )
+from ontology.errors import ErrorCode
 
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
-from ontology.errors import ErrorCode
 
 
 def camera_matrix(cam: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:

@@ -12,9 +12,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+from ontology.errors import ErrorCode
 
 from .errors import ServiceError
-from ontology.errors import ErrorCode
 
 
 @dataclass(eq=False)

@@ -26,11 +26,11 @@ from ontology.services.vision import (
     HumanDetect,
     LearnObject,
 )
+from ontology.errors import ErrorCode
 
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
-from ontology.errors import ErrorCode
 
 _local = threading.local()  # OpenCV detectors are not shared between threads
 
