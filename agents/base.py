@@ -32,6 +32,7 @@ from xmpp_server.compat import install_agent_patches
 from xmpp_server.ports import free_port
 from xmpp_server.settings import XmppSettings
 from ontology.errors import ErrorCode
+from ontology.trace import RecordKind
 
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
                      RequestTimeout)
@@ -86,13 +87,13 @@ class RappAgent(Agent):
         try:
             await asyncio.wait_for(super().start(auto_register=reg), self.settings.start_timeout)
         except asyncio.TimeoutError:
-            self.tracer.record("agent", event="start-failed", agent=self.address, reason="timeout")
+            self.tracer.record(RecordKind.AGENT, event="start-failed", agent=self.address, reason="timeout")
             await self._abort_connection()
             raise AgentStartError(
                 f"{self.address} could not log in to {self.settings.host}:{self.settings.port} "
                 f"within {self.settings.start_timeout:.0f}s (is the XMPP server running?)") from None
         except Exception as e:
-            self.tracer.record("agent", event="start-failed", agent=self.address, reason=str(e))
+            self.tracer.record(RecordKind.AGENT, event="start-failed", agent=self.address, reason=str(e))
             await self._abort_connection()
             raise AgentStartError(f"{self.address} could not start: {type(e).__name__}: {e}") from e
         web = {}
@@ -105,14 +106,14 @@ class RappAgent(Agent):
         for msg, info in early:  # e.g. the owner's chat to a Core restarted a moment ago
             self._deliver(msg, info)
         self.client.add_event_handler("disconnected", self._on_disconnected)
-        self.tracer.record("agent", event="started", agent=self.address, cls=type(self).__name__, **web)
+        self.tracer.record(RecordKind.AGENT, event="started", agent=self.address, cls=type(self).__name__, **web)
 
     # -- reconnection -----------------------------------------------------------------------
     def _on_disconnected(self, _event) -> None:
         if getattr(self, "_stopping", True) or getattr(self, "_reconnecting", False):
             return
         self._reconnecting = True
-        self.tracer.record("agent", event="disconnected", agent=self.address)
+        self.tracer.record(RecordKind.AGENT, event="disconnected", agent=self.address)
         self.submit(self._reconnect())
 
     async def _reconnect(self) -> None:
@@ -127,7 +128,7 @@ class RappAgent(Agent):
                 try:
                     await asyncio.wait_for(started, max(2.0, delay))
                     self._reconnected_at = time.monotonic()
-                    self.tracer.record("agent", event="reconnected", agent=self.address)
+                    self.tracer.record(RecordKind.AGENT, event="reconnected", agent=self.address)
                     self._resend_pending()
                     return
                 except asyncio.TimeoutError:
@@ -157,7 +158,7 @@ class RappAgent(Agent):
                 return
             for conv in waiting:
                 msg = self._outbox[conv]
-                self.tracer.record("resend", agent=self.address, peer=str(msg.to), conversation_id=conv)
+                self.tracer.record(RecordKind.RESEND, agent=self.address, peer=str(msg.to), conversation_id=conv)
                 self.client.send(message_xml(msg))
             await asyncio.sleep(RESEND_EVERY_S)
 
@@ -182,7 +183,7 @@ class RappAgent(Agent):
         await super().stop()
         await end_filter_task(self.client)
         self._container_real.unregister(str(self.jid))
-        self.tracer.record("agent", event="stopped", agent=self.address, cls=type(self).__name__)
+        self.tracer.record(RecordKind.AGENT, event="stopped", agent=self.address, cls=type(self).__name__)
 
     # -- sending ----------------------------------------------------------------------------
     async def send(self, msg: Message) -> None:
@@ -258,7 +259,7 @@ class RappAgent(Agent):
             msg.body = ""
             await self.send(reply_to(msg, Reason(reason=reason, code=ErrorCode.TOO_LARGE), Performative.NOT_UNDERSTOOD))
         else:
-            self.tracer.record("dropped", agent=self.address, sender=bare(msg.sender), reason=reason)
+            self.tracer.record(RecordKind.DROPPED, agent=self.address, sender=bare(msg.sender), reason=reason)
 
     def not_serving_reason(self, info: AclInfo) -> str:
         """Why a known action is refused when no active behaviour serves it (override to explain)."""
@@ -268,7 +269,7 @@ class RappAgent(Agent):
         """A non-request message no behaviour took (late answer, chat text). Kept, logged."""
         self.unhandled.append(msg)
         del self.unhandled[:-200]
-        self.tracer.record("dropped", agent=self.address, sender=bare(msg.sender),
+        self.tracer.record(RecordKind.DROPPED, agent=self.address, sender=bare(msg.sender),
                            performative=info.performative, conversation_id=info.conversation_id,
                            reason="no behaviour matched")
 
@@ -288,7 +289,7 @@ class RappAgent(Agent):
             except RequestTimeout:
                 if attempt == retries:
                     raise
-                self.tracer.record("retry", agent=self.address, peer=to, action=content.action_name,
+                self.tracer.record(RecordKind.RETRY, agent=self.address, peer=to, action=content.action_name,
                                    attempt=attempt + 1)
         raise AssertionError("unreachable")
 
@@ -330,7 +331,7 @@ class RappAgent(Agent):
                        Performative.NOT_UNDERSTOOD.value: NotUnderstood}.get(perf, RequestFailed)
                 raise err(reason.reason, code=reason.code, peer=to, action=name)
         except asyncio.TimeoutError:
-            self.tracer.record("timeout", agent=self.address, peer=to, action=name,
+            self.tracer.record(RecordKind.TIMEOUT, agent=self.address, peer=to, action=name,
                                conversation_id=conv, timeout_s=timeout)
             raise RequestTimeout(f"{to} did not answer {name} within {timeout:g}s",
                                  code=ErrorCode.TIMEOUT, peer=to, action=name) from None
@@ -359,7 +360,7 @@ class RappAgent(Agent):
             return
         self._named[name] = behaviour
         self.add_behaviour(behaviour, template)
-        self.tracer.record("behaviour", event="activated", agent=self.address, behaviour=name)
+        self.tracer.record(RecordKind.BEHAVIOUR, event="activated", agent=self.address, behaviour=name)
 
     def deactivate(self, name: str) -> None:
         behaviour = self._named.pop(name, None)
@@ -367,7 +368,7 @@ class RappAgent(Agent):
             return
         if self.has_behaviour(behaviour):
             self.remove_behaviour(behaviour)
-        self.tracer.record("behaviour", event="deactivated", agent=self.address, behaviour=name)
+        self.tracer.record(RecordKind.BEHAVIOUR, event="deactivated", agent=self.address, behaviour=name)
         # requests already queued to it are re-routed, not lost
         queue = getattr(behaviour, "queue", None)
         while queue is not None and not queue.empty():
@@ -383,7 +384,7 @@ class RappAgent(Agent):
         return {n for n, b in self._named.items() if not b.is_killed()}
 
     def record_structure(self, event: str, **fields) -> None:
-        self.tracer.record("structure", event=event, agent=self.address, **fields)
+        self.tracer.record(RecordKind.STRUCTURE, event=event, agent=self.address, **fields)
 
     # -- tracing ----------------------------------------------------------------------------
     def _trace_message(self, direction: str, msg: Message, path: str) -> None:

@@ -44,6 +44,7 @@ from robots.interface import check_robot
 from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
+from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 
 from .base import RappAgent
 from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template
@@ -213,22 +214,18 @@ class CoreAgent(RobotCommands, RappAgent):
             return
         await super().on_unhandled(msg, info)
 
-    async def interpret(self, text: str) -> tuple[str, dict]:
+    async def interpret(self, text: str) -> Interpretation:
         words = re.findall(r"[\w'-]+", text.lower())
         if len(words) == 1 and words[0] not in self.vocabulary or not self.catalogue:
             await self.refresh_catalogue()  # a RApp published since s2
         if len(words) == 1 and words[0] in self.vocabulary:
-            return self.vocabulary[words[0]], {}
+            return Interpretation(rapp=self.vocabulary[words[0]], score=1.0, matched=words)
         if not self.catalogue:
             raise RequestFailed(f"no application for a {self.robot_type} robot is in the Store", code=ErrorCode.NO_RAPPS)
-        import ontology.services  # noqa: F401 - registers interpret_command
-        from ontology.registry import lookup
-        model = lookup(P.ONTOLOGY, "interpret_command")
-        rapps = [{"name": p.name, "keywords": p.keywords, "phrases": p.phrases,
-                  "robot_types": p.robot_types} for p in self.catalogue]
-        reply = await self.request(self.platform, model(token=await self.fresh_token(), text=text,
-                                                        robot_type=self.robot_type, rapps=rapps))
-        return reply.rapp, dict(reply.parameters)
+        rapps = [RAppDescription(name=p.name, keywords=p.keywords, phrases=p.phrases, robot_types=p.robot_types)
+                 for p in self.catalogue]
+        return await self.request(self.platform, InterpretCommand(token=await self.fresh_token(), text=text,
+                                                                  robot_type=self.robot_type, rapps=rapps))
 
     # -- s5 ------------------------------------------------------------------------------
     async def fetch_package(self, rapp: str) -> tuple[Package, bytes]:

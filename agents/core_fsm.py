@@ -65,7 +65,7 @@ class Interpret(CoreState):  # s4: isolated keyword -> RApp; a sentence -> Platf
     async def action(self):
         text = self.memory["command"]
         try:
-            rapp, params = await self.core.interpret(text)
+            found = await self.core.interpret(text)
         except RequestError as e:  # the Platform's reason names the command ("I did not understand ...")
             await self.core.tell_user(f"Sorry, {e.reason}" if "understand" in e.reason
                                       else f"Sorry, I did not understand \"{text}\": {e.reason}")
@@ -73,7 +73,7 @@ class Interpret(CoreState):  # s4: isolated keyword -> RApp; a sentence -> Platf
         except Exception as e:  # any failure reaches the user as one sentence
             await self.core.tell_user(f"Sorry, I could not interpret \"{text}\": {_why(e)}")
             raise
-        self.memory["rapp"], self.memory["params"] = rapp, params
+        self.memory["rapp"], self.memory["params"] = found.rapp, dict(found.parameters)
 
 
 class Download(CoreState):  # s5: fetch the package, check sha256 and signature

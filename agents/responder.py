@@ -27,6 +27,7 @@ from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, decode_request
 from ontology.errors import ErrorCode
+from ontology.trace import RecordKind
 
 from .errors import Failure, Refusal
 from .messages import AclInfo, bare, copy_message, reply_to
@@ -136,7 +137,7 @@ class Responder(CyclicBehaviour):
 
     def _repeat(self, key, msg: Message) -> asyncio.Future:
         answer = self._answers[key]
-        self.agent.tracer.record("duplicate", agent=self.agent.address, sender=key[0], conversation_id=key[1],
+        self.agent.tracer.record(RecordKind.DUPLICATE, agent=self.agent.address, sender=key[0], conversation_id=key[1],
                                  answered=answer is not None)
         if answer is None:  # still running: its answer goes out when it is done
             done = asyncio.get_running_loop().create_future()

@@ -10,9 +10,10 @@ nodes of figs 5 and 16 of paper 000).
     fsm.add_final("s7")
 
 After a state's behaviour ends, the transitions leaving it are tried in the order added; the first
-whose condition holds is taken. If none holds, the FSM runs its idle behaviour and tries again
-(paper 002: the idle behaviour applies when nothing else does) until `idle_limit` seconds pass,
-then it ends with an error. A final state ends the FSM with that state's outcome; an error outcome
+whose condition holds is taken. If none holds, the FSM ends at once with an error naming the state
+and its outcome; with `idle_limit` (seconds, None = forever) it first runs its idle behaviour and
+tries again until the limit (paper 002: the idle behaviour applies when nothing else does; the
+Core's FSM waits so). A final state ends the FSM with that state's outcome; an error outcome
 with no error transition ends the FSM with that error. The FSM is a Behaviour, so it nests.
 """
 from __future__ import annotations
@@ -38,9 +39,15 @@ class FSMError(Exception):
     pass
 
 
+def describe(outcome: Outcome) -> str:
+    """An outcome in a few words, for the reason of a failure."""
+    text = "ok" if outcome.ok else f"error: {outcome.reason}"
+    return text if outcome.value is None else f"{text}; value {str(outcome.value)[:80]!r}"
+
+
 class FSM(Behaviour):
     def __init__(self, name: str, initial: str, *, idle: Behaviour | None = None,
-                 idle_limit: float | None = 5.0, max_steps: int = 100_000):
+                 idle_limit: float | None = 0.0, max_steps: int = 100_000):
         super().__init__(name)
         self.initial = initial
         self.states: dict[str, Behaviour] = {}
@@ -104,7 +111,8 @@ class FSM(Behaviour):
             if nxt is None:
                 if outcome.error:
                     return Outcome(False, f"{state}: {outcome.reason}", outcome.value, self.name)
-                return Outcome(False, f"{state}: no transition applies", outcome.value, self.name)
+                return Outcome(False, f"FSM {self.name!r}: no transition applies from state {state!r} after "
+                                      f"its outcome ({describe(outcome)})", outcome.value, self.name)
             state = nxt
         return Outcome(False, f"more than {self.max_steps} steps", None, self.name)
 
@@ -118,7 +126,7 @@ class FSM(Behaviour):
 
     async def _next(self, state: str, outcome: Outcome) -> str | None:
         nxt = self._choose(state, outcome)
-        if nxt is not None or not self._has_conditional(state, outcome):
+        if nxt is not None or not self.idle_limit or not self._has_conditional(state, outcome):
             return nxt
         loop = asyncio.get_running_loop()
         deadline = None if self.idle_limit is None else loop.time() + self.idle_limit

@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ontology.trace import FINAL_ANSWERS
+from ontology.trace import FINAL_ANSWERS, RecordKind
 
 from .common import log, metric, ms, percentile, quiet_logs, ratio
 
@@ -29,7 +29,7 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
     """Per Dynamic Agent request after `since`: latency by target kind; and the unanswered count."""
     sends, answers = {}, {}
     for r in trace:
-        if r["kind"] != "message" or r["t"] < since or not r["agent"].startswith("dyn-"):
+        if r["kind"] != RecordKind.MESSAGE or r["t"] < since or not r["agent"].startswith("dyn-"):
             continue
         if r["dir"] == "send" and r["performative"] == "request":
             sends[r["conversation_id"]] = r
@@ -101,17 +101,19 @@ class HazardFleet:
 
     async def check_hazards(self, i: int, timeout: float) -> dict:
         """Robot i's owner says "check the hazards"; the end of the task and its scored reports."""
-        from scenarios.hazard import COMMAND, FINISHED, core_listening, parse_reports, score_hazards
+        from agents.tracing import read_trace
+        from scenarios.hazard import COMMAND, FINISHED, core_listening, hazard_reports, reported, score_hazards
         from scenarios.system import wait_until
 
         h = self.robots[i]
-        start = len(h.user.received)
+        start, since = len(h.user.received), time.time()
         await h.user.say(h.core.address, COMMAND)
         end = await h.user.wait_for(lambda t: t.startswith(FINISHED) or "did not understand" in t,
                                     timeout=timeout, start=start)
         await wait_until(lambda: core_listening(h.core) and h.core.dynamic is None, 60, f"{h.robot_id} listening again")
-        texts = [t for _, _, t in h.user.received[start:]]
-        rows = score_hazards(self.home[0].hazards, self.worlds[i].ground_truth(), parse_reports(texts))
+        records = [r for r in await asyncio.to_thread(read_trace, self.trace_file) if r["t"] >= since]  # this task's
+        reports = hazard_reports(records, h.core.address)
+        rows = score_hazards(self.home[0].hazards, self.worlds[i].ground_truth(), reported(reports))
         return {"finished": end.startswith("hazard-detection finished"), "end": end,
                 "correct": all(r["true_state"] == r["reported_state"] for r in rows)}
 

@@ -15,6 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ontology.trace import RecordKind
+
 from .common import ECHO_APP, RobotSystem, child_env, log, median, metric, percentile, ratio
 
 
@@ -31,15 +33,15 @@ def floor_once(settings, name: str) -> float:
 def phases(trace: list[dict]) -> list[dict]:
     """Per hand-off: command, download, spawn, dyn started, first state times (absolute)."""
     out = []
-    spawns = [r for r in trace if r["kind"] == "structure" and r["event"] == "spawn"]
+    spawns = [r for r in trace if r["kind"] == RecordKind.STRUCTURE and r["event"] == "spawn"]
     for sp in spawns:
         dyn = sp["dynamic"]
-        cmd = [r for r in trace if r["kind"] == "structure" and r["event"] == "command"
+        cmd = [r for r in trace if r["kind"] == RecordKind.STRUCTURE and r["event"] == "command"
                and r["agent"] == sp["agent"] and r["t"] <= sp["t"]]
-        dl = [r for r in trace if r["kind"] == "structure" and r["event"] == "download"
+        dl = [r for r in trace if r["kind"] == RecordKind.STRUCTURE and r["event"] == "download"
               and r["agent"] == sp["agent"] and r["t"] <= sp["t"]]
-        started = [r for r in trace if r["kind"] == "agent" and r["event"] == "started" and r["agent"] == dyn]
-        state = [r for r in trace if r["kind"] == "state" and r["event"] == "enter" and r["agent"] == dyn]
+        started = [r for r in trace if r["kind"] == RecordKind.AGENT and r["event"] == "started" and r["agent"] == dyn]
+        state = [r for r in trace if r["kind"] == RecordKind.STATE and r["event"] == "enter" and r["agent"] == dyn]
         if not (cmd and state):
             continue
         out.append({"command": cmd[-1]["t"], "download": dl[-1]["t"] if dl else None, "spawn": sp["t"],

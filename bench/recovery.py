@@ -28,6 +28,7 @@ from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 from xmpp_server.chat import ChatUser
+from ontology.trace import RecordKind, StructureEvent
 from xmpp_server.probe import probe_login
 
 from .common import ECHO_APP, log, median, metric, quiet_logs
@@ -82,7 +83,7 @@ class Bench:
         sent = time.time()
         await self.user.say(self.core.address, UNKNOWN_COMMAND)
         answer = await self.message("Sorry", start)
-        resume = [r["t"] for r in self._records("structure", "resume", told - 5.0)]
+        resume = [r["t"] for r in self._records(RecordKind.STRUCTURE, StructureEvent.RESUME, told - 5.0)]
         back = min(resume) if resume else sent
         await _wait(self.supervising, 10, "supervision back")
         return told, answer - max(back, sent)
@@ -108,8 +109,8 @@ class Bench:
         start = len(self.user.received)
         _, answered = await self.command_answered(start, "ended with a problem")
         hang = [r["t"] for r in read_trace(self.system.settings.trace_file)
-                if r["kind"] == "state" and r.get("state") == "misbehave" and r["t"] >= t0]
-        resume = [r["t"] for r in self._records("structure", "resume", hang[-1])]
+                if r["kind"] == RecordKind.STATE and r.get("state") == "misbehave" and r["t"] >= t0]
+        resume = [r["t"] for r in self._records(RecordKind.STRUCTURE, StructureEvent.RESUME, hang[-1])]
         return resume[0] - hang[-1], answered
 
     async def restart(self) -> tuple[float, float, float]:

@@ -67,6 +67,18 @@ def cmd_run(a, rest: list[str]) -> int:
 def cmd_package(a) -> int:
     from ontology.package import build_package, generate_keypair, private_key_to_pem, public_key_id
 
+    if a.action == "schema":  # the manifest's JSON Schema, from its model
+        import json
+
+        from ontology.manifest import manifest_schema
+        text = json.dumps(manifest_schema(), indent=2) + "\n"
+        if a.output or a.dir:
+            Path(a.output or a.dir).write_text(text)
+        else:
+            print(text, end="")
+        return 0
+    if a.dir is None:
+        raise CliError(f"rapp package {a.action} needs a directory or file")
     if a.action == "build":
         out = build_package(a.dir, a.output, signing_key=a.key)
         print(out)
@@ -267,9 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("dir", nargs="?", help="where to create it (default: ./NAME)")
     n.add_argument("--cloud", action="store_true", help="with a Cloud Agent part")
 
-    k = sub.add_parser("package", help="build a RApp package or a signing key")
-    k.add_argument("action", choices=["build", "keygen"])
-    k.add_argument("dir", help="RApp source directory (build) or key file to write (keygen)")
+    k = sub.add_parser("package", help="build a RApp package or a signing key; print the manifest's JSON Schema")
+    k.add_argument("action", choices=["build", "keygen", "schema"])
+    k.add_argument("dir", nargs="?", help="RApp source directory (build), key file to write (keygen), "
+                                          "schema file to write (schema; default: stdout)")
     k.add_argument("-o", "--output")
     k.add_argument("--key", help="ed25519 private key (PEM) to sign with")
 

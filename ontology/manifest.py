@@ -27,6 +27,7 @@ VERSION_RE = re.compile(r"^(0|[1-9]\d{0,8})\.(0|[1-9]\d{0,8})\.(0|[1-9]\d{0,8})$
 _IDENT = r"[A-Za-z_][A-Za-z0-9_]*"
 ENTRY_POINT_RE = re.compile(rf"^{_IDENT}(\.{_IDENT})*:{_IDENT}$")
 KEYWORD_RE = re.compile(r"^[^\W\d_][\w'-]{0,63}$")
+SLOT_RE = re.compile(r"\{[a-z_][a-z0-9_]*\}")  # a parameter slot in a phrase: {room}
 SERVICE_RE = re.compile(r"^[a-z][a-z0-9_.-]{0,63}$")
 MAX_TIME_LIMIT_S = 24 * 3600.0
 
@@ -61,19 +62,24 @@ class Manifest(BaseModel):
 
     model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
 
-    name: str
-    version: str
-    description: str = ""
-    robot_types: list[str] = Field(min_length=1)
-    keywords: list[str] = Field(default_factory=list)
-    phrases: list[str] = Field(default_factory=list)
-    entry_point: str
-    cloud_entry_point: str | None = None
-    cloud_restartable: bool = False  # the Platform starts a Cloud Agent that died once more
-    services: list[str] = Field(default_factory=list)
-    robot_api: list[str] = Field(default_factory=list)
-    params: dict[str, Any] = Field(default_factory=dict)
-    time_limit_s: float = 600.0
+    name: str = Field(description="the RApp's name in the Store: 2-64 of a-z, 0-9, '_', '-', from a letter")
+    version: str = Field(description="MAJOR.MINOR.PATCH; the Store keeps every version, the Core takes the newest")
+    description: str = Field("", description="what the RApp does, for its owner")
+    robot_types: list[str] = Field(min_length=1, description=f"robots it runs on: {sorted(ROBOT_TYPES)}")
+    keywords: list[str] = Field(default_factory=list, description=(
+        "single words; one spoken or typed alone starts the RApp without the Platform's interpretation"))
+    phrases: list[str] = Field(default_factory=list, description=(
+        "command phrases the Platform's interpretation matches; a {slot} (lower-case name) takes one to "
+        "three words of the command, which reach the RApp as parameters (runtime.params)"))
+    entry_point: str = Field(description="'package.module:Class' of the task (a rapps.sdk.Behaviour)")
+    cloud_entry_point: str | None = Field(None, description="'package.module:Class' of the Cloud Agent's part")
+    cloud_restartable: bool = Field(False, description="the Platform starts a Cloud Agent that died once more")
+    services: list[str] = Field(default_factory=list, description="Platform services the RApp may call (granted)")
+    robot_api: list[str] = Field(default_factory=list, description=(
+        f"robot action groups the RApp may call on its Core: {sorted(ROBOT_API_GROUPS)}"))
+    params: dict[str, Any] = Field(default_factory=dict, description=(
+        "the RApp's default parameters; a command's slot values override them"))
+    time_limit_s: float = Field(600.0, description="the Core stops the RApp after this long (s)")
     author: str = ""
 
     @field_validator("name")
@@ -112,6 +118,9 @@ class Manifest(BaseModel):
     def _phrases(cls, v: list[str]) -> list[str]:
         if any(not p for p in v):
             raise ValueError("phrases must not be empty strings")
+        bad = [p for p in v if SLOT_RE.sub("", p).count("{") + SLOT_RE.sub("", p).count("}")]
+        if bad:
+            raise ValueError(f"a slot is a lower-case name in braces, like {{room}}; got {bad}")
         return _dedupe(v)
 
     @field_validator("entry_point")
@@ -243,3 +252,11 @@ def load_manifest(path: str | Path) -> Manifest:
     except OSError as exc:
         raise ManifestError(f"cannot read manifest {path}: {exc}") from None
     return parse_manifest(raw, manifest_format(path.name))
+
+
+def manifest_schema() -> dict:
+    """The manifest's JSON Schema, generated from the model (docs/manifest.schema.json is its copy)."""
+    schema = Manifest.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "RApp manifest (manifest.yaml)"
+    return schema

@@ -23,8 +23,10 @@ from pathlib import Path
 from agents.services.context import ServiceState
 from robots import OdometryNoise, RobotAPI, World
 
-from .hazard import (COMMAND, FINISHED, RAPP_DIR, cm, core_listening, finite, parse_reports,
-                     rows_in_report_order, score_hazards, wait_until)
+from agents.tracing import read_trace
+
+from .hazard import (COMMAND, FINISHED, RAPP_DIR, cm, core_listening, finite, hazard_reports, reported,
+                     rows_in_order, score_hazards, wait_until)
 from .home_setup import hazard_overrides, home_description, home_map, upload_home
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
@@ -76,14 +78,16 @@ async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json
             runs = await asyncio.gather(*(_run_one(handles[k], timeout_s) for k in ROBOTS))
             sim_s = world.time - sim0
         truth = world.ground_truth()
+        records = read_trace(trace, validate=True)
         result = {"seed": seed, "house": house, "shared": shared, "duration_sim_s": round(sim_s, 2),
                   "trace": str(trace), "robots": {}}
         for kind, (end, texts, wall_s) in zip(ROBOTS, runs):
             if "did not understand" in end:
                 raise RuntimeError(f"the Core of {kind} did not start the RApp: {end}")
             rec = recorders[kind]
-            rows = score_hazards(homes[kind].hazards, truth, parse_reports(texts))
-            for row, frame in zip(rows_in_report_order(rows, texts), rec.frames):
+            reports = hazard_reports(records, handles[kind].core.address)  # this robot's Core only
+            rows = score_hazards(homes[kind].hazards, truth, reported(reports))
+            for row, frame in zip(rows_in_order(rows, [r.id for r in reports]), rec.frames):
                 frame.rename(frame.with_name(f"{row['id']}.png"))
             r = {"robot": kind, "user": f"owner-{kind}-{seed}", "hazards": rows,
                  "all_correct": all(x["true_state"] == x["reported_state"] for x in rows),

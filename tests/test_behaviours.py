@@ -114,6 +114,17 @@ async def test_idle_runs_until_a_condition_holds():
     assert fsm.idle.iterations >= 1
 
 
+async def test_no_applicable_transition_fails_at_once_naming_state_and_outcome():
+    fsm = FSM("f", initial="a")
+    fsm.add_state("a", Count("a", 1))
+    fsm.add_state("b", Count("b", 1), final=True)
+    fsm.add_transition("a", "b", when=lambda m, o: False)
+    t0 = asyncio.get_running_loop().time()
+    out = await fsm.run()
+    assert asyncio.get_running_loop().time() - t0 < 0.5 and fsm.idle.iterations == 0
+    assert not out.ok and "no transition applies from state 'a'" in out.reason and "(ok)" in out.reason
+
+
 async def test_idle_limit_ends_fsm_when_nothing_applies():
     fsm = FSM("f", initial="a", idle_limit=0.15)
     fsm.add_state("a", Count("a", 1))

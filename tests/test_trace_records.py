@@ -14,14 +14,17 @@ from ontology.trace import (AgentEvent, BehaviourEvent, MessageRecord, RecordKin
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "tests" / "data" / "golden_trace.jsonl"
+ENUMS = {e.__name__: e for e in (RecordKind, StructureEvent, AgentEvent, BehaviourEvent)}
 SOURCES = ("agents", "behaviours", "robots", "rapps", "scenarios", "bench", "cli")
 
 
 def _strings(node: ast.AST) -> list[str] | None:
-    """The string literals an argument can be ("a", or "a" if x else "b"); None if it is not made
-    of literals only."""
+    """The string literals an argument can be ("a", RecordKind.A, or "a" if x else "b"); None if it
+    is not made of literals and members of the trace enums only."""
     if isinstance(node, ast.Constant) and isinstance(node.value, str):
         return [node.value]
+    if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in ENUMS:
+        return [ENUMS[node.value.id][node.attr].value]
     if isinstance(node, ast.IfExp):
         body, orelse = _strings(node.body), _strings(node.orelse)
         return None if body is None or orelse is None else body + orelse

@@ -2,8 +2,11 @@
 
 Score of a RApp = 3 per manifest phrase contained in the text + 1 per keyword whose concept (via the
 synonym table) occurs in the text. The best-scoring RApp available for the robot type wins; ties and
-zero scores are refused with a reason the Core can say to the user. Parameters: `city` (after "in" /
-"for", or a known city name).
+zero scores are refused with a reason the Core can say to the user.
+
+Parameters: a phrase may hold slots, `check the lamp in the {room}`; a command that fits the
+phrase fills them (a slot takes one to three words). Besides, `city` (after "in" / "for", or a
+known city name) for every RApp.
 """
 from __future__ import annotations
 
@@ -49,6 +52,31 @@ def extract_city(text: str) -> str | None:
     return m.group(1) if m else None
 
 
+SLOT = re.compile(r"\{([a-z_][a-z0-9_]*)\}")
+SLOT_VALUE = r"[a-z0-9']+(?: [a-z0-9']+){0,2}"
+
+
+@lru_cache(maxsize=256)
+def phrase_pattern(phrase: str) -> re.Pattern | None:
+    """A phrase with {slots} as a regex over normalized text; None for a phrase without slots."""
+    parts = SLOT.split(phrase.lower())
+    if len(parts) == 1:
+        return None
+    tokens = [f"(?P<{part}>{SLOT_VALUE})" if i % 2 else re.escape(normalize(part))
+              for i, part in enumerate(parts)]
+    return re.compile(r"(?:^|(?<= ))" + " ".join(t for t in tokens if t) + "(?= |$)")
+
+
+def match_phrase(phrase: str, norm: str) -> dict[str, str] | None:
+    """The slot values when the normalized command contains the phrase, else None."""
+    pattern = phrase_pattern(phrase)
+    if pattern is None:
+        p = normalize(phrase)
+        return {} if p and f" {p} " in f" {norm} " else None
+    m = pattern.search(norm)
+    return None if m is None else {k: v for k, v in m.groupdict().items() if v}
+
+
 def interpret(text: str, robot_type: str, rapps) -> Interpretation:
     norm = normalize(text)
     words = norm.split()
@@ -57,17 +85,19 @@ def interpret(text: str, robot_type: str, rapps) -> Interpretation:
     for r in rapps:
         if r.robot_types and robot_type and robot_type not in r.robot_types:
             continue
-        matched, score = [], 0.0
+        matched, score, slots = [], 0.0, {}
         for p in r.phrases:
-            if normalize(p) and f" {normalize(p)} " in f" {norm} ":
+            values = match_phrase(p, norm)
+            if values is not None:
                 matched.append(p)
                 score += 3
+                slots = {**values, **slots}  # the first phrase that fills a slot wins
         for k in r.keywords:
             kw = normalize(k)
             if kw and (kw in have or synonyms().get(kw, kw) in have):
                 matched.append(k)
                 score += 1
-        scored.append((score, r.name, matched))
+        scored.append((score, r.name, matched, slots))
     if not scored:
         raise ServiceError(f"no application is available for robot type {robot_type!r}", ErrorCode.NO_RAPP)
     scored.sort(key=lambda s: -s[0])
@@ -76,10 +106,10 @@ def interpret(text: str, robot_type: str, rapps) -> Interpretation:
         raise ServiceError(f"I did not understand '{text}': it matches no application", ErrorCode.NOT_UNDERSTOOD)
     if len(scored) > 1 and scored[1][0] == best[0]:
         raise ServiceError(f"'{text}' could mean {best[1]} or {scored[1][1]}; please say it differently", ErrorCode.AMBIGUOUS)
-    params = {}
+    params = dict(best[3])
     city = extract_city(text)
     if city:
-        params["city"] = city
+        params.setdefault("city", city)
     return Interpretation(rapp=best[1], parameters=params, score=best[0], matched=best[2])
 
 

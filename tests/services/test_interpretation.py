@@ -38,3 +38,24 @@ def test_unknown_and_robot_filter(ctx):
     only_nao = [RAppDescription(name="x", keywords=["lights"], robot_types=["nao"])]
     with pytest.raises(ServiceError, match="no application"):
         interpret_command(InterpretCommand(text="lights", robot_type="elektron", rapps=only_nao), ctx)
+
+
+SLOTTED = [RAppDescription(name="lamp-patrol", keywords=["lamp"], phrases=["check the lamp in the {room}",
+                                                                           "patrol the lamps"]),
+           RAppDescription(name="weather_reporter", keywords=["weather"], phrases=["what's the weather"])]
+
+
+@pytest.mark.parametrize("text,params", [
+    ("Please check the lamp in the living room", {"room": "living room"}),
+    ("check the lamp in the kitchen", {"room": "kitchen"}),
+    ("patrol the lamps", {}),  # the other phrase: no slot to fill
+    ("check the lamp in the", {}),  # an empty slot: the phrase does not match, the keyword does
+])
+def test_phrase_slots_fill_parameters(ctx, text, params):
+    out = interpret_command(InterpretCommand(text=text, robot_type="nao", rapps=SLOTTED), ctx)
+    assert out.rapp == "lamp-patrol" and out.parameters == params
+
+
+def test_a_slotted_phrase_scores_like_a_phrase(ctx):
+    out = interpret_command(InterpretCommand(text="check the lamp in the hall", robot_type="nao", rapps=SLOTTED), ctx)
+    assert out.score == 4 and "check the lamp in the {room}" in out.matched
