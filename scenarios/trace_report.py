@@ -17,7 +17,7 @@ from collections import Counter, defaultdict, deque
 from collections.abc import Iterable
 
 from agents.tracing import read_trace
-from ontology.trace import CHAT, EXPECT_ANSWER, FINAL_ANSWERS, RecordKind
+from ontology.trace import CHAT, EXPECT_ANSWER, FINAL_ANSWERS, OPENING_OR_CHAT, RecordKind
 
 
 # -- names ----------------------------------------------------------------------------------------
@@ -291,7 +291,7 @@ def mermaid(records: Iterable[dict]) -> str:
     lines += [f"    participant {ids[j]} as {mermaid_escape(names[j])}" for j in jids]
     for it in items:
         if it.get("kind") == RecordKind.MESSAGE:
-            arrow = "->>" if (it.get("performative") or CHAT) in EXPECT_ANSWER | {CHAT} else "-->>"
+            arrow = "->>" if (it.get("performative") or CHAT) in OPENING_OR_CHAT else "-->>"
             if it["seen"] != "both":
                 arrow = arrow.replace(">>", ")")  # async arrow: seen by one side only
             lines.append(f"    {ids[it['sender']]}{arrow}{ids[it['receiver']]}: "

@@ -50,23 +50,25 @@ OLD_MOTION = {"move_to", "move_vel", "move_along_path", "look_at_point", "move_j
 OLD_DRIVE_SETS = {"move_vel"}
 OLD_DRIVE_ENDS = {"move_stop", "move_to", "move_along_path"}
 OLD_DEVICES = ("base", "head", "joints", "camera", "speaker", "microphone")
-# every registered action of every ontology, and whether it was idempotent (re-sent after a timeout)
+# every registered action of every ontology, and whether it was idempotent (re-sent after a timeout);
+# five pure reads were wrongly not (home_get_info, path_planning_list_maps, cognitive_get_history,
+# interpret_command, object_detection_find_objects): corrected on purpose
 OLD_IDEMPOTENT = {
     ("core", "get_state"): True, ("core", "heartbeat"): False, ("core", "report"): False,
     ("core", "task_status"): False,
     ("platform", "cloud_agent_down"): False, ("platform", "cloud_ready"): False,
-    ("platform", "cognitive_get_history"): False, ("platform", "cognitive_record_performance"): False,
+    ("platform", "cognitive_get_history"): True, ("platform", "cognitive_record_performance"): False,
     ("platform", "cognitive_test_chooser"): False, ("platform", "compute_global_pose"): True,
     ("platform", "email_fetch"): False, ("platform", "email_send"): False,
     ("platform", "face_detection"): True, ("platform", "hazard_detection_door_check"): True,
-    ("platform", "hazard_detection_light_check"): True, ("platform", "home_get_info"): False,
+    ("platform", "hazard_detection_light_check"): True, ("platform", "home_get_info"): True,
     ("platform", "home_upload_info"): False, ("platform", "human_detection"): True,
-    ("platform", "interpret_command"): False, ("platform", "issue_app_token"): False,
+    ("platform", "interpret_command"): True, ("platform", "issue_app_token"): False,
     ("platform", "list_services"): True, ("platform", "login"): False,
     ("platform", "news_explore"): True, ("platform", "object_detection_clear_models"): False,
-    ("platform", "object_detection_find_objects"): False, ("platform", "object_detection_learn_object"): False,
+    ("platform", "object_detection_find_objects"): True, ("platform", "object_detection_learn_object"): False,
     ("platform", "ontology_is_subclass_of"): True, ("platform", "ontology_subclasses_of"): True,
-    ("platform", "ontology_superclasses_of"): True, ("platform", "path_planning_list_maps"): False,
+    ("platform", "ontology_superclasses_of"): True, ("platform", "path_planning_list_maps"): True,
     ("platform", "path_planning_plan_path_2d"): True, ("platform", "path_planning_upload_map"): False,
     ("platform", "ping"): True, ("platform", "qr_detection"): True, ("platform", "register_robot"): False,
     ("platform", "register_user"): False, ("platform", "release_cloud_agents"): False,

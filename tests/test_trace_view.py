@@ -294,6 +294,7 @@ def test_mermaid_syntax_basics(records):
     assert f"    {p['core-nao1']}->>{p['store']}: request download_chunk" in lines
     assert f"    {p['store']}-->>{p['core-nao1']}: inform download_chunk" in lines
     assert f"    {p[dyn]}->>{p['core-nao1']}: request capture_image" in lines
+    assert f"    {p['core-nao1']}->>{p['store']}: subscribe subscribe_catalogue" in lines  # opens, like a request
     assert f"    {p['owner-nao1']}-){p['core-nao1']}: chat" in lines  # traced by one side only
     assert any(ln.startswith(f"    Note over {p['core-nao1']},{p[dyn]}: spawn") for ln in lines)
     body = lines[1:]

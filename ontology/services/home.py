@@ -46,6 +46,6 @@ class UploadHomeInfo(ServiceRequest):
     info: HomeInfo
 
 
-@action("home_get_info", ontology="platform", reply=HomeInfo, group=GROUP)
+@action("home_get_info", ontology="platform", reply=HomeInfo, group=GROUP, idempotent=True)
 class GetHomeInfo(ServiceRequest):
     home_id: str = "home"

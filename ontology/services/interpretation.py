@@ -21,7 +21,7 @@ class Interpretation(Content):
     matched: list[str] = []
 
 
-@action("interpret_command", ontology="platform", reply=Interpretation, group="speech")
+@action("interpret_command", ontology="platform", reply=Interpretation, group="speech", idempotent=True)
 class InterpretCommand(ServiceRequest):
     text: str = Field(min_length=1, max_length=1000)
     robot_type: str = ""

@@ -71,6 +71,7 @@ class CognitiveHistory(Content):
     records: list[ScoreRecord]
 
 
-@action("cognitive_get_history", ontology="platform", reply=CognitiveHistory, group="cognitive")
+@action("cognitive_get_history", ontology="platform", reply=CognitiveHistory, group="cognitive",
+        idempotent=True)
 class GetHistory(ServiceRequest):
     test_type: str = ""

@@ -39,7 +39,7 @@ class MapList(Content):
     maps: list[MapInfo]
 
 
-@action("path_planning_list_maps", ontology="platform", reply=MapList, group=GROUP)
+@action("path_planning_list_maps", ontology="platform", reply=MapList, group=GROUP, idempotent=True)
 class ListMaps(ServiceRequest):
     pass
 

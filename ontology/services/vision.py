@@ -46,7 +46,7 @@ class FoundObjects(Content):
     objects: list[FoundObject]
 
 
-@action("object_detection_find_objects", ontology="platform", reply=FoundObjects, group=GROUP)
+@action("object_detection_find_objects", ontology="platform", reply=FoundObjects, group=GROUP, idempotent=True)
 class FindObjects(ServiceRequest):
     image_b64: str
     limit: int = Field(default=5, ge=1, le=50)
