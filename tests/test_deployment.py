@@ -25,6 +25,7 @@ from .test_lifecycle import variant
 
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
+HAZARD_LINE = re.compile(r"Hazard (\S+) \((?:door|lamp)\): (\w+)")  # as the hazard RApp words its reports
 pytestmark = pytest.mark.skipif(not available(), reason="`rapp agent core` runs RApps in the sandbox, "
                                                         "which needs root; CI runs as root")
 
@@ -119,31 +120,64 @@ class Deployment:
                 proc.wait()
 
 
+    async def up(self, robot: str = "nao") -> tuple[list[str], Path, "Owner"]:
+        """Server, Store, Platform and a Core (in the small house), a signing key the Core trusts,
+        and the owner logged in: (the Core's arguments, the key, the owner)."""
+        key = self.tmp / "dev.pem"
+        pub = re.search(r"public key (\S+)", self.run("package", "keygen", str(key))).group(1)
+        core_args = ["agent", "core", "--robot", robot, "--robot-id", f"{robot}1", "--owner", "alice",
+                     "--password", "alice-app-pw", "--trust", pub, "--house", "small", "--seed", "2"]
+        self.start("server", "server", "--port", str(self.port), "--db", str(self.tmp / "xmpp.db"))
+        await asyncio.sleep(1.0)
+        self.start("store", "agent", "store")
+        self.start("platform", "agent", "platform")
+        await self.wait_log("store", "running")
+        await self.wait_log("platform", "running")
+        self.start("core", *core_args)
+        await self.wait_log("core", "running")
+        owner = Owner("alice@localhost", "alice-xmpp-pw")
+        owner.connect(host="127.0.0.1", port=self.port)
+        await asyncio.wait_for(owner.ready.wait(), 20)
+        return core_args, key, owner
+
+    def publish(self, src: Path, key: Path) -> None:
+        pkg = self.tmp / f"{src.name}.rapp"
+        self.run("package", "build", str(src), "--key", str(key), "-o", str(pkg))
+        self.run("store", "publish", str(pkg), "--owner", "dev", "--password", "dev-pw")
+
+
+async def test_deployment_runs_hazard_detection_for_a_plain_chat_owner(tmp_path):
+    """The route of docs/deployment.md end to end: `rapp agent core --house small` uploads the
+    home description and map for its owner; the owner, a plain XMPP client, asks in words and
+    reads every hazard's report in the chat."""
+    d = Deployment(tmp_path)
+    owner = None
+    try:
+        _, key, owner = await d.up()
+        d.publish(ROOT / "rapps" / "hazard_detection", key)
+        texts = await owner.command("core-nao1@localhost", "please check the hazards", "hazard-detection finished",
+                                    timeout=240)
+        assert texts[0].startswith("Starting hazard-detection"), texts
+        reports = {m.group(1): m.group(2) for m in map(HAZARD_LINE.search, texts) if m}
+        assert set(reports) == {"d1", "l1"}, texts  # the small house's door and lamp, each reported
+        assert all(state in ("open", "closed", "on", "off") for state in reports.values()), reports
+    finally:
+        if owner is not None:
+            owner.disconnect()
+        d.stop_all()
+    assert list((tmp_path / "tmp").iterdir()) == []
+
+
 async def test_deployment_survives_a_core_crash(tmp_path):
     d = Deployment(tmp_path)
-    key = tmp_path / "dev.pem"
-    pub = re.search(r"public key (\S+)", d.run("package", "keygen", str(key))).group(1)
-    core_args = ["agent", "core", "--robot", "nao", "--robot-id", "nao1", "--owner", "alice",
-                 "--password", "alice-app-pw", "--trust", pub, "--house", "small", "--seed", "2"]
-    owner = Owner("alice@localhost", "alice-xmpp-pw")
+    owner = None
     try:
-        d.start("server", "server", "--port", str(d.port), "--db", str(tmp_path / "xmpp.db"))
-        await asyncio.sleep(1.0)
-        d.start("store", "agent", "store")
-        d.start("platform", "agent", "platform")
-        await d.wait_log("store", "running")
-        await d.wait_log("platform", "running")
-        d.start("core", *core_args)
-        await d.wait_log("core", "running")
-        owner.connect(host="127.0.0.1", port=d.port)
-        await asyncio.wait_for(owner.ready.wait(), 20)
+        core_args, key, owner = await d.up()
 
         # published while the Core runs: it learns the new RApps on the first command naming them
         lingering = variant(tmp_path, "linger-echo", "lingerecho", behaviour="linger", seconds=30)
         for src in (FIXTURE, lingering):
-            pkg = tmp_path / f"{src.name}.rapp"
-            d.run("package", "build", str(src), "--key", str(key), "-o", str(pkg))
-            d.run("store", "publish", str(pkg), "--owner", "dev", "--password", "dev-pw")
+            d.publish(src, key)
         await owner.command("core-nao1@localhost", "echo", "echo-app finished", timeout=90)
 
         # the Core dies in the middle of a task: its RApp dies with it; restarted under its name,
@@ -163,7 +197,8 @@ async def test_deployment_survives_a_core_crash(tmp_path):
         ledger = tmp_path / "credentials" / "core-nao1.ephemeral.json"
         assert ledger.exists() and "linger-echo" not in ledger.read_text()
     finally:
-        owner.disconnect()
+        if owner is not None:
+            owner.disconnect()
         d.stop_all()
     leftovers = list((tmp_path / "tmp").iterdir())
     assert leftovers == [], leftovers
