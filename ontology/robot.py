@@ -7,6 +7,8 @@ Camera optical frame convention: x right, y down, z forward (OpenCV).
 """
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from .registry import Action, Content, Done, action, actions
@@ -28,6 +30,25 @@ class WordSpotted(Content):
 
     word: str | None = None
     text: str | None = None
+
+
+class Audio(Content):
+    """A recording: a mono 16-bit PCM WAV file, base64."""
+
+    encoding: str = "wav"
+    sample_rate: int
+    seconds: float
+    data_b64: str
+    stamp: float = 0.0  # simulation time of the first sample
+
+
+class MicrophoneLevel(Content):
+    """Sound level at the microphone over `seconds`, in dB relative to full scale."""
+
+    rms_dbfs: float
+    peak_dbfs: float
+    seconds: float
+    stamp: float = 0.0
 
 
 class Image(Content):
@@ -94,14 +115,46 @@ class LaserScan(Content):
 # ---------------------------------------------------------------- communication
 @robot_action("say", reply=Done)
 class Say(Action):
+    """Speak `text` (synthesised: the robot's loudspeaker plays it into the room)."""
+
     text: str
     language: str = "en"
+    voice: str = ""  # an eSpeak NG voice, e.g. "en-us", "en-us+f3"; "" = the language's default
+    speed: int = Field(default=160, ge=80, le=450)  # words per minute
 
 
 @robot_action("word_spotting", reply=WordSpotted)
 class WordSpotting(Action):
+    """Wait for one of `words`: typed utterances (Microphone.hear) within `timeout` wall-clock seconds
+    and, with `audio`, a word spoken alone in the room within `timeout` seconds of simulation time."""
+
     words: list[str]
     timeout: float = 10.0  # wall-clock seconds (speech comes from a person or a scenario script)
+    audio: bool = True
+
+
+MAX_AUDIO_SECONDS = 5.0  # a 16 kHz recording of this length still fits one message (agents/base.py MAX_BODY)
+MAX_AUDIO_B64 = 4 * (44 + 2 * 16000 * int(MAX_AUDIO_SECONDS)) // 3 + 4
+
+
+@robot_action("capture_audio", reply=Audio)
+class CaptureAudio(Action):
+    """Record the microphone for `seconds` of simulation time."""
+
+    seconds: float = Field(default=3.0, gt=0, le=MAX_AUDIO_SECONDS)
+    sample_rate: Literal[8000, 16000] = 16000
+
+
+@robot_action("play_audio", reply=Done)
+class PlayAudio(Action):
+    """Play a mono 16-bit PCM WAV (16 kHz) on the loudspeaker; returns when it has been played."""
+
+    data_b64: str = Field(min_length=1, max_length=MAX_AUDIO_B64)
+
+
+@robot_action("microphone_energy", reply=MicrophoneLevel)
+class MicrophoneEnergy(Action):
+    seconds: float = Field(default=0.2, gt=0, le=2.0)
 
 
 # ---------------------------------------------------------------- vision

@@ -35,6 +35,9 @@ ACTION_FACTS: dict[str, ActionFacts] = {
     # action                     group            device        motion  idempotent drive
     "say":                     F("communication", "speaker",    False, False),
     "word_spotting":           F("communication", "microphone", False, False),
+    "capture_audio":           F("communication", "microphone", False, True),
+    "play_audio":              F("communication", "speaker",    False, False),
+    "microphone_energy":       F("communication", "microphone", False, True),
     "capture_image":           F("vision",        "camera",     False, True),
     "set_camera_param":        F("vision",        "camera",     False, False),
     "set_camera_params":       F("vision",        "camera",     False, False),

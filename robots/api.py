@@ -9,22 +9,26 @@ from __future__ import annotations
 import asyncio
 import base64
 import math
+from functools import partial
 from typing import Any
 
 import cv2
 import numpy as np
 
+from ontology.errors import ErrorCode
 from ontology.registry import Done
-from ontology.robot import (CameraInfo, CameraParams, CaptureImage, GetCameraInfo, GetGlobalPose, GetJointAngles,
-                            GetLaserScan, GetSonars, GetTransform, Image, JointAngles, LaserScan, LookAtPoint,
-                            MoveAlongPath, MoveJoint, MoveStop, MoveTo, MoveVel, Pose2D, Rest, Say, SetCameraParam,
-                            SetCameraParams, SetGlobalPose, SonarReading, TakePredefinedPosture, Transform,
-                            WordSpotted, WordSpotting)
+from ontology.robot import (Audio, CameraInfo, CameraParams, CaptureAudio, CaptureImage, GetCameraInfo, GetGlobalPose,
+                            GetJointAngles, GetLaserScan, GetSonars, GetTransform, Image, JointAngles, LaserScan,
+                            LookAtPoint, MicrophoneEnergy, MicrophoneLevel, MoveAlongPath, MoveJoint, MoveStop, MoveTo,
+                            MoveVel, PlayAudio, Pose2D, Rest, Say, SetCameraParam, SetCameraParams, SetGlobalPose,
+                            SonarReading, TakePredefinedPosture, Transform, WordSpotted, WordSpotting)
+from . import tts
 from .controllers import GoToPose, JointMotion, LookAt, PathFollower, VelocityController
 from .effectors import check_speech
 from .errors import InvalidArgument, MotionInterrupted, UnsupportedOperation
-from .receptors import Camera, parse_resolution
+from .receptors import AudioInput, Camera, parse_resolution, spot_in_audio
 from .robot import Robot
+from .sound import BadAudio, decode_wav, encode_wav, house_sound, level_dbfs
 
 CAMERA_PARAM_NAMES = ("brightness", "contrast", "gain", "exposure", "auto_exposure")
 
@@ -33,6 +37,8 @@ class RobotAPI:
     def __init__(self, robot: Robot):
         self.robot = robot
         self.world = robot.world
+        self.house = house_sound(robot.world)
+        self.audio_in = AudioInput(robot, self.house)
 
     # ------------------------------------------------------------------ helpers
     def _camera(self, name: str) -> Camera:
@@ -92,15 +98,60 @@ class RobotAPI:
     # ------------------------------------------------------------------ communication
     async def say(self, req: Say) -> Done:
         speaker = check_speech(self.robot)
-        speaker.say(req.text, self.world.time)
-        await self.world.sleep(speaker.duration(req.text))
+        voice = tts.voice_for(req.language, req.voice)
+        loop = asyncio.get_running_loop()
+        pcm = await loop.run_in_executor(None, partial(tts.synthesize, req.text, voice, req.speed))
+        await self.world.sleep(speaker.play(pcm, self.world.time, text=req.text))
         return Done()
 
+    async def play_audio(self, req: PlayAudio) -> Done:
+        speaker = check_speech(self.robot)
+        try:
+            data = base64.b64decode(req.data_b64, validate=True)
+        except ValueError:
+            raise BadAudio("play_audio: data_b64 is not base64", ErrorCode.MALFORMED) from None
+        pcm, _ = decode_wav(data, max_seconds=60.0)
+        await self.world.sleep(speaker.play(pcm, self.world.time))
+        return Done()
+
+    async def _record(self, seconds: float, rate: int = 16000) -> tuple[float, np.ndarray]:
+        """(start time, int16 samples) of the microphone over the next `seconds` of simulation time."""
+        t0, pos = self.world.time, self.audio_in.position()
+        await self.world.sleep(seconds)
+        loop = asyncio.get_running_loop()
+        return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, seconds, rate)
+
+    async def capture_audio(self, req: CaptureAudio) -> Audio:
+        t0, pcm = await self._record(req.seconds, req.sample_rate)
+        wav = encode_wav(pcm, req.sample_rate)
+        return Audio(sample_rate=req.sample_rate, seconds=len(pcm) / req.sample_rate,
+                     data_b64=base64.b64encode(wav).decode(), stamp=t0)
+
+    async def microphone_energy(self, req: MicrophoneEnergy) -> MicrophoneLevel:
+        t0, pcm = await self._record(req.seconds)
+        rms, peak = level_dbfs(pcm)
+        return MicrophoneLevel(rms_dbfs=rms, peak_dbfs=peak, seconds=req.seconds, stamp=t0)
+
     async def word_spotting(self, req: WordSpotting) -> WordSpotted:
+        """Typed utterances (wall clock) and, with req.audio, the room's sound (simulation time): the
+        first word found either way; None when both have timed out."""
         if not req.words:
             raise InvalidArgument("word_spotting needs at least one word")
-        word, text = await self.robot.microphone.spot(req.words, req.timeout)
-        return WordSpotted(word=word, text=text)
+        listeners = [asyncio.ensure_future(self.robot.microphone.spot(req.words, req.timeout))]
+        if req.audio:
+            listeners.append(asyncio.ensure_future(spot_in_audio(self.audio_in, self.world, req.words, req.timeout)))
+        try:
+            pending = set(listeners)
+            while pending:
+                done, pending = await asyncio.wait(pending, return_when=asyncio.FIRST_COMPLETED)
+                for task in done:
+                    word, text = task.result()
+                    if word is not None:
+                        return WordSpotted(word=word, text=text)
+            return WordSpotted()
+        finally:
+            for task in listeners:
+                task.cancel()
 
     # ------------------------------------------------------------------ vision
     async def capture_array(self, camera: str = "", resolution: str = "320x240") -> np.ndarray:

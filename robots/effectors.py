@@ -116,19 +116,40 @@ class HeadEffector:
 
 
 class Loudspeaker:
-    """Speech synthesis stand-in: records what was said (with simulation time)."""
+    """The robot's loudspeaker: what was said (text, with simulation time) and the audio it played,
+    which also sounds in the house (a source at the robot's head, heard by every microphone)."""
 
     SECONDS_PER_WORD = 0.35
+    FULL_SCALE_DB_SPL = 88.0  # at 1 m, a full-scale sine: eSpeak's speech comes out near 66 dB
+    KEEP = 32  # recent clips kept for inspection
 
     def __init__(self, robot: "Robot"):
         self.robot = robot
         self.spoken: list[tuple[float, str]] = []
+        self.played: list[tuple[float, str | None, np.ndarray]] = []
 
     def duration(self, text: str) -> float:
+        """An estimate without audio (a robot whose speech is not synthesised)."""
         return 0.3 + self.SECONDS_PER_WORD * len(text.split())
 
     def say(self, text: str, t: float) -> None:
         self.spoken.append((t, text))
+
+    def position(self) -> tuple[float, float, float]:
+        x, y, _ = self.robot.pose
+        return x, y, self.robot.spec.collision_height + 0.05
+
+    def play(self, pcm: np.ndarray, t: float, text: str | None = None) -> float:
+        """Play 16 kHz int16 audio from simulation time `t` into the house; its duration in seconds."""
+        from .sound import SAMPLE_RATE, house_sound
+        if text is not None:
+            self.say(text, t)
+        self.played = (self.played + [(t, text, pcm)])[-self.KEEP:]
+        house = house_sound(self.robot.world)
+        house.prune(t - 60.0)
+        house.play(f"loudspeaker:{self.robot.name}:{len(self.spoken)}:{t:.3f}", self.position(), pcm, t,
+                   level_db=None, full_scale_db=self.FULL_SCALE_DB_SPL)
+        return len(pcm) / SAMPLE_RATE
 
 
 def check_speech(robot: "Robot") -> Loudspeaker:

@@ -23,6 +23,7 @@ from .spec import CameraSpec, RangeSpec
 
 if TYPE_CHECKING:
     from .robot import Robot
+    from .sound import HouseSound
 
 RESOLUTIONS = {"QQVGA": (160, 120), "QVGA": (320, 240), "VGA": (640, 480), "4VGA": (1280, 960)}
 LAMP_RADIANCE = 4.0  # lit lamp pixels are this many times brighter than a white wall
@@ -249,3 +250,149 @@ class Microphone:
         finally:
             with self._lock:
                 self._waiters.remove(entry)
+
+
+# ------------------------------------------------------------------------------ the microphone's audio
+class AudioInput:
+    """The audio path of a robot's microphone (beside Microphone's typed utterances): what the house
+    sounds like at the robot's head, in simulation time."""
+
+    def __init__(self, robot: "Robot", house: "HouseSound"):
+        self.robot, self.house = robot, house
+        self.name = robot.name
+
+    def position(self) -> tuple[float, float, float]:
+        x, y, _ = self.robot.pose
+        return x, y, self.robot.spec.collision_height + 0.05  # microphones sit in the head / top plate
+
+    def record(self, position, t0: float, seconds: float, rate: int = 16000) -> np.ndarray:
+        """int16 samples heard at `position` over [t0, t0 + seconds) (CPU work: call from an executor)."""
+        return self.house.receive(position, t0, seconds, mic=self.name, rate=rate)
+
+
+def sphinx_config(**kw):
+    """A pocketsphinx configuration of the bundled US English model (no search yet)."""
+    from pocketsphinx import Config, get_model_path
+    return Config(hmm=get_model_path("en-us/en-us"), dict=get_model_path("en-us/cmudict-en-us.dict"),
+                  samprate=16000, lm=None, loglevel="FATAL", **kw)
+
+
+def speech_segments(pcm: np.ndarray, rate: int = 16000, margin_db: float = 9.0, min_speech: float = 0.15,
+                    max_gap: float = 0.35, pad: float = 0.2) -> list[tuple[int, int]]:
+    """Sample ranges where someone speaks: 10 ms frames louder than the recording's own floor (its
+    20th percentile, so a steady TV or fan raises the bar) by `margin_db`, gaps up to `max_gap` bridged."""
+    hop = rate // 100
+    n = len(pcm) // hop
+    if n == 0:
+        return []
+    frames = pcm[:n * hop].astype(np.float64).reshape(n, hop)
+    db = 10 * np.log10(np.mean(frames ** 2, axis=1) + 1.0)
+    loud = db > np.percentile(db, 20) + margin_db
+    runs, start, quiet = [], None, 0
+    for i, v in enumerate(loud):
+        if v:
+            start = i if start is None else start
+            quiet = 0
+        elif start is not None:
+            quiet += 1
+            if quiet * hop > max_gap * rate:
+                runs.append((start, i - quiet + 1))
+                start, quiet = None, 0
+    if start is not None:
+        runs.append((start, n - quiet))
+    p = int(pad * rate)
+    return [(max(0, s * hop - p), min(len(pcm), e * hop + p)) for s, e in runs if (e - s) * hop >= min_speech * rate]
+
+
+class PhraseDecoder:
+    """pocketsphinx on 16 kHz int16 audio: a JSGF grammar of phrases, checked against a free phone loop
+    (a phrase is accepted only when its path scores at least as well as any phone sequence: the
+    owner said one of the phrases, not something else). Not thread-safe: one per thread or call."""
+
+    def __init__(self, phrases: list[str] | None = None, jsgf: str | None = None):
+        from pocketsphinx import Decoder, get_model_path
+        self.decoder = Decoder(sphinx_config())
+        self.unknown: list[str] = []
+        if jsgf is None:
+            known = [p for p in dict.fromkeys(normalize(p) for p in phrases or []) if p and self.known(p)]
+            self.unknown = [p for p in phrases or [] if normalize(p) not in known]
+            self.phrases = known
+            jsgf = grammar(known) if known else None
+        else:
+            self.phrases = []
+        self.has_grammar = jsgf is not None
+        if jsgf is not None:
+            try:
+                self.decoder.add_jsgf_string("phrases", jsgf)
+            except (RuntimeError, ValueError) as e:
+                raise InvalidArgument(f"bad JSGF grammar: {e}") from None
+        self.decoder.add_allphone_file("phones", get_model_path("en-us/en-us-phone.lm.bin"))
+
+    def known(self, phrase: str) -> bool:
+        return all(self.decoder.lookup_word(w) for w in phrase.split())
+
+    def _run(self, search: str, pcm: np.ndarray):
+        d = self.decoder
+        d.activate_search(search)
+        d.start_utt()
+        d.process_raw(np.asarray(pcm, "<i2").tobytes(), False, True)
+        d.end_utt()
+        return d.hyp()
+
+    def decode(self, pcm: np.ndarray) -> tuple[str | None, float]:
+        """(phrase heard or None, margin: how much better the phrase's path scores than the phone loop's,
+        log-score per second; >= 0 accepts). `segments` then holds (word, first, last 10 ms frame)."""
+        self.segments: list[tuple[str, int, int]] = []
+        if not self.has_grammar:
+            return None, 0.0
+        hyp = self._run("phrases", pcm)
+        if hyp is None or not hyp.hypstr.strip():
+            return None, -math.inf
+        self.segments = [(s.word, s.start_frame, s.end_frame) for s in self.decoder.seg()]
+        words, score = hyp.hypstr.strip(), hyp.score
+        if self.phrases and words not in self.phrases:
+            return None, -math.inf  # the search ended inside a phrase: a partial result is no answer
+        loop = self._run("phones", pcm)
+        seconds = max(len(pcm) / 16000, 0.1)
+        margin = (math.log(max(score, 1e-300)) - math.log(max(loop.score if loop else 0.0, 1e-300))) / seconds
+        return (words if margin >= 0 else None), float(margin)
+
+
+def normalize(phrase: str) -> str:
+    return re.sub(r"\s+", " ", re.sub(r"[^\w\s']", " ", phrase.lower())).strip()
+
+
+def grammar(phrases: list[str], repeat: bool = False) -> str:
+    """A JSGF grammar: one of the phrases (repeat: any sequence of them)."""
+    body = " | ".join(f"({p})" for p in phrases)
+    rule = f"( {body} )+" if repeat else body
+    return f"#JSGF V1.0;\ngrammar phrases;\npublic <phrase> = {rule};\n"
+
+
+async def spot_in_audio(audio: AudioInput, world, words: list[str], timeout: float, chunk: float = 0.5
+                        ) -> tuple[str | None, str | None]:
+    """Listen (simulation time) for an isolated keyword: record in chunks, cut utterances at pauses,
+    decode each with a grammar of the words. (word, what was heard) or (None, None) at the timeout."""
+    loop = asyncio.get_running_loop()
+    dec = await loop.run_in_executor(None, PhraseDecoder, words)
+    if not dec.phrases:
+        await world.sleep(timeout)  # no word the recogniser knows: the microphone only passes time
+        return None, None
+    by_norm = {normalize(w): w for w in words}
+    buf = np.zeros(0, np.int16)
+    t_end = world.time + timeout
+    while world.time < t_end:
+        t0, pos = world.time, audio.position()
+        step = min(chunk, t_end - t0)
+        await world.sleep(step)
+        buf = np.concatenate([buf, await loop.run_in_executor(None, audio.record, pos, t0, step)])
+        segs = speech_segments(buf)
+        done = [s for s in segs if s[1] < len(buf) - 0.35 * 16000] or (segs if world.time >= t_end else [])
+        for s, e in done:
+            heard, _ = await loop.run_in_executor(None, dec.decode, buf[s:e])
+            if heard is not None:
+                return by_norm.get(heard, heard), heard
+        if done:
+            buf = buf[done[-1][1]:]
+        buf = buf[-int(8 * 16000):]  # an utterance longer than 8 s is not an isolated keyword
+    return None, None

@@ -30,6 +30,8 @@ for _m in pkgutil.walk_packages(ontology.__path__, "ontology."):  # register eve
 # ---------------------------------------------------------------- the answers before the table
 OLD_GROUP = {
     "say": "communication", "word_spotting": "communication",
+    # the audio part of the robot API (issue 19), added after the table was frozen
+    "capture_audio": "communication", "play_audio": "communication", "microphone_energy": "communication",
     "capture_image": "vision", "set_camera_param": "vision", "set_camera_params": "vision",
     "get_camera_info": "vision",
     "move_to": "navigation", "move_vel": "navigation", "move_stop": "navigation",
@@ -40,6 +42,7 @@ OLD_GROUP = {
     "lock_resource": "resources", "free_resource": "resources",
 }
 OLD_DEVICE = {  # agents/locks.py ACTION_DEVICE; every other action: None
+    "capture_audio": "microphone", "microphone_energy": "microphone", "play_audio": "speaker",
     "move_to": "base", "move_vel": "base", "move_along_path": "base",
     "look_at_point": "head", "move_joint": "joints", "take_predefined_posture": "joints",
     "rest": "joints", "capture_image": "camera", "set_camera_param": "camera",
@@ -75,6 +78,9 @@ OLD_IDEMPOTENT = {
     ("platform", "start_cloud_agent"): False, ("platform", "stop_cloud_agent"): False,
     ("platform", "verify_token"): False, ("platform", "weather_report_current"): True,
     ("platform", "weather_report_forecast"): True,
+    ("robot", "capture_audio"): True, ("robot", "microphone_energy"): True, ("robot", "play_audio"): False,
+    ("platform", "speech_recognition"): True, ("platform", "text_to_speech"): True,
+    ("platform", "speech_noise_profile"): False,
     ("robot", "capture_image"): True, ("robot", "free_resource"): False, ("robot", "get_camera_info"): True,
     ("robot", "get_global_pose"): True, ("robot", "get_joint_angles"): True, ("robot", "get_laser_scan"): True,
     ("robot", "get_sonars"): True, ("robot", "get_transform"): True, ("robot", "lock_resource"): False,

@@ -18,7 +18,8 @@ import ontology.services as _models  # noqa: F401  (registers the actions)
 from ontology.registry import Action, Content, lookup
 from ontology.errors import ErrorCode
 
-from . import cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation, vision
+from . import (cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation, speech,
+               vision)
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
 
@@ -58,6 +59,9 @@ _IMPLS: dict[str, Callable] = {
     "cognitive_test_chooser": cognitive.choose_test,
     "cognitive_record_performance": cognitive.record_performance,
     "cognitive_get_history": cognitive.get_history,
+    "speech_recognition": speech.speech_recognition,
+    "speech_noise_profile": speech.noise_profile,
+    "text_to_speech": speech.text_to_speech,
 }
 
 

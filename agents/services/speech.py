@@ -1,0 +1,171 @@
+"""Speech recognition (pocketsphinx, the US English model its wheel ships), text to speech (eSpeak NG)
+and noise profiles (spectral subtraction, as the original Platform's denoising before Sphinx).
+
+Garbage is refused with a reason: not a WAV (malformed), not mono 16-bit 16 kHz (unsupported),
+longer than MAX_SECONDS (too-large, judged from the header alone), silent or clipped (invalid)."""
+from __future__ import annotations
+
+import base64
+import math
+import threading
+
+import numpy as np
+from scipy.signal import istft, stft
+
+from ontology.errors import ErrorCode
+from ontology.services.speech import (NoiseProfile, Recognition, RecognizedWord, Speech, SpeechNoiseProfile,
+                                      SpeechRecognition, TextToSpeech)
+from robots import tts
+from robots.errors import RobotError
+from robots.receptors import PhraseDecoder, grammar, normalize, speech_segments, sphinx_config
+from robots.sound import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
+
+from .context import ServiceContext
+from .errors import ServiceError
+
+MAX_SECONDS = 30.0
+SILENT_DBFS = -70.0  # peak: below a microphone's own noise, nothing was recorded at all
+CLIPPED_FRACTION = 0.005  # more samples than this at full scale: the level was too high to recognise
+NPERSEG = 512  # 32 ms frames for the noise spectrum
+OVERSUBTRACT, FLOOR = 1.0, 0.1  # spectral subtraction: alpha, floor beta (more alpha hurt the words)
+LANGUAGES = ("en", "en-us")
+
+
+def _audio(b64: str) -> np.ndarray:
+    try:
+        data = base64.b64decode(b64, validate=True)
+    except ValueError:
+        raise ServiceError("audio_b64 is not base64", ErrorCode.MALFORMED) from None
+    try:
+        pcm, _ = decode_wav(data, rates=(SAMPLE_RATE,), max_seconds=MAX_SECONDS)
+    except RobotError as e:
+        raise ServiceError(e.message, e.code) from None
+    if pcm.size < SAMPLE_RATE // 10:
+        raise ServiceError(f"recording of {pcm.size / SAMPLE_RATE:.2f} s is too short", ErrorCode.INVALID)
+    return pcm
+
+
+def _check_level(pcm: np.ndarray) -> None:
+    _, peak = level_dbfs(pcm)
+    if peak < SILENT_DBFS:
+        raise ServiceError(f"the recording is silent (peak {peak:.0f} dBFS)", ErrorCode.INVALID)
+    clipped = float(np.mean(np.abs(pcm.astype(np.int32)) >= 32767))
+    if clipped > CLIPPED_FRACTION:
+        raise ServiceError(f"the recording is clipped ({100 * clipped:.1f}% of samples at full scale): "
+                           "lower the gain or speak further from the microphone", ErrorCode.INVALID)
+
+
+# ------------------------------------------------------------------------------------------ noise
+def _profiles(ctx: ServiceContext) -> dict:
+    return ctx.state.store("speech_noise_profiles", dict)
+
+
+def noise_profile(req: SpeechNoiseProfile, ctx: ServiceContext) -> NoiseProfile:
+    pcm = _audio(req.audio_b64)
+    if level_dbfs(pcm)[1] >= -1.0:
+        raise ServiceError("the noise recording is clipped", ErrorCode.INVALID)
+    _, _, spec = stft(pcm.astype(np.float64), nperseg=NPERSEG)
+    _profiles(ctx)[(ctx.user, req.name)] = np.mean(np.abs(spec) ** 2, axis=1)
+    return NoiseProfile(name=req.name, noise_dbfs=level_dbfs(pcm)[0])
+
+
+def subtract_noise(pcm: np.ndarray, noise_power: np.ndarray) -> np.ndarray:
+    """Spectral subtraction: |X|^2 - alpha * N, floored at beta * N, with the noisy phase."""
+    _, _, spec = stft(pcm.astype(np.float64), nperseg=NPERSEG)
+    power = np.abs(spec) ** 2
+    clean = np.maximum(power - OVERSUBTRACT * noise_power[:, None], FLOOR * noise_power[:, None])
+    _, out = istft(np.sqrt(clean) * np.exp(1j * np.angle(spec)), nperseg=NPERSEG)
+    return np.clip(np.round(out[:len(pcm)]), -32768, 32767).astype(np.int16)
+
+
+# ------------------------------------------------------------------------------------------ recognition
+_lm_lock = threading.Lock()
+_lm_decoders: dict[int, object] = {}  # one general-LM decoder per worker thread (loading takes ~1 s)
+
+
+def _language_model_decode(pcm: np.ndarray) -> tuple[str, float, list]:
+    from pocketsphinx import Decoder
+    key = threading.get_ident()
+    with _lm_lock:
+        dec = _lm_decoders.get(key)
+    if dec is None:
+        from pocketsphinx import get_model_path
+        dec = Decoder(sphinx_config())
+        dec.add_lm_file("lm", get_model_path("en-us/en-us.lm.bin"))
+        dec.activate_search("lm")
+        with _lm_lock:
+            _lm_decoders[key] = dec
+    dec.start_utt()
+    dec.process_raw(pcm.tobytes(), False, True)
+    dec.end_utt()
+    hyp = dec.hyp()
+    lm = dec.get_logmath()
+    segs = [(s.word, lm.exp(s.prob), s.start_frame, s.end_frame) for s in dec.seg()]
+    return (hyp.hypstr if hyp else ""), (hyp.prob if hyp else 0.0), segs
+
+
+def _words(segs) -> list[RecognizedWord]:
+    out = []
+    for word, conf, s, e in segs:
+        if word.startswith(("<", "[")) or word == "<sil>":
+            continue  # silences and fillers
+        out.append(RecognizedWord(word=word.split("(")[0], confidence=round(float(min(max(conf, 0.0), 1.0)), 3),
+                                  start=s / 100, end=(e + 1) / 100))
+    return out
+
+
+def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recognition:
+    if req.language.lower() not in LANGUAGES:
+        raise ServiceError(f"language {req.language!r} not available (known: {', '.join(LANGUAGES)})",
+                           ErrorCode.UNSUPPORTED)
+    pcm = _audio(req.audio_b64)
+    _check_level(pcm)
+    if req.noise_profile:
+        profile = _profiles(ctx).get((ctx.user, req.noise_profile))
+        if profile is None:
+            raise ServiceError(f"no noise profile {req.noise_profile!r} (store one with speech_noise_profile)",
+                               ErrorCode.NOT_FOUND)
+        pcm = subtract_noise(pcm, profile)
+    if not (req.grammar or req.sentences or req.words):
+        if not speech_segments(pcm):  # the language model would make words of any noise
+            return Recognition(text="", search="language_model")
+        text, prob, segs = _language_model_decode(pcm)
+        return Recognition(text=text, words=_words(segs), confidence=round(float(prob), 3), search="language_model")
+    try:
+        if req.grammar:
+            dec, search = PhraseDecoder(jsgf=req.grammar), "grammar"
+        elif req.sentences:
+            dec, search = PhraseDecoder(req.sentences), "sentences"
+        else:
+            phrases = [normalize(w) for w in req.words]
+            dec, search = PhraseDecoder(jsgf=grammar([p for p in phrases if p], repeat=True)), "words"
+    except RobotError as e:
+        raise ServiceError(e.message, ErrorCode.INVALID) from None
+    if search == "sentences" and not dec.phrases:
+        raise ServiceError(f"no sentence has only dictionary words: {req.sentences[:3]}", ErrorCode.INVALID)
+    heard, margin = dec.decode(pcm)
+    if heard is None:
+        return Recognition(text="", search=search, confidence=_confidence(margin))
+    conf = _confidence(margin)
+    return Recognition(text=heard, words=_words([(w, conf, s, e) for w, s, e in dec.segments]), confidence=conf,
+                       search=search)
+
+
+MARGIN_SCALE = 0.03  # margin (PhraseDecoder.decode) at which the confidence is 0.73
+
+
+def _confidence(margin: float) -> float:
+    """The phrase path's score against the free phone loop (PhraseDecoder.decode), mapped to 0..1."""
+    if not math.isfinite(margin):
+        return 0.0
+    return round(1.0 / (1.0 + math.exp(-max(min(margin / MARGIN_SCALE, 50.0), -50.0))), 3)
+
+
+# ------------------------------------------------------------------------------------------ synthesis
+def text_to_speech(req: TextToSpeech, ctx: ServiceContext) -> Speech:
+    try:
+        pcm = tts.synthesize(req.text, tts.voice_for(req.language, req.voice), req.speed)
+    except RobotError as e:
+        raise ServiceError(e.message, e.code) from None
+    return Speech(audio_b64=base64.b64encode(encode_wav(pcm)).decode(), sample_rate=SAMPLE_RATE,
+                  seconds=len(pcm) / SAMPLE_RATE)

@@ -1,0 +1,346 @@
+"""Sound in the simulated house: sources emit audio at a position, a microphone receives the mix.
+
+Levels are physical: a source's signal is sound pressure (Pa) at 1 m; it falls off as 1/r (-6 dB per
+doubling of distance), arrives after r / 343 m/s, and loses WALL_LOSS_DB for every wall and
+DOOR_LOSS_DB for every closed door leaf on the straight line between source and microphone (the floor
+plan's boxes; an open doorway lets sound through). A microphone turns pressure into 16 kHz mono int16
+with FULL_SCALE_DB_SPL at full scale, adds its own noise and clips. Every random signal (noise sources,
+microphone noise) is drawn per one-second block from the house's seed, the source or microphone name
+and the block index, so a recording depends only on the seed and the schedule, not on how it is cut.
+
+    house = house_sound(world)                         # one per World
+    house.play("owner", (1.0, 2.4, 1.6), speech_int16, at=world.time, level_db=60)
+    house.add(NoiseSource("tv", (0.3, 0.3, 0.8), kind="tv", level_db=65, seed=house.seed))
+    pcm = house.receive((2.0, 2.4, 0.45), t0, seconds=2.0, mic="nao")   # int16, 16 kHz
+
+WAV helpers (encode_wav, decode_wav) are here too: the robot API and the Platform's speech services
+exchange audio as WAV."""
+from __future__ import annotations
+
+import io
+import math
+import threading
+import wave
+import weakref
+import zlib
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.signal import resample_poly
+
+from ontology.errors import ErrorCode
+
+from .errors import RobotError
+
+if TYPE_CHECKING:
+    from .floorplan import Box, Plan
+
+SAMPLE_RATE = 16000
+SPEED_OF_SOUND = 343.0  # m/s
+REF_PA = 20e-6  # 0 dB SPL
+FULL_SCALE_DB_SPL = 100.0  # the microphone's int16 full scale (a close shout; speech at 1 m is ~60)
+MIC_NOISE_DB_SPL = 28.0  # self-noise of a small robot microphone
+WALL_LOSS_DB = 25.0  # an interior partition wall, broadband
+DOOR_LOSS_DB = 15.0  # a closed interior door leaf
+MIN_DISTANCE = 0.1  # m: nothing is closer to a microphone than its own housing allows
+BLOCK = SAMPLE_RATE  # samples per seeded noise block
+CAPTURE_RATES = (8000, 16000)
+
+
+def db_spl_to_pa(db: float) -> float:
+    return REF_PA * 10 ** (db / 20)
+
+
+PA_PER_DIGIT = db_spl_to_pa(FULL_SCALE_DB_SPL) * math.sqrt(2) / 32767  # full-scale sine = FULL_SCALE dB
+
+
+class BadAudio(RobotError):
+    """Audio that cannot be used: `code` says why (malformed, unsupported, too-large, invalid)."""
+
+    def __init__(self, message: str, code: str = ErrorCode.INVALID):
+        super().__init__(message)
+        self.code = code
+
+
+def _rng(seed: int, name: str, block: int) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32(name.encode()), block])
+
+
+# ---------------------------------------------------------------------------------------- sources
+@dataclass
+class SoundSource:
+    """Something that emits sound at `position` from simulation time `start` (until `stop`, None = on)."""
+
+    id: str
+    position: tuple[float, float, float]
+    start: float = 0.0
+    stop: float | None = None
+
+    def signal(self, i0: int, n: int) -> np.ndarray:
+        """Pressure (Pa at 1 m) of samples i0 .. i0+n-1 counted from `start`; zeros where silent."""
+        raise NotImplementedError
+
+    def end(self) -> float | None:
+        return self.stop
+
+
+@dataclass
+class Clip(SoundSource):
+    """A recorded sound (an utterance, the robot's loudspeaker): `pressure` in Pa at 1 m."""
+
+    pressure: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    loop: bool = False
+
+    def signal(self, i0: int, n: int) -> np.ndarray:
+        out = np.zeros(n, np.float32)
+        length = len(self.pressure)
+        if length == 0:
+            return out
+        idx = np.arange(i0, i0 + n)
+        if self.loop:
+            ok = idx >= 0
+            out[ok] = self.pressure[idx[ok] % length]
+        else:
+            ok = (idx >= 0) & (idx < length)
+            out[ok] = self.pressure[idx[ok]]
+        return out
+
+    def end(self) -> float | None:
+        own = None if self.loop else self.start + len(self.pressure) / SAMPLE_RATE
+        ends = [e for e in (own, self.stop) if e is not None]
+        return min(ends) if ends else None
+
+
+NOISE_KINDS = ("tv", "radio", "white", "hum")
+
+
+@dataclass
+class NoiseSource(SoundSource):
+    """A television, radio or appliance: seeded noise shaped like its kind, `level_db` SPL at 1 m.
+    tv: pink noise in the speech band, modulated at syllable rate (voices, music); radio: the same,
+    steadier; white: broadband; hum: 50 Hz mains hum with harmonics."""
+
+    kind: str = "tv"
+    level_db: float = 65.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in NOISE_KINDS:
+            raise BadAudio(f"unknown noise kind {self.kind!r} (known: {', '.join(NOISE_KINDS)})",
+                           ErrorCode.INVALID_ARGUMENT)
+
+    def _block(self, b: int) -> np.ndarray:
+        rng = _rng(self.seed, f"noise:{self.id}", b)
+        if self.kind == "hum":
+            t = (np.arange(BLOCK) + b * BLOCK) / SAMPLE_RATE
+            x = sum(np.sin(2 * np.pi * 50 * k * t) / k for k in (1, 2, 3, 5))
+        else:
+            spec = rng.normal(size=BLOCK // 2 + 1) + 1j * rng.normal(size=BLOCK // 2 + 1)
+            f = np.fft.rfftfreq(BLOCK, 1 / SAMPLE_RATE)
+            if self.kind != "white":
+                band = (f > 150) & (f < 5000)
+                spec = spec * np.where(band, 1 / np.sqrt(np.maximum(f, 1.0)), 0.0)
+            x = np.fft.irfft(spec, BLOCK)
+            if self.kind in ("tv", "radio"):
+                depth = 0.8 if self.kind == "tv" else 0.3
+                t = np.arange(BLOCK) / SAMPLE_RATE
+                rate = rng.uniform(3.0, 6.0)
+                x = x * (1 - depth / 2 + depth / 2 * np.sin(2 * np.pi * rate * t + rng.uniform(0, 2 * np.pi)))
+        x = x / (np.sqrt(np.mean(x ** 2)) + 1e-12)
+        return (x * db_spl_to_pa(self.level_db)).astype(np.float32)
+
+    def signal(self, i0: int, n: int) -> np.ndarray:
+        out = np.zeros(n, np.float32)
+        lo, hi = max(i0, 0), i0 + n
+        if hi <= lo:
+            return out
+        for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):
+            s, e = max(lo, b * BLOCK), min(hi, (b + 1) * BLOCK)
+            out[s - i0:e - i0] = self._block(b)[s - b * BLOCK:e - b * BLOCK]
+        return out
+
+
+def clip_from_pcm(source_id: str, position, pcm: np.ndarray, at: float, level_db: float | None = 60.0,
+                  full_scale_db: float = 90.0, loop: bool = False) -> Clip:
+    """A Clip from int16 samples (16 kHz): scaled so its active part is `level_db` SPL at 1 m, or, with
+    level_db=None, as a loudspeaker plays it (a full-scale sine is `full_scale_db` SPL at 1 m)."""
+    x = np.asarray(pcm, np.float32)
+    if level_db is None:
+        scale = db_spl_to_pa(full_scale_db) * math.sqrt(2) / 32767
+    else:
+        active = x[np.abs(x) > 0.02 * (np.abs(x).max(initial=0.0) + 1e-12)]
+        rms = float(np.sqrt(np.mean(active ** 2))) if active.size else 0.0
+        scale = db_spl_to_pa(level_db) / rms if rms > 0 else 0.0
+    return Clip(source_id, tuple(map(float, position)), float(at), pressure=(x * scale).astype(np.float32), loop=loop)
+
+
+# ---------------------------------------------------------------------------------------- walls
+def _crosses(box: "Box", a: tuple[float, float], b: tuple[float, float]) -> bool:
+    """Does the segment a-b pass through the box footprint (Liang-Barsky in the box frame)?"""
+    c, s = math.cos(box.yaw), math.sin(box.yaw)
+
+    def local(p):
+        dx, dy = p[0] - box.x, p[1] - box.y
+        return c * dx + s * dy, -s * dx + c * dy
+
+    (x0, y0), (x1, y1) = local(a), local(b)
+    dx, dy = x1 - x0, y1 - y0
+    t0, t1 = 0.0, 1.0
+    for pp, q in ((-dx, x0 + box.sx / 2), (dx, box.sx / 2 - x0), (-dy, y0 + box.sy / 2), (dy, box.sy / 2 - y0)):
+        if pp == 0:
+            if q < 0:
+                return False
+            continue
+        r = q / pp
+        if pp < 0:
+            t0 = max(t0, r)
+        else:
+            t1 = min(t1, r)
+        if t0 > t1:
+            return False
+    return t1 - t0 > 1e-9
+
+
+# ---------------------------------------------------------------------------------------- the house
+class HouseSound:
+    """Every sound source of one house and what a microphone at a position receives."""
+
+    def __init__(self, plan: "Plan", seed: int | None = None):
+        self.plan = plan
+        self.seed = plan.seed if seed is None else seed
+        self.sources: dict[str, SoundSource] = {}
+        self._lock = threading.Lock()  # sources are added from the event loop, mixed in executors
+
+    # ---- sources
+    def add(self, source: SoundSource) -> SoundSource:
+        with self._lock:
+            self.sources[source.id] = source
+        return source
+
+    def remove(self, source_id: str) -> None:
+        with self._lock:
+            self.sources.pop(source_id, None)
+
+    def play(self, source_id: str, position, pcm: np.ndarray, at: float, level_db: float | None = 60.0,
+             full_scale_db: float = 90.0) -> Clip:
+        """Schedule a recording (16 kHz samples) at `position` from simulation time `at` (levels: clip_from_pcm)."""
+        return self.add(clip_from_pcm(source_id, position, pcm, at, level_db, full_scale_db))  # type: ignore[return-value]
+
+    def prune(self, before: float) -> None:
+        """Forget sources that fell silent before `before` (simulation seconds)."""
+        with self._lock:
+            for k in [k for k, s in self.sources.items() if (s.end() or math.inf) < before]:
+                del self.sources[k]
+
+    # ---- propagation
+    def walls_between(self, a, b) -> tuple[int, int]:
+        """(walls, closed door leaves) on the straight line between two points."""
+        p, q = (a[0], a[1]), (b[0], b[1])
+        walls = sum(_crosses(w, p, q) for w in self.plan.walls)
+        doors = sum(_crosses(d.leaf_box(), p, q) for d in self.plan.doors)
+        return walls, doors
+
+    def gain(self, source_pos, mic_pos) -> float:
+        """Pressure at the microphone per Pa at 1 m from the source."""
+        r = max(math.dist(source_pos, mic_pos), MIN_DISTANCE)
+        walls, doors = self.walls_between(source_pos, mic_pos)
+        return (1.0 / r) * 10 ** (-(walls * WALL_LOSS_DB + doors * DOOR_LOSS_DB) / 20)
+
+    def pressure(self, mic_pos, t0: float, seconds: float) -> np.ndarray:
+        """Sound pressure (Pa) at `mic_pos` for [t0, t0 + seconds), every source mixed, no microphone."""
+        i0, n = round(t0 * SAMPLE_RATE), round(seconds * SAMPLE_RATE)
+        out = np.zeros(n, np.float32)
+        with self._lock:
+            sources = list(self.sources.values())
+        for s in sources:
+            end = s.end()
+            if s.start >= t0 + seconds or (end is not None and end <= t0):
+                continue
+            g = self.gain(s.position, mic_pos)
+            delay = round(math.dist(s.position, mic_pos) / SPEED_OF_SOUND * SAMPLE_RATE)
+            first = i0 - delay - round(s.start * SAMPLE_RATE)
+            x = s.signal(first, n)
+            if s.stop is not None:  # a source switched off mid-window
+                idx = np.arange(n) + i0 - delay
+                x[idx >= round(s.stop * SAMPLE_RATE)] = 0.0
+            out += g * x
+        return out
+
+    def receive(self, mic_pos, t0: float, seconds: float, mic: str = "mic", rate: int = SAMPLE_RATE,
+                noise_db: float = MIC_NOISE_DB_SPL) -> np.ndarray:
+        """What microphone `mic` at `mic_pos` records over [t0, t0 + seconds): int16 at `rate`."""
+        if rate not in CAPTURE_RATES:
+            raise BadAudio(f"sample rate {rate} Hz not supported (use {' or '.join(map(str, CAPTURE_RATES))})",
+                           ErrorCode.UNSUPPORTED)
+        pa = self.pressure(mic_pos, t0, seconds)
+        digits = pa / PA_PER_DIGIT + self._mic_noise(mic, round(t0 * SAMPLE_RATE), len(pa), noise_db)
+        if rate != SAMPLE_RATE:
+            digits = resample_poly(digits, rate, SAMPLE_RATE)
+        return np.clip(np.round(digits), -32768, 32767).astype(np.int16)
+
+    def _mic_noise(self, mic: str, i0: int, n: int, noise_db: float) -> np.ndarray:
+        sigma = db_spl_to_pa(noise_db) / PA_PER_DIGIT
+        out = np.empty(n, np.float32)
+        for b in range(i0 // BLOCK, (i0 + n - 1) // BLOCK + 1) if n else ():
+            s, e = max(i0, b * BLOCK), min(i0 + n, (b + 1) * BLOCK)
+            block = _rng(self.seed, f"mic:{mic}", b).normal(0.0, sigma, BLOCK)
+            out[s - i0:e - i0] = block[s - b * BLOCK:e - b * BLOCK]
+        return out
+
+
+_HOUSES: "weakref.WeakKeyDictionary[object, HouseSound]" = weakref.WeakKeyDictionary()
+_HOUSES_LOCK = threading.Lock()
+
+
+def house_sound(world) -> HouseSound:
+    """The sound of a World's house (made on first use, lives as long as the world)."""
+    with _HOUSES_LOCK:
+        house = _HOUSES.get(world)
+        if house is None:
+            house = _HOUSES[world] = HouseSound(world.plan)
+        return house
+
+
+# ---------------------------------------------------------------------------------------- levels, WAV
+def level_dbfs(pcm: np.ndarray) -> tuple[float, float]:
+    """(rms, peak) of int16 samples in dB relative to full scale (-120 for digital silence)."""
+    x = np.asarray(pcm, np.float64) / 32768.0
+    if x.size == 0:
+        return -120.0, -120.0
+    rms, peak = math.sqrt(float(np.mean(x ** 2))), float(np.abs(x).max())
+    return max(20 * math.log10(rms + 1e-12), -120.0), max(20 * math.log10(peak + 1e-12), -120.0)
+
+
+def encode_wav(pcm: np.ndarray, rate: int = SAMPLE_RATE) -> bytes:
+    buf = io.BytesIO()
+    with wave.open(buf, "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(rate)
+        w.writeframes(np.asarray(pcm, "<i2").tobytes())
+    return buf.getvalue()
+
+
+def decode_wav(data: bytes, rates: tuple[int, ...] = (SAMPLE_RATE,), max_seconds: float = 60.0
+               ) -> tuple[np.ndarray, int]:
+    """(int16 samples, rate) of a mono 16-bit PCM WAV; BadAudio for anything else. The header is
+    checked before any sample is read, so an over-long recording costs nothing."""
+    try:
+        with wave.open(io.BytesIO(data), "rb") as w:
+            channels, width, rate, frames = w.getnchannels(), w.getsampwidth(), w.getframerate(), w.getnframes()
+            if channels != 1 or width != 2:
+                raise BadAudio(f"need mono 16-bit PCM, got {channels} channel(s) of {8 * width} bit",
+                               ErrorCode.UNSUPPORTED)
+            if rate not in rates:
+                raise BadAudio(f"sample rate {rate} Hz not supported (use {' or '.join(map(str, rates))})",
+                               ErrorCode.UNSUPPORTED)
+            if frames / rate > max_seconds:
+                raise BadAudio(f"recording of {frames / rate:.1f} s exceeds the limit of {max_seconds:g} s",
+                               ErrorCode.TOO_LARGE)
+            raw = w.readframes(frames)
+    except (wave.Error, EOFError) as e:
+        raise BadAudio(f"not a WAV file: {e}", ErrorCode.MALFORMED) from None
+    if len(raw) % 2:
+        raw = raw[:-1]
+    return np.frombuffer(raw, "<i2").astype(np.int16), rate

@@ -1,0 +1,107 @@
+"""Text to speech with eSpeak NG: the library and voice data bundled by the espeakng-loader wheel,
+called through ctypes (the package only tells where the library is).
+
+    pcm = synthesize("check the hazards", voice="en-us+f3", rate=140)   # int16, 16 kHz mono
+
+eSpeak NG keeps one global synthesizer per process, so calls are serialised by a lock; a call takes a
+few milliseconds per second of speech, still CPU work: async callers run it in an executor.
+eSpeak NG is GPL-3.0-or-later; it is loaded as a separate shared library at run time, never shipped
+in this repository."""
+from __future__ import annotations
+
+import ctypes
+import threading
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import resample_poly
+
+from .errors import InvalidArgument, UnsupportedOperation
+from .sound import SAMPLE_RATE
+
+DEFAULT_VOICE = "en-us"
+# voices the tests and measurements use; any eSpeak NG voice name with an optional "+variant" works
+VOICES = ("en-us", "en-us+f3", "en-us+m3", "en-us+klatt", "en", "en+f2")
+LANGUAGE_VOICES = {"en": "en-us", "en-us": "en-us", "en-gb": "en"}
+RATE_RANGE = (80, 450)  # words per minute eSpeak NG accepts
+DEFAULT_RATE = 160
+MAX_TEXT = 2000  # characters in one call
+
+_AUDIO_OUTPUT_SYNCHRONOUS = 2
+_CHARS_UTF8 = 1
+_RATE, _PITCH = 1, 3  # espeak_PARAMETER
+_CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctypes.c_int, ctypes.c_void_p)
+_lock = threading.Lock()
+_chunks: list[np.ndarray] = []
+
+
+@_CALLBACK
+def _collect(wav, n, events):  # called by espeak_Synth, in the calling thread, under _lock
+    if n > 0:
+        _chunks.append(np.ctypeslib.as_array(wav, (n,)).copy())
+    return 0
+
+
+@lru_cache(maxsize=1)
+def _engine() -> tuple[ctypes.CDLL, int]:
+    try:
+        import espeakng_loader
+    except ImportError:
+        raise UnsupportedOperation("text to speech needs the espeakng-loader package (pip install espeakng-loader)") \
+            from None
+    lib = ctypes.CDLL(espeakng_loader.get_library_path())
+    lib.espeak_Initialize.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
+    lib.espeak_SetVoiceByName.argtypes = [ctypes.c_char_p]
+    lib.espeak_SetParameter.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int]
+    lib.espeak_Synth.argtypes = [ctypes.c_char_p, ctypes.c_size_t, ctypes.c_uint, ctypes.c_int, ctypes.c_uint,
+                                 ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p]
+    lib.espeak_SetSynthCallback.argtypes = [_CALLBACK]
+    rate = lib.espeak_Initialize(_AUDIO_OUTPUT_SYNCHRONOUS, 0, espeakng_loader.get_data_path().encode(), 0)
+    if rate <= 0:
+        raise UnsupportedOperation(f"eSpeak NG failed to initialise (code {rate})")
+    lib.espeak_SetSynthCallback(_collect)
+    return lib, rate
+
+
+def data_path() -> Path:
+    import espeakng_loader
+    return Path(espeakng_loader.get_data_path())
+
+
+def voice_for(language: str, voice: str = "") -> str:
+    """The voice to use: `voice` when given, else the default voice of `language`."""
+    if voice:
+        return voice
+    try:
+        return LANGUAGE_VOICES[language.lower()]
+    except KeyError:
+        raise InvalidArgument(f"no voice for language {language!r} (known: {', '.join(LANGUAGE_VOICES)})") from None
+
+
+def synthesize(text: str, voice: str = DEFAULT_VOICE, rate: int = DEFAULT_RATE, pitch: int = 50) -> np.ndarray:
+    """Speech for `text`: int16 samples at 16 kHz (eSpeak's 22.05 kHz resampled)."""
+    if not text.strip():
+        raise InvalidArgument("nothing to say: the text is empty")
+    if len(text) > MAX_TEXT:
+        raise InvalidArgument(f"text of {len(text)} characters exceeds {MAX_TEXT}")
+    if not RATE_RANGE[0] <= rate <= RATE_RANGE[1]:
+        raise InvalidArgument(f"speech rate {rate} words/min out of range {RATE_RANGE[0]}..{RATE_RANGE[1]}")
+    if not 0 <= pitch <= 99:
+        raise InvalidArgument(f"pitch {pitch} out of range 0..99")
+    lib, native = _engine()
+    data = text.encode() + b"\0"
+    with _lock:
+        if lib.espeak_SetVoiceByName(voice.encode()) != 0:
+            raise InvalidArgument(f"unknown voice {voice!r} (e.g. {', '.join(VOICES)})")
+        lib.espeak_SetParameter(_RATE, int(rate), 0)
+        lib.espeak_SetParameter(_PITCH, int(pitch), 0)
+        _chunks.clear()
+        err = lib.espeak_Synth(data, len(data), 0, 0, 0, _CHARS_UTF8, None, None)
+        pcm = np.concatenate(_chunks) if _chunks else np.zeros(0, np.int16)
+        _chunks.clear()
+    if err != 0:
+        raise InvalidArgument(f"eSpeak NG could not synthesise the text (code {err})")
+    g = np.gcd(SAMPLE_RATE, native)
+    out = resample_poly(pcm.astype(np.float64), SAMPLE_RATE // g, native // g)
+    return np.clip(np.round(out), -32768, 32767).astype(np.int16)

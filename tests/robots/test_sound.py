@@ -1,0 +1,134 @@
+"""Sound in the house: propagation (distance, walls, doors), determinism, the NAO's synthesised speech,
+and the robot API's audio actions (capture, play, level, word spotting on real audio)."""
+import base64
+import math
+
+import numpy as np
+import pytest
+
+from ontology.errors import ErrorCode
+from ontology.robot import CaptureAudio, MicrophoneEnergy, PlayAudio, Say, WordSpotting
+from robots import UnsupportedOperation, tts
+from robots.floorplan import load_plan
+from robots.sound import (WALL_LOSS_DB, DOOR_LOSS_DB, BadAudio, HouseSound, NoiseSource, decode_wav, encode_wav,
+                          house_sound, level_dbfs)
+from robots.world import HOUSES
+
+from .conftest import api_at
+
+SPEECH = tts.synthesize("check the hazards")
+
+
+def _house(doors=0, seed=1):
+    return HouseSound(load_plan(HOUSES / "small.yaml", seed=seed, overrides={"doors": {"d1": doors}}))
+
+
+def _rms_db(house, mic, t0=0.0, seconds=1.0):
+    return level_dbfs(house.receive(mic, t0, seconds, noise_db=-200))[0]
+
+
+def test_level_falls_6_db_per_doubling_of_distance():
+    house = _house()
+    house.add(NoiseSource("radio", (0.5, 2.0, 1.0), kind="radio", level_db=70, seed=1))
+    levels = [_rms_db(house, (0.5 + d, 2.0, 1.0)) for d in (0.5, 1.0, 2.0)]
+    assert levels[0] - levels[1] == pytest.approx(6.02, abs=0.3)
+    assert levels[1] - levels[2] == pytest.approx(6.02, abs=0.3)
+
+
+def test_a_wall_and_a_closed_door_attenuate_an_open_doorway_does_not():
+    src, through_wall, free = (4.5, 3.0, 1.0), (2.5, 3.0, 1.0), (4.5, 1.0, 1.0)  # 2 m each
+    closed, open_ = _house(doors=0), _house(doors=90)
+    for h in (closed, open_):
+        h.add(NoiseSource("tv", src, kind="white", level_db=70, seed=1))
+    assert _rms_db(closed, free) - _rms_db(closed, through_wall) == pytest.approx(WALL_LOSS_DB, abs=0.5)
+    # the door d1 fills the gap from (3.5, 1.0) to (3.5, 1.9): a line through it
+    a, b = (4.5, 1.45, 1.0), (2.5, 1.45, 1.0)
+    for h in (closed, open_):
+        h.sources.clear()
+        h.add(NoiseSource("tv", a, kind="white", level_db=70, seed=1))
+    assert closed.walls_between(a, b) == (0, 1) and open_.walls_between(a, b) == (0, 0)
+    assert _rms_db(open_, b) - _rms_db(closed, b) == pytest.approx(DOOR_LOSS_DB, abs=0.5)
+
+
+def test_recordings_are_deterministic_per_seed_and_independent_of_chunking():
+    def record(seed, chunks):
+        h = _house(seed=seed)
+        h.add(NoiseSource("tv", (1.0, 1.0, 0.8), kind="tv", level_db=65, seed=h.seed))
+        h.play("owner", (2.0, 2.0, 1.6), SPEECH, at=0.3)
+        step = 3.0 / chunks
+        return np.concatenate([h.receive((2.5, 2.5, 0.5), k * step, step, mic="nao") for k in range(chunks)])
+
+    a, b, c = record(1, 1), record(1, 6), record(2, 1)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert level_dbfs(a)[0] > -60  # something was heard
+
+
+def test_speech_arrives_delayed_by_the_distance():
+    h = _house()
+    click = np.zeros(1600, np.int16)
+    click[0] = 20000
+    h.play("click", (0.5, 2.0, 1.0), click, at=0.0, level_db=None)
+    got = h.receive((3.43, 2.0, 1.0), 0.0, 0.05, noise_db=-200)  # 2.93 m: 8.54 ms
+    assert int(np.argmax(np.abs(got))) == round(2.93 / 343 * 16000)
+
+
+def test_wav_round_trip_and_garbage():
+    pcm = (np.sin(np.arange(1600) / 5) * 1000).astype(np.int16)
+    back, rate = decode_wav(encode_wav(pcm))
+    assert rate == 16000 and np.array_equal(back, pcm)
+    for data, code in ((b"RIFF....WAVEjunk", ErrorCode.MALFORMED), (b"hello", ErrorCode.MALFORMED),
+                       (encode_wav(pcm, 44100), ErrorCode.UNSUPPORTED),
+                       (encode_wav(np.zeros(16000 * 61, np.int16)), ErrorCode.TOO_LARGE)):
+        with pytest.raises(BadAudio) as e:
+            decode_wav(data)
+        assert e.value.code == code
+
+
+async def test_the_nao_speaks_into_the_house_and_the_elektron_hears_it(small):
+    nao = api_at(small, "nao", (1.0, 2.4, 0))
+    el = api_at(small, "elektron", (2.0, 2.4, 180))
+    quiet = await el.microphone_energy(MicrophoneEnergy(seconds=0.5))
+    t0 = small.time
+    await nao.say(Say(text="check the hazards", voice="en-us+f3", speed=140))
+    t_said, text, pcm = nao.robot.loudspeaker.played[-1]
+    assert text == "check the hazards" and small.time - t0 == pytest.approx(len(pcm) / 16000, abs=0.05)
+    heard = el.audio_in.record(el.audio_in.position(), t_said, len(pcm) / 16000)
+    assert level_dbfs(heard)[0] > quiet.rms_dbfs + 25  # speech at 1 m over the microphone's own noise
+    with pytest.raises(UnsupportedOperation, match="speech"):
+        await el.say(Say(text="hello"))
+    with pytest.raises(UnsupportedOperation):
+        await el.play_audio(PlayAudio(data_b64=base64.b64encode(encode_wav(SPEECH)).decode()))
+
+
+async def test_capture_and_play_audio_through_the_api(small):
+    nao = api_at(small, "nao", (1.0, 2.4, 0))
+    el = api_at(small, "elektron", (1.8, 2.4, 180))
+    rec = await el.capture_audio(CaptureAudio(seconds=0.5, sample_rate=8000))
+    pcm, rate = decode_wav(base64.b64decode(rec.data_b64), rates=(8000,))
+    assert rate == 8000 and len(pcm) == 4000 and rec.seconds == 0.5
+    t0 = small.time
+    await nao.play_audio(PlayAudio(data_b64=base64.b64encode(encode_wav(SPEECH)).decode()))
+    assert small.time - t0 == pytest.approx(len(SPEECH) / 16000, abs=0.05)
+    with pytest.raises(BadAudio) as e:
+        await nao.play_audio(PlayAudio(data_b64=base64.b64encode(b"not a wav").decode()))
+    assert e.value.code == ErrorCode.MALFORMED
+
+
+async def test_a_tv_raises_the_microphone_level(small):
+    el = api_at(small, "elektron", (2.0, 2.4, 180))
+    before = await el.microphone_energy(MicrophoneEnergy(seconds=0.5))
+    house_sound(small).add(NoiseSource("tv", (0.5, 3.5, 0.8), kind="tv", level_db=65, seed=1, start=small.time))
+    after = await el.microphone_energy(MicrophoneEnergy(seconds=0.5))
+    assert after.rms_dbfs > before.rms_dbfs + 15
+
+
+@pytest.mark.parametrize("said,expected", [("hazards", "hazards"), ("banana", None)])
+async def test_word_spotting_on_real_audio(small, said, expected):
+    nao = api_at(small, "nao", (1.0, 2.4, 0))
+    owner = (1.0 + math.cos(0.5), 2.4 + math.sin(0.5), 1.6)  # 1 m away
+    house_sound(small).play("owner", owner, tts.synthesize(said, "en-us+m3"), at=small.time + 0.5)
+    got = await nao.word_spotting(WordSpotting(words=["weather", "hazards", "stop"], timeout=2.5))
+    assert got.word == expected
+    if expected:
+        assert got.text == expected

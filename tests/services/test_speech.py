@@ -1,0 +1,153 @@
+"""Speech services: synthesised speech travels through the house to a microphone and is recognised;
+noise profiles; garbage audio gets a clear error."""
+import base64
+import io
+import struct
+import wave
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from agents.services import SERVICES, ServiceError, run_service
+from agents.services.speech import subtract_noise
+from ontology.errors import ErrorCode
+from ontology.services.speech import SpeechNoiseProfile, SpeechRecognition, TextToSpeech
+from robots import tts
+from robots.floorplan import load_plan
+from robots.sound import HouseSound, NoiseSource, decode_wav, encode_wav, level_dbfs
+from robots.world import HOUSES
+
+# what the Store's RApps answer to (their manifests' phrases)
+PHRASES = ["check the hazards", "what is the weather", "read my email", "play a game", "tell me the news",
+           "hello robot", "stop"]
+MIC = (1.0, 2.4, 0.5)
+
+
+def _b64(pcm, rate=16000) -> str:
+    return base64.b64encode(encode_wav(pcm, rate)).decode()
+
+
+def _heard(text, distance=1.0, voice="en-us", noise_db=None, seed=1):
+    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=seed, overrides={"doors": {"d1": 0}}))
+    if noise_db:
+        house.add(NoiseSource("tv", (0.3, 0.3, 0.8), kind="tv", level_db=noise_db, seed=seed))
+    speech = tts.synthesize(text, voice)
+    house.play("owner", (MIC[0] + distance, MIC[1], 1.6), speech, at=0.5, level_db=60)
+    return house, house.receive(MIC, 0.0, len(speech) / 16000 + 1.0, mic="nao")
+
+
+def _recognise(ctx, pcm, **kw):
+    return run_service("speech_recognition", SpeechRecognition(audio_b64=_b64(pcm), **kw), ctx)
+
+
+def test_services_are_registered():
+    assert {"speech_recognition", "speech_noise_profile", "text_to_speech"} <= set(SERVICES)
+    assert SERVICES["speech_recognition"].request.group == "speech"
+
+
+def test_synthesised_command_at_1m_is_recognised_with_the_store_phrases(ctx):
+    _, pcm = _heard("check the hazards")
+    r = _recognise(ctx, pcm, sentences=PHRASES)
+    assert r.text == "check the hazards" and r.search == "sentences"
+    assert [w.word for w in r.words] == ["check", "the", "hazards"]
+    assert r.confidence > 0.5 and 0.4 < r.words[0].start < r.words[-1].end < 2.0
+
+
+def test_something_else_is_not_forced_into_the_grammar(ctx):
+    _, pcm = _heard("open the window please")
+    assert _recognise(ctx, pcm, sentences=PHRASES).text == ""
+
+
+def test_words_and_a_jsgf_grammar(ctx):
+    _, pcm = _heard("play a game", voice="en-us+f3")
+    vocabulary = ["play", "a", "game", "stop", "news"]
+    heard = _recognise(ctx, pcm, words=vocabulary).text.split()  # a free word loop: insertions happen
+    assert set(heard) <= set(vocabulary) and heard[0] == "play" and heard[-1] == "game"
+    jsgf = "#JSGF V1.0;\ngrammar g;\npublic <g> = (play | start) a (game | quiz);\n"
+    r = _recognise(ctx, pcm, grammar=jsgf)
+    assert r.text == "play a game" and r.search == "grammar"
+    with pytest.raises(ServiceError) as e:
+        _recognise(ctx, pcm, grammar="public <g> = (unclosed;")
+    assert e.value.code == ErrorCode.INVALID
+
+
+def test_the_general_language_model(ctx):
+    _, pcm = _heard("read my email", voice="en-us+klatt")
+    r = _recognise(ctx, pcm)
+    assert r.search == "language_model" and "email" in r.text.split()
+
+
+def test_text_to_speech_returns_a_wav(ctx):
+    reply = run_service("text_to_speech", TextToSpeech(text="hello robot", voice="en+f2", speed=120), ctx)
+    pcm, rate = decode_wav(base64.b64decode(reply.audio_b64))
+    assert rate == 16000 and reply.seconds == pytest.approx(len(pcm) / 16000) and level_dbfs(pcm)[0] > -30
+    with pytest.raises(ServiceError) as e:
+        run_service("text_to_speech", TextToSpeech(text="hi", voice="xx-nonexistent"), ctx)
+    assert e.value.code == ErrorCode.INVALID_ARGUMENT
+
+
+def test_a_noise_profile_is_subtracted(ctx):
+    house, _ = _heard("tell me the news", noise_db=55)
+    room = house.receive(MIC, 10.0, 2.0, mic="nao")  # the TV alone, after the owner spoke
+    reply = run_service("speech_noise_profile", SpeechNoiseProfile(audio_b64=_b64(room), name="tv"), ctx)
+    assert reply.noise_dbfs == pytest.approx(level_dbfs(room)[0])
+    from scipy.signal import stft
+    hum = HouseSound(house.plan)
+    hum.add(NoiseSource("fridge", (0.3, 0.3, 0.8), kind="radio", level_db=60, seed=1))
+    steady = hum.receive(MIC, 0.0, 2.0)
+    _, _, spec = stft(steady.astype(float), nperseg=512)
+    later = hum.receive(MIC, 5.0, 1.0)
+    cleaned = subtract_noise(later, np.mean(np.abs(spec) ** 2, axis=1))
+    assert level_dbfs(cleaned)[0] < level_dbfs(later)[0] - 3  # e^-1 of a random noise power stays: ~4 dB
+    _, pcm = _heard("tell me the news", noise_db=55)  # the TV ~15 dB below the owner
+    plain = _recognise(ctx, pcm, sentences=PHRASES)
+    denoised = _recognise(ctx, pcm, sentences=PHRASES, noise_profile="tv")
+    assert plain.text == denoised.text == "tell me the news" and denoised.confidence > plain.confidence
+    with pytest.raises(ServiceError) as e:
+        _recognise(ctx, pcm, sentences=PHRASES, noise_profile="kitchen")
+    assert e.value.code == ErrorCode.NOT_FOUND
+
+
+def _wav_header_only(seconds: float) -> str:
+    """A WAV whose header announces `seconds` of audio (the data is not there: it must not be read)."""
+    n = int(seconds * 16000) * 2
+    header = struct.pack("<4sI4s4sIHHIIHH4sI", b"RIFF", 36 + n, b"WAVE", b"fmt ", 16, 1, 1, 16000, 32000, 2, 16,
+                         b"data", n)
+    return base64.b64encode(header + b"\0\0" * 1600).decode()
+
+
+@pytest.mark.parametrize("case,code", [
+    ("silence", ErrorCode.INVALID), ("clipping", ErrorCode.INVALID), ("8khz", ErrorCode.UNSUPPORTED),
+    ("stereo", ErrorCode.UNSUPPORTED), ("ten_minutes", ErrorCode.TOO_LARGE), ("not_wav", ErrorCode.MALFORMED),
+    ("not_base64", ErrorCode.MALFORMED), ("language", ErrorCode.UNSUPPORTED)])
+def test_garbage_audio_gets_a_clear_error(ctx, case, code):
+    rng = np.random.default_rng(0)
+    speech = tts.synthesize("check the hazards")
+    audio, lang = {
+        "silence": lambda: _b64(np.zeros(16000, np.int16)),
+        "clipping": lambda: _b64(np.clip(speech.astype(np.int32) * 20, -32768, 32767).astype(np.int16)),
+        "8khz": lambda: _b64(speech[::2], 8000),
+        "stereo": lambda: base64.b64encode(_stereo(speech)).decode(),
+        "ten_minutes": lambda: _wav_header_only(600),
+        "not_wav": lambda: base64.b64encode(rng.bytes(5000)).decode(),
+        "not_base64": lambda: "this is %% not base64",
+        "language": lambda: _b64(speech),
+    }[case](), ("de" if case == "language" else "en")
+    with pytest.raises(ServiceError) as e:
+        run_service("speech_recognition", SpeechRecognition(audio_b64=audio, language=lang, sentences=PHRASES), ctx)
+    assert e.value.code == code and e.value.reason
+
+
+def test_a_ten_minute_recording_does_not_fit_a_request():
+    big = base64.b64encode(encode_wav(np.zeros(16000 * 600, np.int16))).decode()
+    with pytest.raises(ValidationError):
+        SpeechRecognition(audio_b64=big)
+
+
+def _stereo(pcm) -> bytes:
+    buf = io.BytesIO()
+    with wave.open(buf, "wb") as w:
+        w.setnchannels(2), w.setsampwidth(2), w.setframerate(16000)
+        w.writeframes(np.repeat(pcm, 2).tobytes())
+    return buf.getvalue()
