@@ -1,77 +1,231 @@
 """Live progress of a run, read from its trace file as it grows: the Core's state, the RApp's FSM
-states, structure changes (spawn, hand-off, cloud agents, resume), every chat line, and the robot's
-pose every few seconds. Plain lines (one per event), so they read the same on a terminal, in a log
-or in CI; `--quiet` on the scenarios turns them off.
+states, structure changes (spawn, hand-off, cloud agents, resume), every chat line, the RApp's own
+progress records and the robot's pose.
 
-    follower = asyncio.create_task(follow(trace_path, pose=lambda: robot.pose))
+On a terminal it is a compact `rich` panel redrawn in place; otherwise (a log, CI, a pipe) or with
+`live=False` plain lines, one per event, the pose every few seconds.
+
+    view = RunView()                  # optional: the same state feeds scenarios.watch's page
+    follower = asyncio.create_task(follow(trace_path, pose=lambda: robot.pose, view=view))
     ...
-    follower.cancel()
+    follower.cancel()                 # prints the last lines / the final panel
 """
 from __future__ import annotations
 
 import asyncio
 import json
+import math
 import sys
 import time
+from collections import deque
+from dataclasses import dataclass, field
 from pathlib import Path
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.panel import Panel
+from rich.progress_bar import ProgressBar
+from rich.table import Table
+from rich.text import Text
 
 from ontology.trace import CHAT, Direction, RecordKind, StructureEvent, parse_record
 
 _E = StructureEvent
 SHOWN = {_E.SPAWN, _E.HANDOFF, _E.CLOUD_SPAWN, _E.CLOUD_DESTROY, _E.CLOUD_LOST, _E.ENDED, _E.DESTROY, _E.RESUME,
          _E.CATALOGUE_CHANGED}
+PROGRESS = "progress"  # the kind of a RApp's progress record: fraction (0..1 or null), text
+
+
+def _short(address) -> str:
+    return str(address or "").split("@")[0]
+
+
+def progress_of(rec: dict) -> tuple[float | None, str] | None:
+    """(fraction, text) of a well-formed progress record, else None."""
+    if rec.get("kind") != PROGRESS:
+        return None
+    fraction, text = rec.get("fraction"), rec.get("text", "")
+    if fraction is not None and (isinstance(fraction, bool) or not isinstance(fraction, (int, float))
+                                 or not 0.0 <= fraction <= 1.0):
+        return None
+    return (None if fraction is None else float(fraction)), str(text)
+
+
+def is_shown_record(rec: dict) -> bool:
+    """A record of ontology.trace (or a progress record, which it may not list yet)."""
+    if progress_of(rec) is not None:
+        return True
+    try:
+        parse_record(rec)
+    except ValueError:
+        return False
+    return True
 
 
 def describe(rec: dict) -> str | None:
     """One line for a trace record worth showing, else None."""
-    kind, agent = rec.get("kind"), str(rec.get("agent", "")).split("@")[0]
+    kind, agent = rec.get("kind"), _short(rec.get("agent"))
     if kind == RecordKind.STATE and rec.get("event") == "enter":
         who = "core" if rec.get("fsm") == "core" else f"rapp {rec.get('fsm')}"
         return f"{who}: {rec.get('state')}"
     if kind == RecordKind.STRUCTURE and rec.get("event") in SHOWN:
         detail = rec.get("dynamic") or rec.get("cloud") or rec.get("to") or rec.get("reason") or ""
-        return f"{agent}: {rec['event']} {str(detail).split('@')[0]}".rstrip()
+        return f"{agent}: {rec['event']} {_short(detail)}".rstrip()
     if kind == RecordKind.MESSAGE and rec.get("performative") == CHAT and rec.get("dir") == Direction.SEND:
-        return f"chat {agent} -> {str(rec.get('receiver', '')).split('@')[0]}: {rec.get('content', '')}"
+        return f"chat {agent} -> {_short(rec.get('receiver'))}: {rec.get('content', '')}"
+    progress = progress_of(rec)
+    if progress is not None:
+        fraction, text = progress
+        return f"progress {agent}: {'' if fraction is None else f'{fraction:.0%} '}{text}".rstrip()
     return None
 
 
-async def follow(trace: str | Path, pose=None, out=None, pose_every: float = 5.0, period: float = 0.3) -> None:
-    """Print progress lines until cancelled (then the lines written so far, once more);
-    `pose()` -> (x, y, theta) or None."""
-    out = out or sys.stdout
-    path, t0, last_pose = Path(trace), time.monotonic(), 0.0
-    offset = 0
+@dataclass
+class RunView:
+    """What a run looks like now, from its trace records and the robot's pose: the live panel
+    draws it, scenarios.watch serves it."""
 
-    def read_new() -> None:
-        nonlocal offset
-        if not path.exists():
-            return
-        with path.open("rb") as f:
-            f.seek(offset)
+    core: str = ""
+    rapp: str = ""  # the RApp's FSM name
+    rapp_state: str = ""
+    pose: tuple[float, float, float] | None = None
+    fraction: float | None = None
+    progress_text: str = ""
+    chat: deque = field(default_factory=lambda: deque(maxlen=5))  # "sender -> receiver: text"
+    events: deque = field(default_factory=lambda: deque(maxlen=3))  # recent structure events
+    started: float = field(default_factory=time.monotonic)
+
+    def apply(self, rec: dict) -> None:
+        kind = rec.get("kind")
+        if kind == RecordKind.STATE and rec.get("event") == "enter":
+            if rec.get("fsm") == "core":
+                self.core = str(rec.get("state"))
+            else:
+                self.rapp, self.rapp_state = str(rec.get("fsm")), str(rec.get("state"))
+        elif kind == RecordKind.STRUCTURE and rec.get("event") in SHOWN:
+            self.events.append(describe(rec))
+            if rec.get("event") == _E.SPAWN:  # a new task: its progress starts afresh
+                self.fraction, self.progress_text = None, ""
+        elif kind == RecordKind.MESSAGE and rec.get("performative") == CHAT and rec.get("dir") == Direction.SEND:
+            self.chat.append(f"{_short(rec.get('agent'))} -> {_short(rec.get('receiver'))}: {rec.get('content', '')}")
+        elif (progress := progress_of(rec)) is not None:
+            self.fraction, self.progress_text = progress
+
+    def elapsed(self) -> float:
+        return time.monotonic() - self.started
+
+    def snapshot(self) -> dict:
+        """As JSON data (the watch page's side panel)."""
+        return {"core": self.core, "rapp": self.rapp, "rapp_state": self.rapp_state,
+                "fraction": self.fraction, "progress_text": self.progress_text, "chat": list(self.chat),
+                "events": list(self.events), "elapsed_s": round(self.elapsed(), 1)}
+
+
+def pose_text(pose) -> str:
+    if pose is None:
+        return "-"
+    x, y, th = pose
+    return f"x {x:.2f}  y {y:.2f}  θ {math.degrees(th):.0f}°"
+
+
+def render(view: RunView, title: str = "rapp run") -> Panel:
+    """The compact panel: Core and RApp states, pose, progress, recent events and chat lines."""
+    grid = Table.grid(padding=(0, 1))
+    grid.add_column(style="bold cyan", no_wrap=True)
+    grid.add_column(overflow="ellipsis", no_wrap=True)
+    grid.add_row("Core", view.core or "-")
+    grid.add_row("RApp", f"{view.rapp}: {view.rapp_state}" if view.rapp else "-")
+    grid.add_row("Robot", pose_text(view.pose))
+    if view.fraction is not None or view.progress_text:
+        bar = Table.grid(padding=(0, 1))
+        if view.fraction is not None:
+            bar.add_row(ProgressBar(total=1.0, completed=view.fraction, width=20),
+                        f"{view.fraction:.0%}", Text(view.progress_text, overflow="ellipsis", no_wrap=True))
+        else:
+            bar.add_row(Text(view.progress_text, overflow="ellipsis", no_wrap=True))
+        grid.add_row("Progress", bar)
+    if view.events:
+        grid.add_row("Events", Group(*(Text(e, overflow="ellipsis", no_wrap=True) for e in view.events)))
+    grid.add_row("Chat", Group(*(Text(c, overflow="ellipsis", no_wrap=True) for c in view.chat))
+                 if view.chat else "-")
+    return Panel(grid, title=f"{title} · {view.elapsed():.1f} s", title_align="left", expand=True)
+
+
+class TraceTail:
+    """The complete records appended to a trace file since the last read (several processes
+    append lines; a half-written last line waits for the next read)."""
+
+    def __init__(self, path: str | Path):
+        self.path, self.offset = Path(path), 0
+
+    def read(self) -> list[dict]:
+        if not self.path.exists():
+            return []
+        with self.path.open("rb") as f:
+            f.seek(self.offset)
             data = f.read()
         complete = data.rfind(b"\n") + 1
-        offset += complete
+        self.offset += complete
+        out = []
         for line in data[:complete].splitlines():
             try:
                 rec = json.loads(line)
-                parse_record(rec)  # a record of ontology.trace, else skipped like a broken line
             except ValueError:
                 continue
-            text = describe(rec)
-            if text:
+            if isinstance(rec, dict) and is_shown_record(rec):  # else skipped like a broken line
+                out.append(rec)
+        return out
+
+
+def wants_live(out=None) -> bool:
+    """The live panel only on a terminal (a log or CI gets plain lines)."""
+    stream = out or sys.stdout
+    return bool(getattr(stream, "isatty", lambda: False)())
+
+
+async def follow(trace: str | Path, pose=None, out=None, pose_every: float = 5.0, period: float = 0.3,
+                 live: bool | None = None, view: RunView | None = None, title: str = "rapp run",
+                 silent: bool = False) -> None:
+    """Show progress until cancelled (then what was written so far, once more); `pose()` ->
+    (x, y, theta) or None. `live`: the rich panel (None: when `out`, default stdout, is a
+    terminal), else plain lines; `silent`: neither. `view` is kept up to date in every case."""
+    out = out or sys.stdout
+    view = view if view is not None else RunView()
+    tail, t0, last_pose = TraceTail(trace), time.monotonic(), -math.inf
+    use_live = not silent and (wants_live(out) if live is None else live)
+    lines = not silent and not use_live
+
+    def read_new() -> None:
+        for rec in tail.read():
+            view.apply(rec)
+            if lines and (text := describe(rec)):
                 print(f"[{time.monotonic() - t0:6.1f}s] {text}", file=out, flush=True)
 
+    def sample_pose(now: float) -> None:
+        nonlocal last_pose
+        if pose is None:
+            return
+        p = pose()
+        if p is not None:
+            view.pose = tuple(float(v) for v in p[:3])
+        if lines and p is not None and now - last_pose >= pose_every:
+            last_pose = now
+            print(f"[{now - t0:6.1f}s] robot at x={p[0]:.2f} y={p[1]:.2f} theta={p[2]:.2f}", file=out, flush=True)
+
+    display = None
+    if use_live:  # redrawn by this task only (no refresh thread reading the view meanwhile)
+        display = Live(render(view, title), console=Console(file=out), auto_refresh=False, transient=False)
+        display.start()
     try:
         while True:
             read_new()
-            now = time.monotonic()
-            if pose is not None and now - last_pose >= pose_every:
-                last_pose = now
-                p = pose()
-                if p is not None:
-                    print(f"[{now - t0:6.1f}s] robot at x={p[0]:.2f} y={p[1]:.2f} theta={p[2]:.2f}",
-                          file=out, flush=True)
+            sample_pose(time.monotonic())
+            if display is not None:
+                display.update(render(view, title), refresh=True)
             await asyncio.sleep(period)
     except asyncio.CancelledError:
         read_new()  # the run's last lines (destroy, resume) before it stops
+    finally:
+        if display is not None:
+            display.update(render(view, title), refresh=True)
+            display.stop()

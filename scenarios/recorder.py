@@ -36,6 +36,10 @@ class RecordingAPI:
         self.paths: list[dict] = []  # poses (planned leg), trajectory (true), tracking_error_m
         self.frames: list[Path] = []
         self._last = ""
+        # live views (scenarios.watch): the leg being driven, the latest image and how many so far
+        self.current_path: list[list[float]] | None = None
+        self.latest_image = None  # ontology.robot.Image
+        self.captures = 0
 
     # robots.interface.RobotInterface: what is not recorded goes to the real API
     @property
@@ -56,6 +60,8 @@ class RecordingAPI:
             if name == "move_along_path":
                 return await self._follow(req)
             reply = await self.api.handle(req)
+            if name == "capture_image":
+                self.latest_image, self.captures = reply, self.captures + 1
             if name == "capture_image" and (self.every_capture or self._last == "look_at_point"):
                 self._save_frame(reply)
             return reply
@@ -80,9 +86,11 @@ class RecordingAPI:
                 await self.world.sleep(self.sample_s)
 
         sampler = asyncio.create_task(sample())
+        self.current_path = [[p.x, p.y] for p in req.poses]
         try:
             return await self.api.handle(req)
         finally:
+            self.current_path = None
             done.set()
             samples.append(tuple(self.robot.pose[:2]))
             await asyncio.gather(sampler, return_exceptions=True)

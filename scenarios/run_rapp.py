@@ -5,8 +5,12 @@ Builds the package (when given a directory; signed with a key of this run), publ
 Store on the embedded server, uploads the house's home description and map for the owner, sends
 the owner's command (default: the RApp's first keyword) and waits until the RApp ends. Writes
 result.json (the RApp's reports as data), chat.txt, trace.jsonl, run.png (the map, the robot's
-whole true trajectory, its planned legs and localizations) and frames/ (every image the RApp
-captured) to --out; exits 1 with the reason on one line when the RApp ends in error.
+whole true trajectory, its planned legs and localizations), frames/ (every image the RApp
+captured) and outputs/ (the files the RApp wrote to its Task.outputs) to --out; exits 1 with the reason on one line when the RApp ends in error.
+
+While it runs: a live panel on a terminal (Core and RApp states, pose, progress, chat), plain lines
+otherwise or with --quiet; --watch [PORT] serves a live page of the map, robot, planned path and
+camera on http://127.0.0.1:PORT/ (default 8765).
 """
 from __future__ import annotations
 
@@ -19,25 +23,40 @@ from pathlib import Path
 
 from agents.tracing import read_trace
 from ontology.manifest import load_manifest
+from ontology.trace import Direction, RecordKind, StructureEvent
 from robots import RobotAPI, World
 from robots.gridmap import build_grid_map
 from scenarios.home_setup import LAYOUTS, home_description, home_map, upload_home
 from scenarios.plots import plot_hazard_run
-from scenarios.progress import follow
+from scenarios.progress import RunView, follow
 from scenarios.recorder import RecordingAPI
 from scenarios.system import RappSystem, wait_until
+from scenarios.watch import DEFAULT_PORT, WatchServer, WatchState
 
 
-def _reports(trace: Path, core: str) -> list[dict]:
+def _reports(records: list[dict], core: str) -> list[dict]:
     """What the RApp reported (text and data), from the trace: its requests to the Core."""
     out = []
-    for r in read_trace(trace):
-        if r["kind"] == "message" and r["dir"] == "recv" and r["agent"] == core and r["action"] == "report":
+    for r in records:
+        if (r["kind"] == RecordKind.MESSAGE and r["dir"] == Direction.RECV and r["agent"] == core
+                and r["action"] == "report"):
             try:
                 out.append(json.loads(r["content"]))
             except ValueError:
                 out.append({"text": r["content"]})
     return out
+
+
+def _copy_outputs(records: list[dict], core: str, dest: Path) -> list[str]:
+    """The RApp's output directory (Task.outputs, named by the Core's destroy record) copied to dest."""
+    import shutil
+
+    kept = [r.get("outputs") for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("agent") == core
+            and r.get("event") == StructureEvent.DESTROY and r.get("outputs")]
+    if not kept or not Path(kept[-1]).is_dir():
+        return []
+    shutil.copytree(kept[-1], dest, dirs_exist_ok=True)
+    return sorted(str(p.relative_to(dest)) for p in dest.rglob("*") if p.is_file())
 
 
 async def _sample_poses(api, into: list, period_s: float = 0.2) -> None:
@@ -47,22 +66,34 @@ async def _sample_poses(api, into: list, period_s: float = 0.2) -> None:
         await api.world.sleep(period_s)
 
 
+def _grid(world, house: str):
+    return home_map(world, Path(house).stem) if Path(house).stem in LAYOUTS else build_grid_map(world.plan)
+
+
 def _plot(out: Path, world, house: str, recorder: RecordingAPI, trajectory: list, title: str) -> Path:
-    grid = home_map(world, Path(house).stem) if Path(house).stem in LAYOUTS else build_grid_map(world.plan)
-    return plot_hazard_run(out / "run.png", grid, recorder.paths, recorder.localizations, {}, [], [],
+    return plot_hazard_run(out / "run.png", _grid(world, house), recorder.paths, recorder.localizations, {}, [], [],
                            title=title, trajectory=trajectory)
 
 
 async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None, out: Path,
-                   timeout_s: float, progress: bool = False) -> dict:
+                   timeout_s: float, progress: bool = False, live: bool | None = None,
+                   watch_port: int | None = None) -> dict:
+    """`progress`: show it (`live`: the rich panel, None = on a terminal, else plain lines);
+    `watch_port`: serve the live page there (0 = any free port)."""
     manifest_dir = src if src.is_dir() else None
     world = World.from_file(house, seed=seed)
     trajectory: list = []
     sampler: asyncio.Task | None = None
+    watch: WatchServer | None = None
+    view = RunView()
     try:
         # every image the RApp captures is kept in out/frames; legs and localizations are recorded
         api = RecordingAPI(RobotAPI(world.add_robot(robot)), frames_dir=out / "frames", every_capture=True)
         sampler = asyncio.create_task(_sample_poses(api, trajectory))
+        if watch_port is not None:
+            watch = WatchServer(WatchState(_grid(world, house), pose=lambda: api.robot.pose, recorder=api,
+                                           view=view, title=f"{src.name} on {robot} in {house}"), port=watch_port)
+            print(f"[watch] {await watch.start()}", flush=True)
         async with RappSystem(out / "system", trace_file=out / "trace.jsonl") as system:
             if manifest_dir is not None:
                 name = (await system.publish(src)).split()[0]
@@ -81,8 +112,9 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
             if Path(house).stem in LAYOUTS:  # the owner's home description, as the Platform keeps it
                 info, png, yaml_text = home_description(world, Path(house).stem, out)
                 upload_home(system.platform.state, user, info, png, yaml_text)
-            if progress:  # live lines from the trace: Core and RApp states, chat, the robot's pose
-                follower = asyncio.create_task(follow(out / "trace.jsonl", pose=lambda: api.robot.pose))
+            if progress or watch is not None:  # from the trace: Core and RApp states, chat, the robot's pose
+                follower = asyncio.create_task(follow(out / "trace.jsonl", pose=lambda: api.robot.pose, live=live,
+                                                      view=view, silent=not progress, title=f"rapp run {name}"))
                 system.on_stop(follower.cancel)
             kw = {} if manifest_dir is not None else {"require_signature": False, "trusted_keys": None}
             handle = await system.add_robot(robot, api=api, user=user, **kw)
@@ -95,20 +127,24 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                 lambda t: t.startswith((f"{name} finished", f"{name} ended")) or t.startswith("Sorry")
                 or "could not get" in t or "did not start" in t, timeout=timeout_s, start=start)
             texts = handle.user.texts()[start:]
-            reports = _reports(out / "trace.jsonl", handle.core.address)
+            records = await asyncio.to_thread(read_trace, out / "trace.jsonl")
+            reports = _reports(records, handle.core.address)
+            outputs = await asyncio.to_thread(_copy_outputs, records, handle.core.address, out / "outputs")
         sampler.cancel()
         ok = end.startswith(f"{name} finished")
         plot = await asyncio.to_thread(_plot, out, world, house, api, trajectory, f"{name} on {robot} in {house}, "
                                        f"seed {seed}: {'finished' if ok else 'error'}")
         result = {"rapp": name, "robot": robot, "house": house, "seed": seed, "command": command,
                   "ok": ok, "end": end, "reports": reports, "trace": str(out / "trace.jsonl"),
-                  "plot": str(plot), "frames": [str(f) for f in api.frames]}
+                  "plot": str(plot), "frames": [str(f) for f in api.frames], "outputs": outputs}
         (out / "chat.txt").write_text("\n".join(texts) + "\n")
         (out / "result.json").write_text(json.dumps(result, indent=1))
         return result
     finally:
         if sampler is not None:
             sampler.cancel()
+        if watch is not None:
+            await watch.stop()
         world.close()
 
 
@@ -121,7 +157,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--say", help="the owner's command (default: the RApp's first keyword)")
     p.add_argument("--out", help="result folder (default: a new temporary directory)")
     p.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for the RApp's end")
-    p.add_argument("--quiet", action="store_true", help="no progress lines while it runs, only the summary")
+    p.add_argument("--quiet", action="store_true", help="plain progress lines, not the live panel")
+    p.add_argument("--watch", nargs="?", type=int, const=DEFAULT_PORT, default=None, metavar="PORT",
+                   help=f"serve a live page on http://127.0.0.1:PORT/ (default {DEFAULT_PORT})")
     a = p.parse_args(argv)
     src = Path(a.rapp)
     if not src.exists():
@@ -129,9 +167,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     out = Path(a.out or tempfile.mkdtemp(prefix="rapp-run-"))
     out.mkdir(parents=True, exist_ok=True)
-    result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=not a.quiet))
+    result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=True,
+                                  live=False if a.quiet else None, watch_port=a.watch))
     print(f"{result['rapp']}: {'finished' if result['ok'] else 'ERROR'}: {result['end']}")
     print(f"  result {out / 'result.json'}; chat {out / 'chat.txt'}; trace {out / 'trace.jsonl'}")
     print(f"  plot {result['plot']}; {len(result['frames'])} frames captured"
           + (f" in {out / 'frames'}" if result["frames"] else ""))
+    if result["outputs"]:
+        print(f"  outputs: {len(result['outputs'])} files in {out / 'outputs'}")
     return 0 if result["ok"] else 1
