@@ -24,6 +24,7 @@ from spade.behaviour import CyclicBehaviour, FSMBehaviour
 from spade.message import Message
 
 from ontology import acl
+from ontology import core as C
 from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, lookup, parse_json, validate
@@ -38,13 +39,14 @@ from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefus
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, make_message, reply_to
 from .stanza import message_xml, read_message
-from .tracing import cap, tracer_for
+from .tracing import CONTENT_CAP, cap, tracer_for
 
 log = logging.getLogger("rapp.agent")
 _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
 _OPENING_VALUES = frozenset(p.value for p in acl.OPENING)
 RESEND_EVERY_S, RESEND_FOR_S = 1.0, 30.0  # pending requests after a reconnect (see _resend_pending)
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
+REPORT_CAP = MAX_BODY  # a RApp's report to its Core is traced whole: it is the run's result
 
 
 class _RoutingContainer:
@@ -392,11 +394,13 @@ class RappAgent(Agent):
             return
         info = AclInfo.of(msg)
         self.tracer.record(
-            "message", dir=direction, agent=self.address, sender=bare(msg.sender),
+            RecordKind.MESSAGE, dir=direction, agent=self.address, sender=bare(msg.sender),
             receiver=bare(msg.to), performative=info.performative or "chat",
             conversation_id=info.conversation_id, ontology=info.ontology, action=info.action,
             message_id=info.reply_with, in_reply_to=info.in_reply_to, path=path,
-            size=len(msg.body or ""), content=cap(msg.body))
+            size=len(msg.body or ""),
+            # a RApp's report is its result: kept whole (up to a message's size limit), the rest capped
+            content=cap(msg.body, REPORT_CAP if (info.ontology, info.action) == (C.ONTOLOGY, "report") else CONTENT_CAP))
 
 
 def _accepts(behaviour, msg: Message) -> bool:

@@ -384,7 +384,9 @@ class CoreAgent(RobotCommands, RappAgent):
                 except asyncio.TimeoutError:
                     pass
             await session.process.stop(grace=0.05 if session.hung else 1.0)
+        outputs = session.workdir / "outputs"  # the RApp's files (Task.outputs), kept until the Core stops
         self.record_structure("destroy", dynamic=session.jid, rapp=session.rapp, state=session.state,
+                              outputs=str(outputs) if outputs.is_dir() else None,
                               reason=session.end_reason, exit_code=session.process.returncode
                               if session.process else None)
         self._resume_if_needed()  # supervising again at once; the rest is clean-up

@@ -91,7 +91,10 @@ class DynamicAgent(RappAgent):
         try:
             cls = load_entry_point(self.package_dir, self.manifest.entry_point)
             self.task = cls(self)
-            return self.task.build(), None
+            behaviour = self.task.build()
+            if hasattr(self.task, "root"):  # the SDK's Task shows its running states in its log
+                self.task.root = behaviour
+            return behaviour, None
         except Exception as e:  # noqa: BLE001 - a broken RApp is reported, not crashed on
             return None, f"task could not be built: {type(e).__name__}: {e}"
 

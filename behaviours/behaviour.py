@@ -153,3 +153,14 @@ class Wait(Behaviour):
 
     def terminal(self) -> bool:
         return bool(self.predicate(self.memory))
+
+
+def active_path(behaviour: Behaviour) -> list[str]:
+    """The names of the states/children running now, outermost first (FSMs and composites keep
+    `current`; a leaf has none): e.g. ["navigate", "move_leg"]."""
+    path, b = [], behaviour
+    while b is not None and getattr(b, "current", None):
+        path.append(b.current)
+        b = getattr(b, "states", {}).get(b.current) or next(
+            (c for c in getattr(b, "children", ()) if c.name == b.current), None)
+    return path

@@ -15,6 +15,9 @@ records of no agent, `agent` (the writer's address). The kinds:
   resend     peer, conversation_id (a request sent again after reconnecting)
   dropped    sender, reason[, performative, conversation_id] (a message nobody took)
   duplicate  sender, conversation_id, answered (a request received twice)
+  progress   fraction (0..1 or null), text (a RApp's own estimate: rapps.sdk Task.progress)
+  log        level, message, state (a RApp's log record, with the FSM state it was in: Task.log)
+  blackboard key, value, writer (a write to a RApp's typed blackboard: rapps.sdk Blackboard)
 
 Writing is not validated (a record is written for every message); `parse_record` validates a
 record when a trace is read (agents.tracing.read_trace(..., validate=True)).
@@ -42,6 +45,9 @@ class RecordKind(StrEnum):
     RESEND = "resend"
     DROPPED = "dropped"
     DUPLICATE = "duplicate"
+    PROGRESS = "progress"
+    LOG = "log"
+    BLACKBOARD = "blackboard"
 
 
 class StructureEvent(StrEnum):
@@ -199,8 +205,38 @@ class DuplicateRecord(_Record):
     answered: bool
 
 
+class ProgressRecord(_Record):
+    """The RApp's own estimate of how far its task is (rapps.sdk Task.progress)."""
+
+    kind: Literal[RecordKind.PROGRESS]
+    agent: str
+    fraction: float | None = Field(default=None, ge=0.0, le=1.0)
+    text: str = ""
+
+
+class LogRecord(_Record):
+    """A RApp's log line (rapps.sdk Task.log), with the state of its behaviour it was written in."""
+
+    kind: Literal[RecordKind.LOG]
+    agent: str
+    level: Literal["debug", "info", "warning", "error"]
+    message: str
+    state: str = ""
+
+
+class BlackboardRecord(_Record):
+    """A write to a RApp's typed blackboard: the key, the value (capped text) and the writer."""
+
+    kind: Literal[RecordKind.BLACKBOARD]
+    agent: str
+    key: str
+    value: str
+    writer: str = ""
+
+
 TraceRecord = Annotated[Union[MessageRecord, StructureRecord, AgentRecord, BehaviourRecord, StateRecord,
-                              TimeoutRecord, RetryRecord, ResendRecord, DroppedRecord, DuplicateRecord],
+                              TimeoutRecord, RetryRecord, ResendRecord, DroppedRecord, DuplicateRecord,
+                              ProgressRecord, LogRecord, BlackboardRecord],
                         Field(discriminator="kind")]
 _ADAPTER: TypeAdapter = TypeAdapter(TraceRecord)
 

@@ -26,52 +26,53 @@ A Cloud Agent part subclasses CloudService and registers its actions with @actio
 """
 from __future__ import annotations
 
+import logging
+from pathlib import Path
 from typing import Any, Awaitable, Callable
 
 from agents.errors import CloudAgentLost, NotUnderstood, RequestError, RequestFailed, RequestRefused, RequestTimeout
-from behaviours import FSM, Behaviour, OneShot
+from behaviours import FSM, Behaviour, Inverter, OneShot, Parallel, Retry, Selector, Sequence, Timeout, active_path
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import Content, lookup
 from ontology.errors import ErrorCode
 
-__all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "CloudAgentLost", "RequestError", "RequestFailed",
+from ontology.trace import RecordKind
+
+from .blackboard import Blackboard, BlackboardError, Key
+from .calls import PlatformCalls, RobotCalls
+
+__all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "Sequence", "Selector", "Parallel",
+           "Timeout", "Retry", "Inverter", "Key", "Blackboard", "BlackboardError", "CloudAgentLost", "RequestError", "RequestFailed",
            "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode"]
 
 
-class _Proxy:
-    """`await proxy.<action>(**fields)` -> request to `address` in `ontology`; reply model back."""
-
-    def __init__(self, agent, address: str, ontology: str, timeout: float = 30.0,
-                 extra: dict | None = None):
-        self._agent, self._address, self._ontology = agent, address, ontology
-        self._timeout, self._extra = timeout, extra or {}
+class _Dynamic:
+    """`await proxy.<action>(**fields)` for an action registered after calls.py was generated."""
 
     def __getattr__(self, action: str) -> Callable[..., Awaitable[Content]]:
         if action.startswith("_"):
             raise AttributeError(action)
-        model = lookup(self._ontology, action)
+        lookup(self._ontology, action)  # ContentError naming the known actions when unknown
 
         async def call(_timeout: float | None = None, **fields) -> Content:
-            for k, v in self._extra.items():
-                if k in model.model_fields:
-                    fields.setdefault(k, v)
-            req = model(**fields)
-            return await self._agent.request(self._address, req, timeout=_timeout or self._timeout)
+            return await self._call(action, fields, _timeout)
 
         call.__name__ = action
         return call
 
 
-class RobotProxy(_Proxy):
+class RobotProxy(_Dynamic, RobotCalls):
+    """`self.robot`: the robot API, served by the Core (typed methods: rapps/sdk/calls.py)."""
+
     def __init__(self, agent, core: str, timeout: float = 120.0):
-        import ontology.robot  # noqa: F401 - registers the robot-API models
         super().__init__(agent, core, "robot", timeout)
 
 
-class PlatformProxy(_Proxy):
+class PlatformProxy(_Dynamic, PlatformCalls):
+    """`self.platform`: the Platform's services (typed methods: rapps/sdk/calls.py); the token is added."""
+
     def __init__(self, agent, platform: str, token: str, timeout: float = 60.0):
-        import ontology.services  # noqa: F401 - registers the service models
         super().__init__(agent, platform, P.ONTOLOGY, timeout, extra={"token": token})
 
 
@@ -112,10 +113,43 @@ class CloudProxy:
                                       timeout=15.0)
 
 
+class TaskLog:
+    """`self.log.info("...")`: a line in the run's trace (kind "log", with the behaviour state it was
+    written in) and in the Dynamic Agent's Python log (its stderr.log in the run directory)."""
+
+    def __init__(self, task: "Task"):
+        self._task = task
+        self._py = logging.getLogger(f"rapp.task.{task.manifest.name}")
+
+    def _write(self, level: str, message: str, *args) -> None:
+        text = message % args if args else message
+        state = "/".join(self._task.state_path())
+        getattr(self._py, level)("[%s] %s", state or "-", text)
+        self._task._trace(RecordKind.LOG, level=level, message=text[:2000], state=state)
+
+    def debug(self, message: str, *args) -> None:
+        self._write("debug", message, *args)
+
+    def info(self, message: str, *args) -> None:
+        self._write("info", message, *args)
+
+    def warning(self, message: str, *args) -> None:
+        self._write("warning", message, *args)
+
+    def error(self, message: str, *args) -> None:
+        self._write("error", message, *args)
+
+
 class Task:
-    """Base class of a RApp's task. Implement `build()`; it returns a Behaviour (usually an FSM)."""
+    """Base class of a RApp's task. Implement `build()`; it returns a Behaviour (an FSM, a tree).
+
+    What a task has: `robot`, `platform`, `cloud` (calls), `params` (the manifest's defaults and the
+    command's slot values), `robot_info` (its robot: type, id, capabilities), `log`, `progress()`,
+    `outputs` (a directory for the run's files), `bb` (the typed blackboard of the keys declared
+    in `keys`) and `memory` (the same values, untyped)."""
 
     cloud_ontology: str | None = None  # the ontology name of the RApp's Cloud Agent actions
+    keys: dict[str, Key] = {}  # the typed blackboard's keys (rapps/sdk/blackboard.py)
 
     def __init__(self, runtime):
         self.runtime = runtime
@@ -127,6 +161,34 @@ class Task:
         self.platform = PlatformProxy(runtime, runtime.platform, runtime.token)
         self.cloud = CloudProxy(runtime, runtime.platform, runtime.token, runtime.manifest.name,
                                 runtime.manifest.version, self.cloud_ontology)
+        self.root: Behaviour | None = None  # what build() returned (set by the runtime)
+        self.memory: dict = getattr(runtime, "memory", {})
+        self.log = TaskLog(self)
+        self.bb = Blackboard(self.keys, self.memory, writer=lambda: (self.state_path() or [""])[-1],
+                             trace=self._trace)
+
+    def _trace(self, kind: RecordKind, **fields: Any) -> None:
+        tracer = getattr(self.runtime, "tracer", None)
+        if tracer is not None:
+            tracer.record(kind, agent=getattr(self.runtime, "address", ""), **fields)
+
+    def state_path(self) -> list[str]:
+        """The states/children of the task's behaviour running now, outermost first."""
+        return active_path(self.root) if self.root is not None else []
+
+    def progress(self, fraction: float | None, text: str = "") -> None:
+        """How far the task is (0..1, or None when unknown): shown live by `rapp run`."""
+        if fraction is not None and not 0.0 <= fraction <= 1.0:
+            raise ValueError(f"progress fraction must be within 0..1, got {fraction}")
+        self._trace(RecordKind.PROGRESS, fraction=fraction, text=text[:200])
+
+    @property
+    def outputs(self) -> Path:
+        """This run's output directory (pictures, logs): kept by the Core after the run ends and
+        copied by `rapp run` into its result folder."""
+        out = Path(self.runtime.package_dir).parent / "outputs"
+        out.mkdir(exist_ok=True)
+        return out
 
     def build(self) -> Behaviour:
         raise NotImplementedError("a Task must build its behaviour (an FSM of behaviours)")

@@ -1,0 +1,29 @@
+"""The request behind every typed SDK call (rapps/sdk/calls.py): the fields given (UNSET ones left
+to the model's defaults) become the registered request model; the reply model comes back."""
+from __future__ import annotations
+
+from typing import Any
+
+from ontology.registry import Content, lookup
+
+
+class _Unset:
+    def __repr__(self) -> str:
+        return "UNSET"
+
+
+UNSET: Any = _Unset()  # "not given": the request model's own default applies
+
+
+class _Calls:
+    def __init__(self, agent, address: str, ontology: str, timeout: float, extra: dict | None = None):
+        self._agent, self._address, self._ontology = agent, address, ontology
+        self._timeout, self._extra = timeout, extra or {}
+
+    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None) -> Content:
+        model = lookup(self._ontology, action)
+        given = {k: v for k, v in fields.items() if v is not UNSET}
+        for k, v in self._extra.items():
+            if k in model.model_fields:
+                given.setdefault(k, v)
+        return await self._agent.request(self._address, model(**given), timeout=timeout or self._timeout)
