@@ -11,6 +11,9 @@ YAML keys (metres, angles in degrees):
   landmarks: [{id, text, x, y, z, yaw, size}]   QR panels; yaw = panel normal (into the room),
              size = side of the QR symbol without quiet zone (default 0.25)
   robots:    {name: {pose: [x, y, theta]} | {room: name} | {region: [x0, y0, x1, y1]}}
+  hazards:   {doors: {id: front|swing}, lamps: {id: [dx, dy]}, passages: [id]}   optional: what the owner's
+             home description lists (doors checked and from which side, lamps and the direction into the
+             room, doors left open for the robot); generated houses have it (robots/house_gen.py)
 Overrides (same keys): {"doors": {"d1": 45}, "lamps": {"l1": True}, "robots": {"nao": {"pose": [...]}}}
 """
 from __future__ import annotations
@@ -134,6 +137,7 @@ class Plan:
     landmarks: list[Landmark]
     rooms: list[Room]
     robots: dict[str, dict[str, Any]] = field(default_factory=dict)
+    hazards: dict[str, Any] = field(default_factory=dict)  # the description's `hazards` section
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
@@ -146,6 +150,10 @@ class Plan:
         if include_doors:
             out += [d.leaf_box() for d in self.doors]
         return out
+
+    def room_at(self, x: float, y: float) -> str | None:
+        """Name of the room whose rectangle holds (x, y), or None (walls, doorways, outside)."""
+        return next((r.name for r in self.rooms if r.rect[0] <= x <= r.rect[2] and r.rect[1] <= y <= r.rect[3]), None)
 
     def clearance(self, x: float, y: float) -> float:
         return min(b.distance(x, y) for b in self.obstacles())
@@ -254,4 +262,5 @@ def load_plan(source: str | Path | dict, seed: int = 0, overrides: dict | None =
                                        float(m.get("z", 1.0)), math.radians(float(m.get("yaw", 0))),
                                        float(m.get("size", 0.25))))
     plan.rooms = [Room(r["name"], tuple(map(float, r["rect"]))) for r in desc.get("rooms", [])]
+    plan.hazards = dict(desc.get("hazards") or {})
     return plan

@@ -32,6 +32,7 @@ from .errors import InvalidArgument, RobotError, WorldClosed
 from .floorplan import (CEILING_COLOR, DOOR_COLOR, DOOR_HEIGHT, DOOR_THICKNESS, FLOOR_COLOR, Box, Plan,
                         load_plan)
 from .gridmap import GridMap, build_grid_map
+from .house_gen import GENERATED, generate
 from .odometry import OdometryNoise
 from .qr import qr_texture, symbol_fraction
 from .receptors import Camera
@@ -208,11 +209,15 @@ class World(Scene):
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
                   time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None
                   ) -> "World":
-        """Build from a YAML house description; `path` may also be a bare name in robots/houses."""
+        """Build from a YAML house description; `path` may also be a bare name in robots/houses, or
+        "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest)."""
         path = Path(path)
+        source: Path | dict = path
         if not path.exists() and (HOUSES / f"{path}.yaml").exists():
-            path = HOUSES / f"{path}.yaml"
-        return cls(load_plan(path, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step, render=render,
+            source = HOUSES / f"{path}.yaml"
+        elif not path.exists() and str(path) == GENERATED:
+            source = generate(seed)
+        return cls(load_plan(source, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step, render=render,
                    render_workers=render_workers)
 
     # ------------------------------------------------------------------ thread plumbing

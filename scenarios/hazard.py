@@ -4,6 +4,7 @@ Cloud Agent) walk the robot to each door and lamp and report; the run is scored 
 
     result = await run_hazard_detection("nao", seed=1, house="house", out_dir="out/")
     python -m scenarios.hazard --robot elektron --seed 3 --house small --json result.json
+    python -m scenarios.hazard --robot nao --house generated --seed 5   # the house generated from seed 5
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from ontology.trace import Direction, RecordKind
 from rapps.hazard_detection.hazard_detection.models import HazardReport
 from robots import OdometryNoise, RobotAPI, World
 
-from .home_setup import DOOR_OPEN_DEG, home_description, home_map, hazard_overrides, upload_home
+from .home_setup import DOOR_OPEN_DEG, HOUSES, home_description, home_map, hazard_overrides, upload_home
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
 from .progress import follow
@@ -184,7 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="hazard-detection", description=__doc__.splitlines()[0])
     ap.add_argument("--robot", choices=["nao", "elektron"], default="nao")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--house", choices=["house", "small"], default="house")
+    ap.add_argument("--house", choices=HOUSES, default="house",
+                    help="a hand-made house, or 'generated': the house generated from --seed")
     ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here")
     ap.add_argument("--out", dest="out_dir", default=None, help="directory for plot, frames and trace")
     ap.add_argument("--rtf", type=float, default=0.0, help="real-time factor (0 = as fast as possible)")

@@ -1,9 +1,10 @@
 """What the robot owner keeps on the Platform for the hazard-detection RApp: the occupancy map, the
 QR landmark map and the list of possible hazards (where to stand, where to look), derived from the
-house description. Door/lamp STATES are never part of it (except the passage door the owner leaves
-open so the robot can move between rooms, which is drawn into the map).
+house description. Door/lamp STATES are never part of it (except the passage doors the owner leaves
+open so the robot can move between rooms, which are drawn into the map).
 
-    overrides = hazard_overrides("house", seed)          # seeded random doors (lamps: world seed)
+    overrides = hazard_overrides("house", seed)          # seeded random doors and lamps
+    (house "generated": the house robots/house_gen.py generates from the seed, with its own layout)
     world = World.from_file("house", seed, overrides)
     info, png, yaml_text = home_description(world, "house", out_dir)
     upload_home(state, user, info, png, yaml_text)       # as the owner's earlier upload would
@@ -23,76 +24,99 @@ from ontology.services.home import DoorShape, HazardSpec, HomeInfo, LandmarkSpec
 from ontology.errors import ErrorCode
 from ontology.services.navigation import UploadMap
 from robots.gridmap import OCCUPIED, build_grid_map
+from robots.house_gen import GENERATED, PASSAGE_OPEN_DEG, door_check_pose, generate, lamp_check_pose
 
-# per house: doors checked (and from which side), lamps checked, the passage door kept open
+# per hand-made house: doors checked (and from which side), lamps checked (and the direction into the
+# room), the passage doors kept open; a generated house (and any description with a `hazards`
+# section) brings its own
 LAYOUTS = {
-    "small": {"doors": {"d1": "front"}, "lamps": {"l1": (1.0, -1.0)}, "passage": None},
+    "small": {"doors": {"d1": "front"}, "lamps": {"l1": (1.0, -1.0)}, "passages": []},
     "house": {"doors": {"d_kitchen": "front", "d_bedroom": "swing"},
-              "lamps": {"l_living": (1.0, -1.0), "l_office": (1.0, -1.0)}, "passage": "d_living"},
+              "lamps": {"l_living": (1.0, -1.0), "l_office": (1.0, -1.0)}, "passages": ["d_living"]},
 }
+HOUSES = (*LAYOUTS, GENERATED)  # the houses the scenarios can run in
 DOOR_OPEN_DEG = 10.0  # ground truth: a door opened more than this is "open"
 
 
+def _plan(world_or_plan):
+    return getattr(world_or_plan, "plan", world_or_plan)
+
+
+def layout(house: str, world_or_plan=None, seed: int | None = None) -> dict:
+    """The hazard layout of a house: LAYOUTS for the hand-made ones, else the description's `hazards`
+    section (of the given world / plan, or of the house generated from `seed`)."""
+    if house in LAYOUTS:
+        return LAYOUTS[house]
+    if world_or_plan is not None:
+        hz = _plan(world_or_plan).hazards
+    elif house == GENERATED and seed is not None:
+        hz = generate(seed)["hazards"]
+    else:
+        hz = {}
+    if not hz:
+        raise KeyError(f"no hazard layout for house {house!r} (known: {', '.join(HOUSES)})")
+    return {"doors": dict(hz.get("doors", {})), "lamps": {k: tuple(v) for k, v in hz.get("lamps", {}).items()},
+            "passages": list(hz.get("passages", []))}
+
+
+def has_layout(house: str, world_or_plan=None) -> bool:
+    return house in LAYOUTS or bool(world_or_plan is not None and _plan(world_or_plan).hazards)
+
+
 def hazard_overrides(house: str, seed: int) -> dict:
-    """Seeded random door angles: closed (0) or clearly open (20..90 deg); the passage door 80..90."""
-    layout = LAYOUTS[house]
+    """Seeded random door angles: closed (0) or clearly open (20..90 deg); passage doors 80..90; lamps
+    on or off. A generated house is generated from the same seed."""
+    lay = layout(house, seed=seed)
     rng = np.random.default_rng([seed, 6])
     doors = {}
-    for door_id in layout["doors"]:
+    for door_id in lay["doors"]:
         doors[door_id] = 0.0 if rng.random() < 0.5 else round(float(rng.uniform(20, 90)), 1)
-    if layout["passage"]:
-        doors[layout["passage"]] = round(float(rng.uniform(80, 90)), 1)
-    lamps = {lamp_id: bool(rng.random() < 0.5) for lamp_id in layout["lamps"]}
+    for door_id in lay["passages"]:
+        doors[door_id] = round(float(rng.uniform(*PASSAGE_OPEN_DEG)), 1)
+    lamps = {lamp_id: bool(rng.random() < 0.5) for lamp_id in lay["lamps"]}
     return {"doors": doors, "lamps": lamps}
 
 
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, float)
-    return v / np.linalg.norm(v)
-
-
 def door_hazard(door, side: str) -> HazardSpec:
-    """Stand so that every leaf position is seen obliquely: in front of the wall (non-swing side)
-    or diagonally on the swing side; look at the floor near the hinge."""
-    h = np.asarray(door.hinge, float)
-    c = np.array([math.cos(door.closed_yaw), math.sin(door.closed_yaw)])
-    n = np.array([-c[1], c[0]]) * door.sign  # the side the leaf swings to
-    if side == "front":
-        stand, look = h + 0.2 * c - 1.0 * n, h + 0.35 * c
-    else:
-        stand, look = h + 1.3 * _unit(n - c), h + 0.3 * _unit(n + c)
+    """Stand so that every leaf position is seen obliquely (robots.house_gen.door_check_pose); look at
+    the floor near the hinge."""
+    stand, look = door_check_pose(door, side)
     theta = math.atan2(look[1] - stand[1], look[0] - stand[0])
     return HazardSpec(id=door.id, type="door", stand=dict(x=stand[0], y=stand[1], theta=theta),
                       look_at=[look[0], look[1], 0.0],
-                      door=DoorShape(hinge=list(h), closed_yaw_deg=math.degrees(door.closed_yaw), width_m=door.width))
+                      door=DoorShape(hinge=list(door.hinge), closed_yaw_deg=math.degrees(door.closed_yaw),
+                                     width_m=door.width))
 
 
 def lamp_hazard(lamp, into_room: tuple[float, float], distance: float = 1.4) -> HazardSpec:
-    stand = np.array([lamp.x, lamp.y]) + distance * _unit(into_room)
+    stand = lamp_check_pose(lamp, into_room, distance)
     theta = math.atan2(lamp.y - stand[1], lamp.x - stand[0])
     return HazardSpec(id=lamp.id, type="lamp", stand=dict(x=stand[0], y=stand[1], theta=theta),
                       look_at=[lamp.x, lamp.y, lamp.z])
 
 
 def hazard_list(world, house: str) -> list[HazardSpec]:
-    layout = LAYOUTS[house]
-    doors = {d.id: d for d in world.plan.doors}
-    lamps = {lp.id: lp for lp in world.plan.lamps}
-    return ([door_hazard(doors[i], side) for i, side in layout["doors"].items()]
-            + [lamp_hazard(lamps[i], d) for i, d in layout["lamps"].items()])
+    """`world`: a World or its Plan."""
+    plan = _plan(world)
+    lay = layout(house, plan)
+    doors = {d.id: d for d in plan.doors}
+    lamps = {lp.id: lp for lp in plan.lamps}
+    return ([door_hazard(doors[i], side) for i, side in lay["doors"].items()]
+            + [lamp_hazard(lamps[i], d) for i, d in lay["lamps"].items()])
 
 
 def landmark_specs(world) -> dict[str, LandmarkSpec]:
-    return {m["text"]: LandmarkSpec(x=m["x"], y=m["y"], z=m["z"], yaw=m["yaw"], size_m=m["size"])
-            for m in world.landmark_map()["landmarks"]}
+    """`world`: a World or its Plan."""
+    return {m.text: LandmarkSpec(x=m.x, y=m.y, z=m.z, yaw=m.yaw, size_m=m.size) for m in _plan(world).landmarks}
 
 
 def home_map(world, house: str):
-    """The static map (walls, furniture) plus the passage door's leaf, as the owner would map it."""
-    grid = build_grid_map(world.plan)
-    passage = LAYOUTS[house]["passage"]
-    if passage:
-        door = next(d for d in world.plan.doors if d.id == passage)
+    """The static map (walls, furniture) plus the passage doors' leaves, as the owner would map it
+    (`world`: a World or its Plan)."""
+    plan = _plan(world)
+    grid = build_grid_map(plan)
+    for passage in layout(house, plan)["passages"]:
+        door = next(d for d in plan.doors if d.id == passage)
         leaf = door.leaf_box()
         leaf = replace(leaf, sy=max(leaf.sy, 2 * grid.resolution))
         pts = leaf.corners()
@@ -140,8 +164,8 @@ async def ensure_home(core, world, house: str, out_dir) -> str:
     from agents.errors import RequestError
     from ontology.services.home import GetHomeInfo
 
-    if house not in LAYOUTS:
-        return f"no home description for house {house!r} (known: {', '.join(LAYOUTS)}); upload one"
+    if not has_layout(house, world):
+        return f"no home description for house {house!r} (known: {', '.join(HOUSES)}); upload one"
     token = await core.fresh_token()
     try:
         await core.request(core.platform, GetHomeInfo(token=token, home_id="home"))
