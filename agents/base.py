@@ -27,7 +27,7 @@ from ontology import acl
 from ontology import core as C
 from ontology.acl import Performative
 from ontology.common import Reason
-from ontology.registry import Action, Content, ContentError, lookup, parse_json, validate
+from ontology.registry import Action, Content, ContentError, Progress, lookup, parse_json, validate
 from xmpp_server.client_cleanup import end_filter_task
 from xmpp_server.compat import install_agent_patches
 from xmpp_server.ports import free_port
@@ -37,7 +37,7 @@ from ontology.trace import RecordKind
 
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
                      RequestTimeout)
-from .messages import AclInfo, bare, copy_message, make_message, reply_to
+from .messages import AclInfo, bare, copy_message, is_feedback, make_message, reply_to
 from .stanza import message_xml, read_message
 from .tracing import CONTENT_CAP, cap, tracer_for
 
@@ -278,16 +278,18 @@ class RappAgent(Agent):
     # -- FIPA-Request initiator -------------------------------------------------------------
     async def request(self, to: str, content: Action, *, timeout: float = 10.0,
                       performative: Performative = Performative.REQUEST,
-                      retries: int | None = None) -> Content:
+                      retries: int | None = None, on_feedback=None) -> Content:
         """Send a request and wait for the final answer (agree is noted, not final).
 
         A timed-out request is sent again only when its action is idempotent (a read):
-        `retries` times (default 2 for idempotent actions, 0 otherwise)."""
+        `retries` times (default 2 for idempotent actions, 0 otherwise).
+        `on_feedback(Progress)`: asks for the action's progress, called for each progress inform.
+        Cancelling the awaiting task cancels the action at the responder (a FIPA cancel)."""
         if retries is None:
             retries = 2 if content.idempotent else 0
         for attempt in range(retries + 1):
             try:
-                return await self._request_once(to, content, timeout, performative)
+                return await self._request_once(to, content, timeout, performative, on_feedback)
             except RequestTimeout:
                 if attempt == retries:
                     raise
@@ -296,8 +298,8 @@ class RappAgent(Agent):
         raise AssertionError("unreachable")
 
     async def _request_once(self, to: str, content: Action, timeout: float,
-                            performative: Performative) -> Content:
-        msg = make_message(to, content, performative=performative)
+                            performative: Performative, on_feedback=None) -> Content:
+        msg = make_message(to, content, performative=performative, feedback=on_feedback is not None)
         conv = msg.get_metadata(acl.CONVERSATION_ID)
         queue: asyncio.Queue = asyncio.Queue()
         self._pending[conv] = queue
@@ -322,6 +324,9 @@ class RappAgent(Agent):
                 perf = answer.get_metadata(acl.PERFORMATIVE)
                 if perf == Performative.AGREE.value:
                     continue
+                if perf == Performative.INFORM.value and is_feedback(answer):
+                    self._feedback(on_feedback, answer, name)
+                    continue
                 if perf == Performative.INFORM.value:
                     try:
                         return validate(content.reply_model or Content, parse_json(answer.body))
@@ -337,10 +342,25 @@ class RappAgent(Agent):
                                conversation_id=conv, timeout_s=timeout)
             raise RequestTimeout(f"{to} did not answer {name} within {timeout:g}s",
                                  code=ErrorCode.TIMEOUT, peer=to, action=name) from None
+        except asyncio.CancelledError:  # the requester gave up: the responder stops the action too
+            if conv in self._pending:
+                cancel = make_message(to, None, performative=Performative.CANCEL, ontology=content.ontology_name,
+                                      action=name, conversation_id=conv)
+                self.submit(self.send(cancel))
+            raise
         finally:
             self._pending.pop(conv, None)
             self._pending_peer.pop(conv, None)
             self._outbox.pop(conv, None)
+
+    @staticmethod
+    def _feedback(on_feedback, answer: Message, name: str) -> None:
+        if on_feedback is None:
+            return
+        try:
+            on_feedback(validate(Progress, parse_json(answer.body)))
+        except Exception:  # noqa: BLE001 - a bad callback or feedback must not end the request
+            log.exception("feedback of %s not handled", name)
 
     def fail_pending(self, peer: str, error: Exception) -> int:
         """End every request waiting for an answer from `peer` with `error` (it is known to be
@@ -393,8 +413,9 @@ class RappAgent(Agent):
         if not self.tracer.enabled:
             return
         info = AclInfo.of(msg)
+        extra = {"feedback": True} if is_feedback(msg) else {}  # a progress inform, not an answer
         self.tracer.record(
-            RecordKind.MESSAGE, dir=direction, agent=self.address, sender=bare(msg.sender),
+            RecordKind.MESSAGE, **extra, dir=direction, agent=self.address, sender=bare(msg.sender),
             receiver=bare(msg.to), performative=info.performative or "chat",
             conversation_id=info.conversation_id, ontology=info.ontology, action=info.action,
             message_id=info.reply_with, in_reply_to=info.in_reply_to, path=path,

@@ -1,11 +1,13 @@
 """The Core Agent's robot-API server (paper 000 fig. 5, s8/s9; the emergency stop of paper 003)."""
 from __future__ import annotations
 
+import asyncio
 import logging
+import math
 from typing import TYPE_CHECKING
 
 import ontology.robot  # also registers the robot-API models the command server serves
-from ontology.registry import actions
+from ontology.registry import Progress, actions
 from ontology.robot_actions import facts
 from ontology.errors import ErrorCode
 
@@ -20,6 +22,21 @@ if TYPE_CHECKING:
     from .core_agent import DynamicSession
 
 log = logging.getLogger("rapp.core")
+FEEDBACK_EVERY_S = 0.5
+
+
+def path_progress(path: list[tuple[float, float]], x: float, y: float) -> float:
+    """Fraction (0..1) of a polyline's length before the point of it nearest to (x, y)."""
+    lengths = [math.dist(a, b) for a, b in zip(path, path[1:])]
+    total = sum(lengths) or 1.0
+    best, before = (math.inf, 0.0), 0.0
+    for (a, b), seg in zip(zip(path, path[1:]), lengths):
+        t = 0.0 if seg == 0 else max(0.0, min(1.0, ((x - a[0]) * (b[0] - a[0]) + (y - a[1]) * (b[1] - a[1])) / seg ** 2))
+        d = math.dist((x, y), (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])))
+        if d < best[0]:
+            best = (d, before + t * seg)
+        before += seg
+    return max(0.0, min(1.0, best[1] / total))
 
 
 class RobotCommands:
@@ -73,9 +90,26 @@ class RobotCommands:
             self.driving = False
         try:
             async with self.locks.hold(device_of(req.action_name), ctx.sender, timeout=60.0):
-                return await self.robot.handle(req)
+                if not (ctx.wants_feedback and facts(req.action_name).motion):
+                    return await self.robot.handle(req)
+                reporter = asyncio.create_task(self._report_motion(req, ctx))
+                try:
+                    return await self.robot.handle(req)  # cancelled by the requester: the motion stops
+                finally:
+                    reporter.cancel()
         except LockError as e:
             raise Refusal(str(e), ErrorCode.LOCKED) from None
+
+    async def _report_motion(self, req, ctx) -> None:
+        """Progress informs of a motion, at its start and then every FEEDBACK_EVERY_S: the estimated
+        pose and, along a path, the fraction of its length behind the robot."""
+        path = [(p.x, p.y) for p in getattr(req, "poses", [])]
+        while True:
+            pose = await self.robot.handle(ontology.robot.GetGlobalPose())
+            fraction = path_progress(path, pose.x, pose.y) if len(path) > 1 else None
+            text = f"at ({pose.x:.2f}, {pose.y:.2f})" + (f", {fraction:.0%} of the path" if fraction is not None else "")
+            await ctx.feedback(Progress(fraction=fraction, text=text, data=pose.model_dump()))
+            await asyncio.sleep(FEEDBACK_EVERY_S)
 
     async def _lock(self, req, owner: str):
         try:

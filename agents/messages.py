@@ -12,7 +12,8 @@ from ontology.registry import Action, Content, encode
 
 def make_message(to: str, content: Content | None, *, performative: Performative | str,
                  ontology: str = "", action: str = "", conversation_id: str | None = None,
-                 in_reply_to: str | None = None, protocol: str = acl.Protocol.REQUEST.value) -> Message:
+                 in_reply_to: str | None = None, protocol: str = acl.Protocol.REQUEST.value,
+                 feedback: bool = False) -> Message:
     if isinstance(content, Action):
         ontology = ontology or content.ontology_name
         action = action or content.action_name
@@ -31,18 +32,27 @@ def make_message(to: str, content: Content | None, *, performative: Performative
         meta[acl.ACTION] = action
     if in_reply_to:
         meta[acl.IN_REPLY_TO] = in_reply_to
+    if feedback:
+        meta[acl.FEEDBACK] = "1"
     # no XMPP thread: it would only repeat the conversation id on the wire
     return Message(to=str(to), body=encode(content), metadata=meta)
 
 
-def reply_to(msg: Message, content: Content | None, performative: Performative | str) -> Message:
-    """A reply in the same conversation, same ontology and action, addressed to the sender."""
+def reply_to(msg: Message, content: Content | None, performative: Performative | str,
+             feedback: bool = False) -> Message:
+    """A reply in the same conversation, same ontology and action, addressed to the sender
+    (`feedback`: a progress inform of an action with feedback, not its final answer)."""
     info = AclInfo.of(msg)
     return make_message(
         str(msg.sender), content, performative=performative, ontology=info.ontology,
         action=info.action, conversation_id=info.conversation_id or None,
         in_reply_to=info.reply_with or None, protocol=info.protocol or acl.Protocol.REQUEST.value,
+        feedback=feedback,
     )
+
+
+def is_feedback(msg: Message) -> bool:
+    return msg.get_metadata(acl.FEEDBACK) == "1"
 
 
 @dataclass(frozen=True)

@@ -25,12 +25,12 @@ from spade.template import Template
 from ontology import acl
 from ontology.acl import Performative
 from ontology.common import Reason
-from ontology.registry import Action, Content, ContentError, decode_request
+from ontology.registry import Action, Content, ContentError, Progress, decode_request
 from ontology.errors import ErrorCode
 from ontology.trace import RecordKind
 
 from .errors import Failure, Refusal
-from .messages import AclInfo, bare, copy_message, reply_to
+from .messages import AclInfo, bare, copy_message, is_feedback, reply_to
 
 log = logging.getLogger("rapp.responder")
 KEEP_ANSWERS = 4096  # conversations whose final answer a responder keeps for a resent request
@@ -44,6 +44,16 @@ class RequestContext:
     message: Message
     user: str = ""  # set by a check that authenticates the request (Platform tokens)
     token: Any = None  # what that check knows of the token (agents.platform_users.TokenInfo)
+    agent: Any = None  # the serving agent (sends the feedback)
+
+    @property
+    def wants_feedback(self) -> bool:
+        return is_feedback(self.message)
+
+    async def feedback(self, progress: Progress) -> None:
+        """A progress inform to the requester, when it asked for feedback (else nothing is sent)."""
+        if self.wants_feedback and self.agent is not None:
+            await self.agent.send(reply_to(self.message, progress, Performative.INFORM, feedback=True))
 
 
 Handler = Callable[[Action, RequestContext], Awaitable[Content | None]]
@@ -66,6 +76,7 @@ class Responder(CyclicBehaviour):
         # after a reconnect is answered from here, never executed twice
         self._answers: OrderedDict[tuple[str, str], Message | None] = OrderedDict()
         self._answered_at: dict[tuple[str, str], float] = {}
+        self._running: dict[tuple[str, str], asyncio.Task] = {}  # what a cancel can stop
 
     def make_template(self) -> Template:
         # constructor metadata: assigning template.metadata later matches everything (spade 4.1.4)
@@ -76,9 +87,17 @@ class Responder(CyclicBehaviour):
         if msg is not None:
             self.take_now(msg)
 
+    def match(self, msg: Message) -> bool:
+        """The template's requests, and a cancel of one in this ontology."""
+        if msg.get_metadata(acl.PERFORMATIVE) == Performative.CANCEL.value:
+            return msg.get_metadata(acl.ONTOLOGY) == self.ontology
+        return super().match(msg)
+
     def take_now(self, msg: Message) -> asyncio.Future:
         """Called by RappAgent's router: serve at once, without SPADE's queue hop."""
         key = (bare(msg.sender), msg.get_metadata(acl.CONVERSATION_ID) or "")
+        if msg.get_metadata(acl.PERFORMATIVE) == Performative.CANCEL.value:
+            return self._cancel(key)
         if key[1] and key in self._answers:
             return self._repeat(key, msg)
         if key[1]:
@@ -90,7 +109,20 @@ class Responder(CyclicBehaviour):
             task = asyncio.create_task(self._serve_in_order(msg))
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
+        if key[1]:
+            self._running[key] = task
+            task.add_done_callback(lambda _t, key=key: self._running.pop(key, None))
         return task
+
+    def _cancel(self, key) -> asyncio.Future:
+        """The requester cancels its running request: the handler is cancelled and the request
+        ends with failure(cancelled). A cancel of nothing running is ignored (it crossed the answer)."""
+        task = self._running.get(key)
+        if task is not None:
+            task.cancel()
+        done = asyncio.get_running_loop().create_future()
+        done.set_result(None)
+        return done
 
     async def _serve_in_order(self, msg: Message) -> None:
         async with self._order:
@@ -98,7 +130,7 @@ class Responder(CyclicBehaviour):
 
     async def serve(self, msg: Message) -> None:
         info = AclInfo.of(msg)
-        ctx = RequestContext(sender=bare(msg.sender), info=info, message=msg)
+        ctx = RequestContext(sender=bare(msg.sender), info=info, message=msg, agent=self.agent)
         try:
             request = decode_request(info.ontology, info.action, msg.body)
             handler = self.handlers.get(info.action)
@@ -112,7 +144,7 @@ class Responder(CyclicBehaviour):
                 res = self.check(request, ctx)
                 if asyncio.iscoroutine(res):
                     await res
-            if self.agree:
+            if self.agree or ctx.wants_feedback:  # an action with feedback: request -> agree -> progress
                 await self._answer(msg, Performative.AGREE, None)
             result = await handler(request, ctx)
         except Refusal as e:

@@ -33,7 +33,7 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
             continue
         if r["dir"] == "send" and r["performative"] == "request":
             sends[r["conversation_id"]] = r
-        elif r["dir"] == "recv" and r["performative"] in FINAL_ANSWERS:
+        elif r["dir"] == "recv" and r["performative"] in FINAL_ANSWERS and not r.get("feedback"):
             answers.setdefault(r["conversation_id"], r)
     lat = {"platform": [], "robot": [], "other": []}
     missing, lost_status = [], []

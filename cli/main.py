@@ -184,15 +184,19 @@ def cmd_platform(a) -> int:
 
     async def run(client, settings):
         from robots import World
-        from scenarios.home_setup import LAYOUTS, home_description, upload_home_over_xmpp
+        from scenarios.home_setup import HOUSES, has_layout, home_description, upload_home_over_xmpp
 
-        if a.house not in LAYOUTS:
-            raise CliError(f"no home description for house {a.house!r} (known: {', '.join(LAYOUTS)})")
+        try:
+            world = World.from_file(a.house, seed=a.seed)
+        except (OSError, ValueError, KeyError) as e:
+            raise CliError(f"no house {a.house!r} (known: {', '.join(HOUSES)}, or a YAML file): {e}") from None
+        if not has_layout(a.house, world):
+            world.close()
+            raise CliError(f"no home description for house {a.house!r} (known: {', '.join(HOUSES)})")
         platform = settings.jid(a.platform)
         login = await client.request(platform, P.Login(user=a.user, password=a.password, ttl_s=600))
         import tempfile
 
-        world = World.from_file(a.house, seed=0)
         try:
             with tempfile.TemporaryDirectory(prefix="rapp-home-") as tmp:
                 info, png, yaml_text = home_description(world, a.house, Path(tmp))
@@ -297,7 +301,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     pl = sub.add_parser("platform", help="talk to the Platform Agent as a robot owner")
     pl.add_argument("action", choices=["upload-home"])
-    pl.add_argument("--house", default="small", help="house whose home description and map to upload")
+    pl.add_argument("--house", default="small", help="house whose home description and map to upload "
+                                                      "(small, house, or generated with --seed)")
+    pl.add_argument("--seed", type=int, default=0, help="the generated house's seed")
     pl.add_argument("--user", help="the owner's Platform user name")
     pl.add_argument("--password", help="the owner's Platform password")
     pl.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")

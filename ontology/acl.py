@@ -43,6 +43,11 @@ IN_REPLY_TO = "in_reply_to"
 PROTOCOL = "protocol"
 LANGUAGE_KEY = "language"
 REPLY_BY = "reply_by"
+# actions with feedback (the ROS action pattern on FIPA request): a request carrying FEEDBACK="1"
+# asks for progress; the responder then sends informs carrying FEEDBACK="1" (an
+# ontology.registry.Progress each) before its final answer; a `cancel` in the conversation stops
+# the action, which then ends with failure(cancelled)
+FEEDBACK = "feedback"
 
 # performatives that open a conversation (the receiver must answer them)
 OPENING = {Performative.REQUEST, Performative.QUERY_REF, Performative.SUBSCRIBE}

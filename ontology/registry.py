@@ -40,6 +40,14 @@ class Done(Content):
     ok: bool = True
 
 
+class Progress(Content):
+    """Feedback of a long action (acl.FEEDBACK): how far it is (0..1 or None) and what it does."""
+
+    fraction: float | None = None
+    text: str = ""
+    data: dict[str, Any] = {}
+
+
 class ContentError(ValueError):
     """Raised when a body cannot be turned into the registered model; the text names the problem."""
 

@@ -68,6 +68,10 @@ class RobotAPI:
             return None
         try:
             return await fut
+        except asyncio.CancelledError:  # the request was cancelled: the motion stops with it
+            if not ctrl.done:
+                ctrl.cancel(MotionInterrupted(f"{r.name}: {ctrl.__class__.__name__} cancelled"))
+            raise
         finally:
             if r.controllers.get(key) is ctrl:
                 del r.controllers[key]

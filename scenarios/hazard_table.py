@@ -14,6 +14,7 @@ import tempfile
 from pathlib import Path
 
 from .hazard import run_hazard_detection
+from .home_setup import GENERATED, HOUSES
 
 LOC_GOAL_M, TRACK_GOAL_M = 0.05, 0.10
 
@@ -81,11 +82,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=10, help="seeds 1..N")
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--robots", nargs="+", default=["nao", "elektron"], choices=["nao", "elektron"])
-    ap.add_argument("--house", default="house", choices=["house", "small"])
+    ap.add_argument("--house", default="house", choices=HOUSES,
+                    help="a hand-made house, or 'generated' (each seed its own generated house)")
+    ap.add_argument("--houses", type=int, metavar="N", help="N generated houses (= --house generated --seeds N)")
     ap.add_argument("--out", default=None, help="directory for the runs' outputs and table.json")
     ap.add_argument("--markdown", metavar="FILE", help="also write the table as Markdown")
     ap.add_argument("--from-json", metavar="TABLE_JSON", help="no runs: rewrite the table of an earlier table.json")
     args = ap.parse_args(argv)
+    if args.houses:
+        args.house, args.seeds = GENERATED, args.houses
     if args.from_json:
         results = json.loads(Path(args.from_json).read_text())
     else:
@@ -96,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"results: {out / 'table.json'}")
     print("\n".join(summary_rows(results)))
     if args.markdown:
-        where = "the full 20 m x 20 m house" if args.house == "house" else "the small house"
+        where = {"house": "the full 20 m x 20 m house", "small": "the small house"}.get(
+            args.house, f"{args.seeds} generated houses (seeds {args.first_seed}..{args.first_seed + args.seeds - 1})")
         Path(args.markdown).write_text(markdown(results, f"Hazard detection on {where}"))
     return 0 if results and all(r["all_correct"] for r in results) else 1
 

@@ -20,7 +20,7 @@ import numpy as np
 from agents.services import home as home_service
 from agents.services import navigation
 from agents.services.context import ServiceContext, ServiceState
-from ontology.services.home import DoorShape, HazardSpec, HomeInfo, LandmarkSpec, UploadHomeInfo
+from ontology.services.home import DoorShape, HazardSpec, HomeInfo, LandmarkSpec, RoomSpec, UploadHomeInfo
 from ontology.errors import ErrorCode
 from ontology.services.navigation import UploadMap
 from robots.gridmap import OCCUPIED, build_grid_map
@@ -107,7 +107,11 @@ def hazard_list(world, house: str) -> list[HazardSpec]:
 
 def landmark_specs(world) -> dict[str, LandmarkSpec]:
     """`world`: a World or its Plan."""
-    return {m.text: LandmarkSpec(x=m.x, y=m.y, z=m.z, yaw=m.yaw, size_m=m.size) for m in _plan(world).landmarks}
+    plan = _plan(world)
+    # a panel hangs on a wall: its room is the one 0.2 m in front of it
+    return {m.text: LandmarkSpec(x=m.x, y=m.y, z=m.z, yaw=m.yaw, size_m=m.size,
+                                 room=plan.room_at(m.x + 0.2 * math.cos(m.yaw), m.y + 0.2 * math.sin(m.yaw)))
+            for m in plan.landmarks}
 
 
 def home_map(world, house: str):
@@ -131,8 +135,11 @@ def home_map(world, house: str):
 def home_description(world, house: str, out_dir, home_id: str = "home") -> tuple[HomeInfo, bytes, str]:
     """HomeInfo plus the map as PNG bytes and map_server YAML text (also written to out_dir)."""
     png, yml = home_map(world, house).save(out_dir, f"{house}_map")
-    info = HomeInfo(home_id=home_id, map_id=f"{house}_map", hazards=hazard_list(world, house),
-                    landmarks=landmark_specs(world))
+    plan = _plan(world)
+    hazards = [h.model_copy(update={"room": plan.room_at(*(h.look_at[:2] if h.type == "lamp" else (h.stand.x, h.stand.y)))})
+               for h in hazard_list(world, house)]
+    info = HomeInfo(home_id=home_id, map_id=f"{house}_map", hazards=hazards, landmarks=landmark_specs(world),
+                    rooms=[RoomSpec(name=r.name, rect=list(r.rect)) for r in plan.rooms])
     return info, png.read_bytes(), yml.read_text()
 
 

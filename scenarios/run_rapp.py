@@ -26,7 +26,7 @@ from ontology.manifest import load_manifest
 from ontology.trace import Direction, RecordKind, StructureEvent
 from robots import RobotAPI, World
 from robots.gridmap import build_grid_map
-from scenarios.home_setup import LAYOUTS, home_description, home_map, upload_home
+from scenarios.home_setup import has_layout, home_description, home_map, upload_home
 from scenarios.plots import plot_hazard_run
 from scenarios.progress import RunView, follow
 from scenarios.recorder import RecordingAPI
@@ -67,7 +67,7 @@ async def _sample_poses(api, into: list, period_s: float = 0.2) -> None:
 
 
 def _grid(world, house: str):
-    return home_map(world, Path(house).stem) if Path(house).stem in LAYOUTS else build_grid_map(world.plan)
+    return home_map(world, Path(house).stem) if has_layout(Path(house).stem, world) else build_grid_map(world.plan)
 
 
 def _plot(out: Path, world, house: str, recorder: RecordingAPI, trajectory: list, title: str) -> Path:
@@ -109,7 +109,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                 await publish_package(system.publisher, system.store.address, "developer", "developer-secret",
                                       src.read_bytes())
             user = f"owner-{robot}1"
-            if Path(house).stem in LAYOUTS:  # the owner's home description, as the Platform keeps it
+            if has_layout(Path(house).stem, world):  # the owner's home description, as the Platform keeps it
                 info, png, yaml_text = home_description(world, Path(house).stem, out)
                 upload_home(system.platform.state, user, info, png, yaml_text)
             if progress or watch is not None:  # from the trace: Core and RApp states, chat, the robot's pose
@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="rapp run rapp", description=__doc__.splitlines()[0])
     p.add_argument("rapp", help="a RApp source directory (with manifest.yaml) or a built .rapp package")
     p.add_argument("--robot", choices=["nao", "elektron"], default="nao")
-    p.add_argument("--house", default="small", help="house name (small, house) or YAML file")
+    p.add_argument("--house", default="small", help="house name (small, house, generated with --seed) or YAML file")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--say", help="the owner's command (default: the RApp's first keyword)")
     p.add_argument("--out", help="result folder (default: a new temporary directory)")

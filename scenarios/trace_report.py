@@ -312,7 +312,8 @@ def unanswered_requests(records: Iterable[dict]) -> list[dict]:
         if ev.get("performative") not in EXPECT_ANSWER:
             continue
         answered = any(
-            other.get("performative") in FINAL_ANSWERS and other.get("conversation_id") == ev.get("conversation_id")
+            other.get("performative") in FINAL_ANSWERS and not other.get("feedback")
+            and other.get("conversation_id") == ev.get("conversation_id")
             and other["sender"] == ev["receiver"] and other.get("t", 0) >= ev.get("t", 0)
             for other in events)
         if not answered:

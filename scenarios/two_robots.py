@@ -27,7 +27,7 @@ from agents.tracing import read_trace
 
 from .hazard import (COMMAND, FINISHED, RAPP_DIR, cm, core_listening, finite, hazard_reports, reported,
                      rows_in_order, score_hazards, wait_until)
-from .home_setup import hazard_overrides, home_description, home_map, upload_home
+from .home_setup import HOUSES, hazard_overrides, home_description, home_map, upload_home
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
 from .system import RappSystem
@@ -38,6 +38,13 @@ SPLIT = {
     "house": {"nao": {"d_bedroom", "l_office"}, "elektron": {"d_kitchen", "l_living"}},
     "small": {"nao": {"l1"}, "elektron": {"d1"}},
 }
+
+
+def split(house: str, hazards) -> dict[str, set[str]]:
+    """Which hazards each owner lists: SPLIT for the hand-made houses, else alternately."""
+    if house in SPLIT:
+        return SPLIT[house]
+    return {kind: {h.id for h in hazards[i::len(ROBOTS)]} for i, kind in enumerate(ROBOTS)}
 
 
 async def _run_one(handle, timeout_s: float) -> tuple[str, list[str], float]:
@@ -61,7 +68,7 @@ async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json
         state = ServiceState(work_dir=out / "services")
         homes = {}
         for kind in ROBOTS:
-            hazards = info.hazards if shared else [h for h in info.hazards if h.id in SPLIT[house][kind]]
+            hazards = info.hazards if shared else [h for h in info.hazards if h.id in split(house, info.hazards)[kind]]
             homes[kind] = info.model_copy(update={"hazards": hazards})
             upload_home(state, f"owner-{kind}-{seed}", homes[kind], png, yaml_text)
         trace = out / "trace.jsonl"
@@ -122,7 +129,7 @@ def summary(result: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="two-robots", description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--house", choices=["house", "small"], default="house")
+    ap.add_argument("--house", choices=HOUSES, default="house")
     ap.add_argument("--shared", action="store_true", help="both owners list every hazard")
     ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here")
     ap.add_argument("--out", dest="out_dir", default=None, help="directory for plots, frames and trace")

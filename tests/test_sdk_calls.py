@@ -18,7 +18,7 @@ class Recorder:
     def __init__(self):
         self.sent = []
 
-    async def request(self, to, content, timeout):
+    async def request(self, to, content, timeout, on_feedback=None):
         self.sent.append((to, content, timeout))
         return content
 

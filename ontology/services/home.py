@@ -22,9 +22,17 @@ class DoorShape(Content):
     width_m: float = Field(default=0.9, gt=0)
 
 
+class RoomSpec(Content):
+    """A named room: its axis-aligned rectangle x0, y0, x1, y1 (m, global frame)."""
+
+    name: str
+    rect: list[float] = Field(min_length=4, max_length=4)
+
+
 class HazardSpec(Content):
     id: str
     type: Literal["door", "lamp"]
+    room: str | None = None  # the room it is checked from (a lamp's room; a door: where the robot stands)
     stand: Pose2D  # where the robot stands to check it (global frame)
     look_at: list[float] = Field(min_length=3, max_length=3)  # x, y, z of the point to look at
     door: DoorShape | None = None
@@ -32,6 +40,7 @@ class HazardSpec(Content):
 
 class LandmarkSpec(Landmark):
     size_m: float = Field(default=0.25, gt=0)  # QR symbol side without quiet zone
+    room: str | None = None  # the room it faces into
 
 
 class HomeInfo(Content):
@@ -39,6 +48,7 @@ class HomeInfo(Content):
     map_id: str  # a map uploaded with path_planning_upload_map (or a shared one)
     hazards: list[HazardSpec] = []
     landmarks: dict[str, LandmarkSpec] = {}  # keyed by the text encoded in the QR code
+    rooms: list[RoomSpec] = []
 
 
 @action("home_upload_info", ontology="platform", reply=HomeInfo, group=GROUP)

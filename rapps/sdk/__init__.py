@@ -55,8 +55,8 @@ class _Dynamic:
             raise AttributeError(action)
         lookup(self._ontology, action)  # ContentError naming the known actions when unknown
 
-        async def call(_timeout: float | None = None, **fields) -> Content:
-            return await self._call(action, fields, _timeout)
+        async def call(_timeout: float | None = None, _feedback=None, **fields) -> Content:
+            return await self._call(action, fields, _timeout, _feedback)
 
         call.__name__ = action
         return call

@@ -2,10 +2,10 @@
 # flake8: noqa
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Callable, Literal
 
 from ontology.platform import CloudAgentReply, Pong, TokenReply
-from ontology.registry import Done
+from ontology.registry import Done, Progress
 from ontology.robot import Audio, CameraInfo, CameraParams, Image, JointAngles, LaserScan, LockState, MicrophoneLevel, SonarReading, Transform, WordSpotted
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.email import EmailList
@@ -25,203 +25,203 @@ from ._call import UNSET, _Calls
 class RobotCalls(_Calls):
     """The robot API: one method per action the Core serves (ontology/robot.py)."""
 
-    async def capture_audio(self, *, seconds: float = 3.0, sample_rate: Literal[8000, 16000] = 16000, _timeout: float | None = None) -> Audio:
+    async def capture_audio(self, *, seconds: float = 3.0, sample_rate: Literal[8000, 16000] = 16000, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Audio:
         """Record the microphone for `seconds` of simulation time."""
-        return await self._call("capture_audio", {"seconds": seconds, "sample_rate": sample_rate}, _timeout)
+        return await self._call("capture_audio", {"seconds": seconds, "sample_rate": sample_rate}, _timeout, _feedback)
 
-    async def capture_image(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None) -> Image:
-        return await self._call("capture_image", {"camera": camera, "resolution": resolution}, _timeout)
+    async def capture_image(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Image:
+        return await self._call("capture_image", {"camera": camera, "resolution": resolution}, _timeout, _feedback)
 
-    async def free_resource(self, *, resource: str, _timeout: float | None = None) -> LockState:
-        return await self._call("free_resource", {"resource": resource}, _timeout)
+    async def free_resource(self, *, resource: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LockState:
+        return await self._call("free_resource", {"resource": resource}, _timeout, _feedback)
 
-    async def get_camera_info(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None) -> CameraInfo:
-        return await self._call("get_camera_info", {"camera": camera, "resolution": resolution}, _timeout)
+    async def get_camera_info(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CameraInfo:
+        return await self._call("get_camera_info", {"camera": camera, "resolution": resolution}, _timeout, _feedback)
 
-    async def get_global_pose(self, *, _timeout: float | None = None) -> Pose2D:
-        return await self._call("get_global_pose", {}, _timeout)
+    async def get_global_pose(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pose2D:
+        return await self._call("get_global_pose", {}, _timeout, _feedback)
 
-    async def get_joint_angles(self, *, joints: list[str] = UNSET, _timeout: float | None = None) -> JointAngles:
-        return await self._call("get_joint_angles", {"joints": joints}, _timeout)
+    async def get_joint_angles(self, *, joints: list[str] = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> JointAngles:
+        return await self._call("get_joint_angles", {"joints": joints}, _timeout, _feedback)
 
-    async def get_laser_scan(self, *, _timeout: float | None = None) -> LaserScan:
-        return await self._call("get_laser_scan", {}, _timeout)
+    async def get_laser_scan(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LaserScan:
+        return await self._call("get_laser_scan", {}, _timeout, _feedback)
 
-    async def get_sonars(self, *, _timeout: float | None = None) -> SonarReading:
-        return await self._call("get_sonars", {}, _timeout)
+    async def get_sonars(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> SonarReading:
+        return await self._call("get_sonars", {}, _timeout, _feedback)
 
-    async def get_transform(self, *, chain: str = 'camera', space: str = 'robot', _timeout: float | None = None) -> Transform:
-        return await self._call("get_transform", {"chain": chain, "space": space}, _timeout)
+    async def get_transform(self, *, chain: str = 'camera', space: str = 'robot', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Transform:
+        return await self._call("get_transform", {"chain": chain, "space": space}, _timeout, _feedback)
 
-    async def lock_resource(self, *, resource: str, wait: bool = True, timeout_s: float = 10.0, _timeout: float | None = None) -> LockState:
+    async def lock_resource(self, *, resource: str, wait: bool = True, timeout_s: float = 10.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LockState:
         """Paper 003: lock (wait up to timeout_s) or try-lock (wait=False) a device: base, head,"""
-        return await self._call("lock_resource", {"resource": resource, "wait": wait, "timeout_s": timeout_s}, _timeout)
+        return await self._call("lock_resource", {"resource": resource, "wait": wait, "timeout_s": timeout_s}, _timeout, _feedback)
 
-    async def look_at_point(self, *, x: float, y: float, z: float, _timeout: float | None = None) -> Done:
-        return await self._call("look_at_point", {"x": x, "y": y, "z": z}, _timeout)
+    async def look_at_point(self, *, x: float, y: float, z: float, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("look_at_point", {"x": x, "y": y, "z": z}, _timeout, _feedback)
 
-    async def microphone_energy(self, *, seconds: float = 0.2, _timeout: float | None = None) -> MicrophoneLevel:
-        return await self._call("microphone_energy", {"seconds": seconds}, _timeout)
+    async def microphone_energy(self, *, seconds: float = 0.2, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MicrophoneLevel:
+        return await self._call("microphone_energy", {"seconds": seconds}, _timeout, _feedback)
 
-    async def move_along_path(self, *, poses: list[Pose2D], _timeout: float | None = None) -> Done:
-        return await self._call("move_along_path", {"poses": poses}, _timeout)
+    async def move_along_path(self, *, poses: list[Pose2D], _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("move_along_path", {"poses": poses}, _timeout, _feedback)
 
-    async def move_joint(self, *, joints: list[str], angles: list[float], speed: float = 0.5, _timeout: float | None = None) -> Done:
-        return await self._call("move_joint", {"joints": joints, "angles": angles, "speed": speed}, _timeout)
+    async def move_joint(self, *, joints: list[str], angles: list[float], speed: float = 0.5, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("move_joint", {"joints": joints, "angles": angles, "speed": speed}, _timeout, _feedback)
 
-    async def move_stop(self, *, _timeout: float | None = None) -> Done:
-        return await self._call("move_stop", {}, _timeout)
+    async def move_stop(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("move_stop", {}, _timeout, _feedback)
 
-    async def move_to(self, *, x: float, y: float = 0.0, theta: float = 0.0, _timeout: float | None = None) -> Done:
+    async def move_to(self, *, x: float, y: float = 0.0, theta: float = 0.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Relative motion in the robot frame at call time."""
-        return await self._call("move_to", {"x": x, "y": y, "theta": theta}, _timeout)
+        return await self._call("move_to", {"x": x, "y": y, "theta": theta}, _timeout, _feedback)
 
-    async def move_vel(self, *, x: float = 0.0, y: float = 0.0, theta: float = 0.0, _timeout: float | None = None) -> Done:
+    async def move_vel(self, *, x: float = 0.0, y: float = 0.0, theta: float = 0.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Continuous velocity in the robot frame (m/s, rad/s) until move_stop; y must be 0 on diff drive."""
-        return await self._call("move_vel", {"x": x, "y": y, "theta": theta}, _timeout)
+        return await self._call("move_vel", {"x": x, "y": y, "theta": theta}, _timeout, _feedback)
 
-    async def play_audio(self, *, data_b64: str, _timeout: float | None = None) -> Done:
+    async def play_audio(self, *, data_b64: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Play a mono 16-bit PCM WAV (16 kHz) on the loudspeaker; returns when it has been played."""
-        return await self._call("play_audio", {"data_b64": data_b64}, _timeout)
+        return await self._call("play_audio", {"data_b64": data_b64}, _timeout, _feedback)
 
-    async def rest(self, *, _timeout: float | None = None) -> Done:
-        return await self._call("rest", {}, _timeout)
+    async def rest(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("rest", {}, _timeout, _feedback)
 
-    async def say(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, _timeout: float | None = None) -> Done:
+    async def say(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Speak `text` (synthesised: the robot's loudspeaker plays it into the room)."""
-        return await self._call("say", {"text": text, "language": language, "voice": voice, "speed": speed}, _timeout)
+        return await self._call("say", {"text": text, "language": language, "voice": voice, "speed": speed}, _timeout, _feedback)
 
-    async def set_camera_param(self, *, camera: str = '', name: str, value: float, _timeout: float | None = None) -> CameraParams:
-        return await self._call("set_camera_param", {"camera": camera, "name": name, "value": value}, _timeout)
+    async def set_camera_param(self, *, camera: str = '', name: str, value: float, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CameraParams:
+        return await self._call("set_camera_param", {"camera": camera, "name": name, "value": value}, _timeout, _feedback)
 
-    async def set_camera_params(self, *, camera: str = '', brightness: float | None = None, contrast: float | None = None, gain: float | None = None, exposure: float | None = None, auto_exposure: bool | None = None, _timeout: float | None = None) -> CameraParams:
-        return await self._call("set_camera_params", {"camera": camera, "brightness": brightness, "contrast": contrast, "gain": gain, "exposure": exposure, "auto_exposure": auto_exposure}, _timeout)
+    async def set_camera_params(self, *, camera: str = '', brightness: float | None = None, contrast: float | None = None, gain: float | None = None, exposure: float | None = None, auto_exposure: bool | None = None, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CameraParams:
+        return await self._call("set_camera_params", {"camera": camera, "brightness": brightness, "contrast": contrast, "gain": gain, "exposure": exposure, "auto_exposure": auto_exposure}, _timeout, _feedback)
 
-    async def set_global_pose(self, *, x: float, y: float, theta: float = 0.0, _timeout: float | None = None) -> Done:
-        return await self._call("set_global_pose", {"x": x, "y": y, "theta": theta}, _timeout)
+    async def set_global_pose(self, *, x: float, y: float, theta: float = 0.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("set_global_pose", {"x": x, "y": y, "theta": theta}, _timeout, _feedback)
 
-    async def take_predefined_posture(self, *, posture: str, speed: float = 0.5, _timeout: float | None = None) -> Done:
-        return await self._call("take_predefined_posture", {"posture": posture, "speed": speed}, _timeout)
+    async def take_predefined_posture(self, *, posture: str, speed: float = 0.5, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("take_predefined_posture", {"posture": posture, "speed": speed}, _timeout, _feedback)
 
-    async def word_spotting(self, *, words: list[str], timeout: float = 10.0, audio: bool = True, _timeout: float | None = None) -> WordSpotted:
+    async def word_spotting(self, *, words: list[str], timeout: float = 10.0, audio: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> WordSpotted:
         """Wait for one of `words`: typed utterances (Microphone.hear) within `timeout` wall-clock seconds"""
-        return await self._call("word_spotting", {"words": words, "timeout": timeout, "audio": audio}, _timeout)
+        return await self._call("word_spotting", {"words": words, "timeout": timeout, "audio": audio}, _timeout, _feedback)
 
 
 class PlatformCalls(_Calls):
     """The Platform services a RApp may be granted (ontology/services/); the token is added."""
 
-    async def cognitive_get_history(self, *, test_type: str = '', _timeout: float | None = None) -> CognitiveHistory:
-        return await self._call("cognitive_get_history", {"test_type": test_type}, _timeout)
+    async def cognitive_get_history(self, *, test_type: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveHistory:
+        return await self._call("cognitive_get_history", {"test_type": test_type}, _timeout, _feedback)
 
-    async def cognitive_record_performance(self, *, test_id: str, score: float, _timeout: float | None = None) -> ScoreRecord:
-        return await self._call("cognitive_record_performance", {"test_id": test_id, "score": score}, _timeout)
+    async def cognitive_record_performance(self, *, test_id: str, score: float, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ScoreRecord:
+        return await self._call("cognitive_record_performance", {"test_id": test_id, "score": score}, _timeout, _feedback)
 
-    async def cognitive_test_chooser(self, *, test_type: str, difficulty: int = 0, _timeout: float | None = None) -> CognitiveTest:
+    async def cognitive_test_chooser(self, *, test_type: str, difficulty: int = 0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveTest:
         """Picks a test of the type; difficulty 0 = adapt to the user's last scores of that type."""
-        return await self._call("cognitive_test_chooser", {"test_type": test_type, "difficulty": difficulty}, _timeout)
+        return await self._call("cognitive_test_chooser", {"test_type": test_type, "difficulty": difficulty}, _timeout, _feedback)
 
-    async def compute_global_pose(self, *, observations: list[MarkerObservation], camera_to_robot: list[list[float]], landmarks: dict[str, Landmark], _timeout: float | None = None) -> Pose2D:
+    async def compute_global_pose(self, *, observations: list[MarkerObservation], camera_to_robot: list[list[float]], landmarks: dict[str, Landmark], _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pose2D:
         """Robot pose from marker observations (averaged over those found in the landmark map)."""
-        return await self._call("compute_global_pose", {"observations": observations, "camera_to_robot": camera_to_robot, "landmarks": landmarks}, _timeout)
+        return await self._call("compute_global_pose", {"observations": observations, "camera_to_robot": camera_to_robot, "landmarks": landmarks}, _timeout, _feedback)
 
-    async def email_fetch(self, *, unread_only: bool = False, max_messages: int = 20, mark_read: bool = True, _timeout: float | None = None) -> EmailList:
-        return await self._call("email_fetch", {"unread_only": unread_only, "max_messages": max_messages, "mark_read": mark_read}, _timeout)
+    async def email_fetch(self, *, unread_only: bool = False, max_messages: int = 20, mark_read: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> EmailList:
+        return await self._call("email_fetch", {"unread_only": unread_only, "max_messages": max_messages, "mark_read": mark_read}, _timeout, _feedback)
 
-    async def email_send(self, *, recipients: list[str], subject: str = '', body: str = '', _timeout: float | None = None) -> Done:
+    async def email_send(self, *, recipients: list[str], subject: str = '', body: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Delivered to each recipient's local mailbox (recipient = user name or user@anything)."""
-        return await self._call("email_send", {"recipients": recipients, "subject": subject, "body": body}, _timeout)
+        return await self._call("email_send", {"recipients": recipients, "subject": subject, "body": body}, _timeout, _feedback)
 
-    async def face_detection(self, *, image_b64: str, _timeout: float | None = None) -> Detections:
-        return await self._call("face_detection", {"image_b64": image_b64}, _timeout)
+    async def face_detection(self, *, image_b64: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
+        return await self._call("face_detection", {"image_b64": image_b64}, _timeout, _feedback)
 
-    async def hazard_detection_door_check(self, *, image_b64: str, method: Literal['image', 'geometry'] = 'image', geometry: DoorGeometry | None = None, _timeout: float | None = None) -> DoorAngle:
+    async def hazard_detection_door_check(self, *, image_b64: str, method: Literal['image', 'geometry'] = 'image', geometry: DoorGeometry | None = None, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> DoorAngle:
         """Door opening angle (degrees) from one image of where the door meets the floor."""
-        return await self._call("hazard_detection_door_check", {"image_b64": image_b64, "method": method, "geometry": geometry}, _timeout)
+        return await self._call("hazard_detection_door_check", {"image_b64": image_b64, "method": method, "geometry": geometry}, _timeout, _feedback)
 
-    async def hazard_detection_light_check(self, *, image_b64: str, on_threshold: int = 30, _timeout: float | None = None) -> LightLevel:
+    async def hazard_detection_light_check(self, *, image_b64: str, on_threshold: int = 30, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LightLevel:
         """Light level 0..100 of the image's centre against its surround (the original RAPP rule)."""
-        return await self._call("hazard_detection_light_check", {"image_b64": image_b64, "on_threshold": on_threshold}, _timeout)
+        return await self._call("hazard_detection_light_check", {"image_b64": image_b64, "on_threshold": on_threshold}, _timeout, _feedback)
 
-    async def home_get_info(self, *, home_id: str = 'home', _timeout: float | None = None) -> HomeInfo:
-        return await self._call("home_get_info", {"home_id": home_id}, _timeout)
+    async def home_get_info(self, *, home_id: str = 'home', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
+        return await self._call("home_get_info", {"home_id": home_id}, _timeout, _feedback)
 
-    async def home_upload_info(self, *, info: HomeInfo, _timeout: float | None = None) -> HomeInfo:
-        return await self._call("home_upload_info", {"info": info}, _timeout)
+    async def home_upload_info(self, *, info: HomeInfo, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
+        return await self._call("home_upload_info", {"info": info}, _timeout, _feedback)
 
-    async def human_detection(self, *, image_b64: str, _timeout: float | None = None) -> Detections:
-        return await self._call("human_detection", {"image_b64": image_b64}, _timeout)
+    async def human_detection(self, *, image_b64: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
+        return await self._call("human_detection", {"image_b64": image_b64}, _timeout, _feedback)
 
-    async def interpret_command(self, *, text: str, robot_type: str = '', rapps: list[RAppDescription], _timeout: float | None = None) -> Interpretation:
-        return await self._call("interpret_command", {"text": text, "robot_type": robot_type, "rapps": rapps}, _timeout)
+    async def interpret_command(self, *, text: str, robot_type: str = '', rapps: list[RAppDescription], _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Interpretation:
+        return await self._call("interpret_command", {"text": text, "robot_type": robot_type, "rapps": rapps}, _timeout, _feedback)
 
-    async def issue_app_token(self, *, rapp: str, services: list[str], holder_jid: str, ttl_s: float = 3600.0, _timeout: float | None = None) -> TokenReply:
+    async def issue_app_token(self, *, rapp: str, services: list[str], holder_jid: str, ttl_s: float = 3600.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> TokenReply:
         """A token for one RApp run, limited to the services its manifest declares (the Core asks"""
-        return await self._call("issue_app_token", {"rapp": rapp, "services": services, "holder_jid": holder_jid, "ttl_s": ttl_s}, _timeout)
+        return await self._call("issue_app_token", {"rapp": rapp, "services": services, "holder_jid": holder_jid, "ttl_s": ttl_s}, _timeout, _feedback)
 
-    async def news_explore(self, *, keywords: list[str] = UNSET, topic: str = '', max_stories: int = 5, _timeout: float | None = None) -> NewsReply:
-        return await self._call("news_explore", {"keywords": keywords, "topic": topic, "max_stories": max_stories}, _timeout)
+    async def news_explore(self, *, keywords: list[str] = UNSET, topic: str = '', max_stories: int = 5, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NewsReply:
+        return await self._call("news_explore", {"keywords": keywords, "topic": topic, "max_stories": max_stories}, _timeout, _feedback)
 
-    async def object_detection_clear_models(self, *, _timeout: float | None = None) -> Done:
-        return await self._call("object_detection_clear_models", {}, _timeout)
+    async def object_detection_clear_models(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("object_detection_clear_models", {}, _timeout, _feedback)
 
-    async def object_detection_find_objects(self, *, image_b64: str, limit: int = 5, min_matches: int = 15, _timeout: float | None = None) -> FoundObjects:
-        return await self._call("object_detection_find_objects", {"image_b64": image_b64, "limit": limit, "min_matches": min_matches}, _timeout)
+    async def object_detection_find_objects(self, *, image_b64: str, limit: int = 5, min_matches: int = 15, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FoundObjects:
+        return await self._call("object_detection_find_objects", {"image_b64": image_b64, "limit": limit, "min_matches": min_matches}, _timeout, _feedback)
 
-    async def object_detection_learn_object(self, *, name: str, image_b64: str, _timeout: float | None = None) -> Done:
-        return await self._call("object_detection_learn_object", {"name": name, "image_b64": image_b64}, _timeout)
+    async def object_detection_learn_object(self, *, name: str, image_b64: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("object_detection_learn_object", {"name": name, "image_b64": image_b64}, _timeout, _feedback)
 
-    async def ontology_is_subclass_of(self, *, child: str, parent: str, _timeout: float | None = None) -> IsSubclass:
-        return await self._call("ontology_is_subclass_of", {"child": child, "parent": parent}, _timeout)
+    async def ontology_is_subclass_of(self, *, child: str, parent: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> IsSubclass:
+        return await self._call("ontology_is_subclass_of", {"child": child, "parent": parent}, _timeout, _feedback)
 
-    async def ontology_subclasses_of(self, *, cls: str, recursive: bool = True, _timeout: float | None = None) -> ClassList:
-        return await self._call("ontology_subclasses_of", {"cls": cls, "recursive": recursive}, _timeout)
+    async def ontology_subclasses_of(self, *, cls: str, recursive: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
+        return await self._call("ontology_subclasses_of", {"cls": cls, "recursive": recursive}, _timeout, _feedback)
 
-    async def ontology_superclasses_of(self, *, cls: str, recursive: bool = True, _timeout: float | None = None) -> ClassList:
-        return await self._call("ontology_superclasses_of", {"cls": cls, "recursive": recursive}, _timeout)
+    async def ontology_superclasses_of(self, *, cls: str, recursive: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
+        return await self._call("ontology_superclasses_of", {"cls": cls, "recursive": recursive}, _timeout, _feedback)
 
-    async def path_planning_list_maps(self, *, _timeout: float | None = None) -> MapList:
-        return await self._call("path_planning_list_maps", {}, _timeout)
+    async def path_planning_list_maps(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapList:
+        return await self._call("path_planning_list_maps", {}, _timeout, _feedback)
 
-    async def path_planning_plan_path_2d(self, *, robot_type: str, algorithm: str = 'astar', map_id: str, start: Pose2D, goal: Pose2D, waypoint_spacing_m: float = 0.3, time_limit_s: float = 1.0, clearance_m: float = 0.2, _timeout: float | None = None) -> PlanPathReply:
+    async def path_planning_plan_path_2d(self, *, robot_type: str, algorithm: str = 'astar', map_id: str, start: Pose2D, goal: Pose2D, waypoint_spacing_m: float = 0.3, time_limit_s: float = 1.0, clearance_m: float = 0.2, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> PlanPathReply:
         """Plan from start to goal for a robot type ("nao", "elektron") with an algorithm"""
-        return await self._call("path_planning_plan_path_2d", {"robot_type": robot_type, "algorithm": algorithm, "map_id": map_id, "start": start, "goal": goal, "waypoint_spacing_m": waypoint_spacing_m, "time_limit_s": time_limit_s, "clearance_m": clearance_m}, _timeout)
+        return await self._call("path_planning_plan_path_2d", {"robot_type": robot_type, "algorithm": algorithm, "map_id": map_id, "start": start, "goal": goal, "waypoint_spacing_m": waypoint_spacing_m, "time_limit_s": time_limit_s, "clearance_m": clearance_m}, _timeout, _feedback)
 
-    async def path_planning_upload_map(self, *, map_id: str, png_b64: str, yaml_text: str, _timeout: float | None = None) -> MapInfo:
+    async def path_planning_upload_map(self, *, map_id: str, png_b64: str, yaml_text: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapInfo:
         """A ROS map_server map: PNG (base64) + its YAML text (resolution, origin, thresholds, negate)."""
-        return await self._call("path_planning_upload_map", {"map_id": map_id, "png_b64": png_b64, "yaml_text": yaml_text}, _timeout)
+        return await self._call("path_planning_upload_map", {"map_id": map_id, "png_b64": png_b64, "yaml_text": yaml_text}, _timeout, _feedback)
 
-    async def ping(self, *, _timeout: float | None = None) -> Pong:
+    async def ping(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pong:
         """The cheapest service: checks the token and answers (round-trip measurements)."""
-        return await self._call("ping", {}, _timeout)
+        return await self._call("ping", {}, _timeout, _feedback)
 
-    async def qr_detection(self, *, image_b64: str, camera: CameraIntrinsics | None = None, code_size_m: float = 0.16, _timeout: float | None = None) -> QRDetections:
+    async def qr_detection(self, *, image_b64: str, camera: CameraIntrinsics | None = None, code_size_m: float = 0.16, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> QRDetections:
         """Find and decode QR codes; with intrinsics also each code's pose (code frame: origin at the"""
-        return await self._call("qr_detection", {"image_b64": image_b64, "camera": camera, "code_size_m": code_size_m}, _timeout)
+        return await self._call("qr_detection", {"image_b64": image_b64, "camera": camera, "code_size_m": code_size_m}, _timeout, _feedback)
 
-    async def release_cloud_agents(self, *, owner_jid: str, _timeout: float | None = None) -> Done:
+    async def release_cloud_agents(self, *, owner_jid: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy)."""
-        return await self._call("release_cloud_agents", {"owner_jid": owner_jid}, _timeout)
+        return await self._call("release_cloud_agents", {"owner_jid": owner_jid}, _timeout, _feedback)
 
-    async def speech_noise_profile(self, *, audio_b64: str, name: str = 'default', _timeout: float | None = None) -> NoiseProfile:
+    async def speech_noise_profile(self, *, audio_b64: str, name: str = 'default', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NoiseProfile:
         """Store the spectrum of a recording of the room without speech under `name` (per user)."""
-        return await self._call("speech_noise_profile", {"audio_b64": audio_b64, "name": name}, _timeout)
+        return await self._call("speech_noise_profile", {"audio_b64": audio_b64, "name": name}, _timeout, _feedback)
 
-    async def speech_recognition(self, *, audio_b64: str, language: str = 'en', words: list[str] = UNSET, sentences: list[str] = UNSET, grammar: str = '', noise_profile: str = '', _timeout: float | None = None) -> Recognition:
+    async def speech_recognition(self, *, audio_b64: str, language: str = 'en', words: list[str] = UNSET, sentences: list[str] = UNSET, grammar: str = '', noise_profile: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Recognition:
         """Recognise `audio_b64`: against `grammar` (JSGF), else one of `sentences`, else any sequence of"""
-        return await self._call("speech_recognition", {"audio_b64": audio_b64, "language": language, "words": words, "sentences": sentences, "grammar": grammar, "noise_profile": noise_profile}, _timeout)
+        return await self._call("speech_recognition", {"audio_b64": audio_b64, "language": language, "words": words, "sentences": sentences, "grammar": grammar, "noise_profile": noise_profile}, _timeout, _feedback)
 
-    async def start_cloud_agent(self, *, rapp: str, version: str | None = None, owner_jid: str = '', _timeout: float | None = None) -> CloudAgentReply:
-        return await self._call("start_cloud_agent", {"rapp": rapp, "version": version, "owner_jid": owner_jid}, _timeout)
+    async def start_cloud_agent(self, *, rapp: str, version: str | None = None, owner_jid: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CloudAgentReply:
+        return await self._call("start_cloud_agent", {"rapp": rapp, "version": version, "owner_jid": owner_jid}, _timeout, _feedback)
 
-    async def stop_cloud_agent(self, *, jid: str, _timeout: float | None = None) -> Done:
-        return await self._call("stop_cloud_agent", {"jid": jid}, _timeout)
+    async def stop_cloud_agent(self, *, jid: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("stop_cloud_agent", {"jid": jid}, _timeout, _feedback)
 
-    async def text_to_speech(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, _timeout: float | None = None) -> Speech:
-        return await self._call("text_to_speech", {"text": text, "language": language, "voice": voice, "speed": speed}, _timeout)
+    async def text_to_speech(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Speech:
+        return await self._call("text_to_speech", {"text": text, "language": language, "voice": voice, "speed": speed}, _timeout, _feedback)
 
-    async def weather_report_current(self, *, city: str, _timeout: float | None = None) -> CurrentWeather:
-        return await self._call("weather_report_current", {"city": city}, _timeout)
+    async def weather_report_current(self, *, city: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CurrentWeather:
+        return await self._call("weather_report_current", {"city": city}, _timeout, _feedback)
 
-    async def weather_report_forecast(self, *, city: str, days: int = 3, _timeout: float | None = None) -> Forecast:
-        return await self._call("weather_report_forecast", {"city": city, "days": days}, _timeout)
+    async def weather_report_forecast(self, *, city: str, days: int = 3, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Forecast:
+        return await self._call("weather_report_forecast", {"city": city, "days": days}, _timeout, _feedback)

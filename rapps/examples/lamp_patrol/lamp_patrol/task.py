@@ -32,20 +32,22 @@ class LampPatrol(Task):
     async def get_home(self, memory):
         self.bb.home = await self.platform.home_get_info(home_id=self.params["home"])
         room = self.params["room"]
-        lamps = [h for h in self.bb.home.hazards if h.type == "lamp"
-                 and (not room or room in (getattr(h, "room", "") or "", h.id))]
+        lamps = [h for h in self.bb.home.hazards if h.type == "lamp" and (not room or h.room == room)]
         self.bb.todo = lamps
         self.log.info("%d lamps to check%s", len(lamps), f" in the {room}" if room else "")
 
     async def go(self, memory):
         self.bb.lamp, self.bb.todo = self.bb.todo[0], self.bb.todo[1:]
-        self.progress(len(self.bb.found) / (len(self.bb.found) + len(self.bb.todo) + 1), f"to {self.bb.lamp.id}")
+        done, total = len(self.bb.found), len(self.bb.found) + len(self.bb.todo) + 1
         plan = await self.platform.path_planning_plan_path_2d(
             map_id=self.bb.home.map_id, robot_type=self.robot_info.robot_type,
             start=await self.robot.get_global_pose(), goal=self.bb.lamp.stand)
         if not plan.path:
             raise RuntimeError(f"no path to {self.bb.lamp.id}: {plan.reason}")  # the Sequence fails: skipped
-        await self.robot.move_along_path(poses=plan.path, _timeout=600.0)
+        def walking(p):  # the motion's progress informs (an action with feedback): shown live
+            self.progress((done + (p.fraction or 0.0)) / total, f"to {self.bb.lamp.id}: {p.text}")
+
+        await self.robot.move_along_path(poses=plan.path, _timeout=600.0, _feedback=walking)
 
     async def look(self, memory):
         x, y, z = self.bb.lamp.look_at
