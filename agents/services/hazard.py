@@ -1,17 +1,24 @@
-"""Hazard checks (after the original RAPP algorithms, see docs in rapp-original.md):
+"""Hazard checks, the original RAPP algorithms (rapp_hazard_detection, light_check.cpp and
+door_check.cpp of the RAPP Platform; docs/hazard-validation.md measures them on renders):
 
-- light level: mean intensity of a central square vs. eight surrounding squares (corners small,
-  edge midpoints medium, centre large); min, max and the centre are dropped from the surround, the
-  difference is scaled by 4 and clamped to 0..100. Resolution-independent.
-- door angle, image only: adaptive threshold, probabilistic Hough lines, best near-horizontal line
-  in the left and in the right half (angle / position / length score), angle between them.
-- door angle with geometry: the Hough segments are back-projected to the floor (z = 0) with the
-  camera intrinsics and pose; segments lying along the door leaf's bottom edge (starting near the
-  hinge) give the leaf direction; the angle to the closed direction is the opening angle.
+- light level: mean intensity of a large central square vs. eight surrounding squares (small
+  corners, medium edge midpoints) centred on the quarter points of the image; the minimum, the
+  maximum and the centre are dropped from the sum of all nine, the difference of the centre to the
+  average of the remaining six is scaled by 4 and clamped to 0..100. Meant for an image taken with
+  a low exposure, where only light sources stay bright.
+- door angle, image only (the default): adaptive threshold, probabilistic Hough segments, the
+  best-scoring near-horizontal segment (angle, position, length scores) in the left and in the
+  right half, the angle between the two in the image; 90 degrees when a half has none. The camera
+  looks at where the door meets the floor.
+- door angle with geometry (an option the original did not have, `method="geometry"`): the Hough
+  segments are back-projected to the floor (z = 0) with the camera intrinsics and pose; segments
+  lying along the door leaf's bottom edge (starting near the hinge) give the leaf direction; the
+  angle to the closed direction is the opening angle.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -24,31 +31,117 @@ from .errors import ServiceError
 from .images import decode_image
 
 
-def light_level(gray: np.ndarray) -> int:
-    """0..100: how much brighter the centre of the image is than its surround."""
-    h, w = gray.shape
-    g = gray.astype(np.float64)
+# ---------------------------------------------------------------------------------- light level
+def light_regions(width: int, height: int) -> list[tuple[int, int, int, int]]:
+    """(x, y, w, h) of the nine squares as light_check.cpp places them (integer arithmetic, sizes
+    from the image height): the eight surrounding ones, then the centre."""
+    sx, sy = width // 4, height // 4
+    small, medium, large = height // 10, height // 6, height // 4
 
-    def mean(cx, cy, half):  # square centred at (cx, cy) in fractions of the image
-        x0, x1 = int((cx - half) * w), int(math.ceil((cx + half) * w))
-        y0, y1 = int((cy - half) * h), int(math.ceil((cy + half) * h))
-        return float(g[max(0, y0):y1, max(0, x0):x1].mean())
+    def centred(x: int, y: int, side: int) -> tuple[int, int, int, int]:
+        return x - side // 2, y - side // 2, side, side
 
-    centre = mean(0.5, 0.5, 0.15)
-    corners = [mean(x, y, 0.05) for x in (0.1, 0.9) for y in (0.1, 0.9)]
-    edges = [mean(0.5, 0.12, 0.08), mean(0.5, 0.88, 0.08), mean(0.12, 0.5, 0.08), mean(0.88, 0.5, 0.08)]
-    surround = sorted(corners + edges)[1:-1]  # drop min and max
-    diff = (centre - float(np.mean(surround))) * 4.0 * 100.0 / 255.0
-    return int(np.clip(round(diff), 0, 100))
+    return [centred(sx, sy, small), centred(sx, 2 * sy, medium), centred(sx, 3 * sy, small),
+            centred(2 * sx, sy, medium), centred(2 * sx, 3 * sy, medium),
+            centred(3 * sx, sy, small), centred(3 * sx, 2 * sy, medium), centred(3 * sx, 3 * sy, small),
+            centred(2 * sx, 2 * sy, large)]
+
+
+def light_level(img: np.ndarray) -> int:
+    """0..100: how much brighter the centre of the image is than its surround (light_check.cpp).
+    A colour image is read as the original read it: cv::mean(img)[0], the first (blue) channel of
+    a BGR image."""
+    plane = img[:, :, 0] if img.ndim == 3 else img
+    h, w = plane.shape
+    values = [float(plane[y:y + s, x:x + s].mean()) for x, y, s, _ in light_regions(w, h)]
+    centre = values[-1]
+    # min and max are taken over all nine: a centre brighter than every surround square is dropped
+    # twice (as in the original), which only pushes a lit lamp further up to the clamp
+    surround = (sum(values) - min(values) - max(values) - centre) / 6
+    return int(min(max((centre - surround) * 4, 0.0), 100.0))  # the original returned an int
 
 
 def light_check(req: LightCheck, ctx: ServiceContext) -> LightLevel:
-    level = light_level(decode_image(req.image_b64, gray=True))
+    level = light_level(decode_image(req.image_b64))
     return LightLevel(light_level=level, lamp_on=level >= req.on_threshold)
 
 
+# ------------------------------------------------------------------------- door angle, image
+@dataclass(frozen=True)
+class DoorLineParams:
+    """DoorCheckParams of door_check.hpp ("optimal" defaults), for a 640 px wide image; Hough's
+    lengths are scaled with the image width so that other resolutions see the same scene alike."""
+
+    thr_block: int = 3
+    thr_c: int = 3
+    hough_thr: int = 80
+    hough_len: int = 60
+    hough_gap: int = 20
+    width: int = 640
+
+
+HORIZONTAL = math.pi / 6  # |angle| below: a floor line candidate
+VERTICAL = 2 * math.pi / 6  # |angle| above: a door frame candidate (scored but unused by the angle)
+NO_LINE_DEG = 90.0  # the original's answer when a half has no floor line
+
+
+def door_segments(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) -> np.ndarray:
+    """(n, 4) segments x1, y1, x2, y2: adaptive threshold (Gaussian, inverted) + probabilistic Hough."""
+    scale = gray.shape[1] / params.width
+    binary = cv2.adaptiveThreshold(gray, 255, cv2.ADAPTIVE_THRESH_GAUSSIAN_C, cv2.THRESH_BINARY_INV,
+                                   params.thr_block, params.thr_c)
+    lines = cv2.HoughLinesP(binary, 1, np.pi / 180, max(1, round(params.hough_thr * scale)),
+                            minLineLength=params.hough_len * scale, maxLineGap=params.hough_gap * scale)
+    return np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(np.float64)
+
+
+def segment_angle(s) -> float:
+    """Line.getAngle of the original: atan of the slope, radians in (-pi/2, pi/2] (image y down)."""
+    dx, dy = s[2] - s[0], s[3] - s[1]
+    return math.pi / 2 if dx == 0 and dy != 0 else math.atan(dy / dx) if dx else 0.0
+
+
+def floor_line_score(s, width: int, side: str) -> float:
+    """The original's score of a near-horizontal segment as the floor line of one half:
+    angle (1 = horizontal) x position (1 = centred in the half, 0 in the other half) x length
+    (1 = at least half the image width)."""
+    angle_score = (math.pi / 2 - abs(segment_angle(s))) / (math.pi / 2)
+    mean_x = (s[0] + s[2]) / 2
+    cx = (0.25 if side == "left" else 0.75) * width
+    position_score = 1.0 - abs(cx - mean_x) / cx
+    if (side == "left" and mean_x > 0.5 * width) or (side == "right" and mean_x < 0.5 * width):
+        position_score = 0.0
+    length_score = min(2 * math.hypot(s[2] - s[0], s[3] - s[1]) / width, 1.0)
+    return angle_score * position_score * length_score
+
+
+def floor_lines(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) -> dict[str, np.ndarray]:
+    """The best-scoring floor line of each half that has one ("left", "right" -> segment)."""
+    width = gray.shape[1]
+    horizontal = [s for s in door_segments(gray, params) if abs(segment_angle(s)) < HORIZONTAL]
+    best: dict[str, np.ndarray] = {}
+    for side in ("left", "right"):
+        top = 0.0
+        for s in horizontal:
+            score = floor_line_score(s, width, side)
+            if score > top:  # a zero score (wrong half) never wins, as in the original
+                best[side], top = s, score
+    return best
+
+
+def door_angle_image(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) -> float:
+    """Original image-only estimate (degrees): the angle between the floor lines of the two halves
+    in the image, 90 when either half has none (the leaf turned away out of the floor line)."""
+    lines = floor_lines(gray, params)
+    if len(lines) < 2:
+        return NO_LINE_DEG
+    return abs(math.degrees(segment_angle(lines["left"]) - segment_angle(lines["right"])))
+
+
+# ---------------------------------------------------------------------- door angle, geometry
 def hough_segments(gray: np.ndarray) -> np.ndarray:
-    """(n, 4) segments x1, y1, x2, y2 from adaptive threshold + probabilistic Hough."""
+    """(n, 4) segments x1, y1, x2, y2 for the geometry method: blur, adaptive threshold, Canny and
+    probabilistic Hough with lengths relative to the image width."""
     h, w = gray.shape
     block = max(3, (min(h, w) // 20) | 1)
     binary = cv2.adaptiveThreshold(cv2.GaussianBlur(gray, (5, 5), 0), 255, cv2.ADAPTIVE_THRESH_MEAN_C,
@@ -57,31 +150,6 @@ def hough_segments(gray: np.ndarray) -> np.ndarray:
     lines = cv2.HoughLinesP(edges, 1, np.pi / 360, threshold=max(20, w // 20),
                             minLineLength=max(15, w // 12), maxLineGap=max(3, w // 80))
     return np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(np.float64)
-
-
-def _seg_angle(s) -> float:
-    """Angle of a segment in degrees, in (-90, 90]."""
-    a = math.degrees(math.atan2(s[3] - s[1], s[2] - s[0]))
-    return a - 180 if a > 90 else a + 180 if a <= -90 else a
-
-
-def door_angle_image(gray: np.ndarray, max_tilt: float = 45.0) -> float:
-    """Original image-only estimate: best near-horizontal line in each half, angle between them."""
-    h, w = gray.shape
-    best = {}
-    for s in hough_segments(gray):
-        ang = _seg_angle(s)
-        if abs(ang) > max_tilt:
-            continue
-        mx, my = (s[0] + s[2]) / 2, (s[1] + s[3]) / 2
-        side = "left" if mx < w / 2 else "right"
-        length = math.hypot(s[2] - s[0], s[3] - s[1])
-        score = length / w + 0.5 * (my / h) - 0.3 * abs(ang) / max_tilt  # long, low, flat lines win
-        if side not in best or score > best[side][0]:
-            best[side] = (score, ang)
-    if len(best) < 2:
-        return 0.0 if best else 0.0
-    return abs(best["left"][1] - best["right"][1])
 
 
 def floor_points(pix: np.ndarray, geo: DoorGeometry) -> np.ndarray:
@@ -134,10 +202,13 @@ def door_angle_geometry(gray: np.ndarray, geo: DoorGeometry) -> float | None:
 
 
 def door_check(req: DoorCheck, ctx: ServiceContext) -> DoorAngle:
+    """The original image-only method unless the request names "geometry" (with its geometry);
+    when the geometry method finds no leaf, the image-only answer is given, and `method` says so."""
     gray = decode_image(req.image_b64, gray=True)
-    if req.geometry is not None:
-        T = np.asarray(req.geometry.camera_to_world, float)
-        if T.shape != (4, 4):
+    if req.method == "geometry":
+        if req.geometry is None:
+            raise ServiceError('method "geometry" needs the geometry field', ErrorCode.BAD_REQUEST)
+        if np.asarray(req.geometry.camera_to_world, float).shape != (4, 4):
             raise ServiceError("geometry.camera_to_world must be a 4x4 matrix", ErrorCode.BAD_TRANSFORM)
         angle = door_angle_geometry(gray, req.geometry)
         if angle is not None:

@@ -1,6 +1,8 @@
 """Hazard-detection checks on a camera image: door opening angle and light level."""
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from ..platform import ServiceRequest
@@ -13,8 +15,9 @@ Matrix4 = list[list[float]]
 
 
 class DoorGeometry(Content):
-    """Optional geometry making the door angle metric: intrinsics, the camera optical frame in the
-    world (4x4, floor is z = 0), and the door's hinge and closed yaw (deg, direction hinge -> latch)."""
+    """What the geometry method needs besides the image: intrinsics, the camera optical frame in the
+    world (4x4, floor is z = 0), and the door's hinge and closed yaw (deg, direction hinge -> latch).
+    The original image-only method knew none of it."""
 
     camera: CameraIntrinsics
     camera_to_world: Matrix4
@@ -23,14 +26,23 @@ class DoorGeometry(Content):
     width_m: float = Field(default=0.9, gt=0)
 
 
+DoorMethod = Literal["image", "geometry"]
+
+
 class DoorAngle(Content):
     door_angle: float  # degrees, 0 = closed
-    method: str  # "geometry" or "image"
+    method: DoorMethod  # the method that answered: "geometry" falls back to "image" when it finds no leaf
 
 
 @action("hazard_detection_door_check", ontology="platform", reply=DoorAngle, group=GROUP, idempotent=True)
 class DoorCheck(ServiceRequest):
+    """Door opening angle (degrees) from one image of where the door meets the floor.
+
+    "image" (default): the original RAPP method, the angle between the floor lines of the image's
+    halves (90 when a half has none). "geometry": the leaf's metric angle on the floor, needs `geometry`."""
+
     image_b64: str
+    method: DoorMethod = "image"
     geometry: DoorGeometry | None = None
 
 
@@ -41,5 +53,9 @@ class LightLevel(Content):
 
 @action("hazard_detection_light_check", ontology="platform", reply=LightLevel, group=GROUP, idempotent=True)
 class LightCheck(ServiceRequest):
+    """Light level 0..100 of the image's centre against its surround (the original RAPP rule).
+
+    Meant for an image taken with a low exposure (the robot's `set_camera_params`)."""
+
     image_b64: str
     on_threshold: int = Field(default=30, ge=0, le=100)

@@ -39,7 +39,7 @@ class FakeRuntime:
         self.answers = answers
         self.reports: list[C.Report] = []
 
-    async def request(self, to, content, timeout=None):
+    async def request(self, to, content, timeout=None, **kw):
         if isinstance(content, C.Report):
             self.reports.append(content)
             return Done()
