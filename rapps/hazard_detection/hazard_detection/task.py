@@ -109,6 +109,8 @@ class HazardTask(Task):
         memory["home"] = info
         memory["todo"] = list(info.hazards)
         memory["results"] = []
+        self.log.info("%d possible hazards in home %s", len(info.hazards), info.home_id)
+        self.progress(0.0, f"{len(info.hazards)} hazards to check")
         await self.say(f"Checking {len(info.hazards)} possible hazards.")
 
     # -- s3 ---------------------------------------------------------------------------------
@@ -120,7 +122,13 @@ class HazardTask(Task):
         memory["todo"].sort(key=lambda h: math.hypot(h.stand.x - pose.x, h.stand.y - pose.y))
         memory["hazard"] = memory["todo"].pop(0)
         memory["replans"] = memory["blocked"] = 0
+        self._show(memory, 0.0, "on the way")
         return True
+
+    def _show(self, memory, fraction: float, text: str) -> None:
+        """Progress: hazards done, plus how far the current one is (0..1)."""
+        done, total = len(memory["results"]), len(memory["results"]) + len(memory["todo"]) + 1
+        self.progress(min(1.0, (done + fraction) / total), f"{memory['hazard'].id}: {text}")
 
     # -- s4/s5 ------------------------------------------------------------------------------
     async def plan(self, memory):
@@ -155,7 +163,8 @@ class HazardTask(Task):
     async def move_leg(self, memory) -> str:
         leg = memory["leg"]
         try:
-            await self.robot.move_along_path(poses=leg, _timeout=900.0)
+            await self.robot.move_along_path(poses=leg, _timeout=900.0,  # feedback: shown as progress
+                                             _feedback=lambda p: self._show(memory, 0.0, p.text))
         except RequestError as e:
             blocked = isinstance(e, RequestFailed) and e.code == ErrorCode.BLOCKED
             if not blocked or memory["blocked"] >= MAX_BLOCKED:
@@ -240,6 +249,7 @@ class HazardTask(Task):
             text = "Hazards found: " + "; ".join(f"the {r.type} {r.id} is {r.state}" for r in found) + "."
         else:
             text = f"No hazards: all {len(results)} checked doors are closed and lamps off."
+        self.progress(1.0, f"{len(results)} hazards checked, {len(found)} found")
         await self.report(text, hazards=[r.model_dump() for r in results],
                           localizations=memory.get("localizations", []))
 
