@@ -226,7 +226,9 @@ def door_check_pose(door: Door, side: str) -> tuple[np.ndarray, np.ndarray]:
     n = np.array([-c[1], c[0]]) * door.sign  # the side the leaf swings to
     if side == "front":
         return h + 0.2 * c - 1.0 * n, h + 0.35 * c
-    return h + 1.3 * _unit(n - c), h + 0.3 * _unit(n + c)
+    # swing side: beside the open leaf's line, looking at the hinge: the floor lines of the leaf
+    # then stay within the image method's 30 deg of horizontal (from a diagonal stand they did not)
+    return h - 0.3 * c + 1.3 * n, h
 
 
 def lamp_check_pose(lamp: Lamp, into_room, distance: float = LAMP_STAND_M) -> np.ndarray:
