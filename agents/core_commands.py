@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import ontology.robot  # also registers the robot-API models the command server serves
 from ontology.registry import Progress, actions
 from ontology.robot_actions import facts
+from ontology import core as C
 from ontology.errors import ErrorCode
 
 from .errors import Failure, Refusal
@@ -90,13 +91,14 @@ class RobotCommands:
             self.driving = False
         try:
             async with self.locks.hold(device_of(req.action_name), ctx.sender, timeout=60.0):
-                if not (ctx.wants_feedback and facts(req.action_name).motion):
+                if not facts(req.action_name).motion:
                     return await self.robot.handle(req)
-                reporter = asyncio.create_task(self._report_motion(req, ctx))
+                reporter = asyncio.create_task(self._report_motion(req, ctx)) if ctx.wants_feedback else None
                 try:
                     return await self.robot.handle(req)  # cancelled by the requester: the motion stops
                 finally:
-                    reporter.cancel()
+                    if reporter is not None:
+                        reporter.cancel()
         except LockError as e:
             raise Refusal(str(e), ErrorCode.LOCKED) from None
 
@@ -128,26 +130,39 @@ class RobotCommands:
 
     # -- emergency stop (paper 003) -----------------------------------------------------------
     async def emergency_stop(self, reason: str) -> None:
-        """Halt every effector now (bypassing queued commands) and latch until resumed."""
+        """Halt every effector now (bypassing queued commands) and latch until resumed; the Dynamic
+        Agent is told (C.TaskPaused) and its motions are refused meanwhile."""
         first = self.estop_reason is None
         self.estop_reason = reason
-        await self._stop_robot()
+        await self._stop_robot(everything=True)
         if first:
             self.record_structure("estop", robot=self.robot_id, reason=reason)
+            await self._tell_task(True, reason)
             await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again.")
 
     async def resume_motion(self) -> None:
         if self.estop_reason is not None:
             self.estop_reason = None
             self.record_structure("estop-released", robot=self.robot_id)
+            await self._tell_task(False, "resumed")
             await self.tell_user("Resumed: I may move again.")
 
-    async def _stop_robot(self) -> None:
+    async def _tell_task(self, paused: bool, reason: str) -> None:
+        d = self.dynamic
+        if d is not None and not d.ended.is_set():
+            await self.notify(d.jid, C.TaskPaused(paused=paused, reason=reason), ontology=C.ONTOLOGY,
+                              action="task_paused")
+
+    async def _stop_robot(self, everything: bool = False) -> None:
+        """The base (and, `everything`, the head, joints and loudspeaker too) stops now."""
         self.driving = False
         try:
-            await self.robot.handle(ontology.robot.MoveStop())
+            if everything:
+                await self.robot.halt("emergency stop")
+            else:
+                await self.robot.handle(ontology.robot.MoveStop())
         except Exception as e:  # noqa: BLE001 - stopping must not fail the destroy
-            log.warning("move_stop failed: %s", e)
+            log.warning("stopping the robot failed: %s", e)
 
     # -- the safety check ----------------------------------------------------------------------
     async def nearest_obstacle(self) -> float | None:

@@ -46,9 +46,19 @@ class DynamicAgent(RappAgent):
         self.beats = 0
         self.task = None
         self.memory: dict = {}
+        self.paused: str | None = None  # the emergency stop's reason while it is latched
 
     async def on_unhandled(self, msg, info) -> None:
-        """The Platform's notice that our Cloud Agent's process ended: fail what waits for it."""
+        """The Core's notice of an emergency stop (C.TaskPaused: `paused` is the reason while it
+        lasts); the Platform's notice that our Cloud Agent's process ended: fail what waits for it."""
+        if (info.ontology, info.action) == (C.ONTOLOGY, "task_paused") and bare(msg.sender) == bare(self.core):
+            try:
+                note = C.TaskPaused.model_validate(parse_json(msg.body))
+            except Exception:  # noqa: BLE001 - malformed: ignored like any bad notification
+                return
+            self.paused = note.reason if note.paused else None
+            log.info("task %s: %s", "paused" if note.paused else "resumed", note.reason)
+            return
         if (info.ontology, info.action) == (P.ONTOLOGY, "cloud_agent_down") and bare(msg.sender) == bare(self.platform):
             try:
                 down = P.CloudAgentDown.model_validate(parse_json(msg.body))

@@ -34,6 +34,15 @@ class Report(Action):
     data: dict[str, Any] = {}
 
 
+@action("task_paused", ontology=ONTOLOGY, reply=Done, group="task")
+class TaskPaused(Action):
+    """The Core to its Dynamic Agent (a notification): the emergency stop latched (paused=True; the
+    task's robot motions wait, they do not fail) or was released (paused=False)."""
+
+    paused: bool
+    reason: str = ""
+
+
 @action("heartbeat", ontology=ONTOLOGY, reply=Done, group="task")
 class Heartbeat(Action):
     seq: int = 0

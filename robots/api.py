@@ -94,6 +94,18 @@ class RobotAPI:
         ctrl = self.robot.controllers.get("base")
         return ctrl is not None and not ctrl.done and self.robot.base.command[0] > min_speed
 
+    async def halt(self, reason: str) -> None:
+        """The emergency stop: every running motion (base, head, joints) is interrupted and the
+        loudspeaker falls silent (what it was saying is cut off)."""
+        r = self.robot
+        for key, ctrl in list(r.controllers.items()):
+            r.controllers.pop(key, None)
+            if not ctrl.done:
+                ctrl.cancel(MotionInterrupted(f"{r.name}: stopped by {reason}"))
+        if r.loudspeaker is not None:
+            r.loudspeaker.silence(self.world.time)
+        await self.world.sync()
+
     def _stop_base(self, reason: str) -> None:
         old = self.robot.controllers.pop("base", None)
         if old is not None and not old.done:

@@ -152,6 +152,16 @@ class Loudspeaker:
         return len(pcm) / SAMPLE_RATE
 
 
+    def silence(self, t: float) -> None:
+        """Cut off what is still playing at simulation time `t` (the emergency stop)."""
+        from .sound import house_sound
+        house = house_sound(self.robot.world)
+        prefix = f"loudspeaker:{self.robot.name}:"
+        for source_id, source in list(house.sources.items()):
+            if source_id.startswith(prefix) and (source.end() or math.inf) > t:
+                house.remove(source_id)
+
+
 def check_speech(robot: "Robot") -> Loudspeaker:
     if robot.loudspeaker is None:
         raise UnsupportedOperation(f"{robot.spec.kind} has no speech synthesis (no loudspeaker); say is not available")

@@ -27,6 +27,9 @@ class RobotInterface(Protocol):
     def capabilities(self) -> frozenset[str]:
         """The subset of CAPABILITIES this robot has."""
 
+    async def halt(self, reason: str) -> None:
+        """Every effector stops now (base, head, joints, loudspeaker): the emergency stop."""
+
     @property
     def microphone(self) -> Microphone | None:
         """Where the owner's spoken commands are heard, or None (chat only)."""
@@ -36,5 +39,5 @@ def check_robot(api: object) -> RobotInterface:
     """`api` if it implements RobotInterface; else a TypeError naming what is missing."""
     if isinstance(api, RobotInterface):
         return api
-    missing = [n for n in ("handle", "moving_forward", "capabilities", "microphone") if not hasattr(api, n)]
+    missing = [n for n in ("handle", "moving_forward", "capabilities", "halt", "microphone") if not hasattr(api, n)]
     raise TypeError(f"{type(api).__name__} is not a robots.interface.RobotInterface: missing {', '.join(missing)}")

@@ -164,7 +164,7 @@ def _request(name: str, **fields):
 
 @pytest.mark.parametrize("name", ROBOT)
 async def test_the_core_refuses_motion_during_an_estop_and_locks_the_device(name):
-    ctx = SimpleNamespace(sender="dyn@x")
+    ctx = SimpleNamespace(sender="dyn@x", wants_feedback=False)
     core = _core(estop="bumper")
     if name in OLD_MOTION:
         with pytest.raises(Refusal) as e:
@@ -188,7 +188,7 @@ async def test_the_core_refuses_motion_during_an_estop_and_locks_the_device(name
 async def test_a_velocity_keeps_the_base_driving(velocity, driving):
     core = _core()
     await core._robot_call(_request("move_vel", **{"x": 0.0, "y": 0.0, "theta": 0.0, **velocity}),
-                           SimpleNamespace(sender="dyn@x"))
+                           SimpleNamespace(sender="dyn@x", wants_feedback=False))
     assert core.driving is driving
 
 
@@ -196,7 +196,7 @@ async def test_a_velocity_keeps_the_base_driving(velocity, driving):
 async def test_a_timed_out_request_is_resent_only_when_idempotent(key):
     attempts = []
 
-    async def once(to, content, timeout, performative):
+    async def once(to, content, timeout, performative, on_feedback=None):
         attempts.append(content.action_name)
         raise RequestTimeout("no answer")
 

@@ -131,3 +131,30 @@ async def test_failure_of_a_cancelled_request_has_the_cancelled_code(settings, u
     finally:
         await client.stop()
         await server.stop()
+
+
+async def test_halt_stops_head_and_base_and_silences_the_loudspeaker():
+    """The emergency stop's robot side: every running motion is interrupted, speech is cut off."""
+    import numpy as np
+
+    from ontology.robot import LookAtPoint
+    from robots.errors import MotionInterrupted
+    from robots.sound import house_sound
+
+    world = World.from_file("small", seed=1)
+    try:
+        api = RobotAPI(world.add_robot("nao"))
+        x, y, _ = api.robot.pose
+        walk = asyncio.create_task(api.handle(MoveAlongPath(poses=[Pose2D(x=x + 0.5 * i, y=y, theta=0.0)
+                                                                   for i in range(6)])))
+        look = asyncio.create_task(api.handle(LookAtPoint(x=x - 3.0, y=y + 3.0, z=0.0)))
+        api.robot.loudspeaker.play(np.full(16000 * 5, 3000, np.int16), world.time, text="a long sentence")
+        await world.sleep(0.3)
+        await api.halt("emergency stop")
+        for motion in (walk, look):
+            with pytest.raises(MotionInterrupted, match="stopped by emergency stop"):
+                await motion
+        assert api.robot.controllers == {}
+        assert not any(s.startswith("loudspeaker:") for s in house_sound(world).sources)
+    finally:
+        world.close()

@@ -172,6 +172,11 @@ class Task:
         if tracer is not None:
             tracer.record(kind, agent=getattr(self.runtime, "address", ""), **fields)
 
+    @property
+    def paused(self) -> str | None:
+        """The emergency stop's reason while it is latched (robot motions are refused), else None."""
+        return getattr(self.runtime, "paused", None)
+
     def state_path(self) -> list[str]:
         """The states/children of the task's behaviour running now, outermost first."""
         return active_path(self.root) if self.root is not None else []
