@@ -1,32 +1,53 @@
-"""Path-planning benchmark on a generated 20 m x 20 m house (5 cm cells, 400 x 400).
+"""Path planning against optimal peers on three maps: the full house, a generated house and an open hall.
 
-    python -m bench.planning [--repeats N] [--json-only]
+    python -m bench.planning [--repeats N] [--ompl-time S] [--json-only]
 
-For each algorithm: planning time and path length, next to OMPL planners and a plain
-scipy.sparse.csgraph.dijkstra on the same 8-connected graph, and the optimal length from an
-any-angle reference (Dijkstra on a 48-direction neighbourhood with line-of-sight edges, then
-tightened). Prints a table and one JSON line per measured quantity:
-name, value(s), unit, floor, ratio (median time / fastest peer's median time), length_ratio
-(path length / reference optimum), n, median, p95.
+Per map, several start/goal pairs (elektron's cost map, 5 cm cells), every planner timed on each pair
+in interleaved rounds (so load on a shared machine falls on all of them alike), at least 20 samples
+per planner and map:
+
+- plan_astar_<map>: the project's A* as the navigation service runs it (search, corners, smoothing);
+  ratio = its median / the fastest optimal peer's median on that map (the floor), length_ratio =
+  worst path length / the optimal length over the map's pairs. Goal: ratio <= 1, length <= 1.02.
+- optimal peers: scipy_dijkstra (scipy.sparse.csgraph.dijkstra on the same 8-connected graph, raw
+  grid path), dijkstra (the project's Dijkstra with the same smoothing as A*), bitstar (OMPL BIT*,
+  asymptotically optimal, spends its whole time budget: one run per pair, two with --repeats >= 5).
+- context: astar_raw (the search alone, no smoothing) and rrtconnect (OMPL RRTConnect: randomized,
+  not optimal; its length ratio says what its speed buys).
+
+The optimal length is an any-angle reference: Dijkstra over all coprime offsets up to 4 cells whose
+segment is free (overestimates by < 0.5 %), then tightened by line-of-sight cuts. plan_astar (no map
+suffix) is the worst map's row, the one the runner judges against the goal. Per-map tables (cost
+map, graph, ALT landmarks) are built before the timing, as the service builds them once per map
+(their time is the astar row's prep_ms).
 """
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
+from dataclasses import dataclass, field
 from math import gcd
 
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
+from .common import fmt, median, metric
+
 RES = 0.05
 SIZE = 400
+ROBOT = "elektron"
+GENERATED_SEED = 14  # 8 rooms, 13.5 m x 13 m, 15 pieces of furniture
+HOUSE_SEED = 1  # passage door angle of the full house (scenarios.home_setup.hazard_overrides)
+MIN_SAMPLES = 20  # per planner and map
+OPTIMAL_PEERS = ("scipy_dijkstra", "dijkstra", "bitstar")
+TIMED = ("scipy_dijkstra", "dijkstra", "astar", "astar_raw", "rrtconnect")  # interleaved per pair
 
 
 def make_house(size: int = SIZE, res: float = RES) -> np.ndarray:
-    """blocked[iy, ix] of a 4-room house with 0.9 m doors, a corridor and furniture."""
+    """blocked[iy, ix] of a synthetic 4-room house with 0.9 m doors, a corridor and furniture
+    (tests/services/test_navigation.py plans on it)."""
     b = np.zeros((size, size), bool)
     t = int(0.15 / res)  # wall thickness
 
@@ -53,13 +74,99 @@ def make_house(size: int = SIZE, res: float = RES) -> np.ndarray:
     return b
 
 
-def reference_length(free: np.ndarray, s: tuple[int, int], g: tuple[int, int], radius: int = 4) -> float:
-    """Any-angle reference (cells): Dijkstra over all coprime offsets up to `radius` whose segment
-    is free (worst-case overestimate ~0.5%), the result then tightened by line-of-sight cuts."""
+# ---------- the maps ----------
+
+@dataclass
+class BenchMap:
+    name: str
+    grid: object  # agents.services.maps.GridMap
+    queries: list[tuple[tuple[float, float], tuple[float, float]]]  # (start, goal) in cell coordinates
+    note: str = ""
+    refs: list[float] = field(default_factory=list)  # optimal length per query (cells)
+
+
+def _platform_map(name: str, plan, house: str):
+    """The map as the Platform holds it after the owner's upload (scenarios.home_setup.home_map:
+    walls, furniture, lamps, passage doors drawn open)."""
+    from agents.services.maps import GridMap, grid_from_image
+    from scenarios.home_setup import home_map
+
+    img = home_map(plan, house)
+    return GridMap(name, grid_from_image(img.image), img.resolution, tuple(img.origin))
+
+
+def _room_queries(m, plan) -> list:
+    """Room centre i to room centre i + n/2 (up to 4 pairs), each snapped to the nearest free cell
+    of the robot's cost map; pairs in different components are left out."""
+    from agents.services import navigation
+
+    graph = navigation.grid_graph(m, ROBOT)
+    centres = []
+    for r in plan.rooms:
+        x0, y0, x1, y1 = r.rect
+        c, _ = navigation.nearest_free(m, ROBOT, 0.0, m.world_to_cell((x0 + x1) / 2, (y0 + y1) / 2))
+        centres.append((int(c[0]), int(c[1])))
+    n = len(centres)
+    out = []
+    for i in range(min(n, 4)):
+        s, g = centres[i], centres[(i + n // 2) % n]
+        if s != g and graph.component[graph.node(*s)] == graph.component[graph.node(*g)]:
+            out.append((s, g))
+    return out
+
+
+def full_house():
+    from robots.floorplan import load_plan
+    from robots.world import HOUSES
+    from scenarios.home_setup import hazard_overrides
+
+    plan = load_plan(HOUSES / "house.yaml", HOUSE_SEED, hazard_overrides("house", HOUSE_SEED))
+    m = _platform_map("house", plan, "house")
+    return BenchMap("house", m, _room_queries(m, plan), "robots/houses/house.yaml, 20 m x 20 m")
+
+
+def generated_house(seed: int = GENERATED_SEED):
+    from robots.floorplan import load_plan
+    from robots.house_gen import GENERATED, generate
+    from scenarios.home_setup import hazard_overrides
+
+    plan = load_plan(generate(seed), seed, hazard_overrides(GENERATED, seed))
+    m = _platform_map("generated", plan, GENERATED)
+    return BenchMap("generated", m, _room_queries(m, plan), f"robots/house_gen.py seed {seed}")
+
+
+def open_hall(w_m: float = 30.0, h_m: float = 20.0):
+    """A 30 m x 20 m hall: outer walls and 0.4 m pillars every 5 m; corner-to-corner and across."""
+    from agents.services.maps import GridMap
+
+    w, h = int(round(w_m / RES)), int(round(h_m / RES))
+    b = np.zeros((h, w), bool)
+    b[:3, :] = b[-3:, :] = True
+    b[:, :3] = b[:, -3:] = True
+    p = int(round(0.4 / RES))
+    for x in np.arange(5.0, w_m - 1, 5.0):
+        for y in np.arange(5.0, h_m - 1, 5.0):
+            cx, cy = int(x / RES), int(y / RES)
+            b[cy - p // 2:cy + p // 2, cx - p // 2:cx + p // 2] = True
+    m = GridMap("hall", b, RES, (0.0, 0.0, 0.0))
+    c = lambda x, y: (int(round(x / RES - 0.5)), int(round(y / RES - 0.5)))  # noqa: E731
+    queries = [(c(1, 1), c(29, 19)), (c(1, 19), c(29, 1)), (c(1, 10.2), c(29, 9.8)), (c(14.6, 1), c(15.4, 19))]
+    return BenchMap("hall", m, queries, f"{w_m:g} m x {h_m:g} m, pillars every 5 m")
+
+
+MAP_BUILDERS = {"house": full_house, "generated": generated_house, "hall": open_hall}
+
+
+# ---------- the optimal reference ----------
+
+def reference_graph(free: np.ndarray, radius: int = 4):
+    """Any-angle reference graph: every coprime offset up to `radius` whose segment is free (the
+    cells it passes through, with a small tolerance either side)."""
     from agents.services import planning
 
     h, w = free.shape
     idx = np.arange(h * w, dtype=np.int32).reshape(h, w)
+    padded = np.pad(free, radius, constant_values=False)
     rows, cols, wts = [], [], []
     for dy in range(-radius, radius + 1):
         for dx in range(-radius, radius + 1):
@@ -73,91 +180,159 @@ def reference_length(free: np.ndarray, s: tuple[int, int], g: tuple[int, int], r
             ys, xs = planning._src(dy, h), planning._src(dx, w)
             ok = free[ys, xs].copy()
             for ty, tx in touched:
-                ok &= np.pad(free, radius, constant_values=False)[
-                    radius + ty:radius + ty + h, radius + tx:radius + tx + w][ys, xs]
+                ok &= padded[radius + ty:radius + ty + h, radius + tx:radius + tx + w][ys, xs]
             rows.append(idx[ys, xs][ok])
             cols.append(idx[planning._dst(dy, h), planning._dst(dx, w)][ok])
             wts.append(np.full(int(ok.sum()), math.hypot(dx, dy)))
-    G = sparse.csr_matrix((np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))), shape=(h * w,) * 2)
+    return sparse.csr_matrix((np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(h * w,) * 2)
+
+
+def reference_length(free: np.ndarray, s, g, graph=None) -> float:
+    """Optimal length (cells) from cell s to cell g: the reference graph's shortest path, tightened
+    by line-of-sight cuts; the shorter of the two."""
+    from agents.services import planning
+
+    graph = reference_graph(free) if graph is None else graph
+    w = free.shape[1]
     si, gi = s[1] * w + s[0], g[1] * w + g[0]
-    dist, pred = csgraph.dijkstra(G, indices=si, return_predecessors=True)
+    dist, pred = csgraph.dijkstra(graph, indices=si, return_predecessors=True)
     pts = planning._trace(pred, si, gi, w)
     tight = planning.tighten(free, planning.shortcut(free, pts), rounds=10)
     return min(float(dist[gi]), planning.path_length(tight))
 
 
-QUERIES = [((1.0, 5.0), (18.0, 18.0)), ((2.0, 12.0), (18.5, 4.0)), ((4.0, 2.5), (12.0, 16.5)),
-           ((7.0, 18.5), (19.0, 10.0))]
+# ---------- the measurement ----------
 
-
-def _stats(xs: list[float]) -> tuple[float, float]:
-    a = np.asarray(xs)
-    return float(np.median(a)), float(np.percentile(a, 95))
-
-
-def run(repeats: int = 5, ompl_time: float = 1.0, json_only: bool = False) -> list[dict]:
+def _runners(m, ompl_time: float) -> dict:
     from agents.services import navigation, planning
-    from agents.services.maps import GridMap
 
-    m = GridMap("bench_house", make_house(), RES, (0.0, 0.0, 0.0))
-    robot = "elektron"
-    free = navigation.free_cells(m, robot)
-    graph = navigation.grid_graph(m, robot)
-    landmarks = navigation.landmarks(m, robot)  # per-map tables are built once, outside the timing
-    cells = [(tuple(int(round(c)) for c in m.world_to_cell(*a)), tuple(int(round(c)) for c in m.world_to_cell(*b)))
-             for a, b in QUERIES]
-    refs = [reference_length(free, s, g) for s, g in cells]
+    graph = navigation.grid_graph(m, ROBOT)
+    landmarks = navigation.landmarks(m, ROBOT)
 
-    def scipy_dijkstra(s, g):  # the plain peer: full single-source Dijkstra on the same graph
+    def scipy_dijkstra(s, g):  # the raw library: full single-source Dijkstra, then the grid path
         si, gi = graph.node(*s), graph.node(*g)
         dist, pred = csgraph.dijkstra(graph.csr, indices=si, return_predecessors=True)
         return planning._trace(pred, si, gi, graph.shape[1])
 
-    runners = {
-        "scipy_dijkstra": lambda s, g: scipy_dijkstra(s, g),
-        "dijkstra": lambda s, g: navigation.plan_cells(m, robot, "dijkstra", s, g, 0),
-        "astar": lambda s, g: navigation.plan_cells(m, robot, "astar", s, g, 0),
+    return {
+        "scipy_dijkstra": scipy_dijkstra,
+        "dijkstra": lambda s, g: navigation.plan_cells(m, ROBOT, "dijkstra", s, g, 0),
+        "astar": lambda s, g: navigation.plan_cells(m, ROBOT, "astar", s, g, 0),
         "astar_raw": lambda s, g: planning.astar_path(graph, graph.node(*s), graph.node(*g), landmarks),
-        "ompl_rrtconnect": lambda s, g: navigation.plan_cells(m, robot, "rrtconnect", s, g, ompl_time),
-        "ompl_bitstar": lambda s, g: navigation.plan_cells(m, robot, "bitstar", s, g, ompl_time),
+        "rrtconnect": lambda s, g: navigation.plan_cells(m, ROBOT, "rrtconnect", s, g, ompl_time),
+        "bitstar": lambda s, g: navigation.plan_cells(m, ROBOT, "bitstar", s, g, ompl_time),
     }
-    results = {}
-    for name, fn in runners.items():
-        # BIT* always uses its whole time budget: 2 repeats; RRTConnect's time varies from run to
-        # run, so the peer gets as many repeats as the grid planners
-        n_rep = max(1, min(repeats, 2)) if name == "ompl_bitstar" else repeats
-        times, ratios = [], []
-        for (s, g), ref in zip(cells, refs):
-            for _ in range(n_rep):
-                t0 = time.perf_counter()
-                pts = fn(s, g)
-                times.append(time.perf_counter() - t0)
-            ratios.append(planning.path_length(pts) / ref if pts is not None else float("inf"))
-        results[name] = (times, ratios)
-    peers = ["scipy_dijkstra", "ompl_rrtconnect"]
-    fastest_peer = min(_stats(results[p][0])[0] for p in peers)
-    lines = []
-    for name, (times, ratios) in results.items():
-        med, p95 = _stats(times)
-        lines.append({"name": f"plan_{name}", "values": [round(t * 1e3, 3) for t in times], "unit": "ms",
-                      "floor": round(min(times) * 1e3, 3), "ratio": round(med / fastest_peer, 3),
-                      "length_ratio": round(max(ratios), 4), "n": len(times),
-                      "median": round(med * 1e3, 3), "p95": round(p95 * 1e3, 3)})
+
+
+def _timed(fn, s, g) -> tuple[float, object]:
+    t0 = time.perf_counter()
+    pts = fn(s, g)
+    return time.perf_counter() - t0, pts
+
+
+def measure_map(bm: BenchMap, rounds: int, ompl_time: float, bitstar_runs: int = 1) -> tuple[dict, float]:
+    """({planner: (times s, length ratios)}, per-map preparation s) on one map. Per-map tables
+    (cost map, graph, ALT landmarks) are built before the timing, as the service builds them once
+    per map; the preparation is one fresh build of graph and landmark tables, timed apart."""
+    from agents.services import navigation, planning
+
+    free = navigation.free_cells(bm.grid, ROBOT)
+    t0 = time.perf_counter()
+    planning.landmark_distances(planning.GridGraph(free))
+    prep = time.perf_counter() - t0
+    ref_graph = reference_graph(free)
+    bm.refs = [reference_length(free, s, g, ref_graph) for s, g in bm.queries]
+    runners = _runners(bm.grid, ompl_time)
+    out = {name: ([], []) for name in runners}
+
+    def record(name, k, dt, pts):
+        out[name][0].append(dt)
+        out[name][1].append(planning.path_length(pts) / bm.refs[k] if pts is not None else math.inf)
+
+    for k, (s, g) in enumerate(bm.queries):  # warm-up: first calls build per-map caches, load OMPL
+        for name in TIMED:
+            runners[name](s, g)
+    for _ in range(rounds):
+        for k, (s, g) in enumerate(bm.queries):
+            for name in TIMED:
+                record(name, k, *_timed(runners[name], s, g))
+    for _ in range(bitstar_runs):
+        for k, (s, g) in enumerate(bm.queries):
+            record("bitstar", k, *_timed(runners["bitstar"], s, g))
+    return out, prep
+
+
+def map_metrics(bm: BenchMap, res: dict, prep_s: float, ompl_time: float) -> list[dict]:
+    meds = {name: median(ts) for name, (ts, _) in res.items()}
+    peer = min(OPTIMAL_PEERS, key=meds.__getitem__)
+    floor = meds[peer]
+    rows = []
+    for name in ("astar", "astar_raw", "scipy_dijkstra", "dijkstra", "bitstar", "rrtconnect"):
+        ts, lens = res[name]
+        extra = {"peer": name in OPTIMAL_PEERS, "map": bm.name, "floor_peer": peer,
+                 "length_ratio": max(lens), "length_ratio_median": median(lens)}
+        if name == "astar":
+            extra["prep_ms"] = prep_s * 1e3  # graph and ALT tables, built once per map
+        if name in ("bitstar", "rrtconnect"):
+            extra["ompl_time_s"] = ompl_time
+        samples = [round(t * 1e3, 3) for t in ts]
+        rows.append(metric(f"plan_{name}_{bm.name}", meds[name] * 1e3, "ms", floor * 1e3,
+                           meds[name] / floor, len(ts), samples=samples, values=samples, **extra))
+    return rows
+
+
+def measure(repeats: int = 5, ompl_time: float = 1.0, maps=None) -> tuple[list[dict], list[BenchMap]]:
+    """Metrics of every map plus plan_astar (the worst map's row). `repeats` rounds over a map's
+    pairs, raised to MIN_SAMPLES samples per planner; repeats=1 is a smoke run (one round)."""
+    rows, done = [], []
+    for name in maps or MAP_BUILDERS:
+        bm = MAP_BUILDERS[name]()
+        n = len(bm.queries)
+        rounds = 1 if repeats <= 1 else max(repeats, math.ceil(MIN_SAMPLES / n))
+        res, prep_s = measure_map(bm, rounds, ompl_time, bitstar_runs=2 if repeats >= 5 else 1)
+        rows += map_metrics(bm, res, prep_s, ompl_time)
+        done.append(bm)
+    astar = [r for r in rows if r["name"].startswith("plan_astar_") and not r["name"].startswith("plan_astar_raw")]
+    worst = max(astar, key=lambda r: (r["ratio"] > 1.0 or r["length_ratio"] > 1.02, r["ratio"]))
+    summary = dict(worst, name="plan_astar", worst_map=worst["map"],
+                   length_ratio=max(r["length_ratio"] for r in astar),
+                   ratio_per_map={r["map"]: r["ratio"] for r in astar})
+    return [summary] + rows, done
+
+
+def report(rows: list[dict], maps: list[BenchMap]) -> str:
+    lines = [f"{bm.name}: {bm.grid.width}x{bm.grid.height} cells @ {RES} m ({bm.note}), robot {ROBOT}, "
+             f"{len(bm.queries)} start/goal pairs, optimal lengths (m): {[round(r * RES, 2) for r in bm.refs]}"
+             for bm in maps]
+    cols = ["name", "median", "p95", "floor", "ratio", "length_ratio", "n", "floor_peer"]
+    shown = [{c: r.get(c) for c in cols} for r in rows]
+    cells = [cols] + [[fmt(v) for v in row.values()] for row in shown]
+    widths = [max(len(c[i]) for c in cells) for i in range(len(cols))]
+    lines += ["  ".join(v.ljust(wd) if i in (0, 7) else v.rjust(wd) for i, (v, wd) in enumerate(zip(c, widths)))
+              for c in cells]
+    return "\n".join(lines)
+
+
+def run(repeats: int = 5, ompl_time: float = 1.0, json_only: bool = False) -> list[dict]:
+    """The metrics, each with `values` (its samples, ms) for the runner, plus a plan_scipy_dijkstra
+    row (the scipy peer on plan_astar's map), from which the runner takes its floor."""
+    import json
+
+    rows, maps = measure(repeats, ompl_time)
+    scipy = next(r for r in rows if r["name"] == f"plan_scipy_dijkstra_{rows[0]['map']}")
+    rows.append(dict(scipy, name="plan_scipy_dijkstra"))
     if not json_only:
-        print(f"house {SIZE}x{SIZE} @ {RES} m, robot {robot}, {len(QUERIES)} queries; "
-              f"reference optimum lengths (m): {[round(r * RES, 3) for r in refs]}")
-        print(f"{'algorithm':<20}{'median ms':>11}{'p95 ms':>10}{'ratio':>8}{'len ratio':>11}")
-        for ln in lines:
-            print(f"{ln['name']:<20}{ln['median']:>11.2f}{ln['p95']:>10.2f}{ln['ratio']:>8.3f}{ln['length_ratio']:>11.4f}")
-    for ln in lines:
-        print(json.dumps(ln))
-    return lines
+        print(report(rows, maps))
+    for r in rows:
+        print(json.dumps({k: v for k, v in r.items() if k != "values"}))
+    return rows
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--ompl-time", type=float, default=1.0)
+    ap.add_argument("--repeats", type=int, default=5, help="rounds over each map's pairs (at least 20 samples)")
+    ap.add_argument("--ompl-time", type=float, default=1.0, help="OMPL time budget (s), BIT* spends all of it")
     ap.add_argument("--json-only", action="store_true")
     a = ap.parse_args()
     run(a.repeats, a.ompl_time, a.json_only)

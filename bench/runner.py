@@ -5,8 +5,8 @@
 Every benchmark measures the project and a floor (or peer) side by side in the same run and reports
 their ratio. Each benchmark runs in a child process of its own (a fresh XMPP server, event loop and
 PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick finishes in under
-3 minutes on a 2-core machine. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery
-(metric names such as robot_rtt or plan_astar select their benchmark).
+3 minutes on a 2-core machine. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery,
+speech (metric names such as robot_rtt or plan_astar select their benchmark).
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from .common import ROOT, log, metric, table
 
-BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf", "recovery"]
+BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf", "recovery", "speech"]
 FULL_TIMEOUT_S = {"fleet": 1800}  # 21 hazard-detection runs in two rounds
 ALIASES = {"recovery_killed_told": "recovery", "recovery_hung_back": "recovery",
            "recovery_reconnect": "recovery", "recovery_command_answered": "recovery", "robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
@@ -53,23 +53,13 @@ def bench_fleet(quick: bool, tiny: bool) -> list[dict]:
 
 
 def bench_planning(quick: bool, tiny: bool) -> list[dict]:
-    import contextlib
-    import io
-
     from . import planning
 
-    with contextlib.redirect_stdout(io.StringIO()):
-        lines = planning.run(repeats=1 if tiny else 2 if quick else 5,
-                             ompl_time=0.5 if quick else 1.0, json_only=True)
-    peers = {"plan_scipy_dijkstra", "plan_ompl_rrtconnect"}
-    fastest = min(ln["median"] for ln in lines if ln["name"] in peers)
-    out = []
-    for ln in lines:
-        out.append(metric(ln["name"], ln["median"], "ms", fastest, ln["ratio"], ln["n"],
-                          samples=ln["values"], length_ratio=ln["length_ratio"],
-                          peer=ln["name"] in peers, floor_meaning="median of the fastest peer "
-                          "(scipy csgraph Dijkstra, OMPL RRTConnect)"))
-    return out
+    # per map (house, generated, hall): floor = the fastest optimal peer on that map
+    rows, _ = planning.measure(repeats=1 if tiny else 2 if quick else 5, ompl_time=0.5 if quick else 1.0)
+    for r in rows:
+        r.pop("values", None)
+    return rows
 
 
 def bench_sim_rtf(quick: bool, tiny: bool) -> list[dict]:
@@ -91,6 +81,11 @@ def bench_sim_rtf(quick: bool, tiny: bool) -> list[dict]:
 def bench_recovery(quick: bool, tiny: bool) -> list[dict]:
     from . import recovery
     return asyncio.run(recovery.run(quick, rounds=1 if tiny else None, restarts=1 if tiny else None))
+
+
+def bench_speech(quick: bool, tiny: bool) -> list[dict]:
+    from . import speech
+    return asyncio.run(speech.run(quick, per_condition=1 if tiny else None, noises=["quiet"] if tiny else None))
 
 
 def _child(name: str, quick: bool, tiny: bool, out: str) -> int:
@@ -160,6 +155,9 @@ GOALS = {
     "platform_rtt": ("ratio <= 1.5", lambda m: m["ratio"] <= 1.5),
     "plan_astar": ("ratio <= 1, length_ratio <= 1.02",
                    lambda m: m["ratio"] <= 1.0 and m.get("length_ratio", 99) <= 1.02),
+    **{f"plan_astar_{map_name}": ("ratio <= 1, length_ratio <= 1.02",
+                                  lambda m: m["ratio"] <= 1.0 and m.get("length_ratio", 99) <= 1.02)
+       for map_name in ("house", "generated", "hall")},
     # quick sizes stop below the goal: a fleet that passed all of them is not judged
     "fleet": (">= 20 robots", lambda m: m["value"] >= 20 or (None if m.get("capped_by_sizes") else False)),
     "sim_rtf_4": (">= 1 x realtime", lambda m: m["value"] >= 1.0),
@@ -168,6 +166,13 @@ GOALS = {
     "recovery_hung_back": ("<= 2000 ms", lambda m: m["value"] <= 2000.0),
     "recovery_reconnect": ("<= 2000 ms", lambda m: m["value"] <= 2000.0),
     "recovery_command_answered": ("<= 500 ms", lambda m: m["value"] <= 500.0),
+    # issue #19: spoken commands
+    "speech_keyword_accuracy_quiet": (">= 95 %", lambda m: m["value"] >= 95.0),
+    "speech_platform_accuracy_quiet": (">= 95 %", lambda m: m["value"] >= 95.0),
+    "speech_keyword_accuracy_tv50": (">= 85 %", lambda m: m["value"] >= 85.0),
+    "speech_platform_accuracy_tv50": (">= 85 %", lambda m: m["value"] >= 85.0),
+    "speech_keyword_started": ("<= 500 ms", lambda m: m["value"] <= 500.0),
+    "speech_platform_started": ("<= 1500 ms", lambda m: m["value"] <= 1500.0),
 }
 
 
@@ -194,6 +199,8 @@ def select(only: list[str] | None) -> list[str]:
             b = "planning"
         if b.startswith("sim_rtf"):
             b = "sim_rtf"
+        if b.startswith("speech_"):
+            b = "speech"
         if b not in BENCHMARKS:
             raise SystemExit(f"unknown benchmark {name!r} (known: {', '.join(BENCHMARKS)})")
         if b not in chosen:

@@ -35,15 +35,18 @@ def _dst(d: int, n: int) -> slice:
 
 
 class GridGraph:
-    """8-connected graph of free cells (no corner cutting) as a CSR matrix, built once per cost map."""
+    """8-connected graph of free cells (no corner cutting), built once per cost map: a CSR matrix
+    (Dijkstra, components, landmark tables) and the same edges as a mask of allowed moves per cell
+    (`moves[iy, ix, k]`: the move by OFFSETS8[k] is an edge), from which A* cuts the window it needs."""
 
     def __init__(self, free: np.ndarray) -> None:
         self.free = free
         h, w = free.shape
         self.shape = (h, w)
         idx = np.arange(h * w, dtype=np.int32).reshape(h, w)
+        self.moves = np.zeros((h, w, 8), bool)
         rows, cols, wts = [], [], []
-        for dy, dx, c in OFFSETS8:
+        for k, (dy, dx, c) in enumerate(OFFSETS8):
             ys, xs, yd, xd = _src(dy, h), _src(dx, w), _dst(dy, h), _dst(dx, w)
             ok = free[ys, xs] & free[yd, xd]
             if dy and dx:  # both orthogonal neighbours must be free
@@ -51,24 +54,18 @@ class GridGraph:
             rows.append(idx[ys, xs][ok])
             cols.append(idx[yd, xd][ok])
             wts.append(np.full(int(ok.sum()), c))
+            self.moves[ys, xs, k] = ok
         r, cc, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(wts)
         self.csr = sparse.csr_matrix((ww, (r, cc)), shape=(h * w, h * w))
         self.csr.sort_indices()
-        self.row_of_edge = np.repeat(np.arange(h * w, dtype=np.int32), np.diff(self.csr.indptr))
         _, self.component = csgraph.connected_components(self.csr, directed=False)
-        ys_all, xs_all = np.divmod(np.arange(h * w), w)
-        self.ys, self.xs = ys_all.astype(np.float64), xs_all.astype(np.float64)
 
     def node(self, ix: int, iy: int) -> int:
         return iy * self.shape[1] + ix
 
-    def octile_to(self, goal: int) -> np.ndarray:
-        gy, gx = divmod(goal, self.shape[1])
-        dy, dx = np.abs(self.ys - gy), np.abs(self.xs - gx)
-        return np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
-
 
 def _trace(pred: np.ndarray, s: int, g: int, width: int) -> np.ndarray:
+    """Cells (x, y) from node s to node g along a predecessor array."""
     nodes = [g]
     while nodes[-1] != s:
         nodes.append(int(pred[nodes[-1]]))
@@ -97,7 +94,8 @@ def landmark_distances(graph: GridGraph, count: int = 8) -> np.ndarray:
     comp = graph.component[free_nodes]
     biggest = np.bincount(comp).argmax()
     nodes = free_nodes[comp == biggest]
-    first = nodes[np.argmax(graph.xs[nodes] + graph.ys[nodes])]
+    ys, xs = np.divmod(nodes, graph.shape[1])
+    first = nodes[np.argmax(xs + ys)]
     rows = [csgraph.dijkstra(graph.csr, indices=int(first))]
     for _ in range(count - 1):
         nearest = np.min(np.vstack(rows), axis=0)
@@ -106,32 +104,116 @@ def landmark_distances(graph: GridGraph, count: int = 8) -> np.ndarray:
     return np.vstack(rows).astype(np.float32)
 
 
+def _octile(dx, dy):
+    dx, dy = np.abs(dx), np.abs(dy)
+    return np.maximum(dx, dy) + (SQRT2 - 1.0) * np.minimum(dx, dy)
+
+
+def _extent(n: int, m: int, s: tuple[int, int], g: tuple[int, int], limit: float) -> tuple[int, int]:
+    """Range [lo, hi) of the first coordinate (0..n-1; the second one in 0..m-1) holding every cell v
+    with octile(s, v) + octile(v, g) <= limit. For a fixed first coordinate the sum is convex and
+    piecewise linear in the second, so its minimum lies at one of the breakpoints."""
+    u = np.arange(n, dtype=np.float64)[:, None]
+    (su, sv), (gu, gv) = s, g
+    cand = np.hstack([np.full_like(u, sv), np.full_like(u, gv), sv + np.abs(u - su), sv - np.abs(u - su),
+                      gv + np.abs(u - gu), gv - np.abs(u - gu)]).clip(0, m - 1)
+    lb = (_octile(cand - sv, u - su) + _octile(gv - cand, gu - u)).min(axis=1)
+    inside = np.flatnonzero(lb <= limit)
+    return (int(inside[0]), int(inside[-1]) + 1) if len(inside) else (su, su + 1)
+
+
+def search_window(shape, s: tuple[int, int], g: tuple[int, int], limit: float) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1): the rows and columns that hold every cell v (x, y) with
+    octile(s, v) + octile(v, g) <= limit, i.e. every cell an A* search with f <= limit can expand."""
+    (sx, sy), (gx, gy) = s, g
+    y0, y1 = _extent(shape[0], shape[1], (sy, sx), (gy, gx), limit)
+    x0, x1 = _extent(shape[1], shape[0], (sx, sy), (gx, gy), limit)
+    return y0, y1, x0, x1
+
+
+def _heuristic(graph: GridGraph, g: int, tables: np.ndarray | None, y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
+    """Admissible, consistent h to the goal on the window [y0, y1) x [x0, x1): octile distance,
+    raised by the ALT landmark bounds (less their float32 rounding)."""
+    h_rows, w = graph.shape
+    gy, gx = divmod(g, w)
+    h = _octile(np.arange(x0, x1, dtype=np.float64)[None, :] - gx, np.arange(y0, y1, dtype=np.float64)[:, None] - gy)
+    if tables is not None and len(tables):
+        win = tables.reshape(len(tables), h_rows, w)[:, y0:y1, x0:x1]
+        alt = np.abs(win[0] - tables[0, g])
+        for t, tg in zip(win[1:], tables[1:, g]):
+            np.maximum(alt, np.abs(t - tg), out=alt)
+        alt -= ALT_ROUNDING
+        np.fmax(h, alt, out=h)  # inf off the goal's component: never reached
+    return h
+
+
+_STEPS = np.array([(dy, dx) for dy, dx, _ in OFFSETS8])
+
+
+def _window_search(graph: GridGraph, s: int, g: int, tables, limit: float, win) -> np.ndarray | None:
+    """Dijkstra on reduced costs w - h(u) + h(v) (A*'s expansion order) inside the window, expanding
+    nodes with f <= h(s) + limit; the path's cells, or None when the goal is not settled."""
+    y0, y1, x0, x1 = win
+    h_rows, w = graph.shape
+    r, c = y1 - y0, x1 - x0
+    # h on the window and one cell around it (the targets of its edges), 0 off the map
+    hp = np.zeros((r + 2, c + 2))
+    a, b, e, f = max(0, y0 - 1), min(h_rows, y1 + 1), max(0, x0 - 1), min(w, x1 + 1)
+    hp[a - y0 + 1:b - y0 + 1, e - x0 + 1:f - x0 + 1] = _heuristic(graph, g, tables, a, b, e, f)
+    hc = hp[1:-1, 1:-1]
+    base = {1.0: hc - 1.0, SQRT2: hc - SQRT2}
+    data = np.empty((r, c, 8))
+    with np.errstate(invalid="ignore"):
+        for k, (dy, dx, cost) in enumerate(OFFSETS8):
+            np.subtract(hp[1 + dy:r + 1 + dy, 1 + dx:c + 1 + dx], base[cost], out=data[:, :, k])
+        data = data.reshape(-1)
+        np.fmax(data, 1e-9, out=data)  # nan (inf - inf) only off the goal's component
+    moves = graph.moves[y0:y1, x0:x1].copy()
+    moves[0, :, _STEPS[:, 0] < 0] = False  # no move leaves the window
+    moves[-1, :, _STEPS[:, 0] > 0] = False
+    moves[:, 0, _STEPS[:, 1] < 0] = False
+    moves[:, -1, _STEPS[:, 1] > 0] = False
+    n = r * c
+    local = np.arange(n, dtype=np.int32).reshape(r, c, 1)
+    idx = np.where(moves, local + (_STEPS[:, 0] * c + _STEPS[:, 1]).astype(np.int32), local).reshape(-1)
+    gr = sparse.csr_matrix((data, idx, np.arange(0, 8 * n + 1, 8, dtype=np.int32)), shape=(n, n))
+    (sy, sx), (gy, gx) = divmod(s, w), divmod(g, w)
+    s_l, g_l = (sy - y0) * c + sx - x0, (gy - y0) * c + gx - x0
+    dist, pred = csgraph.dijkstra(gr, indices=s_l, return_predecessors=True, limit=limit)
+    if not np.isfinite(dist[g_l]):
+        return None
+    cells = _trace(pred, s_l, g_l, c)  # window (x, y) -> map (x, y)
+    cells += (x0, y0)
+    return cells
+
+
 def astar_path(graph: GridGraph, s: int, g: int, landmarks: np.ndarray | None = None) -> np.ndarray | None:
     """A* with the octile heuristic (tightened by ALT landmark bounds when tables are given: still
-    admissible and consistent). Run as Dijkstra on reduced costs w - h(u) + h(v) >= 0, which expands
-    nodes in A*'s order, under a bound on f that triples until the goal is settled: only nodes with
-    f <= bound are expanded."""
+    admissible and consistent), run as Dijkstra on reduced costs w - h(u) + h(v) >= 0, which expands
+    nodes in A*'s order, under a bound on f: only nodes with f <= h(s) + limit are expanded, and only
+    the window of rows and columns that can hold them is built. The limit starts small and grows
+    until the goal is settled; it never needs to exceed the length of the path through the best
+    landmark. Returns the cells (x, y) of a shortest 8-connected path, or None."""
     if graph.component[s] != graph.component[g]:
         return None
-    h = graph.octile_to(g)
+    w = graph.shape[1]
+    tables, cap = None, math.inf
     if landmarks is not None and len(landmarks):
-        in_goal_component = np.isfinite(landmarks[:, g])
-        tables = landmarks if in_goal_component.all() else landmarks[in_goal_component]
-        # inf off that component (never reached from s); minus float32 rounding, to stay admissible
-        alt = np.abs(tables[:, g:g + 1] - tables).max(axis=0, initial=0.0) - ALT_ROUNDING
-        np.fmax(h, alt, out=h)
-    csr = graph.csr
-    with np.errstate(invalid="ignore"):
-        reduced = csr.data - h[graph.row_of_edge]
-        reduced += h[csr.indices]
-    np.fmax(reduced, 1e-9, out=reduced)  # nan (inf - inf) only off the start's component
-    gr = sparse.csr_matrix((reduced, csr.indices, csr.indptr), shape=csr.shape)
-    bound = 4.0 + 0.05 * h[s]
+        tables = landmarks[np.isfinite(landmarks[:, g])]  # those in the goal's component
+        if len(tables):  # d(s, g) <= d(s, L) + d(L, g): a path through landmark L
+            cap = float(np.min(tables[:, s].astype(np.float64) + tables[:, g]))
+    (sy, sx), (gy, gx) = divmod(s, w), divmod(g, w)
+    h_s = float(_heuristic(graph, g, tables, sy, sy + 1, sx, sx + 1)[0, 0])
+    cap = cap - h_s + 0.1 if math.isfinite(cap) else math.inf  # + float32 rounding, generously
+    limit = min(0.5 + 0.01 * h_s, cap)
     while True:
-        dist, pred = csgraph.dijkstra(gr, indices=s, return_predecessors=True, limit=bound)
-        if np.isfinite(dist[g]):
-            return _trace(pred, s, g, graph.shape[1])
-        bound *= 3.0  # same component: the goal is reachable, a larger bound will settle it
+        win = search_window(graph.shape, (sx, sy), (gx, gy), h_s + limit + 1e-6)
+        cells = _window_search(graph, s, g, tables, limit, win)
+        if cells is not None:
+            return cells
+        if limit >= cap:  # not with exact landmark tables; the full graph settles it
+            return dijkstra_path(graph, s, g)
+        limit = min(limit * 4.0, cap)
 
 
 # ---------- smoothing ----------
@@ -140,21 +222,25 @@ def segment_free(free: np.ndarray, a, b, step: float = 0.5) -> bool:
     return bool(segments_free(free, np.asarray(a, float), np.asarray([b], float), step)[0])
 
 
+def _sight(free: np.ndarray, ax, ay, d: np.ndarray, step: float) -> np.ndarray:
+    """Line of sight from (ax, ay) along each row of d: the cell of every sample, taken every `step`
+    cells, is on the map and free."""
+    n = int(np.ceil(np.sqrt(np.max(d[:, 0] ** 2 + d[:, 1] ** 2, initial=0.0)) / step)) + 1
+    t = np.linspace(0.0, 1.0, n + 1)
+    px = np.rint(ax + d[:, :1] * t)
+    py = np.rint(ay + d[:, 1:] * t)
+    h, w = free.shape
+    inside = (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
+    inside &= free[py.clip(0, h - 1).astype(np.intp), px.clip(0, w - 1).astype(np.intp)]
+    return inside.all(axis=1)
+
+
 def segments_free(free: np.ndarray, a: np.ndarray, bs: np.ndarray, step: float = 0.25) -> np.ndarray:
     """Line of sight from point a to each of bs (cell coordinates): every sample's cell is free.
 
     Samples every quarter cell: a segment may clip the corner of an occupied cell of the *inflated*
     map by at most ~0.1 cell, never the obstacle itself (inflation is at least the robot's radius)."""
-    d = bs - a
-    n = int(np.ceil(np.max(np.hypot(d[:, 0], d[:, 1]), initial=0.0) / step)) + 1
-    t = np.linspace(0.0, 1.0, n + 1)
-    px = np.rint(a[0] + np.outer(d[:, 0], t)).astype(np.int64)
-    py = np.rint(a[1] + np.outer(d[:, 1], t)).astype(np.int64)
-    h, w = free.shape
-    inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    ok = np.zeros_like(inside)
-    ok[inside] = free[py[inside], px[inside]]
-    return ok.all(axis=1)
+    return _sight(free, a[0], a[1], bs - a, step)
 
 
 def corners(pts: np.ndarray) -> np.ndarray:
@@ -196,16 +282,7 @@ def shortcut(free: np.ndarray, pts: np.ndarray, chunk: int = 48) -> np.ndarray:
 
 def pairs_free(free: np.ndarray, a: np.ndarray, b: np.ndarray, step: float = 0.25) -> np.ndarray:
     """Line of sight for each pair of points a[k] -> b[k] (cell coordinates)."""
-    d = b - a
-    n = int(np.ceil(np.max(np.hypot(d[:, 0], d[:, 1]), initial=0.0) / step)) + 1
-    t = np.linspace(0.0, 1.0, n + 1)
-    px = np.rint(a[:, :1] + np.outer(d[:, 0], t)).astype(np.int64)
-    py = np.rint(a[:, 1:] + np.outer(d[:, 1], t)).astype(np.int64)
-    h, w = free.shape
-    inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    ok = np.zeros_like(inside)
-    ok[inside] = free[py[inside], px[inside]]
-    return ok.all(axis=1)
+    return _sight(free, a[:, :1], a[:, 1:], b - a, step)
 
 
 _DEPTHS = np.linspace(1.0, 0.0, 17)[:-1]  # corner cut depths tried, deepest first
