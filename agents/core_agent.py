@@ -6,6 +6,8 @@ Behaviours and when they are active (see `active_behaviours()`):
   core-service    always   task status / heartbeats / reports of the current Dynamic Agent
   user-listener   while the Core supervises: user chat -> command queue
   microphone-listener  while the Core supervises: what the robot's microphone hears -> commands
+  audio-listener  while the Core supervises: the microphone's sound, voice activity -> utterances
+                  (s4 spots an isolated keyword itself, sends anything longer to the Platform)
   command-server  while a Dynamic Agent supervises: its robot-API requests (fig. 5, s8/s9)
   busy-chat       while a Dynamic Agent supervises: answers the user, "stop" cancels the task
   heartbeats      while a Dynamic Agent supervises: its liveness (a hang is noticed within 2 s)
@@ -21,6 +23,7 @@ agents/core_commands.py.
 from __future__ import annotations
 
 import asyncio
+import base64
 import itertools
 import logging
 import re
@@ -45,9 +48,13 @@ from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
+from ontology.services.speech import SpeechRecognition
+from robots.receptors import HeardUtterance, KeywordSpotter
+from robots.sound import encode_wav
 
 from .base import RappAgent
-from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template
+from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat,
+                              heartbeat_template)
 from .core_commands import RobotCommands
 from .core_fsm import build_core_fsm
 from .errors import Refusal, RequestError, RequestFailed
@@ -94,7 +101,7 @@ class CoreAgent(RobotCommands, RappAgent):
                  workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
                  limits: Limits = Limits(), say_reports: bool = True,
                  safety_distance: float | None = 0.10, safety_period: float = 0.2,
-                 dynamic_mode: str = "process", sandbox: Sandbox | None = None):
+                 dynamic_mode: str = "process", sandbox: Sandbox | None = None, hear_audio: bool = True):
         super().__init__(name, settings)
         self.accounts = EphemeralAccounts(self.settings, owner=name)
         self.sandbox = sandbox or Sandbox()
@@ -110,7 +117,9 @@ class CoreAgent(RobotCommands, RappAgent):
         self.memory: dict = {}
         self.vocabulary: dict[str, str] = {}
         self.catalogue: list[S.PackageSummary] = []
-        self.commands: asyncio.Queue[str] = asyncio.Queue()
+        self.commands: asyncio.Queue[str | HeardUtterance] = asyncio.Queue()
+        self.hear_audio = hear_audio  # listen to the microphone's sound (when the robot has a microphone)
+        self.keywords = KeywordSpotter([])
         self.dynamic: DynamicSession | None = None
         self.told: list[str] = []  # everything said to the user, in order
         self.supervisor: BehaviourHost | None = None
@@ -140,6 +149,17 @@ class CoreAgent(RobotCommands, RappAgent):
         mic = self.robot.microphone
         if mic is not None:
             self.activate("microphone-listener", MicrophoneListener(mic, self._command_heard))
+        if self.hear_audio and "microphone" in self.robot.capabilities():
+            self.activate("audio-listener", AudioListener(self.robot, self._speech_heard, self.speaking))
+
+    def speaking(self) -> bool:
+        """The robot's loudspeaker is busy with the Core's own sentences."""
+        return self._speech is not None and not self._speech.done()
+
+    async def _speech_heard(self, utterance: HeardUtterance) -> None:
+        self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
+                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long)
+        await self.commands.put(utterance)
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
@@ -151,7 +171,7 @@ class CoreAgent(RobotCommands, RappAgent):
         else:
             await self.commands.put(text)
 
-    async def next_command(self) -> str:
+    async def next_command(self) -> str | HeardUtterance:
         return await self.commands.get()
 
     def hear(self, text: str) -> None:
@@ -194,6 +214,9 @@ class CoreAgent(RobotCommands, RappAgent):
     def set_catalogue(self, packages: list[S.PackageSummary]) -> None:
         self.catalogue = list(packages)
         self.vocabulary = {kw.lower(): p.name for p in packages for kw in p.keywords}
+        self.keywords = KeywordSpotter(sorted(self.vocabulary), [ph for p in packages for ph in p.phrases])
+        if self.hear_audio and self.vocabulary:  # its decoder loads in the background, not at the first word
+            self._in_background(asyncio.to_thread(self.keywords.warm_up))
         self.record_structure("vocabulary", rapps=[p.name for p in packages],
                               keywords=sorted(self.vocabulary))
 
@@ -226,6 +249,32 @@ class CoreAgent(RobotCommands, RappAgent):
                  for p in self.catalogue]
         return await self.request(self.platform, InterpretCommand(token=await self.fresh_token(), text=text,
                                                                   robot_type=self.robot_type, rapps=rapps))
+
+    def keyword_rapp(self, text: str) -> str | None:
+        """s4a for typed commands: the RApp of a single known keyword, else None."""
+        words = re.findall(r"[\w'-]+", text.lower())
+        return self.vocabulary.get(words[0]) if len(words) == 1 else None
+
+    async def spot_keyword(self, utterance: HeardUtterance) -> str | None:
+        """s4a for speech: the RApp of an isolated keyword (pocketsphinx on this robot), else None."""
+        spotter = self.keywords
+        word = await asyncio.get_running_loop().run_in_executor(None, spotter.spot, utterance)
+        self.record_structure("keyword-spotting", word=word)
+        return self.vocabulary.get(word.lower()) if word else None
+
+    async def recognise(self, utterance: HeardUtterance) -> str:
+        """s4b for speech: the Platform's speech_recognition, first against the Store's command phrases
+        and keywords, then with the general language model; "" when neither heard anything."""
+        wav = await asyncio.to_thread(lambda: base64.b64encode(encode_wav(utterance.pcm)).decode())
+        sentences = sorted({ph for p in self.catalogue for ph in p.phrases} | set(self.vocabulary))
+        for allowed in (sentences, []):
+            reply = await self.request(self.platform, SpeechRecognition(
+                token=await self.fresh_token(), audio_b64=wav, sentences=allowed), timeout=15.0)
+            self.record_structure("speech-recognition", text=reply.text, search=reply.search,
+                                  confidence=reply.confidence)
+            if reply.text.strip():
+                return reply.text.strip()
+        return ""
 
     # -- s5 ------------------------------------------------------------------------------
     async def fetch_package(self, rapp: str) -> tuple[Package, bytes]:
@@ -302,6 +351,7 @@ class CoreAgent(RobotCommands, RappAgent):
     def _handoff(self) -> None:
         self.deactivate("user-listener")
         self.deactivate("microphone-listener")  # the RApp may use the microphone (word_spotting)
+        self.deactivate("audio-listener")
         server = self._command_server()
         self.activate("command-server", server, server.make_template())
         self.activate("busy-chat", UserChat(self.owner, self._busy_chat))
@@ -428,7 +478,8 @@ class CoreAgent(RobotCommands, RappAgent):
 
     async def _on_report(self, req: C.Report, ctx) -> Done:
         self._from_dynamic(ctx)
-        await self.tell_user(req.text)
+        # a RApp that has just said the text itself marks it `said`: chat only, not a second time aloud
+        await self.tell_user(req.text, speak=not req.data.get("said", False))
         return Done()
 
     async def _on_get_state(self, req: C.GetState, ctx) -> C.CoreState:

@@ -2,12 +2,17 @@
 says when each is active).
 
   UserChat            plain chat from the robot's owner (user-listener, busy-chat)
-  MicrophoneListener  what the robot's microphone hears while the Core supervises
+  MicrophoneListener  what the robot's microphone hears while the Core supervises (typed utterances)
+  AudioListener       the microphone's sound while the Core supervises: voice activity -> utterances
   HeartbeatMonitor    the Dynamic Agent's one-way heartbeats (with `heartbeat_template()`)
   SafetyMonitor       the range sensors: an obstacle too close latches the emergency stop (paper 003)
 """
 from __future__ import annotations
 
+import asyncio
+import base64
+import logging
+import time
 from typing import TYPE_CHECKING
 
 from spade.behaviour import CyclicBehaviour, PeriodicBehaviour
@@ -15,6 +20,10 @@ from spade.message import Message
 from spade.template import Template
 
 from ontology import core as C
+from ontology.robot import CaptureAudio
+from robots.errors import UnsupportedOperation
+from robots.receptors import VoiceActivity
+from robots.sound import decode_wav
 
 from .messages import AclInfo, bare
 
@@ -53,6 +62,42 @@ class MicrophoneListener(CyclicBehaviour):
             return
         if text and text.strip():
             await self.on_text(text.strip())
+
+
+class AudioListener(CyclicBehaviour):
+    """Listens continuously (fig. 5, s3): the microphone's sound in CHUNK_S pieces through the robot
+    interface (capture_audio), voice activity detection, each finished utterance to `on_utterance`.
+    Paced at real time at most (a world running as fast as possible is not driven faster by listening).
+    While the robot itself speaks (`muted()`) the sound is dropped: the Core never hears itself."""
+
+    CHUNK_S = 0.1
+
+    def __init__(self, robot, on_utterance, muted):
+        super().__init__()
+        self.robot, self.on_utterance, self.muted = robot, on_utterance, muted
+        self.vad = VoiceActivity(max_seconds=5.0)  # what one speech_recognition request carries
+
+    async def run(self) -> None:
+        start = time.monotonic()
+        was_muted = self.muted()
+        try:
+            audio = await self.robot.handle(CaptureAudio(seconds=self.CHUNK_S))
+            pcm, _ = decode_wav(base64.b64decode(audio.data_b64))
+        except UnsupportedOperation:
+            self.kill()
+            return
+        except Exception as e:  # noqa: BLE001 - a world being closed, a driver hiccup: listen again soon
+            logging.getLogger("rapp.core").debug("audio capture failed: %s", e)
+            await asyncio.sleep(1.0)
+            return
+        if self.is_killed():
+            return  # deactivated meanwhile: the microphone is the RApp's now
+        if was_muted or self.muted():
+            self.vad.reset()
+        else:
+            for utterance in self.vad.feed(pcm):
+                await self.on_utterance(utterance)
+        await asyncio.sleep(max(0.0, start + self.CHUNK_S - time.monotonic()))
 
 
 class HeartbeatMonitor(CyclicBehaviour):

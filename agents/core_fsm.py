@@ -1,11 +1,17 @@
 """The Core Agent's FSM, state by state as in fig. 5 of paper 000.
 
-    s0 init -> s1 register -> s2 vocabulary -> s3 listen -> s4 interpret -> s5 download
+    s0 init -> s1 register -> s2 vocabulary -> s3 listen -> s4a keyword -> s5 download
+                                                   (not a keyword alone) -> s4b platform -> s5
       -> s6 activate (spawn a_dyn, hand supervision over) -> s8 serve (s9: the command server
       executes each robot-API request) -> s10 destroy (reap a_dyn, resume supervision) -> s3
 
-A failed interpretation or download tells the user why and returns to s3; a failed activation
-goes through s10 so nothing is left running.
+s3 takes a command as text (chat, typed microphone utterances) or as speech (the microphone's sound,
+cut into utterances by voice activity detection). s4's two branches are the figure's: an isolated
+keyword is mapped to its RApp on the robot (s4a: pocketsphinx with the vocabulary of s2); anything
+else goes to the Platform (s4b: speech_recognition for speech, then interpret_command).
+A failed recognition or interpretation tells the user why (spoken: "Sorry, I did not understand")
+and returns to s3; so does a failed download; a failed activation goes through s10 so nothing is
+left running.
 """
 from __future__ import annotations
 
@@ -13,6 +19,7 @@ import asyncio
 import logging
 
 from behaviours import FSM, Behaviour, OneShot
+from robots.receptors import HeardUtterance
 
 from .errors import RequestError
 
@@ -61,9 +68,35 @@ class Listen(Behaviour):  # s3: wait for the user's next command (chat or microp
         return self.iterations >= 1
 
 
-class Interpret(CoreState):  # s4: isolated keyword -> RApp; a sentence -> Platform
+class Keyword(CoreState):  # s4a: an isolated keyword -> its RApp, here on the robot
+    async def action(self):
+        command = self.memory["command"]
+        self.memory.pop("text", None)
+        if isinstance(command, HeardUtterance):
+            if command.too_long:
+                await self.core.tell_user("Sorry, I did not understand: that was too long for a command.")
+                raise RuntimeError("utterance too long")
+            rapp = await self.core.spot_keyword(command)
+        else:
+            rapp = self.core.keyword_rapp(command)
+        if rapp is not None:
+            self.memory["rapp"], self.memory["params"] = rapp, {}
+        return rapp is not None
+
+
+class Interpret(CoreState):  # s4b: anything else -> the Platform (speech recognition, interpretation)
     async def action(self):
         text = self.memory["command"]
+        if isinstance(text, HeardUtterance):
+            try:
+                text = await self.core.recognise(text)
+            except RequestError as e:
+                await self.core.tell_user(f"Sorry, I did not understand: {e.reason}")
+                raise
+            if not text:
+                await self.core.tell_user("Sorry, I did not understand.")
+                raise RuntimeError("nothing recognised")
+            self.memory["text"] = text
         try:
             found = await self.core.interpret(text)
         except RequestError as e:  # the Platform's reason names the command ("I did not understand ...")
@@ -108,7 +141,8 @@ def build_core_fsm() -> FSM:
     fsm = FSM("core", initial="s0_init", idle_limit=None)
     for name, state in [("s0_init", Init("init")), ("s1_register", Register("register")),
                         ("s2_vocabulary", Vocabulary("vocabulary")), ("s3_listen", Listen("listen")),
-                        ("s4_interpret", Interpret("interpret")), ("s5_download", Download("download")),
+                        ("s4a_keyword", Keyword("keyword")), ("s4b_platform", Interpret("interpret")),
+                        ("s5_download", Download("download")),
                         ("s6_activate", Activate("activate")), ("s8_serve", Serve("serve")),
                         ("s10_destroy", Destroy("destroy"))]:
         fsm.add_state(name, state)
@@ -116,10 +150,13 @@ def build_core_fsm() -> FSM:
     fsm.add_transition("s1_register", "s2_vocabulary")
     fsm.add_transition("s2_vocabulary", "s3_listen")
     fsm.add_transition("s2_vocabulary", "s1_register", on_error=True)
-    fsm.add_transition("s3_listen", "s4_interpret")
+    fsm.add_transition("s3_listen", "s4a_keyword")
     fsm.add_transition("s3_listen", "s3_listen", on_error=True)
-    fsm.add_transition("s4_interpret", "s5_download")
-    fsm.add_transition("s4_interpret", "s3_listen", on_error=True)
+    fsm.add_transition("s4a_keyword", "s5_download", when=lambda m, o: bool(o.value))
+    fsm.add_transition("s4a_keyword", "s4b_platform", when=lambda m, o: not o.value)
+    fsm.add_transition("s4a_keyword", "s3_listen", on_error=True)
+    fsm.add_transition("s4b_platform", "s5_download")
+    fsm.add_transition("s4b_platform", "s3_listen", on_error=True)
     fsm.add_transition("s5_download", "s6_activate")
     fsm.add_transition("s5_download", "s3_listen", on_error=True)
     fsm.add_transition("s6_activate", "s8_serve")

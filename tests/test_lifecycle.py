@@ -22,7 +22,7 @@ from scenarios.system import RappSystem, wait_until
 from xmpp_server import XmppSettings
 
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
-SUPERVISING = {"supervisor", "core-service", "user-listener", "microphone-listener"}
+SUPERVISING = {"supervisor", "core-service", "user-listener", "microphone-listener", "audio-listener"}
 SERVING = {"supervisor", "core-service", "command-server", "busy-chat", "heartbeats", "safety"}
 
 
@@ -32,7 +32,7 @@ class SpyAPI:
     def __init__(self, api: RobotAPI):
         self.api, self.core, self.calls = api, None, []
         self.microphone = api.microphone
-        self.moving_forward, self.capabilities = api.moving_forward, api.capabilities
+        self.moving_forward, self.capabilities, self.halt = api.moving_forward, api.capabilities, api.halt
 
     async def handle(self, req):
         self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))

@@ -33,7 +33,8 @@ def test_every_robot_action_and_platform_service_has_a_typed_method():
     assert robot == set(actions("robot"))
     assert platform == {n for n, m in actions("platform").items() if issubclass(m, ServiceRequest)}
     sig = inspect.signature(sdk.PlatformCalls.path_planning_plan_path_2d)
-    assert "token" not in sig.parameters and sig.parameters["start"].annotation == "Pose2D"
+    assert sig.parameters["token"].default is sdk.calls.UNSET  # added by the proxy unless given
+    assert sig.parameters["start"].annotation == "Pose2D"
     assert sig.return_annotation == "PlanPathReply"
 
 

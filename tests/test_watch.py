@@ -101,15 +101,22 @@ async def browser():
     exe = CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium")
     if not exe:
         pytest.skip("Debian package 'chromium' is not installed (no /usr/bin/chromium)")
-    async with async_api.async_playwright() as pw:
-        try:
-            browser = await pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS, timeout=15000)
-        except Exception as e:  # noqa: BLE001 - a broken browser install is an environment issue
-            pytest.skip(f"chromium at {exe} does not start under playwright: {e}")
-        try:
-            yield browser
-        finally:
-            await browser.close()
+    # SPADE sets uvloop's policy globally once imported (docs/spade-pitfalls.md): this standard
+    # loop's subprocesses (playwright's driver) then need the standard policy's child watcher back
+    policy = asyncio.get_event_loop_policy()
+    asyncio.set_event_loop_policy(asyncio.DefaultEventLoopPolicy())
+    try:
+        async with async_api.async_playwright() as pw:
+            try:
+                browser = await pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS, timeout=15000)
+            except Exception as e:  # noqa: BLE001 - a broken browser install is an environment issue
+                pytest.skip(f"chromium at {exe} does not start under playwright: {e}")
+            try:
+                yield browser
+            finally:
+                await browser.close()
+    finally:
+        asyncio.set_event_loop_policy(policy)
 
 
 @pytest.fixture

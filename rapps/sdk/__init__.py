@@ -199,7 +199,8 @@ class Task:
         raise NotImplementedError("a Task must build its behaviour (an FSM of behaviours)")
 
     async def report(self, text: str, **data: Any) -> None:
-        """Tell the user something, through the Core (spoken and sent as chat)."""
+        """Tell the user something, through the Core (spoken and sent as chat; `said=True`: the
+        task has already said it itself, the Core only sends it by chat)."""
         await self.runtime.request(self.runtime.core, C.Report(text=text, data=data), timeout=30.0)
 
     async def say(self, *lines: str) -> bool:

@@ -111,117 +111,117 @@ class RobotCalls(_Calls):
 class PlatformCalls(_Calls):
     """The Platform services a RApp may be granted (ontology/services/); the token is added."""
 
-    async def cognitive_get_history(self, *, test_type: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveHistory:
-        return await self._call("cognitive_get_history", {"test_type": test_type}, _timeout, _feedback)
+    async def cognitive_get_history(self, *, test_type: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveHistory:
+        return await self._call("cognitive_get_history", {"token": token, "test_type": test_type}, _timeout, _feedback)
 
-    async def cognitive_record_performance(self, *, test_id: str, score: float, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ScoreRecord:
-        return await self._call("cognitive_record_performance", {"test_id": test_id, "score": score}, _timeout, _feedback)
+    async def cognitive_record_performance(self, *, test_id: str, score: float, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ScoreRecord:
+        return await self._call("cognitive_record_performance", {"token": token, "test_id": test_id, "score": score}, _timeout, _feedback)
 
-    async def cognitive_test_chooser(self, *, test_type: str, difficulty: int = 0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveTest:
+    async def cognitive_test_chooser(self, *, test_type: str, difficulty: int = 0, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveTest:
         """Picks a test of the type; difficulty 0 = adapt to the user's last scores of that type."""
-        return await self._call("cognitive_test_chooser", {"test_type": test_type, "difficulty": difficulty}, _timeout, _feedback)
+        return await self._call("cognitive_test_chooser", {"token": token, "test_type": test_type, "difficulty": difficulty}, _timeout, _feedback)
 
-    async def compute_global_pose(self, *, observations: list[MarkerObservation], camera_to_robot: list[list[float]], landmarks: dict[str, Landmark], _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pose2D:
+    async def compute_global_pose(self, *, observations: list[MarkerObservation], camera_to_robot: list[list[float]], landmarks: dict[str, Landmark], token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pose2D:
         """Robot pose from marker observations (averaged over those found in the landmark map)."""
-        return await self._call("compute_global_pose", {"observations": observations, "camera_to_robot": camera_to_robot, "landmarks": landmarks}, _timeout, _feedback)
+        return await self._call("compute_global_pose", {"token": token, "observations": observations, "camera_to_robot": camera_to_robot, "landmarks": landmarks}, _timeout, _feedback)
 
-    async def email_fetch(self, *, unread_only: bool = False, max_messages: int = 20, mark_read: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> EmailList:
-        return await self._call("email_fetch", {"unread_only": unread_only, "max_messages": max_messages, "mark_read": mark_read}, _timeout, _feedback)
+    async def email_fetch(self, *, unread_only: bool = False, max_messages: int = 20, mark_read: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> EmailList:
+        return await self._call("email_fetch", {"token": token, "unread_only": unread_only, "max_messages": max_messages, "mark_read": mark_read}, _timeout, _feedback)
 
-    async def email_send(self, *, recipients: list[str], subject: str = '', body: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+    async def email_send(self, *, recipients: list[str], subject: str = '', body: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Delivered to each recipient's local mailbox (recipient = user name or user@anything)."""
-        return await self._call("email_send", {"recipients": recipients, "subject": subject, "body": body}, _timeout, _feedback)
+        return await self._call("email_send", {"token": token, "recipients": recipients, "subject": subject, "body": body}, _timeout, _feedback)
 
-    async def face_detection(self, *, image_b64: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
-        return await self._call("face_detection", {"image_b64": image_b64}, _timeout, _feedback)
+    async def face_detection(self, *, image_b64: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
+        return await self._call("face_detection", {"token": token, "image_b64": image_b64}, _timeout, _feedback)
 
-    async def hazard_detection_door_check(self, *, image_b64: str, method: Literal['image', 'geometry'] = 'image', geometry: DoorGeometry | None = None, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> DoorAngle:
+    async def hazard_detection_door_check(self, *, image_b64: str, method: Literal['image', 'geometry'] = 'image', geometry: DoorGeometry | None = None, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> DoorAngle:
         """Door opening angle (degrees) from one image of where the door meets the floor."""
-        return await self._call("hazard_detection_door_check", {"image_b64": image_b64, "method": method, "geometry": geometry}, _timeout, _feedback)
+        return await self._call("hazard_detection_door_check", {"token": token, "image_b64": image_b64, "method": method, "geometry": geometry}, _timeout, _feedback)
 
-    async def hazard_detection_light_check(self, *, image_b64: str, on_threshold: int = 30, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LightLevel:
+    async def hazard_detection_light_check(self, *, image_b64: str, on_threshold: int = 30, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LightLevel:
         """Light level 0..100 of the image's centre against its surround (the original RAPP rule)."""
-        return await self._call("hazard_detection_light_check", {"image_b64": image_b64, "on_threshold": on_threshold}, _timeout, _feedback)
+        return await self._call("hazard_detection_light_check", {"token": token, "image_b64": image_b64, "on_threshold": on_threshold}, _timeout, _feedback)
 
-    async def home_get_info(self, *, home_id: str = 'home', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
-        return await self._call("home_get_info", {"home_id": home_id}, _timeout, _feedback)
+    async def home_get_info(self, *, home_id: str = 'home', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
+        return await self._call("home_get_info", {"token": token, "home_id": home_id}, _timeout, _feedback)
 
-    async def home_upload_info(self, *, info: HomeInfo, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
-        return await self._call("home_upload_info", {"info": info}, _timeout, _feedback)
+    async def home_upload_info(self, *, info: HomeInfo, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
+        return await self._call("home_upload_info", {"token": token, "info": info}, _timeout, _feedback)
 
-    async def human_detection(self, *, image_b64: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
-        return await self._call("human_detection", {"image_b64": image_b64}, _timeout, _feedback)
+    async def human_detection(self, *, image_b64: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
+        return await self._call("human_detection", {"token": token, "image_b64": image_b64}, _timeout, _feedback)
 
-    async def interpret_command(self, *, text: str, robot_type: str = '', rapps: list[RAppDescription], _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Interpretation:
-        return await self._call("interpret_command", {"text": text, "robot_type": robot_type, "rapps": rapps}, _timeout, _feedback)
+    async def interpret_command(self, *, text: str, robot_type: str = '', rapps: list[RAppDescription], token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Interpretation:
+        return await self._call("interpret_command", {"token": token, "text": text, "robot_type": robot_type, "rapps": rapps}, _timeout, _feedback)
 
-    async def issue_app_token(self, *, rapp: str, services: list[str], holder_jid: str, ttl_s: float = 3600.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> TokenReply:
+    async def issue_app_token(self, *, rapp: str, services: list[str], holder_jid: str, ttl_s: float = 3600.0, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> TokenReply:
         """A token for one RApp run, limited to the services its manifest declares (the Core asks"""
-        return await self._call("issue_app_token", {"rapp": rapp, "services": services, "holder_jid": holder_jid, "ttl_s": ttl_s}, _timeout, _feedback)
+        return await self._call("issue_app_token", {"token": token, "rapp": rapp, "services": services, "holder_jid": holder_jid, "ttl_s": ttl_s}, _timeout, _feedback)
 
-    async def news_explore(self, *, keywords: list[str] = UNSET, topic: str = '', max_stories: int = 5, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NewsReply:
-        return await self._call("news_explore", {"keywords": keywords, "topic": topic, "max_stories": max_stories}, _timeout, _feedback)
+    async def news_explore(self, *, keywords: list[str] = UNSET, topic: str = '', max_stories: int = 5, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NewsReply:
+        return await self._call("news_explore", {"token": token, "keywords": keywords, "topic": topic, "max_stories": max_stories}, _timeout, _feedback)
 
-    async def object_detection_clear_models(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
-        return await self._call("object_detection_clear_models", {}, _timeout, _feedback)
+    async def object_detection_clear_models(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("object_detection_clear_models", {"token": token}, _timeout, _feedback)
 
-    async def object_detection_find_objects(self, *, image_b64: str, limit: int = 5, min_matches: int = 15, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FoundObjects:
-        return await self._call("object_detection_find_objects", {"image_b64": image_b64, "limit": limit, "min_matches": min_matches}, _timeout, _feedback)
+    async def object_detection_find_objects(self, *, image_b64: str, limit: int = 5, min_matches: int = 15, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FoundObjects:
+        return await self._call("object_detection_find_objects", {"token": token, "image_b64": image_b64, "limit": limit, "min_matches": min_matches}, _timeout, _feedback)
 
-    async def object_detection_learn_object(self, *, name: str, image_b64: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
-        return await self._call("object_detection_learn_object", {"name": name, "image_b64": image_b64}, _timeout, _feedback)
+    async def object_detection_learn_object(self, *, name: str, image_b64: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("object_detection_learn_object", {"token": token, "name": name, "image_b64": image_b64}, _timeout, _feedback)
 
-    async def ontology_is_subclass_of(self, *, child: str, parent: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> IsSubclass:
-        return await self._call("ontology_is_subclass_of", {"child": child, "parent": parent}, _timeout, _feedback)
+    async def ontology_is_subclass_of(self, *, child: str, parent: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> IsSubclass:
+        return await self._call("ontology_is_subclass_of", {"token": token, "child": child, "parent": parent}, _timeout, _feedback)
 
-    async def ontology_subclasses_of(self, *, cls: str, recursive: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
-        return await self._call("ontology_subclasses_of", {"cls": cls, "recursive": recursive}, _timeout, _feedback)
+    async def ontology_subclasses_of(self, *, cls: str, recursive: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
+        return await self._call("ontology_subclasses_of", {"token": token, "cls": cls, "recursive": recursive}, _timeout, _feedback)
 
-    async def ontology_superclasses_of(self, *, cls: str, recursive: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
-        return await self._call("ontology_superclasses_of", {"cls": cls, "recursive": recursive}, _timeout, _feedback)
+    async def ontology_superclasses_of(self, *, cls: str, recursive: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
+        return await self._call("ontology_superclasses_of", {"token": token, "cls": cls, "recursive": recursive}, _timeout, _feedback)
 
-    async def path_planning_list_maps(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapList:
-        return await self._call("path_planning_list_maps", {}, _timeout, _feedback)
+    async def path_planning_list_maps(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapList:
+        return await self._call("path_planning_list_maps", {"token": token}, _timeout, _feedback)
 
-    async def path_planning_plan_path_2d(self, *, robot_type: str, algorithm: str = 'astar', map_id: str, start: Pose2D, goal: Pose2D, waypoint_spacing_m: float = 0.3, time_limit_s: float = 1.0, clearance_m: float = 0.2, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> PlanPathReply:
+    async def path_planning_plan_path_2d(self, *, robot_type: str, algorithm: str = 'astar', map_id: str, start: Pose2D, goal: Pose2D, waypoint_spacing_m: float = 0.3, time_limit_s: float = 1.0, clearance_m: float = 0.2, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> PlanPathReply:
         """Plan from start to goal for a robot type ("nao", "elektron") with an algorithm"""
-        return await self._call("path_planning_plan_path_2d", {"robot_type": robot_type, "algorithm": algorithm, "map_id": map_id, "start": start, "goal": goal, "waypoint_spacing_m": waypoint_spacing_m, "time_limit_s": time_limit_s, "clearance_m": clearance_m}, _timeout, _feedback)
+        return await self._call("path_planning_plan_path_2d", {"token": token, "robot_type": robot_type, "algorithm": algorithm, "map_id": map_id, "start": start, "goal": goal, "waypoint_spacing_m": waypoint_spacing_m, "time_limit_s": time_limit_s, "clearance_m": clearance_m}, _timeout, _feedback)
 
-    async def path_planning_upload_map(self, *, map_id: str, png_b64: str, yaml_text: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapInfo:
+    async def path_planning_upload_map(self, *, map_id: str, png_b64: str, yaml_text: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapInfo:
         """A ROS map_server map: PNG (base64) + its YAML text (resolution, origin, thresholds, negate)."""
-        return await self._call("path_planning_upload_map", {"map_id": map_id, "png_b64": png_b64, "yaml_text": yaml_text}, _timeout, _feedback)
+        return await self._call("path_planning_upload_map", {"token": token, "map_id": map_id, "png_b64": png_b64, "yaml_text": yaml_text}, _timeout, _feedback)
 
-    async def ping(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pong:
+    async def ping(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pong:
         """The cheapest service: checks the token and answers (round-trip measurements)."""
-        return await self._call("ping", {}, _timeout, _feedback)
+        return await self._call("ping", {"token": token}, _timeout, _feedback)
 
-    async def qr_detection(self, *, image_b64: str, camera: CameraIntrinsics | None = None, code_size_m: float = 0.16, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> QRDetections:
+    async def qr_detection(self, *, image_b64: str, camera: CameraIntrinsics | None = None, code_size_m: float = 0.16, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> QRDetections:
         """Find and decode QR codes; with intrinsics also each code's pose (code frame: origin at the"""
-        return await self._call("qr_detection", {"image_b64": image_b64, "camera": camera, "code_size_m": code_size_m}, _timeout, _feedback)
+        return await self._call("qr_detection", {"token": token, "image_b64": image_b64, "camera": camera, "code_size_m": code_size_m}, _timeout, _feedback)
 
-    async def release_cloud_agents(self, *, owner_jid: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+    async def release_cloud_agents(self, *, owner_jid: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
         """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy)."""
-        return await self._call("release_cloud_agents", {"owner_jid": owner_jid}, _timeout, _feedback)
+        return await self._call("release_cloud_agents", {"token": token, "owner_jid": owner_jid}, _timeout, _feedback)
 
-    async def speech_noise_profile(self, *, audio_b64: str, name: str = 'default', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NoiseProfile:
+    async def speech_noise_profile(self, *, audio_b64: str, name: str = 'default', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NoiseProfile:
         """Store the spectrum of a recording of the room without speech under `name` (per user)."""
-        return await self._call("speech_noise_profile", {"audio_b64": audio_b64, "name": name}, _timeout, _feedback)
+        return await self._call("speech_noise_profile", {"token": token, "audio_b64": audio_b64, "name": name}, _timeout, _feedback)
 
-    async def speech_recognition(self, *, audio_b64: str, language: str = 'en', words: list[str] = UNSET, sentences: list[str] = UNSET, grammar: str = '', noise_profile: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Recognition:
+    async def speech_recognition(self, *, audio_b64: str, language: str = 'en', words: list[str] = UNSET, sentences: list[str] = UNSET, grammar: str = '', noise_profile: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Recognition:
         """Recognise `audio_b64`: against `grammar` (JSGF), else one of `sentences`, else any sequence of"""
-        return await self._call("speech_recognition", {"audio_b64": audio_b64, "language": language, "words": words, "sentences": sentences, "grammar": grammar, "noise_profile": noise_profile}, _timeout, _feedback)
+        return await self._call("speech_recognition", {"token": token, "audio_b64": audio_b64, "language": language, "words": words, "sentences": sentences, "grammar": grammar, "noise_profile": noise_profile}, _timeout, _feedback)
 
-    async def start_cloud_agent(self, *, rapp: str, version: str | None = None, owner_jid: str = '', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CloudAgentReply:
-        return await self._call("start_cloud_agent", {"rapp": rapp, "version": version, "owner_jid": owner_jid}, _timeout, _feedback)
+    async def start_cloud_agent(self, *, rapp: str, version: str | None = None, owner_jid: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CloudAgentReply:
+        return await self._call("start_cloud_agent", {"token": token, "rapp": rapp, "version": version, "owner_jid": owner_jid}, _timeout, _feedback)
 
-    async def stop_cloud_agent(self, *, jid: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
-        return await self._call("stop_cloud_agent", {"jid": jid}, _timeout, _feedback)
+    async def stop_cloud_agent(self, *, jid: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        return await self._call("stop_cloud_agent", {"token": token, "jid": jid}, _timeout, _feedback)
 
-    async def text_to_speech(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Speech:
-        return await self._call("text_to_speech", {"text": text, "language": language, "voice": voice, "speed": speed}, _timeout, _feedback)
+    async def text_to_speech(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Speech:
+        return await self._call("text_to_speech", {"token": token, "text": text, "language": language, "voice": voice, "speed": speed}, _timeout, _feedback)
 
-    async def weather_report_current(self, *, city: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CurrentWeather:
-        return await self._call("weather_report_current", {"city": city}, _timeout, _feedback)
+    async def weather_report_current(self, *, city: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CurrentWeather:
+        return await self._call("weather_report_current", {"token": token, "city": city}, _timeout, _feedback)
 
-    async def weather_report_forecast(self, *, city: str, days: int = 3, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Forecast:
-        return await self._call("weather_report_forecast", {"city": city, "days": days}, _timeout, _feedback)
+    async def weather_report_forecast(self, *, city: str, days: int = 3, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Forecast:
+        return await self._call("weather_report_forecast", {"token": token, "city": city, "days": days}, _timeout, _feedback)

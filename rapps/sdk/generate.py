@@ -66,11 +66,13 @@ def _method(name: str, model, t: _Types, hidden: set[str]) -> list[str]:
             params.append(f"{field}: {ann} = UNSET")
     reply = t.name(model.reply_model) if model.reply_model is not None else "Any"
     tail = ["_timeout: float | None = None", "_feedback: Callable[[Progress], Any] | None = None"]
+    if hidden & set(model.model_fields):  # e.g. the token: added for you, given only to override it
+        tail = [f"{f}: str = UNSET" for f in sorted(hidden & set(model.model_fields))] + tail
     sig = ", ".join(["self", "*", *params, *tail])
     lines = [f"    async def {name}({sig}) -> {reply}:"]
     if doc and doc[0] and not doc[0].startswith("Base of"):
         lines.append(f'        """{doc[0]}"""')
-    fields = ", ".join(f'"{f}": {f}' for f in model.model_fields if f not in hidden)
+    fields = ", ".join(f'"{f}": {f}' for f in model.model_fields)
     lines.append(f'        return await self._call("{name}", {{{fields}}}, _timeout, _feedback)')
     return lines
 

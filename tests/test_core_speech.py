@@ -1,0 +1,177 @@
+"""The Core hears its owner (fig. 5, s3/s4 on real audio): synthesised speech played in the house
+reaches the NAO's microphone; an isolated keyword is spotted on the robot (s4a), a sentence is
+recognised by the Platform (s4b); a failed recognition is answered "Sorry, I did not understand"
+on the loudspeaker and the Core listens again; garbage sound is refused and nothing hangs. The
+cognitive game is then played by voice, end to end."""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robots import RobotAPI, World, tts
+from robots.receptors import HeardUtterance
+from robots.sound import NoiseSource, house_sound
+from scenarios.system import RappSystem
+
+from .test_lifecycle import state, wait_until
+
+RAPPS = Path(__file__).resolve().parent.parent / "rapps"
+NAO_AT = (0.6, 0.6)  # the living room's south-west corner: the owner stands 0.5-3 m away inside the room
+
+
+def mouth(distance: float, mic_z: float) -> tuple[float, float, float]:
+    """Where the owner's mouth is, `distance` m from the microphone (seated for the short ones)."""
+    dz = min(0.7, 0.8 * distance)
+    h = math.sqrt(distance ** 2 - dz ** 2)
+    return NAO_AT[0] + 0.55 * h, NAO_AT[1] + 0.835 * h, mic_z + dz
+
+
+@pytest.fixture(scope="module")
+async def system(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("speech")
+    world = World.from_file("small", seed=4, rtf=4.0)  # paced: the owner speaks while the robot listens
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+        for name in ("weather_reporter", "email_reader", "cognitive_game"):
+            await system.publish(RAPPS / name)
+        system.world = world
+        system.nao = world.add_robot("nao", pose=(*NAO_AT, 0.0))
+        system.api = RobotAPI(system.nao)
+        system.handle = await system.add_robot("nao", api=system.api, dynamic_mode="inprocess")
+        await wait_until(lambda: len(system.handle.core.vocabulary) >= 6 and listening(system.handle.core), 60)
+        yield system
+    world.close()
+
+
+def listening(core) -> bool:
+    """Waiting for a command, and not talking itself (the owner waits for the robot to finish)."""
+    return (state(core) == "s3_listen" and "audio-listener" in core.active_behaviours() and core.dynamic is None
+            and not core.speaking())
+
+
+def speak(system, text: str, distance: float = 1.0, voice: str = "en-us", delay: float = 0.3) -> float:
+    """The owner says `text` in the room; returns the simulation time its sound ends."""
+    pcm = tts.synthesize(text, voice)
+    at = system.world.time + delay
+    house_sound(system.world).play(f"owner-{at:.3f}", mouth(distance, system.api.audio_in.position()[2]), pcm,
+                                   at=at, level_db=60)
+    return at + len(pcm) / 16000
+
+
+async def said_after(system, start: int, pattern: str, timeout: float = 30.0) -> str:
+    spoken = system.nao.loudspeaker.spoken
+    await wait_until(lambda: any(re.search(pattern, t) for _, t in spoken[start:]), timeout, f"spoken {pattern!r}")
+    return next(t for _, t in spoken[start:] if re.search(pattern, t))
+
+
+async def test_a_spoken_keyword_starts_its_rapp_on_the_robot(system):
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start = len(user.received)
+    spotted = []
+    original = core.spot_keyword
+
+    async def spy(utterance):
+        spotted.append(await original(utterance))
+        return spotted[-1]
+
+    core.spot_keyword = spy
+    try:
+        speak(system, "forecast", distance=2.0, voice="en-us+f3")
+        await user.wait_for(lambda t: "weather_reporter finished" in t, timeout=45, start=start)
+    finally:
+        del core.spot_keyword
+    assert spotted[-1] == "weather_reporter"  # s4a decided: the Platform was not asked
+    assert "Starting weather_reporter." in user.texts()[start:]
+
+
+async def test_a_spoken_sentence_goes_through_the_platform(system):
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start = len(user.received)
+    heard = []
+    original = core.recognise
+
+    async def spy(utterance):
+        heard.append(await original(utterance))
+        return heard[-1]
+
+    core.recognise = spy
+    try:
+        speak(system, "check my inbox", distance=1.0)
+        await user.wait_for(lambda t: "email_reader finished" in t, timeout=45, start=start)
+    finally:
+        del core.recognise
+    assert heard == ["check my inbox"]
+
+
+async def test_a_failed_recognition_is_answered_and_the_core_listens_again(system):
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start = len(system.nao.loudspeaker.spoken)
+    speak(system, "open the window please", distance=1.0)
+    said = await said_after(system, start, r"^Sorry, I did not understand")
+    assert said.startswith("Sorry, I did not understand")
+    await wait_until(lambda: listening(core), 30)
+    # it listens again: the next command works
+    begin = len(user.received)
+    speak(system, "forecast", distance=1.0, delay=1.0)
+    await user.wait_for(lambda t: "weather_reporter finished" in t, timeout=45, start=begin)
+
+
+async def test_garbage_sound_is_refused_and_nothing_hangs(system):
+    core = system.handle.core
+    await wait_until(lambda: listening(core), 30)
+    spoken = system.nao.loudspeaker.spoken
+    # a clipped shout straight into s4: the Platform refuses it with its reason, said to the owner
+    shout = np.clip(tts.synthesize("check the hazards").astype(np.int32) * 20, -32768, 32767).astype(np.int16)
+    start = len(spoken)
+    await core.commands.put(HeardUtterance(shout, 1.2))
+    said = await said_after(system, start, r"^Sorry, I did not understand")
+    assert "clipped" in said
+    # the owner talks on and on: more than any command; answered, then it listens again
+    await wait_until(lambda: listening(core), 30)
+    start = len(spoken)
+    end = speak(system, "I was thinking that we might go to the market tomorrow morning and buy some apples "
+                        "and some bread and a lot of cheese for the party on Sunday evening")
+    said = await said_after(system, start, r"^Sorry, I did not understand", timeout=30)
+    assert "too long" in said
+    await wait_until(lambda: system.world.time > end + 0.5 and listening(core), 30)
+    # a vacuum cleaner for 4 s: a steady noise becomes the room's floor; at most one answer, nothing hangs
+    t0 = system.world.time + 0.2
+    house_sound(system.world).add(NoiseSource("vacuum", mouth(1.0, 0.5), kind="white", level_db=70, seed=1,
+                                              start=t0, stop=t0 + 4.0))
+    start = len(spoken)
+    await wait_until(lambda: system.world.time > t0 + 4.5 and listening(core), 30)
+    assert len([t for _, t in spoken[start:] if t.startswith("Sorry")]) <= 1
+    # silence is no command: nothing is said while the room is quiet
+    quiet_from = len(spoken)
+    t_quiet = system.world.time
+    await wait_until(lambda: system.world.time > t_quiet + 2.0, 10)
+    assert spoken[quiet_from:] == [] and listening(core)
+
+
+async def test_the_cognitive_game_is_answered_by_voice(system):
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start = len(user.received)
+    speak(system, "let's play a game", distance=1.0)
+    answers = {"How much is 2 plus 3?": "five", "How much is 10 minus 4?": "six",
+               "How much is 7 times 8?": "fifty six", "How much is 45 divided by 5?": "nine"}
+    asked = 0
+    while True:
+        text = await user.wait_for(lambda t: t.startswith("Question") or "finished:" in t or "problem" in t,
+                                   timeout=60, start=start)
+        start = user.received.index(next(r for r in user.received[start:] if r[2] == text)) + 1
+        if "finished:" in text or "problem" in text:
+            break
+        question = re.sub(r"^Question \d+: ", "", text)
+        speak(system, answers.get(question, "pass"), distance=1.0, voice="en-us", delay=0.5)
+        asked += 1
+    assert asked >= 2 and f"{asked} of {asked} correct, score 100" in text
+    # the robot said the questions and the verdicts itself (the NAO speaks)
+    spoken = [t for _, t in system.nao.loudspeaker.spoken]
+    assert any(t.startswith("Question 1:") for t in spoken) and "Correct!" in spoken
