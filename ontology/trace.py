@@ -70,6 +70,9 @@ class StructureEvent(StrEnum):
     RESUME = "resume"  # the Core supervises again
     ACCOUNT_DELETED = "account-deleted"  # a Dynamic/Cloud Agent's XMPP account deleted
     ACCOUNT_KEPT = "account-kept"  # ... or not (deletion failed)
+    SPEECH_HEARD = "speech-heard"  # an utterance cut from the microphone by voice activity detection
+    KEYWORD_SPOTTING = "keyword-spotting"  # s4a: the keyword spotter's answer on the robot
+    SPEECH_RECOGNITION = "speech-recognition"  # s4b: the Platform's recognition of a longer utterance
     ESTOP = "estop"  # emergency stop
     ESTOP_RELEASED = "estop-released"
     # the Store

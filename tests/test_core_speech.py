@@ -122,6 +122,7 @@ async def test_a_failed_recognition_is_answered_and_the_core_listens_again(syste
     await user.wait_for(lambda t: "weather_reporter finished" in t, timeout=45, start=begin)
 
 
+@pytest.mark.slow  # 20 s of real-time listening; the services' garbage-audio tests run by default
 async def test_garbage_sound_is_refused_and_nothing_hangs(system):
     core = system.handle.core
     await wait_until(lambda: listening(core), 30)

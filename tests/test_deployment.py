@@ -120,13 +120,13 @@ class Deployment:
                 proc.wait()
 
 
-    async def up(self, robot: str = "nao") -> tuple[list[str], Path, "Owner"]:
+    async def up(self, robot: str = "nao", *extra: str) -> tuple[list[str], Path, "Owner"]:
         """Server, Store, Platform and a Core (in the small house), a signing key the Core trusts,
         and the owner logged in: (the Core's arguments, the key, the owner)."""
         key = self.tmp / "dev.pem"
         pub = re.search(r"public key (\S+)", self.run("package", "keygen", str(key))).group(1)
         core_args = ["agent", "core", "--robot", robot, "--robot-id", f"{robot}1", "--owner", "alice",
-                     "--password", "alice-app-pw", "--trust", pub, "--house", "small", "--seed", "2"]
+                     "--password", "alice-app-pw", "--trust", pub, "--house", "small", "--seed", "2", *extra]
         self.start("server", "server", "--port", str(self.port), "--db", str(self.tmp / "xmpp.db"))
         await asyncio.sleep(1.0)
         self.start("store", "agent", "store")
@@ -153,7 +153,7 @@ async def test_deployment_runs_hazard_detection_for_a_plain_chat_owner(tmp_path)
     d = Deployment(tmp_path)
     owner = None
     try:
-        _, key, owner = await d.up()
+        _, key, owner = await d.up("nao", "--rtf", "0")  # simulated as fast as the machine goes
         d.publish(ROOT / "rapps" / "hazard_detection", key)
         texts = await owner.command("core-nao1@localhost", "please check the hazards", "hazard-detection finished",
                                     timeout=240)
