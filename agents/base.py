@@ -343,10 +343,8 @@ class RappAgent(Agent):
             raise RequestTimeout(f"{to} did not answer {name} within {timeout:g}s",
                                  code=ErrorCode.TIMEOUT, peer=to, action=name) from None
         except asyncio.CancelledError:  # the requester gave up: the responder stops the action too
-            if conv in self._pending:
-                cancel = make_message(to, None, performative=Performative.CANCEL, ontology=content.ontology_name,
-                                      action=name, conversation_id=conv)
-                self.submit(self.send(cancel))
+            self.submit(self.send(make_message(to, None, performative=Performative.CANCEL,
+                                               ontology=content.ontology_name, action=name, conversation_id=conv)))
             raise
         finally:
             self._pending.pop(conv, None)

@@ -67,6 +67,11 @@ from .responder import Responder
 from .store_client import download_package
 
 log = logging.getLogger("rapp.core")
+
+
+def _words(text: str) -> list[str]:
+    """A typed command's words, lower case (a single one may be a keyword)."""
+    return re.findall(r"[\w'-]+", text.lower())
 HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 2 s
 STOP_WORDS = {"stop", "cancel", "abort", "halt", "emergency stop"}
 RESUME_WORDS = {"resume", "continue", "go on"}
@@ -215,7 +220,8 @@ class CoreAgent(RobotCommands, RappAgent):
         self.catalogue = list(packages)
         self.vocabulary = {kw.lower(): p.name for p in packages for kw in p.keywords}
         self.keywords = KeywordSpotter(sorted(self.vocabulary), [ph for p in packages for ph in p.phrases])
-        if self.hear_audio and self.vocabulary:  # its decoder loads in the background, not at the first word
+        if self.hear_audio and self.vocabulary and "microphone" in self.robot.capabilities():
+            # its decoder loads in the background, not at the first word (and only where it can hear)
             self._in_background(asyncio.to_thread(self.keywords.warm_up))
         self.record_structure("vocabulary", rapps=[p.name for p in packages],
                               keywords=sorted(self.vocabulary))
@@ -238,7 +244,7 @@ class CoreAgent(RobotCommands, RappAgent):
         await super().on_unhandled(msg, info)
 
     async def interpret(self, text: str) -> Interpretation:
-        words = re.findall(r"[\w'-]+", text.lower())
+        words = _words(text)
         if len(words) == 1 and words[0] not in self.vocabulary or not self.catalogue:
             await self.refresh_catalogue()  # a RApp published since s2
         if len(words) == 1 and words[0] in self.vocabulary:
@@ -252,7 +258,7 @@ class CoreAgent(RobotCommands, RappAgent):
 
     def keyword_rapp(self, text: str) -> str | None:
         """s4a for typed commands: the RApp of a single known keyword, else None."""
-        words = re.findall(r"[\w'-]+", text.lower())
+        words = _words(text)
         return self.vocabulary.get(words[0]) if len(words) == 1 else None
 
     async def spot_keyword(self, utterance: HeardUtterance) -> str | None:

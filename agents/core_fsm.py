@@ -71,7 +71,6 @@ class Listen(Behaviour):  # s3: wait for the user's next command (chat or microp
 class Keyword(CoreState):  # s4a: an isolated keyword -> its RApp, here on the robot
     async def action(self):
         command = self.memory["command"]
-        self.memory.pop("text", None)
         if isinstance(command, HeardUtterance):
             if command.too_long:
                 await self.core.tell_user("Sorry, I did not understand: that was too long for a command.")
@@ -96,7 +95,6 @@ class Interpret(CoreState):  # s4b: anything else -> the Platform (speech recogn
             if not text:
                 await self.core.tell_user("Sorry, I did not understand.")
                 raise RuntimeError("nothing recognised")
-            self.memory["text"] = text
         try:
             found = await self.core.interpret(text)
         except RequestError as e:  # the Platform's reason names the command ("I did not understand ...")

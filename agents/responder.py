@@ -120,9 +120,7 @@ class Responder(CyclicBehaviour):
         task = self._running.get(key)
         if task is not None:
             task.cancel()
-        done = asyncio.get_running_loop().create_future()
-        done.set_result(None)
-        return done
+        return _done()
 
     async def _serve_in_order(self, msg: Message) -> None:
         async with self._order:
@@ -172,9 +170,7 @@ class Responder(CyclicBehaviour):
         self.agent.tracer.record(RecordKind.DUPLICATE, agent=self.agent.address, sender=key[0], conversation_id=key[1],
                                  answered=answer is not None)
         if answer is None:  # still running: its answer goes out when it is done
-            done = asyncio.get_running_loop().create_future()
-            done.set_result(None)
-            return done
+            return _done()
         task = asyncio.create_task(self.agent.send(copy_message(answer)))
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
@@ -203,3 +199,10 @@ class Responder(CyclicBehaviour):
     async def on_end(self) -> None:
         for t in list(self._tasks):
             t.cancel()
+
+
+def _done() -> asyncio.Future:
+    """A future already done: what take_now returns when nothing more is to run."""
+    done = asyncio.get_running_loop().create_future()
+    done.set_result(None)
+    return done

@@ -100,22 +100,25 @@ class HazardFleet:
         self.robots.extend(new)
 
     async def check_hazards(self, i: int, timeout: float) -> dict:
-        """Robot i's owner says "check the hazards"; the end of the task and its scored reports."""
-        from agents.tracing import read_trace
-        from scenarios.hazard import COMMAND, FINISHED, core_listening, hazard_reports, reported, score_hazards
+        """Robot i's owner says "check the hazards"; how the task ended."""
+        from scenarios.hazard import COMMAND, FINISHED, core_listening
         from scenarios.system import wait_until
 
         h = self.robots[i]
-        start, since = len(h.user.received), time.time()
+        start = len(h.user.received)
         await h.user.say(h.core.address, COMMAND)
         end = await h.user.wait_for(lambda t: t.startswith(FINISHED) or "did not understand" in t,
                                     timeout=timeout, start=start)
         await wait_until(lambda: core_listening(h.core) and h.core.dynamic is None, 60, f"{h.robot_id} listening again")
-        records = [r for r in await asyncio.to_thread(read_trace, self.trace_file) if r["t"] >= since]  # this task's
-        reports = hazard_reports(records, h.core.address)
+        return {"finished": end.startswith("hazard-detection finished"), "end": end}
+
+    def all_correct(self, i: int, records: list[dict]) -> bool:
+        """Robot i's reports in `records` (this round's trace) against its world's truth."""
+        from scenarios.hazard import hazard_reports, reported, score_hazards
+
+        reports = hazard_reports(records, self.robots[i].core.address)
         rows = score_hazards(self.home[0].hazards, self.worlds[i].ground_truth(), reported(reports))
-        return {"finished": end.startswith("hazard-detection finished"), "end": end,
-                "correct": all(r["true_state"] == r["reported_state"] for r in rows)}
+        return all(r["true_state"] == r["reported_state"] for r in rows)
 
     async def __aexit__(self, *exc) -> None:
         try:
@@ -137,8 +140,10 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     wall = time.perf_counter() - t0
     failed = [f"{fleet.robots[i].robot_id}: {str(r)[:200]}" for i, r in enumerate(runs)
               if isinstance(r, BaseException) or not r["finished"]]
-    wrong = [fleet.robots[i].robot_id for i, r in enumerate(runs) if isinstance(r, dict) and not r["correct"]]
-    lat, missing = request_latencies(read_trace(fleet.trace_file), since, fleet.system.platform.address)
+    records = [r for r in await asyncio.to_thread(read_trace, fleet.trace_file) if r["t"] >= since]  # this round
+    wrong = [fleet.robots[i].robot_id for i, r in enumerate(runs)
+             if isinstance(r, dict) and not fleet.all_correct(i, records)]
+    lat, missing = request_latencies(records, since, fleet.system.platform.address)
     ok = not failed and not missing and len(lat["platform"]) >= n
     res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "misclassified": wrong,
            "unanswered": len(missing), "unanswered_actions": missing[:5],

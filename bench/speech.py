@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-import math
 import time
 from pathlib import Path
 
@@ -74,17 +73,11 @@ def commands(path: str, n: int, seed: int) -> list[tuple[str, str, str, int, flo
     return out
 
 
-def mouth(distance: float, mic_z: float) -> tuple[float, float, float]:
-    dz = min(0.7, 0.8 * distance)
-    h = math.sqrt(distance ** 2 - dz ** 2)
-    return ROBOT_AT[0] + 0.55 * h, ROBOT_AT[1] + 0.835 * h, mic_z + dz
-
-
 async def run(quick: bool, per_condition: int | None = None, noises: list[str] | None = None) -> list[dict]:
     import tempfile
 
     from robots import RobotAPI, World, tts
-    from robots.sound import NoiseSource, house_sound
+    from robots.sound import NoiseSource, house_sound, talker_at
     from scenarios.system import RappSystem, wait_until
 
     from .common import quiet_logs
@@ -122,7 +115,7 @@ async def run(quick: bool, per_condition: int | None = None, noises: list[str] |
                         await wait_until(idle, 30, "the Core listening")
                         pcm = await asyncio.to_thread(tts.synthesize, text, voice, speed)
                         at = world.time + 0.3
-                        house.play(f"owner-{at:.3f}", mouth(dist, mic_z), pcm, at=at, level_db=60)
+                        house.play(f"owner-{at:.3f}", talker_at(ROBOT_AT, dist, mic_z), pcm, at=at, level_db=60)
                         row = await _one(core, world, fsm, at + len(pcm) / 16000 + dist / 343.0, idle)
                         row.update(noise=noise, path=path, text=text, expected=rapp, voice=voice, speed=speed,
                                    distance=dist, right=row.get("rapp") == rapp)

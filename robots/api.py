@@ -55,12 +55,9 @@ class RobotAPI:
         """Pre-empt conflicting motions of this robot, start `ctrl`, wait for it in simulation time."""
         r = self.robot
         for key, old in list(r.controllers.items()):
-            conflict = key == slot if joint_names is None else (
-                isinstance(old, JointMotion) and bool(old.joint_names & joint_names))
-            if conflict and not old.done:
-                old.cancel(MotionInterrupted(f"{r.name}: {old.__class__.__name__} pre-empted by a newer command"))
-            if conflict:
-                del r.controllers[key]
+            if key == slot if joint_names is None else (
+                    isinstance(old, JointMotion) and bool(old.joint_names & joint_names)):
+                self._interrupt(key, f"{old.__class__.__name__} pre-empted by a newer command")
         key = slot if joint_names is None else f"joints:{id(ctrl)}"
         r.controllers[key] = ctrl
         fut = self.world.start(ctrl)
@@ -69,8 +66,8 @@ class RobotAPI:
         try:
             return await fut
         except asyncio.CancelledError:  # the request was cancelled: the motion stops with it
-            if not ctrl.done:
-                ctrl.cancel(MotionInterrupted(f"{r.name}: {ctrl.__class__.__name__} cancelled"))
+            if r.controllers.get(key) is ctrl:  # (not pre-empted already by a newer command)
+                self._interrupt(key, f"{ctrl.__class__.__name__} cancelled")
             raise
         finally:
             if r.controllers.get(key) is ctrl:
@@ -98,18 +95,20 @@ class RobotAPI:
         """The emergency stop: every running motion (base, head, joints) is interrupted and the
         loudspeaker falls silent (what it was saying is cut off)."""
         r = self.robot
-        for key, ctrl in list(r.controllers.items()):
-            r.controllers.pop(key, None)
-            if not ctrl.done:
-                ctrl.cancel(MotionInterrupted(f"{r.name}: stopped by {reason}"))
+        for key in list(r.controllers):
+            self._interrupt(key, f"stopped by {reason}")
         if r.loudspeaker is not None:
             r.loudspeaker.silence(self.world.time)
         await self.world.sync()
 
     def _stop_base(self, reason: str) -> None:
-        old = self.robot.controllers.pop("base", None)
-        if old is not None and not old.done:
-            old.cancel(MotionInterrupted(f"{self.robot.name}: base motion stopped by {reason}"))
+        self._interrupt("base", f"base motion stopped by {reason}")
+
+    def _interrupt(self, key: str, why: str) -> None:
+        """The motion in controller slot `key` stops; whoever awaits it gets MotionInterrupted(why)."""
+        ctrl = self.robot.controllers.pop(key, None)
+        if ctrl is not None and not ctrl.done:
+            ctrl.cancel(MotionInterrupted(f"{self.robot.name}: {why}"))
 
     # ------------------------------------------------------------------ communication
     async def say(self, req: Say) -> Done:

@@ -293,6 +293,15 @@ _HOUSES: "weakref.WeakKeyDictionary[object, HouseSound]" = weakref.WeakKeyDictio
 _HOUSES_LOCK = threading.Lock()
 
 
+def talker_at(listener_xy: tuple[float, float], distance: float, ear_z: float,
+               direction: tuple[float, float] = (0.55, 0.835)) -> tuple[float, float, float]:
+    """Where a person's mouth is when they talk `distance` m from a microphone at height `ear_z`,
+    along `direction` (a unit vector) in the floor plane; seated for the short distances."""
+    dz = min(0.7, 0.8 * distance)
+    h = math.sqrt(distance ** 2 - dz ** 2)
+    return listener_xy[0] + direction[0] * h, listener_xy[1] + direction[1] * h, ear_z + dz
+
+
 def house_sound(world) -> HouseSound:
     """The sound of a World's house (made on first use, lives as long as the world)."""
     with _HOUSES_LOCK:

@@ -25,7 +25,7 @@ from ontology.services.hazard import DoorCheck, LightCheck
 from robots import RobotAPI, World
 from robots import receptors
 
-from rapps.hazard_detection.hazard_detection.task import door_look_point, door_open_threshold
+from rapps.hazard_detection.hazard_detection.task import door_geometry, door_look_point, door_open_threshold
 
 from .home_setup import DOOR_OPEN_DEG, LAYOUTS, hazard_list
 
@@ -93,9 +93,7 @@ async def door_sweep(house: str, door_id: str, robot: str, params: dict) -> list
             await api.look_at_point(LookAtPoint(x=x, y=y, z=z))
             K = (await api.get_camera_info(GetCameraInfo(resolution=res))).K
             T = (await api.get_transform(GetTransform(chain="camera", space="global"))).matrix
-            geometry = dict(camera=dict(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2]), camera_to_world=T,
-                            hinge=spec.door.hinge, closed_yaw_deg=spec.door.closed_yaw_deg,
-                            width_m=spec.door.width_m) if method == "geometry" else None
+            geometry = door_geometry(K, T, spec) if method == "geometry" else None
             answers[method] = []
             for angle in ANGLES:
                 await world.set_door(door_id, angle)

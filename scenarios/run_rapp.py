@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -49,8 +50,6 @@ def _reports(records: list[dict], core: str) -> list[dict]:
 
 def _copy_outputs(records: list[dict], core: str, dest: Path) -> list[str]:
     """The RApp's output directory (Task.outputs, named by the Core's destroy record) copied to dest."""
-    import shutil
-
     kept = [r.get("outputs") for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("agent") == core
             and r.get("event") == StructureEvent.DESTROY and r.get("outputs")]
     if not kept or not Path(kept[-1]).is_dir():

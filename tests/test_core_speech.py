@@ -5,7 +5,7 @@ on the loudspeaker and the Core listens again; garbage sound is refused and noth
 cognitive game is then played by voice, end to end."""
 from __future__ import annotations
 
-import math
+import contextlib
 import re
 from pathlib import Path
 
@@ -14,20 +14,13 @@ import pytest
 
 from robots import RobotAPI, World, tts
 from robots.receptors import HeardUtterance
-from robots.sound import NoiseSource, house_sound
+from robots.sound import NoiseSource, house_sound, talker_at
 from scenarios.system import RappSystem
 
 from .test_lifecycle import state, wait_until
 
 RAPPS = Path(__file__).resolve().parent.parent / "rapps"
 NAO_AT = (0.6, 0.6)  # the living room's south-west corner: the owner stands 0.5-3 m away inside the room
-
-
-def mouth(distance: float, mic_z: float) -> tuple[float, float, float]:
-    """Where the owner's mouth is, `distance` m from the microphone (seated for the short ones)."""
-    dz = min(0.7, 0.8 * distance)
-    h = math.sqrt(distance ** 2 - dz ** 2)
-    return NAO_AT[0] + 0.55 * h, NAO_AT[1] + 0.835 * h, mic_z + dz
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +39,22 @@ async def system(tmp_path_factory):
     world.close()
 
 
+@contextlib.contextmanager
+def spying(core, method: str):
+    """What the Core's `method` (an async step of s4) answers, while the block runs."""
+    answers, original = [], getattr(core, method)
+
+    async def spy(utterance):
+        answers.append(await original(utterance))
+        return answers[-1]
+
+    setattr(core, method, spy)
+    try:
+        yield answers
+    finally:
+        delattr(core, method)
+
+
 def listening(core) -> bool:
     """Waiting for a command, and not talking itself (the owner waits for the robot to finish)."""
     return (state(core) == "s3_listen" and "audio-listener" in core.active_behaviours() and core.dynamic is None
@@ -56,7 +65,7 @@ def speak(system, text: str, distance: float = 1.0, voice: str = "en-us", delay:
     """The owner says `text` in the room; returns the simulation time its sound ends."""
     pcm = tts.synthesize(text, voice)
     at = system.world.time + delay
-    house_sound(system.world).play(f"owner-{at:.3f}", mouth(distance, system.api.audio_in.position()[2]), pcm,
+    house_sound(system.world).play(f"owner-{at:.3f}", talker_at(NAO_AT, distance, system.api.audio_in.position()[2]), pcm,
                                    at=at, level_db=60)
     return at + len(pcm) / 16000
 
@@ -71,19 +80,9 @@ async def test_a_spoken_keyword_starts_its_rapp_on_the_robot(system):
     core, user = system.handle.core, system.handle.user
     await wait_until(lambda: listening(core), 30)
     start = len(user.received)
-    spotted = []
-    original = core.spot_keyword
-
-    async def spy(utterance):
-        spotted.append(await original(utterance))
-        return spotted[-1]
-
-    core.spot_keyword = spy
-    try:
+    with spying(core, "spot_keyword") as spotted:
         speak(system, "forecast", distance=2.0, voice="en-us+f3")
         await user.wait_for(lambda t: "weather_reporter finished" in t, timeout=45, start=start)
-    finally:
-        del core.spot_keyword
     assert spotted[-1] == "weather_reporter"  # s4a decided: the Platform was not asked
     assert "Starting weather_reporter." in user.texts()[start:]
 
@@ -92,19 +91,9 @@ async def test_a_spoken_sentence_goes_through_the_platform(system):
     core, user = system.handle.core, system.handle.user
     await wait_until(lambda: listening(core), 30)
     start = len(user.received)
-    heard = []
-    original = core.recognise
-
-    async def spy(utterance):
-        heard.append(await original(utterance))
-        return heard[-1]
-
-    core.recognise = spy
-    try:
+    with spying(core, "recognise") as heard:
         speak(system, "check my inbox", distance=1.0)
         await user.wait_for(lambda t: "email_reader finished" in t, timeout=45, start=start)
-    finally:
-        del core.recognise
     assert heard == ["check my inbox"]
 
 
@@ -143,7 +132,7 @@ async def test_garbage_sound_is_refused_and_nothing_hangs(system):
     await wait_until(lambda: system.world.time > end + 0.5 and listening(core), 30)
     # a vacuum cleaner for 4 s: a steady noise becomes the room's floor; at most one answer, nothing hangs
     t0 = system.world.time + 0.2
-    house_sound(system.world).add(NoiseSource("vacuum", mouth(1.0, 0.5), kind="white", level_db=70, seed=1,
+    house_sound(system.world).add(NoiseSource("vacuum", talker_at(NAO_AT, 1.0, 0.5), kind="white", level_db=70, seed=1,
                                               start=t0, stop=t0 + 4.0))
     start = len(spoken)
     await wait_until(lambda: system.world.time > t0 + 4.5 and listening(core), 30)

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+from ontology.services.common import CameraIntrinsics
+from ontology.services.hazard import DoorGeometry
 from rapps.sdk import FSM, ErrorCode, RequestError, RequestFailed, Step, Task
 
 from .localize import Localizer
@@ -208,10 +210,7 @@ class HazardTask(Task):
         if method == "geometry":
             info = await self.robot.get_camera_info(resolution=res)
             tf = await self.robot.get_transform(chain="camera", space="global")
-            K = info.K
-            request["geometry"] = dict(camera=dict(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2]),
-                                       camera_to_world=tf.matrix, hinge=h.door.hinge,
-                                       closed_yaw_deg=h.door.closed_yaw_deg, width_m=h.door.width_m)
+            request["geometry"] = door_geometry(info.K, tf.matrix, h)
         reply = await self.platform.hazard_detection_door_check(**request)
         is_open = reply.door_angle > door_open_threshold(self.params, reply.method)
         return HazardReport(id=h.id, type="door", state="open" if is_open else "closed",
@@ -255,6 +254,13 @@ class HazardTask(Task):
 
     async def done(self, memory):
         await self.say("Hazard check finished.")
+
+
+def door_geometry(K, camera_to_world, h) -> DoorGeometry:
+    """What the geometry method needs: the camera's intrinsics and pose, and the door's shape."""
+    return DoorGeometry(camera=CameraIntrinsics(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2]),
+                        camera_to_world=camera_to_world, hinge=h.door.hinge,
+                        closed_yaw_deg=h.door.closed_yaw_deg, width_m=h.door.width_m)
 
 
 def door_look_point(h, method: str) -> tuple[float, float, float]:
