@@ -4,7 +4,8 @@
     rapp agent store|platform|core [...]       (one agent on this machine, for deployments)
     rapp new NAME [DIR] [--cloud]              (a RApp package to start from)
     rapp run demo | hazard-detection --robot nao|elektron --seed N [--json FILE] | two-robots
-    rapp run rapp DIR_OR_PACKAGE --robot nao|elektron --house NAME [--say TEXT]
+    rapp run rapp DIR_OR_PACKAGE --robot nao|elektron --house NAME [--say TEXT] [--speak] [--scenario FILE]
+    rapp say TEXT [--run DIR] [--distance M] [--voice V]   (the owner speaks into a running `rapp run`)
     rapp package build DIR [-o OUT] [--key KEY.pem] | rapp package keygen KEY.pem
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
     rapp platform upload-home --house H --user U --password P
@@ -255,6 +256,23 @@ def cmd_trace(argv: list[str]) -> int:
     return 0
 
 
+# -- say --------------------------------------------------------------------------------------
+def cmd_say(a) -> int:
+    from pydantic import ValidationError
+
+    from scenarios.owner_voice import ScriptError, SpokenLine, post_line
+    try:
+        line = SpokenLine(say=a.text, voice=a.voice, speed=a.speed, distance=a.distance, level_db=a.level)
+        path = post_line(line, a.run)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise CliError(f"rapp say: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+    except ScriptError as exc:
+        raise CliError(f"rapp say: {exc}") from None
+    print(f"said into {path.parent.parent}: {a.text!r}")
+    return 0
+
+
 # -- doctor -----------------------------------------------------------------------------------
 def cmd_doctor(a) -> int:
     from scenarios.doctor import run_checks
@@ -308,6 +326,14 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--password", help="the owner's Platform password")
     pl.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
 
+    sy = sub.add_parser("say", help="the owner speaks into a running `rapp run` (the robot hears it)")
+    sy.add_argument("text")
+    sy.add_argument("--run", help="the run's --out folder (default: the newest running `rapp run`)")
+    sy.add_argument("--distance", type=float, default=1.0, help="metres from the robot (0.3-8)")
+    sy.add_argument("--voice", default="en-us", help="eSpeak NG voice (en-us, en, en-gb-x-rp, ...)")
+    sy.add_argument("--speed", type=int, default=150, help="words per minute (80-450)")
+    sy.add_argument("--level", type=float, default=60.0, help="dB SPL at 1 m (60: conversation)")
+
     sub.add_parser("trace", help="show, export or render a message trace (rapp trace FILE)", add_help=False)
     sub.add_parser("bench", help="run the benchmarks (rapp bench --help)", add_help=False)
     sub.add_parser("agent", help="run one Store, Platform or Core agent here (rapp agent --help)",
@@ -340,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return {"server": cmd_server, "package": cmd_package, "store": cmd_store,
-                "platform": cmd_platform, "new": cmd_new, "doctor": cmd_doctor}[a.command](a)
+                "platform": cmd_platform, "new": cmd_new, "doctor": cmd_doctor, "say": cmd_say}[a.command](a)
     except KeyboardInterrupt:
         return 130
     except SystemExit:

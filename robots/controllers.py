@@ -63,6 +63,12 @@ class Timer(Controller):
         return self.remaining <= 1e-9
 
 
+class Observer(Timer):
+    """A timer that does not drive an unpaced world: it waits for time others make pass (samplers,
+    scripts) instead of running the simulation ahead of what the agents are doing."""
+    blocking = False
+
+
 # ----------------------------------------------------------------------------- base motions
 class BaseController(Controller):
     slot = "base"

@@ -5,9 +5,9 @@ PyBullet's TinyRenderer holds the GIL for the whole getCameraImage call (~30 ms 
 A RenderPool keeps up to N render processes (default: 2, one per core); each builds the same static
 scene from the same house description with the same code as World (Scene._build_scene, create_bodies),
 in its own DIRECT client. Per request it receives only the dynamic state that changed since its last
-request (robot base poses and joint angles, door angles, lamp states) plus the view/projection matrices,
-renders with ER_TINY_RENDERER, applies the camera image parameters and returns the uint8 RGB image
-through a pipe. The caller waits in a thread (a thread blocked on a pipe releases the GIL), so neither
+request (robot base poses and joint angles, door angles, lamp states, the people and dropped boxes of
+robots/disturbances.py) plus the view/projection matrices, renders with ER_TINY_RENDERER, applies the
+camera image parameters and returns the uint8 RGB image through a pipe. The caller waits in a thread (a thread blocked on a pipe releases the GIL), so neither
 the event loop nor the world's pybullet thread waits for the renderer.
 
 Processes start lazily (the first request starts one; a second one starts only when a request arrives
@@ -52,6 +52,7 @@ class SceneState:
     robots: dict[str, tuple[str, tuple[float, float, float], dict[str, float]]]  # name -> (kind, pose, q)
     doors: dict[str, float]  # degrees
     lamps: dict[str, bool]
+    bodies: dict[str, tuple] = field(default_factory=dict)  # people, boxes: id -> (shape, position, orientation)
 
 
 @dataclass
@@ -66,6 +67,7 @@ class RenderJob:
     joints: dict[str, dict[str, float]] = field(default_factory=dict)
     doors: dict[str, float] = field(default_factory=dict)
     lamps: dict[str, bool] = field(default_factory=dict)
+    bodies: dict[str, tuple] = field(default_factory=dict)  # created when new, else moved (robots/disturbances.py)
 
 
 # ====================================================================== child side
@@ -82,6 +84,7 @@ def _mirror_scene_class():
             self.cid = p.connect(p.DIRECT)
             self._build_scene()
             self.bodies: dict[str, tuple[int, int, dict[str, int], Any]] = {}
+            self.movers: dict[str, int] = {}
 
         def apply(self, job: RenderJob) -> None:
             cid = self.cid
@@ -104,6 +107,11 @@ def _mirror_scene_class():
                 self._set_door(door_id, angle)
             for lamp_id, on in job.lamps.items():
                 self._set_lamp(lamp_id, on)
+            for name, (shape, pos, orn) in job.bodies.items():
+                if name not in self.movers:
+                    from .disturbances import create_body
+                    self.movers[name] = create_body(cid, shape, collision=False)
+                p.resetBasePositionAndOrientation(self.movers[name], pos, orn, physicsClientId=cid)
 
         def render(self, job: RenderJob) -> np.ndarray:
             self.apply(job)
@@ -223,6 +231,7 @@ class _Worker:
                 job.joints[name] = changed
         job.doors = {k: v for k, v in state.doors.items() if known.doors.get(k) != v}
         job.lamps = {k: v for k, v in state.lamps.items() if known.lamps.get(k) != v}
+        job.bodies = {k: v for k, v in state.bodies.items() if known.bodies.get(k) != v}
         return job
 
     def render(self, state: SceneState, **kw) -> np.ndarray:

@@ -7,6 +7,9 @@ thread (render="inline").
     nao = world.add_robot("nao")             # start pose from the description (seeded)
     await world.sleep(1.0)                   # simulation seconds
     world.ground_truth()                     # true poses, door angles, lamp states (tests/scoring only)
+
+Things that move (people, doors someone swings, dropped boxes) come from a disturbance file
+(robots/disturbances.py): World.from_file(..., disturbances=FILE) or world.attach_disturbances(spec).
 """
 from __future__ import annotations
 
@@ -17,17 +20,17 @@ import os
 import threading
 import zlib
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 import pybullet as p
 import yaml
 
 from . import elektron, nao
-from .controllers import Controller, Timer
+from .controllers import Controller, Observer, Timer
 from .errors import InvalidArgument, RobotError, WorldClosed
 from .floorplan import (CEILING_COLOR, DOOR_COLOR, DOOR_HEIGHT, DOOR_THICKNESS, FLOOR_COLOR, Box, Plan,
                         load_plan)
@@ -40,6 +43,9 @@ from .render_process import RenderPool, SceneState
 from .robot import Robot, yaw_quat
 from .simclock import SimClock
 from .spec import RobotSpec
+
+if TYPE_CHECKING:
+    from .disturbances import ContactEvent, Disturbances, DisturbanceSpec
 
 HOUSES = Path(__file__).parent / "houses"
 ROBOT_SPECS: dict[str, RobotSpec] = {"nao": nao.SPEC, "elektron": elektron.SPEC}
@@ -55,6 +61,7 @@ class GroundTruth:
     robots: dict[str, tuple[float, float, float]]
     doors: dict[str, float]  # degrees
     lamps: dict[str, bool]
+    movers: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # people and boxes present
 
 
 class Scene:
@@ -187,7 +194,8 @@ class World(Scene):
     pybullet thread of this process."""
 
     def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60, render: str | None = None,
-                 render_workers: int | None = None):
+                 render_workers: int | None = None,
+                 disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None):
         render = render or os.environ.get("RAPP_ROBOTS_RENDER") or "process"
         if render not in RENDER_MODES:
             raise InvalidArgument(f"render must be one of {', '.join(RENDER_MODES)}, not {render!r}")
@@ -201,16 +209,24 @@ class World(Scene):
         self._active: list[Controller] = []
         self._stepper: asyncio.Task | None = None
         self._closed = False
+        self.disturbances: Disturbances | None = None
         self.run_sync(self._build)
         if render == "process":
             self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name)
+        if disturbances is not None:
+            try:
+                self.attach_disturbances(disturbances)
+            except BaseException:
+                self.close()
+                raise
 
     @classmethod
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
-                  time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None
-                  ) -> "World":
+                  time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None,
+                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None) -> "World":
         """Build from a YAML house description; `path` may also be a bare name in robots/houses, or
-        "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest)."""
+        "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest).
+        `disturbances`: a disturbance file (or bare name in robots/houses) or spec, see attach_disturbances."""
         path = Path(path)
         source: Path | dict = path
         if not path.exists() and (HOUSES / f"{path}.yaml").exists():
@@ -218,7 +234,7 @@ class World(Scene):
         elif not path.exists() and str(path) == GENERATED:
             source = generate(seed)
         return cls(load_plan(source, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step, render=render,
-                   render_workers=render_workers)
+                   render_workers=render_workers, disturbances=disturbances)
 
     # ------------------------------------------------------------------ thread plumbing
     def _mark_worker(self) -> None:
@@ -271,6 +287,8 @@ class World(Scene):
         for rb in self.robots.values():
             if rb.probe != exclude and math.hypot(rb.pose[0] - x, rb.pose[1] - y) < r + rb.spec.radius + 0.1:
                 out.append(rb.probe)
+        if self.disturbances is not None:  # people and dropped boxes stop robots too
+            out += self.disturbances.bodies_near(x, y, r)
         return out
 
     def _set_door(self, door_id: str, angle_deg: float) -> None:
@@ -288,7 +306,33 @@ class World(Scene):
     def ground_truth(self) -> GroundTruth:
         """True state for tests and scenario scoring; never exposed through RobotAPI."""
         return GroundTruth(self.clock.time, {n: r.pose for n, r in self.robots.items()},
-                           {d.id: d.angle for d in self.plan.doors}, {lp.id: lp.on for lp in self.plan.lamps})
+                           {d.id: d.angle for d in self.plan.doors}, {lp.id: lp.on for lp in self.plan.lamps},
+                           self.disturbances.poses() if self.disturbances is not None else {})
+
+    # ------------------------------------------------------------------ disturbances
+    def attach_disturbances(self, spec: "str | Path | dict | list | DisturbanceSpec") -> "Disturbances":
+        """Add the people, door swings and dropped boxes of a disturbance file (path, or bare name in
+        robots/houses) or spec (robots/disturbances.py); their times are simulation time from the world's
+        start, applied at every step. Raises DisturbanceError (an InvalidArgument) on a bad spec."""
+        from .disturbances import Disturbances, load_disturbances  # pydantic only for worlds that use it
+
+        if self.disturbances is not None:
+            raise InvalidArgument("this world already has disturbances attached")
+        dist = Disturbances(load_disturbances(spec, search=HOUSES), self.plan)
+        self.run_sync(dist.build, self)
+        self.disturbances = dist
+        return dist
+
+    def person_contacts(self, robot: str | None = None) -> int:
+        """Touching episodes between robots (or `robot`) and people so far (one per episode)."""
+        return self.disturbances.contacts("person", robot) if self.disturbances is not None else 0
+
+    def object_contacts(self, robot: str | None = None) -> int:
+        """Touching episodes between robots (or `robot`) and dropped boxes so far."""
+        return self.disturbances.contacts("box", robot) if self.disturbances is not None else 0
+
+    def contact_events(self) -> "list[ContactEvent]":
+        return list(self.disturbances.events) if self.disturbances is not None else []
 
     # ------------------------------------------------------------------ robots
     def add_robot(self, kind: str, name: str | None = None, pose: tuple[float, float, float] | None = None,
@@ -313,7 +357,8 @@ class World(Scene):
         """pybullet thread: camera matrices and the dynamic scene state, consistent with the sim time."""
         view, proj = cam.view_projection(width, height)
         state = SceneState({n: (r.kind, r.pose, dict(r.q)) for n, r in list(self.robots.items())},
-                           {d.id: d.angle for d in self.plan.doors}, {lp.id: lp.on for lp in self.plan.lamps})
+                           {d.id: d.angle for d in self.plan.doors}, {lp.id: lp.on for lp in self.plan.lamps},
+                           self.disturbances.scene_bodies() if self.disturbances is not None else {})
         return state, width, height, view, proj, cam.params
 
     async def capture(self, cam: Camera, width: int, height: int) -> np.ndarray:
@@ -357,10 +402,11 @@ class World(Scene):
             self._stepper = loop.create_task(self._step_loop(), name=f"world-stepper-{self.plan.name}")
         return ctrl.future
 
-    async def sleep(self, seconds: float) -> None:
-        """Wait `seconds` of simulation time (all active motions advance meanwhile)."""
+    async def sleep(self, seconds: float, drive: bool = True) -> None:
+        """Wait `seconds` of simulation time (all active motions advance meanwhile). `drive=False`:
+        only wait for time that others make pass (an unpaced world is not stepped for this)."""
         if seconds > 0:
-            await self.start(Timer(seconds))
+            await self.start(Timer(seconds) if drive else Observer(seconds))
 
     async def sync(self) -> None:
         """Wait until the pybullet thread has finished everything submitted before."""
@@ -393,6 +439,8 @@ class World(Scene):
                     c.done, c.error = True, e if isinstance(e, RobotError) else RobotError(f"{type(e).__name__}: {e}")
                     finished.append(c)
             self.clock.time += dt
+            if self.disturbances is not None:
+                self.disturbances.advance(self.clock.time)
             if any(c.blocking for c in finished):
                 break
         return finished

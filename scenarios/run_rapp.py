@@ -28,6 +28,7 @@ from ontology.trace import Direction, RecordKind, StructureEvent
 from robots import RobotAPI, World
 from robots.gridmap import build_grid_map
 from scenarios.home_setup import has_layout, home_description, home_map, upload_home
+from scenarios.owner_voice import OwnerVoice, ScriptError, SpokenLine, announce_run, load_script, retire_run
 from scenarios.plots import plot_hazard_run
 from scenarios.progress import RunView, follow
 from scenarios.recorder import RecordingAPI
@@ -62,7 +63,7 @@ async def _sample_poses(api, into: list, period_s: float = 0.2) -> None:
     """The robot's true (x, y) through the whole run, for the plot (simulation time)."""
     while True:
         into.append(tuple(api.robot.pose[:2]))
-        await api.world.sleep(period_s)
+        await api.world.sleep(period_s, drive=False)  # observe; never run the world ahead
 
 
 def _grid(world, house: str):
@@ -76,15 +77,21 @@ def _plot(out: Path, world, house: str, recorder: RecordingAPI, trajectory: list
 
 async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None, out: Path,
                    timeout_s: float, progress: bool = False, live: bool | None = None,
-                   watch_port: int | None = None) -> dict:
+                   watch_port: int | None = None, speak: bool = False,
+                   script: list[SpokenLine] | None = None, listen: bool = False,
+                   disturbances: str | Path | None = None) -> dict:
     """`progress`: show it (`live`: the rich panel, None = on a terminal, else plain lines);
-    `watch_port`: serve the live page there (0 = any free port)."""
+    `watch_port`: serve the live page there (0 = any free port); `speak`: the owner says the command
+    aloud instead of typing it; `script`: lines the owner says at their times; `listen`: no command
+    is sent, the owner's voice gives it; `disturbances`: a scenario file's people, doors and boxes
+    (robots/disturbances.py). While it runs, `rapp say TEXT` is heard too (the run's inbox)."""
     manifest_dir = src if src.is_dir() else None
-    world = World.from_file(house, seed=seed)
+    world = World.from_file(house, seed=seed, disturbances=disturbances)
     trajectory: list = []
     sampler: asyncio.Task | None = None
     watch: WatchServer | None = None
     view = RunView()
+    voice_tasks: list[asyncio.Task] = []
     try:
         # every image the RApp captures is kept in out/frames; legs and localizations are recorded
         api = RecordingAPI(RobotAPI(world.add_robot(robot)), frames_dir=out / "frames", every_capture=True)
@@ -118,12 +125,26 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
             kw = {} if manifest_dir is not None else {"require_signature": False, "trusted_keys": None}
             handle = await system.add_robot(robot, api=api, user=user, **kw)
             await wait_until(lambda: handle.core.supervisor.behaviour.current == "s3_listen", 30, "Core listening")
-            command = say or keywords[0]
-            print(f"[run] {robot} in {house}: owner says {command!r}", flush=True)
+            command = None if listen else say or keywords[0]
+            voice = OwnerVoice(world, api, out)
+            if speak or script or listen:
+                voice.check()
+                # once the Core's ear is open and has measured the room's noise floor
+                await wait_until(lambda: "audio-listener" in handle.core.active_behaviours(), 60,
+                                 "the Core's audio listener")
+                await world.sleep(1.5)
+            announce_run(out)
+            voice_tasks += [asyncio.create_task(voice.serve_inbox()), asyncio.create_task(voice.run_script(script or []))]
             start = len(handle.user.received)
-            await handle.user.say(handle.core.address, command)
-            end = await handle.user.wait_for(
-                lambda t: t.startswith((f"{name} finished", f"{name} ended")) or t.startswith("Sorry")
+            if listen:  # the command comes by voice: `rapp say` or the scenario's speech lines
+                print(f"[run] {robot} in {house}: listening; speak with `rapp say TEXT`", flush=True)
+            elif speak:
+                await voice.speak(SpokenLine(say=command))
+            else:
+                print(f"[run] {robot} in {house}: owner says {command!r}", flush=True)
+                await handle.user.say(handle.core.address, command)
+            end = await handle.user.wait_for(  # listening: a misheard line is answered "Sorry", the owner says it again
+                lambda t: t.startswith((f"{name} finished", f"{name} ended")) or (t.startswith("Sorry") and not listen)
                 or "could not get" in t or "did not start" in t, timeout=timeout_s, start=start)
             texts = handle.user.texts()[start:]
             records = await asyncio.to_thread(read_trace, out / "trace.jsonl")
@@ -134,12 +155,17 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
         plot = await asyncio.to_thread(_plot, out, world, house, api, trajectory, f"{name} on {robot} in {house}, "
                                        f"seed {seed}: {'finished' if ok else 'error'}")
         result = {"rapp": name, "robot": robot, "house": house, "seed": seed, "command": command,
+                  "spoken": voice.spoken, "person_contacts": world.person_contacts(),
+                  "object_contacts": world.object_contacts(),
                   "ok": ok, "end": end, "reports": reports, "trace": str(out / "trace.jsonl"),
                   "plot": str(plot), "frames": [str(f) for f in api.frames], "outputs": outputs}
         (out / "chat.txt").write_text("\n".join(texts) + "\n")
         (out / "result.json").write_text(json.dumps(result, indent=1))
         return result
     finally:
+        for task in voice_tasks:
+            task.cancel()
+        retire_run(out)
         if sampler is not None:
             sampler.cancel()
         if watch is not None:
@@ -159,15 +185,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true", help="plain progress lines, not the live panel")
     p.add_argument("--watch", nargs="?", type=int, const=DEFAULT_PORT, default=None, metavar="PORT",
                    help=f"serve a live page on http://127.0.0.1:PORT/ (default {DEFAULT_PORT})")
+    p.add_argument("--speak", action="store_true", help="the owner says the command aloud (the robot hears it "
+                                                         "through its microphone; needs the speech extra)")
+    p.add_argument("--scenario", metavar="FILE", help="a scenario file: its `speech:` lines are said at their "
+                                                       "times, its `disturbances:` (people, doors, boxes) happen")
+    p.add_argument("--listen", action="store_true", help="send no command: the owner gives it by voice "
+                                                          "(`rapp say TEXT` while it runs, or --scenario lines)")
     a = p.parse_args(argv)
     src = Path(a.rapp)
     if not src.exists():
         print(f"rapp run rapp: {src} does not exist", file=sys.stderr)
         return 2
+    try:
+        script = load_script(a.scenario) if a.scenario else None
+    except ScriptError as exc:
+        print(f"rapp run rapp: {exc}", file=sys.stderr)
+        return 2
     out = Path(a.out or tempfile.mkdtemp(prefix="rapp-run-"))
     out.mkdir(parents=True, exist_ok=True)
-    result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=True,
-                                  live=False if a.quiet else None, watch_port=a.watch))
+    try:
+        result = asyncio.run(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=True,
+                                      live=False if a.quiet else None, watch_port=a.watch, speak=a.speak,
+                                      script=script, listen=a.listen, disturbances=a.scenario))
+    except ScriptError as exc:
+        print(f"rapp run rapp: {exc}", file=sys.stderr)
+        return 2
     print(f"{result['rapp']}: {'finished' if result['ok'] else 'ERROR'}: {result['end']}")
     print(f"  result {out / 'result.json'}; chat {out / 'chat.txt'}; trace {out / 'trace.jsonl'}")
     print(f"  plot {result['plot']}; {len(result['frames'])} frames captured"

@@ -1,0 +1,469 @@
+"""Things that move in the simulated house on a timeline of simulation time: a person walking a route,
+a door someone opens or closes, an object dropped on the floor (issue 18, the base of a disturbance suite).
+
+A scenario file (YAML) lists them under `disturbances:`; other keys (e.g. `speech:`) belong to other parts
+of the run. Times are simulation seconds from the world's start, positions metres in the house frame:
+
+    disturbances:
+      - {kind: person, id: visitor, speed: 0.9, start: [2, 4], loop: false,
+         route: [[4.6, 1.45], [3.0, 1.45], {x: 2.2, y: 2.9, pause: 6}]}    # pause: stands still there (s)
+      - {kind: door, door: d1, at: 1.0, angle: 90, duration: 1.5}          # from its angle then, linearly
+      - {kind: box, id: toy, at: 12, position: [2.0, 2.0], size: [0.3, 0.2, 0.15], drop_height: 0.8}
+
+A person stands at the first waypoint until `start`, walks the route at `speed` (pausing where a waypoint
+says so) and stays at the last one; with `loop` it walks back to the first and goes round again (a wait at
+the end is the last waypoint's `pause`). A box is absent before `at`, then falls from `drop_height` (free
+fall, no bounce) to the floor. A number written [lo, hi] (speed, start, at) is drawn once from a generator
+seeded by the world's seed and the disturbance's id: the same seed gives the same run.
+
+    world = World.from_file("small", seed=1, disturbances="small-disturbances")   # or a path, a dict, a spec
+    world.person_contacts(), world.object_contacts(), world.contact_events()
+
+People and boxes are kinematic PyBullet bodies (mass 0, placed every step in the world's pybullet thread):
+sonar/laser rays and camera renders see them (the render processes mirror them), a robot's collision check
+stops against them, a person does not stop for a robot. Contacts are counted with getClosestPoints, not
+getContactPoints: the world never runs stepSimulation, and Bullet reports no contacts between two mass-0
+bodies anyway."""
+from __future__ import annotations
+
+import bisect
+import math
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
+
+import numpy as np
+import pybullet as p
+import yaml
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from .errors import InvalidArgument
+from .robot import yaw_quat
+
+if TYPE_CHECKING:
+    from .floorplan import Plan
+    from .robot import Robot
+    from .world import World
+
+GRAVITY = 9.81
+TOUCH_M = 0.01  # closest distance that counts as touching: a blocked robot stops up to one step (~4 mm) short
+PARKED = (0.0, 0.0, -60.0)  # where an absent body waits: below the floor, out of every ray and view
+PERSON_COLOR = (0.22, 0.33, 0.55)
+SKIN_COLOR = (0.85, 0.68, 0.55)
+BOX_COLOR = (0.8, 0.45, 0.15)
+
+
+class DisturbanceError(InvalidArgument):
+    """A disturbance spec or file that cannot be used (the message says which entry and why)."""
+
+
+# ------------------------------------------------------------------------------------------- the spec
+def _range(minimum: float, strict: bool):
+    """A number, or [lo, hi] drawn per seed; both ends at least (strict: above) `minimum`."""
+
+    def check(v):
+        lo, hi = (v, v) if isinstance(v, (int, float)) else v
+        if lo > hi:
+            raise ValueError(f"range [{lo}, {hi}]: the low end is above the high end")
+        if lo < minimum or (strict and lo <= minimum):
+            raise ValueError(f"must be {'>' if strict else '>='} {minimum:g}, got {lo:g}")
+        return v
+
+    return AfterValidator(check)
+
+
+Seconds = Annotated[float | tuple[float, float], _range(0.0, strict=False)]
+Speed = Annotated[float | tuple[float, float], _range(0.0, strict=True)]
+Color = tuple[Annotated[float, Field(ge=0, le=1)], Annotated[float, Field(ge=0, le=1)],
+              Annotated[float, Field(ge=0, le=1)]]
+
+
+class Waypoint(BaseModel):
+    """[x, y], [x, y, pause] or {x, y, pause}: pause = seconds standing still there."""
+
+    model_config = ConfigDict(extra="forbid")
+    x: float
+    y: float
+    pause: float = Field(default=0.0, ge=0.0)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_list(cls, v: Any) -> Any:
+        if isinstance(v, (list, tuple)):
+            if len(v) not in (2, 3):
+                raise ValueError(f"a waypoint is [x, y] or [x, y, pause], got {list(v)}")
+            return dict(zip(("x", "y", "pause"), v))
+        return v
+
+
+class PersonSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["person"]
+    id: str = Field(min_length=1)
+    route: list[Waypoint] = Field(min_length=1, description="one waypoint: the person stands there")
+    speed: Speed = Field(default=1.0, description="m/s; at most 3 (running)")
+    start: Seconds = 0.0
+    loop: bool = False
+    width: float = Field(default=0.35, gt=0.1, le=1.0)
+    height: float = Field(default=1.7, gt=0.3, le=2.5)
+    color: Color = PERSON_COLOR
+
+    @model_validator(mode="after")
+    def _walkable(self) -> PersonSpec:
+        if max(self.speed if isinstance(self.speed, tuple) else (self.speed,)) > 3.0:
+            raise ValueError(f"speed {self.speed} m/s: a person walks at most 3 m/s")
+        return self
+
+
+class DoorSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["door"]
+    id: str | None = Field(default=None, min_length=1, description="default: door-<door>-<index>")
+    door: str = Field(min_length=1, description="a door id of the house")
+    at: Seconds
+    angle: float = Field(ge=0.0, le=180.0, description="target angle, degrees (0 closed, 90 open)")
+    duration: float = Field(default=1.0, ge=0.0, description="seconds of the swing (0: at once)")
+
+
+class BoxSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["box"]
+    id: str = Field(min_length=1)
+    at: Seconds
+    position: tuple[float, float]
+    size: tuple[Annotated[float, Field(gt=0, le=3)], Annotated[float, Field(gt=0, le=3)],
+                Annotated[float, Field(gt=0, le=3)]]
+    yaw: float = Field(default=0.0, description="degrees")
+    drop_height: float = Field(default=0.0, ge=0.0, le=3.0, description="m from the floor to its bottom")
+    color: Color = BOX_COLOR
+
+
+Disturbance = Annotated[PersonSpec | DoorSpec | BoxSpec, Field(discriminator="kind")]
+
+
+class DisturbanceSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    disturbances: list[Disturbance] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _unique_ids(self) -> DisturbanceSpec:
+        seen: set[str] = set()
+        for i, d in enumerate(self.disturbances):
+            if d.id is None:
+                d.id = f"door-{d.door}-{i}"
+            if d.id in seen:
+                raise ValueError(f"two disturbances have the id {d.id!r}")
+            seen.add(d.id)
+        return self
+
+
+def _loc(loc: tuple) -> str:
+    """('disturbances', 0, 'person', 'speed') -> 'disturbances[0].speed' (the tag says nothing new)."""
+    out = ""
+    for i, x in enumerate(loc):
+        if isinstance(x, int):
+            out += f"[{x}]"
+        elif not (i > 0 and isinstance(loc[i - 1], int) and x in ("person", "door", "box")):
+            out += f".{x}" if out else str(x)
+    return out
+
+
+def _explain(exc: ValidationError, where: str) -> str:
+    msgs = []
+    for e in exc.errors()[:3]:
+        loc = _loc(e["loc"])
+        msgs.append(f"{loc}: {e['msg']}" if loc else e["msg"])
+    more = f" (and {exc.error_count() - 3} more)" if exc.error_count() > 3 else ""
+    return f"{where}: " + "; ".join(msgs) + more
+
+
+def load_disturbances(source: str | Path | dict | list | DisturbanceSpec, search: Path | None = None
+                      ) -> DisturbanceSpec:
+    """A spec from a scenario file (its `disturbances:` list; a bare name is looked up as
+    `search`/NAME.yaml), a mapping like the file's, a bare list of entries, or a spec."""
+    if isinstance(source, DisturbanceSpec):
+        return source
+    where = "disturbance spec"
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        if not path.exists() and search is not None and (search / f"{path}.yaml").exists():
+            path = search / f"{path}.yaml"
+        where = f"disturbance file {path}"
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except (OSError, yaml.YAMLError) as exc:
+            raise DisturbanceError(f"cannot read {where}: {exc}") from None
+        if not isinstance(data, dict):
+            raise DisturbanceError(f"{where}: expected a mapping with a 'disturbances' list")
+        source = {"disturbances": data.get("disturbances") or []}  # other keys belong to other parts of a run
+    if isinstance(source, list):
+        source = {"disturbances": source}
+    try:
+        return DisturbanceSpec.model_validate(source)
+    except ValidationError as exc:
+        raise DisturbanceError(_explain(exc, where)) from None
+
+
+# ---------------------------------------------------------------------------------------- timelines
+def _draw(v, rng: np.random.Generator) -> float:
+    return float(v) if isinstance(v, (int, float)) else float(rng.uniform(v[0], v[1]))
+
+
+class Route:
+    """A walk in time: stand at the first point until `start`, then legs (walks and pauses) at `speed`;
+    `loop` closes the route and repeats it. Pure geometry (any thread)."""
+
+    def __init__(self, points: list[tuple[float, float, float]], speed: float, start: float, loop: bool):
+        self.start, self.loop = start, loop
+        pts = list(points) + ([points[0]] if loop and len(points) > 1 else [])
+        self.legs: list[tuple[float, float, tuple[float, float], tuple[float, float], float]] = []
+        t, heading = 0.0, None
+        for i, (x, y, pause) in enumerate(pts):
+            if i > 0:
+                px, py = pts[i - 1][:2]
+                d = math.hypot(x - px, y - py)
+                if d > 0:
+                    heading = math.atan2(y - py, x - px)
+                    self.legs.append((t, t + d / speed, (px, py), (x, y), heading))
+                    t += d / speed
+            last = loop and len(points) > 1 and i == len(pts) - 1  # back at the start: its pause comes next round
+            if pause > 0 and not last:
+                self.legs.append((t, t + pause, (x, y), (x, y), heading))
+                t += pause
+        self.period = t
+        first = next((leg[4] for leg in self.legs if leg[4] is not None), 0.0)
+        self.legs = [(t0, t1, a, b, first if h is None else h) for t0, t1, a, b, h in self.legs]
+        self._starts = [leg[0] for leg in self.legs]
+        self.home = (points[0][0], points[0][1], first)
+        self.end = (points[-1][0], points[-1][1], self.legs[-1][4] if self.legs else first)
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        """(x, y, heading) at simulation time t."""
+        tau = t - self.start
+        if tau <= 0 or not self.legs:
+            return self.home
+        if self.loop and self.period > 0:
+            tau %= self.period
+        elif tau >= self.period:
+            return self.end
+        t0, t1, a, b, heading = self.legs[max(bisect.bisect_right(self._starts, tau) - 1, 0)]
+        f = min(max((tau - t0) / (t1 - t0), 0.0), 1.0) if t1 > t0 else 1.0
+        return a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f, heading
+
+
+class BodyShape(NamedTuple):
+    """What a mover looks like; also sent to the render processes to mirror it."""
+
+    kind: str  # "person" | "box"
+    size: tuple[float, float, float]  # person: (width, width, height); box: (sx, sy, sz)
+    color: tuple[float, float, float]
+
+
+def create_body(cid: int, shape: BodyShape, collision: bool = True) -> int:
+    """A mass-0 body of `shape`, parked below the floor (its origin is its centre)."""
+    sx, sy, sz = shape.size
+    if shape.kind == "person":
+        r = sx / 2
+        head = min(0.12, r)
+        torso = sz - 2 * head
+        col = p.createCollisionShape(p.GEOM_CYLINDER, radius=r, height=sz, physicsClientId=cid) if collision else -1
+        vis = p.createVisualShapeArray(
+            shapeTypes=[p.GEOM_CYLINDER, p.GEOM_SPHERE], radii=[r, head], lengths=[torso, 0.0],
+            visualFramePositions=[[0, 0, -sz / 2 + torso / 2], [0, 0, sz / 2 - head]],
+            rgbaColors=[[*shape.color, 1], [*SKIN_COLOR, 1]], physicsClientId=cid)
+    else:
+        half = [sx / 2, sy / 2, sz / 2]
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid) if collision else -1
+        vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[*shape.color, 1], physicsClientId=cid)
+    return p.createMultiBody(0, col, vis, list(PARKED), physicsClientId=cid)
+
+
+class Mover:
+    """A person or a box: where it is at time t (None: absent)."""
+
+    kind: str
+    shape: BodyShape
+    radius: float  # of its footprint, for near-by tests
+    uid: int = -1
+    placed: tuple | None = None  # (position, orientation) last set
+
+    def __init__(self, ident: str):
+        self.id = ident
+
+    def pose_at(self, t: float) -> tuple[float, float, float, float] | None:  # (x, y, z centre, yaw)
+        raise NotImplementedError
+
+
+class Person(Mover):
+    kind = "person"
+
+    def __init__(self, spec: PersonSpec, rng: np.random.Generator):
+        super().__init__(spec.id)
+        self.speed, self.start = _draw(spec.speed, rng), _draw(spec.start, rng)
+        self.route = Route([(w.x, w.y, w.pause) for w in spec.route], self.speed, self.start, spec.loop)
+        self.shape = BodyShape("person", (spec.width, spec.width, spec.height), tuple(spec.color))
+        self.radius = spec.width / 2
+
+    def pose_at(self, t):
+        x, y, yaw = self.route.at(t)
+        return x, y, self.shape.size[2] / 2, yaw
+
+
+class DroppedBox(Mover):
+    kind = "box"
+
+    def __init__(self, spec: BoxSpec, rng: np.random.Generator):
+        super().__init__(spec.id)
+        self.at = _draw(spec.at, rng)
+        self.position, self.yaw, self.drop_height = spec.position, math.radians(spec.yaw), spec.drop_height
+        self.shape = BodyShape("box", tuple(spec.size), tuple(spec.color))
+        self.radius = math.hypot(spec.size[0], spec.size[1]) / 2
+
+    def pose_at(self, t):
+        if t < self.at:
+            return None
+        fall = max(self.drop_height - GRAVITY / 2 * (t - self.at) ** 2, 0.0)
+        return self.position[0], self.position[1], self.shape.size[2] / 2 + fall, self.yaw
+
+
+class DoorMotion:
+    """Swing a door from its angle at `at` to `angle` over `duration` (linear in time)."""
+
+    def __init__(self, spec: DoorSpec, rng: np.random.Generator):
+        self.id, self.door, self.target, self.duration = spec.id, spec.door, spec.angle, spec.duration
+        self.at = _draw(spec.at, rng)
+        self.from_angle: float | None = None
+        self.finished = False
+
+    @property
+    def end(self) -> float:
+        return self.at + self.duration
+
+    def angle_at(self, t: float, current: float) -> float | None:
+        """The door's angle at t, or None while this motion does not drive it."""
+        if self.finished or t < self.at:
+            return None
+        if self.from_angle is None:
+            self.from_angle = current
+        f = 1.0 if self.duration <= 0 else min((t - self.at) / self.duration, 1.0)
+        self.finished = f >= 1.0
+        return self.from_angle + (self.target - self.from_angle) * f
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """A robot started touching a person or box (one per touching episode)."""
+
+    time: float
+    robot: str
+    other: str  # the disturbance id
+    kind: str  # "person" | "box"
+
+
+# ------------------------------------------------------------------------------------------ runtime
+class Disturbances:
+    """The disturbances of one world, resolved against its house and seed. Built and advanced in the
+    world's pybullet thread (World.attach_disturbances, World._advance); reads are safe from any thread."""
+
+    def __init__(self, spec: DisturbanceSpec, plan: Plan):
+        self.spec = spec
+        self.movers: list[Mover] = []
+        self.doors: list[DoorMotion] = []
+        doors = {d.id: d for d in plan.doors}
+        x0, y0, x1, y1 = plan.bounds
+        for i, d in enumerate(spec.disturbances):
+            where = f"disturbances[{i}] ({d.kind} {d.id!r})"
+            rng = np.random.default_rng([plan.seed, zlib.crc32(f"disturbance/{d.id}".encode())])
+            points = [(w.x, w.y) for w in d.route] if d.kind == "person" else \
+                [d.position] if d.kind == "box" else []
+            for x, y in points:
+                if not (x0 <= x <= x1 and y0 <= y <= y1):
+                    raise DisturbanceError(f"{where}: point ({x:g}, {y:g}) is outside house {plan.name!r} "
+                                           f"(x {x0:g}..{x1:g}, y {y0:g}..{y1:g})")
+            if d.kind == "person":
+                self.movers.append(Person(d, rng))
+            elif d.kind == "box":
+                self.movers.append(DroppedBox(d, rng))
+            else:
+                if d.door not in doors:
+                    raise DisturbanceError(f"{where}: unknown door {d.door!r} in house {plan.name!r} "
+                                           f"(doors: {', '.join(doors) or 'none'})")
+                self.doors.append(DoorMotion(d, rng))
+        by_door: dict[str, list[DoorMotion]] = {}
+        for m in sorted(self.doors, key=lambda m: m.at):
+            prev = by_door.setdefault(m.door, [])
+            if prev and m.at < prev[-1].end:
+                raise DisturbanceError(f"door {m.door}: {m.id!r} starts at {m.at:g} s, before {prev[-1].id!r} "
+                                       f"ends at {prev[-1].end:g} s")
+            prev.append(m)
+        self.events: list[ContactEvent] = []
+        self._touching: set[tuple[str, str]] = set()
+        self.world: World | None = None
+
+    # ---- pybullet thread
+    def build(self, world: World) -> None:
+        self.world = world
+        for m in self.movers:
+            m.uid = create_body(world.cid, m.shape)
+        self.advance(world.clock.time)
+
+    def advance(self, t: float) -> None:
+        """Place every mover and door for time t, then count new contacts with robots."""
+        world = self.world
+        cid = world.cid
+        for m in self.movers:
+            pose = m.pose_at(t)
+            placed = (PARKED, (0.0, 0.0, 0.0, 1.0)) if pose is None else \
+                ((pose[0], pose[1], pose[2]), tuple(yaw_quat(pose[3])))
+            if placed != m.placed:
+                p.resetBasePositionAndOrientation(m.uid, placed[0], placed[1], physicsClientId=cid)
+                m.placed = placed
+        for d in self.doors:
+            if not d.finished and t >= d.at:
+                world._set_door(d.door, d.angle_at(t, next(x.angle for x in world.plan.doors if x.id == d.door)))
+        self._count_contacts(t, list(world.robots.values()))
+
+    def _count_contacts(self, t: float, robots: list[Robot]) -> None:
+        cid = self.world.cid
+        for rb in robots:
+            rx, ry = rb.pose[0], rb.pose[1]
+            for m in self.movers:
+                key = (rb.name, m.id)
+                at = m.placed[0] if m.placed is not None else PARKED
+                touching = at != PARKED and \
+                    math.hypot(at[0] - rx, at[1] - ry) <= rb.spec.radius + m.radius + TOUCH_M + 0.01 and \
+                    bool(p.getClosestPoints(rb.probe, m.uid, TOUCH_M, physicsClientId=cid))
+                if touching and key not in self._touching:
+                    self._touching.add(key)
+                    self.events.append(ContactEvent(t, rb.name, m.id, m.kind))
+                elif not touching:
+                    self._touching.discard(key)
+
+    def bodies_near(self, x: float, y: float, r: float) -> list[int]:
+        """Uids of present movers whose footprint may be within r of (x, y) (robot collision checks)."""
+        out = []
+        for m in self.movers:
+            if m.placed is not None and m.placed[0] != PARKED:
+                px, py = m.placed[0][:2]
+                if math.hypot(px - x, py - y) < r + m.radius + 0.1:
+                    out.append(m.uid)
+        return out
+
+    def scene_bodies(self) -> dict[str, tuple[BodyShape, tuple, tuple]]:
+        """id -> (shape, position, orientation) of every mover (absent ones parked): the render mirror's."""
+        return {m.id: (m.shape, *m.placed) for m in self.movers if m.placed is not None}
+
+    # ---- any thread
+    def poses(self) -> dict[str, tuple[float, float, float]]:
+        """Present movers: id -> (x, y, yaw) (ground truth)."""
+        out = {}
+        for m in self.movers:
+            placed = m.placed
+            if placed is not None and placed[0] != PARKED:
+                (x, y, _), q = placed
+                out[m.id] = (x, y, 2 * math.atan2(q[2], q[3]))
+        return out
+
+    def contacts(self, kind: str, robot: str | None = None) -> int:
+        return sum(1 for e in list(self.events) if e.kind == kind and (robot is None or e.robot == robot))
