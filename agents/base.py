@@ -276,6 +276,10 @@ class RappAgent(Agent):
                            reason="no behaviour matched")
 
     # -- FIPA-Request initiator -------------------------------------------------------------
+    def holds_requests_to(self, peer: str) -> bool:
+        """True while requests to `peer` must not time out (a paused task's held motions)."""
+        return False
+
     async def request(self, to: str, content: Action, *, timeout: float = 10.0,
                       performative: Performative = Performative.REQUEST,
                       retries: int | None = None, on_feedback=None) -> Content:
@@ -313,9 +317,16 @@ class RappAgent(Agent):
             while True:
                 remaining = deadline - loop.time()
                 if remaining <= 0:
-                    raise asyncio.TimeoutError
-                async with asyncio.timeout(remaining):  # no extra task per wait, unlike wait_for
-                    answer = await queue.get()
+                    if not self.holds_requests_to(to):
+                        raise asyncio.TimeoutError
+                    deadline, remaining = loop.time() + timeout, timeout  # held (paused task): wait on
+                try:
+                    async with asyncio.timeout(remaining):  # no extra task per wait, unlike wait_for
+                        answer = await queue.get()
+                except asyncio.TimeoutError:
+                    if self.holds_requests_to(to):
+                        continue
+                    raise
                 if answer is None:
                     raise RequestFailed(f"{self.address} stopped while waiting for {name}",
                                         code=ErrorCode.STOPPED, peer=to, action=name)

@@ -133,4 +133,4 @@ class SafetyMonitor(PeriodicBehaviour):
         nearest = await core.nearest_obstacle()
         if nearest is not None and nearest < core.safety_distance:
             await core.emergency_stop(f"obstacle ahead within {core.safety_distance:.2f} m of the "
-                                      f"range sensors' minimum")
+                                      f"range sensors' minimum", by="safety")

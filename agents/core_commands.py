@@ -8,11 +8,15 @@ from typing import TYPE_CHECKING
 
 import ontology.robot  # also registers the robot-API models the command server serves
 from ontology.registry import Progress, actions
-from ontology.robot_actions import facts
+from ontology.robot_actions import facts, resumable
 from ontology import core as C
 from ontology.errors import ErrorCode
+from ontology.notifications import EventTopic
+from ontology.trace import StructureEvent
+from robots.errors import MotionInterrupted
 
 from .errors import Failure, Refusal
+from .core_events import ESTOP_TTL_S
 from .locks import LockError, ResourceLocks, device_of
 from .messages import bare
 from .responder import Responder
@@ -49,8 +53,8 @@ class RobotCommands:
     - per-action facts (device, motion, effect on a velocity) come from ontology/robot_actions.py;
     - resource locks: each command takes the lock of its device (agents/locks.py); the Dynamic
       Agent may also lock and free resources itself (lock_resource / free_resource);
-    - the e-stop latch: `emergency_stop()` halts every effector and refuses motion until
-      `resume_motion()`;
+    - the e-stop latch: `emergency_stop()` halts every effector and holds the task's motions until
+      `resume_motion()` (then re-issues those it interrupted when their target is absolute);
     - the safety check: `nearest_obstacle()` (read by core_behaviours.SafetyMonitor) and whether
       the base is being driven (`driving`).
 
@@ -62,6 +66,8 @@ class RobotCommands:
     dynamic: DynamicSession | None
     locks: ResourceLocks
     estop_reason: str | None  # set while the emergency stop is latched
+    estop_by: str | None  # who latched it: "owner" or "safety"
+    _estop_released: asyncio.Event  # set while not latched: held motions wait on it
     driving: bool  # a move_vel velocity is in force
 
     def _command_server(self) -> Responder:
@@ -75,9 +81,6 @@ class RobotCommands:
         if req.group != "resources" and req.group not in d.manifest.robot_api:
             raise Refusal(f"{d.rapp} did not declare the robot-API group {req.group!r} "
                           f"(needed by {req.action_name}) in its manifest", ErrorCode.PERMISSION)
-        if self.estop_reason and facts(req.action_name).motion:  # nothing moves while latched
-            raise Refusal(f"emergency stop ({self.estop_reason}): nothing moves until the user says "
-                          f"\"resume\"", ErrorCode.ESTOP)
 
     async def _robot_call(self, req, ctx):
         if req.action_name == "lock_resource":
@@ -95,12 +98,34 @@ class RobotCommands:
                     return await self.robot.handle(req)
                 reporter = asyncio.create_task(self._report_motion(req, ctx)) if ctx.wants_feedback else None
                 try:
-                    return await self.robot.handle(req)  # cancelled by the requester: the motion stops
+                    return await self._motion(req, ctx)  # cancelled by the requester: the motion stops
                 finally:
                     if reporter is not None:
                         reporter.cancel()
         except LockError as e:
             raise Refusal(str(e), ErrorCode.LOCKED) from None
+
+    async def _motion(self, req, ctx):
+        """A motion of the task. While the emergency stop is latched it is held (waits for the resume,
+        not refused); one the stop interrupts is issued again after the resume when its target is
+        absolute (robot_actions.resumable), else it fails with `estop` (a relative move would go
+        somewhere else from where the stop left the robot)."""
+        name = req.action_name
+        while True:
+            if self.estop_reason is not None:
+                self.record_structure(StructureEvent.MOTION_HELD, action=name, reason=self.estop_reason)
+                await ctx.feedback(Progress(text=f"held by the emergency stop ({self.estop_reason})",
+                                            data={"paused": True}))
+                await self._estop_released.wait()
+                self.record_structure(StructureEvent.MOTION_RESUMED, action=name)
+            try:
+                return await self.robot.handle(req)
+            except MotionInterrupted:
+                if self.estop_reason is None:
+                    raise
+                if not resumable(name):
+                    raise Failure(f"{name} was interrupted by the emergency stop ({self.estop_reason}); "
+                                  f"a relative motion is not resumed", ErrorCode.ESTOP) from None
 
     async def _report_motion(self, req, ctx) -> None:
         """Progress informs of a motion, at its start and then every FEEDBACK_EVERY_S: the estimated
@@ -129,22 +154,29 @@ class RobotCommands:
         return ontology.robot.LockState(resource=req.resource, held=False, holder=self.locks.holder(req.resource))
 
     # -- emergency stop (paper 003) -----------------------------------------------------------
-    async def emergency_stop(self, reason: str) -> None:
+    async def emergency_stop(self, reason: str, by: str = "owner") -> None:
         """Halt every effector now (bypassing queued commands) and latch until resumed; the Dynamic
-        Agent is told (C.TaskPaused) and its motions are refused meanwhile."""
+        Agent is told (C.TaskPaused): its task pauses and its motions are held, not failed.
+        `by`: who latched it ("owner" or "safety"); only the owner releases an owner's stop."""
         first = self.estop_reason is None
-        self.estop_reason = reason
+        self.estop_reason, self.estop_by = reason, by if first else self.estop_by
+        self._estop_released.clear()
         await self._stop_robot(everything=True)
         if first:
-            self.record_structure("estop", robot=self.robot_id, reason=reason)
+            self.record_structure("estop", robot=self.robot_id, reason=reason, by=by)
             await self._tell_task(True, reason)
-            await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again.")
+            await self.publish(EventTopic.ESTOP, ESTOP_TTL_S, latched=True, reason=reason, by=by)
+            d = self.dynamic
+            task = f" or \"cancel\" to end {d.rapp}" if d is not None and not d.ended.is_set() else ""
+            await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again{task}.")
 
-    async def resume_motion(self) -> None:
+    async def resume_motion(self, by: str = "owner") -> None:
         if self.estop_reason is not None:
-            self.estop_reason = None
-            self.record_structure("estop-released", robot=self.robot_id)
+            self.estop_reason, self.estop_by = None, None
+            self.record_structure("estop-released", robot=self.robot_id, by=by)
+            self._estop_released.set()
             await self._tell_task(False, "resumed")
+            await self.publish(EventTopic.ESTOP, ESTOP_TTL_S, latched=False, reason="resumed", by=by)
             await self.tell_user("Resumed: I may move again.")
 
     async def _tell_task(self, paused: bool, reason: str) -> None:

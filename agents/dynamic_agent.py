@@ -5,17 +5,21 @@ Lifecycle: log in -> task_status Init to the Core -> build the task -> Working -
 """
 from __future__ import annotations
 
+import asyncio
 import logging
+import time
 from pathlib import Path
 
 from spade.behaviour import PeriodicBehaviour
 
-from behaviours import BehaviourHost, Outcome
+from behaviours import BehaviourHost, Outcome, PauseGate
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import parse_json
 from ontology.errors import ErrorCode
 from ontology.manifest import Manifest
+from ontology.notifications import Notify
+from ontology.trace import StructureEvent
 
 from .base import RappAgent
 from .errors import CloudAgentLost, RequestError
@@ -23,6 +27,11 @@ from .messages import bare
 from .runtime import load_entry_point
 
 log = logging.getLogger("rapp.dynamic")
+
+
+def _log_handler_error(task: asyncio.Task) -> None:
+    if not task.cancelled() and task.exception() is not None:
+        log.error("event handler failed: %s", task.exception())
 HEARTBEAT_S = 0.25
 
 
@@ -46,7 +55,18 @@ class DynamicAgent(RappAgent):
         self.beats = 0
         self.task = None
         self.memory: dict = {}
-        self.paused: str | None = None  # the emergency stop's reason while it is latched
+        self.pause = PauseGate()  # the emergency stop as the task sees it (behaviours/pause.py)
+        self.events: asyncio.Queue = asyncio.Queue(maxsize=100)  # the Core's notifications, newest kept
+        self.event_handlers: dict[str, list] = {}
+
+    @property
+    def paused(self) -> str | None:
+        """The emergency stop's reason while it is latched, else None."""
+        return self.pause.reason
+
+    def holds_requests_to(self, peer: str) -> bool:
+        """Paused: requests to the Core (its held motions) do not time out meanwhile."""
+        return self.pause.paused and bare(peer) == bare(self.core)
 
     async def on_unhandled(self, msg, info) -> None:
         """The Core's notice of an emergency stop (C.TaskPaused: `paused` is the reason while it
@@ -56,8 +76,15 @@ class DynamicAgent(RappAgent):
                 note = C.TaskPaused.model_validate(parse_json(msg.body))
             except Exception:  # noqa: BLE001 - malformed: ignored like any bad notification
                 return
-            self.paused = note.reason if note.paused else None
-            log.info("task %s: %s", "paused" if note.paused else "resumed", note.reason)
+            if note.paused:
+                self.pause.pause(note.reason or "emergency stop")
+            else:
+                self.pause.resume()
+            self.record_structure(StructureEvent.TASK_PAUSED if note.paused else StructureEvent.TASK_RESUMED,
+                                  reason=note.reason)
+            return
+        if (info.ontology, info.action) == (C.ONTOLOGY, "notification") and bare(msg.sender) == bare(self.core):
+            self._on_notification(msg.body)
             return
         if (info.ontology, info.action) == (P.ONTOLOGY, "cloud_agent_down") and bare(msg.sender) == bare(self.platform):
             try:
@@ -72,6 +99,24 @@ class DynamicAgent(RappAgent):
                 self.record_structure("cloud-down", cloud=down.jid, restarted=down.restarted)
                 return
         await super().on_unhandled(msg, info)
+
+    def _on_notification(self, body: str) -> None:
+        """A Core event (ontology/notifications.py): dropped and traced when expired, else queued
+        for `next_event` and handed to the task's handlers for its topic."""
+        try:
+            note = Notify.model_validate(parse_json(body)).notification
+        except Exception:  # noqa: BLE001 - malformed: ignored like any bad notification
+            return
+        if note.expired():
+            self.record_structure(StructureEvent.NOTIFICATION_EXPIRED, topic=note.topic,
+                                  late_s=round(time.time() - (note.expires or 0.0), 3))
+            return
+        if self.events.full():
+            self.events.get_nowait()  # the oldest goes: a slow task sees the newest events
+        self.events.put_nowait(note)
+        for handler in self.event_handlers.get(note.topic, []):
+            task = asyncio.ensure_future(handler(note))
+            task.add_done_callback(_log_handler_error)
 
     async def _status(self, state: C.TaskState, detail: str = "") -> None:
         try:
@@ -110,7 +155,7 @@ class DynamicAgent(RappAgent):
 
     async def _run_task(self, behaviour) -> Outcome:
         await self._status(C.TaskState.WORKING)
-        host = BehaviourHost(behaviour, self.memory)
+        host = BehaviourHost(behaviour, self.memory, pause=self.pause)
         self.activate("task", host)
         outcome = await host.outcome
         self.deactivate("task")

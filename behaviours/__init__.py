@@ -5,7 +5,8 @@ example."""
 from .behaviour import Behaviour, Context, Idle, OneShot, Outcome, Wait, active_path
 from .fsm import FSM, FSMError
 from .host import BehaviourHost
+from .pause import PauseGate
 from .tree import Inverter, Parallel, Retry, Selector, Sequence, Timeout
 
 __all__ = ["Behaviour", "active_path", "Context", "Idle", "OneShot", "Outcome", "Wait", "FSM", "FSMError",
-           "BehaviourHost", "Sequence", "Selector", "Parallel", "Timeout", "Retry", "Inverter"]
+           "BehaviourHost", "PauseGate", "Sequence", "Selector", "Parallel", "Timeout", "Retry", "Inverter"]

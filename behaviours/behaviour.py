@@ -19,6 +19,8 @@ import asyncio
 from dataclasses import dataclass, field
 from typing import Any
 
+from .pause import run_pausable
+
 
 @dataclass(frozen=True)
 class Outcome:
@@ -41,6 +43,12 @@ class Context:
     agent: Any = None
     memory: dict = field(default_factory=dict)
     tracer: Any = None  # agents.tracing.TraceWriter or None
+    pause: Any = None  # behaviours.pause.PauseGate or None: the task's emergency-stop pause
+
+    async def hold(self) -> None:
+        """Wait while the task is paused (returns at once otherwise)."""
+        if self.pause is not None:
+            await self.pause.wait()
 
     def trace(self, kind: str, **fields) -> None:
         if self.tracer is not None:
@@ -95,8 +103,8 @@ class Behaviour:
         self.iterations = 0
         self.result = None
         try:
-            if self.timeout is not None:
-                outcome = await asyncio.wait_for(self._loop(), self.timeout)
+            if self.timeout is not None:  # paused time does not count
+                outcome = await run_pausable(self._loop(), self.timeout, self.ctx.pause)
             else:
                 outcome = await self._loop()
         except asyncio.TimeoutError:
@@ -113,6 +121,7 @@ class Behaviour:
                     return Outcome(False, reason, self.result, self.name)
                 if self.terminal():
                     return Outcome(True, "", self.result, self.name)
+                await self.ctx.hold()
                 await self.transition()
                 self.iterations += 1
                 await asyncio.sleep(self.period)

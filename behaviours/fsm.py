@@ -99,6 +99,7 @@ class FSM(Behaviour):
         self.history = []
         state = self.initial
         for _ in range(self.max_steps):
+            await self.ctx.hold()  # paused: the next state waits for the resume
             self.current = state
             self.history.append(state)
             self.ctx.trace("state", event="enter", fsm=self.name, state=state)

@@ -14,15 +14,16 @@ from .behaviour import Behaviour, Context, Outcome
 
 
 class BehaviourHost(OneShotBehaviour):
-    def __init__(self, behaviour: Behaviour, memory: dict | None = None):
+    def __init__(self, behaviour: Behaviour, memory: dict | None = None, pause=None):
         super().__init__()
         self.behaviour = behaviour
+        self.pause = pause  # a behaviours.pause.PauseGate: the task holds while it is paused
         self.shared_memory = memory if memory is not None else {}
         self.outcome: asyncio.Future = asyncio.get_event_loop().create_future()
 
     async def run(self) -> None:
         ctx = Context(agent=self.agent, memory=self.shared_memory,
-                      tracer=getattr(self.agent, "tracer", None))
+                      tracer=getattr(self.agent, "tracer", None), pause=self.pause)
         try:
             result = await self.behaviour.run(ctx)
         except asyncio.CancelledError:

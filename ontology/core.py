@@ -36,11 +36,17 @@ class Report(Action):
 
 @action("task_paused", ontology=ONTOLOGY, reply=Done, group="task")
 class TaskPaused(Action):
-    """The Core to its Dynamic Agent (a notification): the emergency stop latched (paused=True; the
-    task's robot motions wait, they do not fail) or was released (paused=False)."""
+    """The Core to its Dynamic Agent (a notification): the emergency stop latched (paused=True: the
+    task pauses, its robot motions are held, not failed) or was released (paused=False)."""
 
     paused: bool
     reason: str = ""
+
+
+@action("release_stop", ontology=ONTOLOGY, reply=Done, group="task")
+class ReleaseStop(Action):
+    """The supervising Dynamic Agent releases an emergency stop its robot's safety check latched (say,
+    after it has backed away from the obstacle). An owner's stop is the owner's to release: refused."""
 
 
 @action("heartbeat", ontology=ONTOLOGY, reply=Done, group="task")

@@ -4,7 +4,7 @@
   the others); "resources" are the lock commands, served by the Core itself, never by the robot;
 - `device`: the device whose lock the Core holds while the command runs (agents/locks.py), None
   for commands that need no exclusive use;
-- `motion`: it moves something, so the Core refuses it while the emergency stop is latched;
+- `motion`: it moves something, so the Core holds it while the emergency stop is latched;
 - `idempotent`: a read without side effects, sent again after a timeout (agents/base.py `request`);
 - `drive`: its effect on the base's velocity after the call returns, watched by the Core's safety
   monitor: "sets" (move_vel: driving while the velocity is not zero), "ends" (no velocity in force
@@ -68,6 +68,16 @@ ROBOT_API_GROUPS = frozenset(f.group for f in ACTION_FACTS.values()) - {"resourc
 def facts(name: str) -> ActionFacts:
     """The facts of a robot action; KeyError for a name that is not one."""
     return ACTION_FACTS[name]
+
+
+# motions whose target is relative to where the robot is (or a velocity): after an emergency stop
+# interrupted them, issuing them again would go somewhere else, so the Core does not resume them
+RELATIVE_MOTIONS = frozenset({"move_to", "move_vel"})
+
+
+def resumable(name: str) -> bool:
+    """A motion the emergency stop interrupts is issued again after the resume (absolute target)."""
+    return facts(name).motion and name not in RELATIVE_MOTIONS
 
 
 def markdown_table() -> str:

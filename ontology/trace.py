@@ -75,6 +75,8 @@ class StructureEvent(StrEnum):
     SPEECH_RECOGNITION = "speech-recognition"  # s4b: the Platform's recognition of a longer utterance
     ESTOP = "estop"  # emergency stop
     ESTOP_RELEASED = "estop-released"
+    MOTION_HELD = "motion-held"  # a motion of the task waits for the emergency stop's release
+    MOTION_RESUMED = "motion-resumed"  # ... and was (re-)issued after it
     # the Store
     PUBLISH = "publish"  # a package published
     REFUSED = "refused"  # an operation refused to a caller without the right (Store, Platform)
@@ -84,6 +86,9 @@ class StructureEvent(StrEnum):
     CLOUD_DESTROY = "cloud-destroy"  # a Cloud Agent stopped
     # the Dynamic Agent
     CLOUD_DOWN = "cloud-down"  # its Cloud Agent is gone (restarted or not)
+    TASK_PAUSED = "task-paused"  # the emergency stop latched: the task holds (not failed)
+    TASK_RESUMED = "task-resumed"  # ... and was released: the task goes on
+    NOTIFICATION_EXPIRED = "notification-expired"  # a Core event arrived after its expiry: dropped
 
 
 class AgentEvent(StrEnum):

@@ -16,9 +16,8 @@ import pytest
 import ontology
 from agents.base import RappAgent
 from agents.core_commands import RobotCommands
-from agents.errors import Refusal, RequestTimeout
+from agents.errors import RequestTimeout
 from agents.locks import DEVICES, ResourceLocks, device_of
-from ontology.errors import ErrorCode
 from ontology.manifest import ROBOT_API_GROUPS as MANIFEST_GROUPS
 from ontology.registry import actions
 from ontology.robot_actions import ACTION_FACTS, ROBOT_API_GROUPS, markdown_table
@@ -152,6 +151,10 @@ class _Robot:
 def _core(estop: str | None = None):
     core = RobotCommands()
     core.robot_id, core.locks, core.estop_reason, core.driving = "nao-1", ResourceLocks(), estop, False
+    core.estop_by, core._estop_released = "owner" if estop else None, asyncio.Event()
+    if estop is None:
+        core._estop_released.set()
+    core.record_structure = lambda *a, **k: None
     core.dynamic = SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
                                    manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS)))
     core.robot = _Robot(core)
@@ -162,18 +165,27 @@ def _request(name: str, **fields):
     return actions("robot")[name].model_construct(**fields)
 
 
+async def _no_feedback(progress):
+    pass
+
+
+def _ctx():
+    return SimpleNamespace(sender="dyn@x", wants_feedback=False, feedback=_no_feedback)
+
+
 @pytest.mark.parametrize("name", ROBOT)
-async def test_the_core_refuses_motion_during_an_estop_and_locks_the_device(name):
-    ctx = SimpleNamespace(sender="dyn@x", wants_feedback=False)
+async def test_the_core_holds_motion_during_an_estop_and_locks_the_device(name):
+    ctx = _ctx()
     core = _core(estop="bumper")
-    if name in OLD_MOTION:
-        with pytest.raises(Refusal) as e:
-            core._only_supervisor(_request(name), ctx)
-        assert e.value.code == ErrorCode.ESTOP
-    else:
-        core._only_supervisor(_request(name), ctx)
+    core._only_supervisor(_request(name), ctx)  # not refused: a motion waits for the resume
     if ACTION_FACTS[name].group == "resources":
         return  # served by the Core itself
+    call = asyncio.create_task(core._robot_call(_request(name), ctx))
+    await asyncio.sleep(0.05)
+    assert call.done() is (name not in OLD_MOTION)  # a motion is held, anything else is served
+    core.estop_reason = None
+    core._estop_released.set()
+    await call
     core = _core()
     core.driving = True
     await core._robot_call(_request(name), ctx)
@@ -188,7 +200,7 @@ async def test_the_core_refuses_motion_during_an_estop_and_locks_the_device(name
 async def test_a_velocity_keeps_the_base_driving(velocity, driving):
     core = _core()
     await core._robot_call(_request("move_vel", **{"x": 0.0, "y": 0.0, "theta": 0.0, **velocity}),
-                           SimpleNamespace(sender="dyn@x", wants_feedback=False))
+                           _ctx())
     assert core.driving is driving
 
 

@@ -68,3 +68,12 @@ def test_recovery_tiny(tmp_path):
         assert 0 <= m["value"] <= 2 * goal, m
     # a hang is seen only as missing heartbeats: never sooner than the Core's timeout
     assert metrics["recovery_hung_back"]["value"] >= metrics["recovery_hung_back"]["floor"]
+
+
+async def test_estop_latency_tiny():
+    """The owner's "stop" halts a RApp-driven base within the goal (twice it, for a loaded CI machine);
+    the floor is the same message's delivery, so the stop cannot be faster than it."""
+    from bench import estop
+    [m] = await estop.run(n=2)
+    assert FIELDS <= set(m) and m["n"] == 2, m
+    assert 0 < m["floor"] <= m["value"] <= 2 * estop.GOAL_MS, m

@@ -22,8 +22,8 @@ from scenarios.system import RappSystem, wait_until
 from xmpp_server import XmppSettings
 
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
-SUPERVISING = {"supervisor", "core-service", "user-listener", "microphone-listener", "audio-listener"}
-SERVING = {"supervisor", "core-service", "command-server", "busy-chat", "heartbeats", "safety"}
+SUPERVISING = {"supervisor", "core-service", "core-events", "user-listener", "microphone-listener", "audio-listener"}
+SERVING = {"supervisor", "core-service", "core-events", "command-server", "busy-chat", "heartbeats", "safety"}
 
 
 class SpyAPI:
@@ -168,9 +168,8 @@ async def test_robot_request_from_other_agent_is_refused(system):
         await wait_until(lambda: "command-server" in system.handle.core.active_behaviours())
         with pytest.raises(RequestRefused, match="not the current supervisor"):
             await intruder.request(system.handle.core.address, R.MoveTo(x=1.0, y=0.0), timeout=20)
-        await system.handle.user.say(system.handle.core.address, "stop")
-        assert "stopped by the user" in await slow
-        await run_command(system, "resume", "I may move again")
+        await system.handle.user.say(system.handle.core.address, "cancel")
+        assert "cancelled by the user" in await slow
     finally:
         await intruder.stop()
 

@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from agents.locks import LockError, ResourceLocks
+from agents.messages import bare
 from agents.tracing import read_trace
 from ontology.package import build_package_bytes, generate_keypair
 from robots import RobotAPI, World
@@ -35,6 +36,9 @@ async def system(tmp_path_factory):
         await system.publish(variant(workdir, "drive-echo", "driveecho", behaviour="drive", distance=6.0))
         await system.publish(variant(workdir, "lock-echo", "lockecho", lock="camera"))
         await system.publish(variant(workdir, "cruise-echo", "cruiseecho", behaviour="cruise"))
+        await system.publish(variant(workdir, "path-echo", "pathecho", behaviour="path", distance=1.0))
+        await system.publish(variant(workdir, "release-echo", "releaseecho", behaviour="release"))
+        await system.publish(variant(workdir, "events-echo", "eventsecho", behaviour="events"))
         system.world = world
         system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
         await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
@@ -52,35 +56,102 @@ async def test_undeclared_service_is_refused(system):
     assert "did not declare the service 'path_planning_list_maps'" in reply
 
 
-async def test_user_stop_halts_and_latches_until_resume(system):
+def _events(system, event: str) -> list[dict]:
+    return [r for r in read_trace(system.settings.trace_file) if r["kind"] == "structure" and r["event"] == event]
+
+
+async def test_user_stop_pauses_the_task_and_resume_finishes_it(system):
+    """Paper 003: "stop" halts every effector and pauses the task (its path is held, not failed);
+    "resume" lets the same path finish where it was meant to end."""
+    core, world = system.handle.core, system.world
+    x0 = world.ground_truth().robots["nao"][0]
+    goal = x0 + (1.0 if x0 < 1.75 else -1.0)  # the echo RApp's path: 1 m towards the room's middle
+    task = asyncio.create_task(run_command(system, "pathecho", "path done", timeout=90))
+    await wait_until(lambda: abs(world.ground_truth().robots["nao"][0] - x0) > 0.2, timeout=30)  # on its way
+    await run_command(system, "stop", "Emergency stop: stopped by the user")
+    pose = world.ground_truth().robots["nao"]
+    await asyncio.sleep(1.0)
+    assert world.ground_truth().robots["nao"] == pose  # nothing moves
+    assert core.dynamic is not None and not core.dynamic.ended.is_set()  # paused, not ended
+    assert not task.done()
+    await wait_until(lambda: _events(system, "task-paused") and _events(system, "motion-held"), timeout=10)
+    await run_command(system, "resume", "I may move again")
+    reply = await task
+    assert "paused now: None" in reply
+    x_end = float(reply.split("x=")[1].split(",")[0])
+    assert abs(x_end - goal) < 0.1  # the path's own end, not an offset from where it stopped
+    await system.handle.user.wait_for(lambda t: "path-echo finished" in t, timeout=30)
+    assert _events(system, "task-resumed") and _events(system, "motion-resumed")
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING)
+
+
+async def test_cancel_ends_the_task_without_latching(system):
     core = system.handle.core
     task = asyncio.create_task(run_command(system, "driveecho", "drive-echo ended with a problem"))
-    await wait_until(lambda: any(c for c in core.told if c == "echo") or
-                     "command-server" in core.active_behaviours())
+    await wait_until(lambda: "command-server" in core.active_behaviours())
     await asyncio.sleep(0.5)  # driving now
-    await system.handle.user.say(core.address, "stop")
+    await system.handle.user.say(core.address, "cancel")
     reply = await task
-    assert "stopped by the user" in reply
-    pose_after_stop = system.world.ground_truth().robots["nao"]
-    await asyncio.sleep(0.3)
-    assert system.world.ground_truth().robots["nao"] == pose_after_stop  # nothing moves
-    # latched: the next task may not move the robot
-    reply = await run_command(system, "driveecho", "drive-echo ended with a problem")
-    assert "emergency stop" in reply
-    await run_command(system, "resume", "I may move again")
+    assert "cancelled by the user" in reply
     assert core.estop_reason is None
-    await run_command(system, "echo", "echo-app finished")
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING)
+
+
+async def test_stop_while_idle_holds_the_next_task_until_resume(system):
+    core = system.handle.core
+    await run_command(system, "stop", "Emergency stop")
+    task = asyncio.create_task(run_command(system, "pathecho", "path done", timeout=90))
+    held = len(_events(system, "motion-held"))
+    await wait_until(lambda: len(_events(system, "motion-held")) > held, timeout=30)
+    # the task cannot release an owner's stop
+    assert not task.done()
+    await run_command(system, "resume", "I may move again")
+    await task
+    await system.handle.user.wait_for(lambda t: "path-echo finished" in t, timeout=30)
+    assert core.estop_reason is None
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING)
 
 
 async def test_obstacle_within_safety_distance_latches_estop(system):
     core = system.handle.core
     await run_command(system, "driveecho", "Emergency stop: obstacle ahead", timeout=60)
-    assert core.estop_reason and "obstacle" in core.estop_reason
-    trace = read_trace(system.settings.trace_file)
-    assert any(r["kind"] == "structure" and r["event"] == "estop" and "obstacle" in r["reason"] for r in trace)
+    assert core.estop_reason and "obstacle" in core.estop_reason and core.estop_by == "safety"
+    assert any("obstacle" in r["reason"] for r in _events(system, "estop"))
+    # a relative move the stop interrupted is not resumed: the task learns it (code estop)
     await system.handle.user.wait_for(lambda t: "drive-echo ended" in t, timeout=30)
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
+    # the supervising RApp may release a safety stop (not an owner's: see the next test)
+    await run_command(system, "releaseecho", "stop released")
+    assert core.estop_reason is None
+    await system.handle.user.wait_for(lambda t: "release-echo finished" in t, timeout=30)
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING)
+
+
+async def test_the_task_cannot_release_the_owners_stop(system):
+    core = system.handle.core
+    await run_command(system, "stop", "Emergency stop")
+    await run_command(system, "releaseecho", "release refused: permission")
+    assert core.estop_reason == "stopped by the user"
+    await system.handle.user.wait_for(lambda t: "release-echo finished" in t, timeout=30)
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING)
     await run_command(system, "resume", "I may move again")
+
+
+async def test_a_task_subscribes_to_estop_events_and_expired_ones_are_dropped(system):
+    """Paper 003's typed notifications: FIPA subscribe to the Core's events; each carries kind, stamp
+    and expiry; one that arrives expired is dropped and traced, never handed to the task."""
+    from ontology.notifications import EventTopic, Notification
+
+    core = system.handle.core
+    task = asyncio.create_task(run_command(system, "eventsecho", "events-echo finished", timeout=60))
+    await system.handle.user.wait_for(lambda t: t == "subscribed", timeout=30)
+    dyn = core.dynamic.jid
+    await core.send_notification(Notification.event(EventTopic.ESTOP, ttl_s=-1.0, latched=True), [bare(dyn)])
+    await wait_until(lambda: any(r.get("topic") == "estop" for r in _events(system, "notification-expired")))
+    await run_command(system, "stop", "event event estop latched=True fresh=True")
+    await run_command(system, "resume", "event event estop latched=False fresh=True")
+    await task
+    assert not core.subscriptions  # they end with the task
 
 
 async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
@@ -89,7 +160,7 @@ async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
     pose = system.world.ground_truth().robots["nao"]
     await asyncio.sleep(0.3)
     assert system.world.ground_truth().robots["nao"] == pose  # halted, and stays halted
-    await run_command(system, "stop", "cruise-echo ended with a problem")
+    await run_command(system, "cancel", "cruise-echo ended with a problem")
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
     await run_command(system, "resume", "I may move again")
 

@@ -26,6 +26,7 @@ A Cloud Agent part subclasses CloudService and registers its actions with @actio
 """
 from __future__ import annotations
 
+import asyncio
 import logging
 from pathlib import Path
 from typing import Any, Awaitable, Callable
@@ -34,6 +35,8 @@ from agents.errors import CloudAgentLost, NotUnderstood, RequestError, RequestFa
 from behaviours import FSM, Behaviour, Inverter, OneShot, Parallel, Retry, Selector, Sequence, Timeout, active_path
 from ontology import core as C
 from ontology import platform as P
+from ontology.acl import Performative
+from ontology.notifications import EventTopic, Notification, NotificationKind, SubscribeEvents
 from ontology.registry import Content, lookup
 from ontology.errors import ErrorCode
 
@@ -44,7 +47,8 @@ from .calls import PlatformCalls, RobotCalls
 
 __all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "Sequence", "Selector", "Parallel",
            "Timeout", "Retry", "Inverter", "Key", "Blackboard", "BlackboardError", "CloudAgentLost", "RequestError", "RequestFailed",
-           "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode"]
+           "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode", "Notification", "NotificationKind",
+           "EventTopic"]
 
 
 class _Dynamic:
@@ -174,8 +178,22 @@ class Task:
 
     @property
     def paused(self) -> str | None:
-        """The emergency stop's reason while it is latched (robot motions are refused), else None."""
+        """The emergency stop's reason while it is latched, else None. Meanwhile the task is paused: no
+        behaviour starts its next step, no FSM enters its next state, behaviour timeouts stop counting,
+        and robot motions wait for the resume (one the stop interrupted is issued again if its target is
+        absolute, e.g. move_along_path; a relative move_to fails with code `estop`)."""
         return getattr(self.runtime, "paused", None)
+
+    async def wait_resumed(self) -> None:
+        """Return when the task is not paused (at once if it is not)."""
+        gate = getattr(self.runtime, "pause", None)
+        if gate is not None:
+            await gate.wait()
+
+    async def release_stop(self) -> None:
+        """Release an emergency stop the robot's safety check latched (say, after backing away from
+        the obstacle); an owner's stop is refused (RequestRefused, code `permission`)."""
+        await self.runtime.request(self.runtime.core, C.ReleaseStop(), timeout=30.0)
 
     def state_path(self) -> list[str]:
         """The states/children of the task's behaviour running now, outermost first."""
@@ -197,6 +215,22 @@ class Task:
 
     def build(self) -> Behaviour:
         raise NotImplementedError("a Task must build its behaviour (an FSM of behaviours)")
+
+    async def subscribe(self, *topics: str, handler: Callable[[Notification], Awaitable[Any]] | None = None) -> None:
+        """FIPA subscribe to the Core's sensor events (EventTopic: "obstacle", "obstacle-clear",
+        "estop"): each arrives as a Notification (kind, topic, stamp, expires, data) to `handler` (a
+        coroutine function, run as a task of its own) and to `next_event()`. Expired ones are dropped
+        (and traced) before they reach you. Subscriptions end with the task."""
+        wanted = [EventTopic(t) for t in topics]
+        if handler is not None:
+            for t in wanted:
+                self.runtime.event_handlers.setdefault(t.value, []).append(handler)
+        await self.runtime.request(self.runtime.core, SubscribeEvents(topics=wanted), timeout=30.0,
+                                   performative=Performative.SUBSCRIBE)
+
+    async def next_event(self, timeout: float | None = None) -> Notification:
+        """The next Core event not yet taken (TimeoutError after `timeout` s; the newest 100 are kept)."""
+        return await asyncio.wait_for(self.runtime.events.get(), timeout)
 
     async def report(self, text: str, **data: Any) -> None:
         """Tell the user something, through the Core (spoken and sent as chat; `said=True`: the

@@ -1,0 +1,57 @@
+"""The task's pause (behaviours/pause.py): FSMs hold before their next state, behaviours before their
+next step, and a behaviour's timeout does not count paused time."""
+import asyncio
+
+from behaviours import FSM, Behaviour, Context, OneShot, PauseGate, Wait
+
+
+class Count(OneShot):
+    def __init__(self, name, log):
+        super().__init__(name)
+        self.log = log
+
+    async def action(self):
+        self.log.append(self.name)
+
+
+async def test_fsm_holds_its_next_state_while_paused():
+    gate, log = PauseGate(), []
+    fsm = FSM("f", initial="a")
+    fsm.add_state("a", Count("a", log))
+    fsm.add_state("b", Count("b", log), final=True)
+    fsm.add_transition("a", "b")
+    gate.pause("emergency stop")
+    run = asyncio.create_task(fsm.run(Context(pause=gate)))
+    await asyncio.sleep(0.2)
+    assert log == [] and not run.done()
+    gate.resume()
+    assert (await run).ok and log == ["a", "b"]
+
+
+async def test_a_timeout_does_not_count_paused_time():
+    gate = PauseGate()
+
+    class Slow(Behaviour):
+        timeout = 0.6
+
+        async def transition(self):
+            await asyncio.sleep(0.1)
+
+        def terminal(self):
+            return self.iterations >= 5  # 0.5 s of work + 0.4 s paused: beyond 0.6 s only if paused time counted
+
+    async def pause_a_while():
+        await asyncio.sleep(0.05)
+        gate.pause("stop")
+        await asyncio.sleep(0.4)
+        gate.resume()
+
+    pauser = asyncio.create_task(pause_a_while())
+    out = await Slow().run(Context(pause=gate))
+    await pauser
+    assert out.ok, out.reason
+    assert 0.39 < gate.paused_seconds() < 0.6
+    # without the pause the same timeout still ends it
+    never = Wait(lambda memory: False, period=0.05, timeout=0.2)
+    out = await never.run(Context(pause=PauseGate()))
+    assert not out.ok and "timeout" in out.reason
