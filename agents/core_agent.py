@@ -56,6 +56,7 @@ from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat,
                               heartbeat_template)
 from .core_commands import RobotCommands
+from .core_events import CoreEvents
 from .core_fsm import build_core_fsm
 from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
@@ -64,6 +65,7 @@ from .identity import EphemeralAccounts, Identity
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .sandbox import Sandbox
 from .responder import Responder
+from .warm_pool import WarmPool
 from .store_client import download_package
 
 log = logging.getLogger("rapp.core")
@@ -73,7 +75,8 @@ def _words(text: str) -> list[str]:
     """A typed command's words, lower case (a single one may be a keyword)."""
     return re.findall(r"[\w'-]+", text.lower())
 HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 2 s
-STOP_WORDS = {"stop", "cancel", "abort", "halt", "emergency stop"}
+STOP_WORDS = {"stop", "halt", "freeze", "emergency stop"}  # latch the emergency stop: the task pauses
+CANCEL_WORDS = {"cancel", "abort"}  # end the running task (no task: as "stop")
 RESUME_WORDS = {"resume", "continue", "go on"}
 
 
@@ -97,7 +100,7 @@ class DynamicSession:
     account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
 
 
-class CoreAgent(RobotCommands, RappAgent):
+class CoreAgent(RobotCommands, CoreEvents, RappAgent):
     """The Core Agent; its robot-API server (supervisor-only commands, locks, e-stop, safety
     check) is the RobotCommands mixin (agents/core_commands.py)."""
 
@@ -106,7 +109,8 @@ class CoreAgent(RobotCommands, RappAgent):
                  workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
                  limits: Limits = Limits(), say_reports: bool = True,
                  safety_distance: float | None = 0.10, safety_period: float = 0.2,
-                 dynamic_mode: str = "process", sandbox: Sandbox | None = None, hear_audio: bool = True):
+                 dynamic_mode: str = "process", sandbox: Sandbox | None = None, hear_audio: bool = True,
+                 warm_workers: int = 1):
         super().__init__(name, settings)
         self.accounts = EphemeralAccounts(self.settings, owner=name)
         self.sandbox = sandbox or Sandbox()
@@ -135,16 +139,25 @@ class CoreAgent(RobotCommands, RappAgent):
         self.locks = ResourceLocks()
         check_spawn_mode(dynamic_mode, "dynamic_mode")
         self.dynamic_mode = dynamic_mode
+        # Dynamic Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
+        self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox)
         self.estop_reason: str | None = None
+        self.estop_by: str | None = None
+        self._estop_released = asyncio.Event()
+        self._estop_released.set()
         self.driving = False  # a move_vel velocity is in force
         self.safety_distance, self.safety_period = safety_distance, safety_period
 
     # -- setup and behaviours ------------------------------------------------------------
     async def setup(self) -> None:
         await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
+        if self.dynamic_mode == "process":
+            self.warm_pool.start()
         service = Responder(C.ONTOLOGY, {"task_status": self._on_status, "report": self._on_report,
-                                         "get_state": self._on_get_state})
+                                         "get_state": self._on_get_state, "release_stop": self._on_release_stop})
         self.activate("core-service", service, service.make_template())
+        events = self._events_service()  # FIPA subscribe to sensor events (agents/core_events.py)
+        self.activate("core-events", events, events.make_template())
         self.activate("user-listener", UserChat(self.owner, self._command_heard))
         self._listen_to_microphone()
         self.supervisor = BehaviourHost(build_core_fsm(), self.memory)
@@ -169,7 +182,7 @@ class CoreAgent(RobotCommands, RappAgent):
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
         word = text.lower().strip(" .!")
-        if word in STOP_WORDS:
+        if word in STOP_WORDS | CANCEL_WORDS:
             await self.emergency_stop("stopped by the user")
         elif word in RESUME_WORDS:
             await self.resume_motion()
@@ -314,10 +327,11 @@ class CoreAgent(RobotCommands, RappAgent):
                          robot=RobotInfo(robot_id=self.robot_id, robot_type=self.robot_type,
                                          capabilities=sorted(self.robot.capabilities())))
         session.process = spawn_agent(spec, workdir, self.settings, mode=self.dynamic_mode, limits=self.limits,
-                                      sandbox=self.sandbox)
+                                      sandbox=self.sandbox, pool=self.warm_pool)
         await session.process.start()
         self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
-                              pid=session.process.pid, sandbox=session.process.uid is not None)
+                              pid=session.process.pid, sandbox=session.process.uid is not None,
+                              warm=getattr(session.process, "warm", False))
         watcher = asyncio.create_task(self._watch_process(session))
         try:
             await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)
@@ -332,6 +346,7 @@ class CoreAgent(RobotCommands, RappAgent):
     async def stop(self) -> None:
         for task in list(self._background):
             task.cancel()
+        await self.warm_pool.close()  # idle workers killed and reaped
         if self._deletions:
             await asyncio.wait(list(self._deletions), timeout=5.0)
         if self.dynamic is not None and self.dynamic.process is not None:
@@ -407,6 +422,8 @@ class CoreAgent(RobotCommands, RappAgent):
         while not session.ended.is_set():
             now = time.monotonic()
             stall = now - prev - 0.1
+            if self.estop_reason is not None:
+                start += now - prev  # a paused task's time limit does not run
             prev = now
             if stall > 0.2:  # our own loop was stalled (GIL, CPU): the Dynamic Agent is not to blame
                 session.last_beat += stall
@@ -431,6 +448,7 @@ class CoreAgent(RobotCommands, RappAgent):
             return
         if "command-server" in self.active_behaviours():
             self.deactivate("command-server")  # no more robot commands from it, from now on
+        self.end_subscriptions()
         await self._stop_robot()
         self.locks.free_all(session.jid)
         if session.process is not None:
@@ -488,6 +506,16 @@ class CoreAgent(RobotCommands, RappAgent):
         await self.tell_user(req.text, speak=not req.data.get("said", False))
         return Done()
 
+    async def _on_release_stop(self, req: C.ReleaseStop, ctx) -> Done:
+        """The supervising RApp releases a stop its robot's safety latched (never the owner's)."""
+        self._from_dynamic(ctx)
+        if self.estop_reason is None:
+            return Done()
+        if self.estop_by == "owner":
+            raise Refusal("the owner stopped the robot: only the owner can resume it", ErrorCode.PERMISSION)
+        await self.resume_motion(by=bare(ctx.sender))
+        return Done()
+
     async def _on_get_state(self, req: C.GetState, ctx) -> C.CoreState:
         d = self.dynamic
         return C.CoreState(state=self.supervisor.behaviour.current or "" if self.supervisor else "",
@@ -515,14 +543,19 @@ class CoreAgent(RobotCommands, RappAgent):
             pass
 
     async def _busy_chat(self, text: str) -> None:
+        self.record_structure("command", text=text[:200], busy=True)
         d = self.dynamic
         word = text.lower().strip(" .!")
-        if word in STOP_WORDS:
+        if word in CANCEL_WORDS:
             if d is not None:
-                self._end(d, "stopped by the user")  # the reason, before the task's own failure
+                self._end(d, "cancelled by the user")  # the reason, before the task's own failure
+            await self._stop_robot(everything=True)
+            return
+        if word in STOP_WORDS:  # the task pauses (its motions are held) until "resume" or "cancel"
             await self.emergency_stop("stopped by the user")
             return
         if word in RESUME_WORDS:
             await self.resume_motion()
             return
-        await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}; say \"stop\" to cancel it.")
+        await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}; say \"stop\" to pause it, "
+                             f"\"cancel\" to end it.")

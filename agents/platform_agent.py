@@ -33,6 +33,7 @@ from .identity import EphemeralAccounts, Identity
 from .messages import bare
 from .platform_users import DirectoryError, TokenInfo, UserDirectory
 from .sandbox import Sandbox
+from .warm_pool import WarmPool
 
 log = logging.getLogger("rapp.platform")
 # what every RApp token may call besides the services its manifest declares
@@ -61,7 +62,7 @@ class PlatformAgent(RappAgent):
                  workdir: str | Path | None = None, max_pending: int = 64,
                  limits: Limits = Limits(), services: dict | None = None, services_state=None,
                  data_dir: str | Path | None = None, sandbox: Sandbox | None = None,
-                 cloud_mode: str = "process"):
+                 cloud_mode: str = "process", warm_workers: int = 1):
         super().__init__(name, settings)
         self.cloud_mode = check_spawn_mode(cloud_mode, "cloud_mode")
         from agents.services.context import ServiceState
@@ -85,11 +86,15 @@ class PlatformAgent(RappAgent):
         self.clouds: dict[str, CloudSession] = {}
         self.max_pending, self.pending = max_pending, 0
         self.limits = limits
+        # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
+        self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox)
         self.served = 0
         self._serial = itertools.count(1)
 
     async def setup(self) -> None:
         await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
+        if self.cloud_mode == "process":
+            self.warm_pool.start()
         handlers = {"register_user": self.register_user, "login": self.login,
                     "list_services": self.list_services, "register_robot": self.register_robot,
                     "start_cloud_agent": self.start_cloud, "stop_cloud_agent": self.stop_cloud,
@@ -103,6 +108,7 @@ class PlatformAgent(RappAgent):
         self._sweeper = asyncio.create_task(self._sweep_accounts(self.accounts.pending()))
 
     async def stop(self) -> None:
+        await self.warm_pool.close()  # idle workers killed and reaped
         for cloud in list(self.clouds.values()):
             await self._kill_cloud(cloud, "platform stopping")
         await super().stop()
@@ -253,7 +259,7 @@ class PlatformAgent(RappAgent):
         self.clouds[session.jid] = session
         await proc.start()
         self.record_structure("cloud-spawn", cloud=session.jid, rapp=info.name, owner=owner, pid=proc.pid,
-                              sandbox=proc.uid is not None)
+                              sandbox=proc.uid is not None, warm=getattr(proc, "warm", False))
         waiter = asyncio.create_task(session.ready.wait())
         exited = asyncio.create_task(proc.wait())
         done, _ = await asyncio.wait({waiter, exited}, timeout=self.settings.start_timeout + 10,
@@ -270,7 +276,7 @@ class PlatformAgent(RappAgent):
 
     def _spawn(self, spec: SpawnSpec, workdir: Path):
         return spawn_agent(spec, workdir, self.settings, mode=self.cloud_mode, limits=self.limits,
-                           sandbox=self.sandbox)
+                           sandbox=self.sandbox, pool=self.warm_pool)
 
     async def _watch_cloud(self, session: CloudSession, spec: SpawnSpec, workdir: Path) -> None:
         """A Cloud Agent whose process ends unasked: its Dynamic Agent is told at once (the SDK

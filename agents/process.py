@@ -72,8 +72,8 @@ class Limits:
 
 
 def sweep_run_dirs(workdir: Path, remove_root: bool = False) -> None:
-    """Remove the run directories (`NNNN-<rapp>`: package, logs) under a Core's or Platform's work
-    directory: at stop, and at start for those a crash left behind."""
+    """Remove the run directories (`NNNN-<rapp>`: package, logs; idle warm workers' `NNNN-.warm`)
+    under a Core's or Platform's work directory: at stop, and at start for those a crash left behind."""
     workdir = Path(workdir)
     if remove_root:
         shutil.rmtree(workdir, ignore_errors=True)
@@ -85,51 +85,143 @@ def sweep_run_dirs(workdir: Path, remove_root: bool = False) -> None:
 class AgentProcess:
     """A Dynamic or Cloud Agent in a process of its own, in the sandbox (agents/sandbox.py): the
     spec (with the run's one-time password) goes down an inherited pipe, the trace through an
-    append-only descriptor; the environment is an allow-list."""
+    append-only descriptor; the environment is an allow-list.
 
-    def __init__(self, name: str, spec: SpawnSpec, workdir: Path, settings, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None):
+    Without a spec it is a warm worker (agents/warm_pool.py): started ahead of time in a run
+    directory of its own, it imports the runtime, says so on a second pipe and blocks reading its
+    spec. With a `pool`, `start()` takes such a worker when one is idle and hands it this run: the
+    package moves into the worker's directory, which then takes this run's name, and the spec goes
+    down the worker's pipe; without one idle it starts a process as before (a cold start)."""
+
+    def __init__(self, name: str, spec: SpawnSpec | None, workdir: Path, settings, limits: Limits = Limits(),
+                 sandbox: Sandbox | None = None, pool=None):
         self.name = name
         self.workdir = Path(workdir)
         self.settings, self.limits = settings, limits
         self.sandbox = sandbox or Sandbox()
+        self.pool = pool
         self.uid = self.sandbox.new_uid()
-        package = f"{APP_DIR}/package" if self.uid is not None else str(self.workdir.resolve() / "package")
-        self.spec = spec.model_copy(update={"package_dir": package})
+        self._given = spec
+        self.spec = self._placed(spec) if spec is not None else None
         self.argv = [sys.executable, "-m", "agents.runtime"]
         self.proc: subprocess.Popen | None = None
         self._waiter: asyncio.Future | None = None
+        self._spec_w: int | None = None  # a warm worker's end of its spec pipe, until the hand-off
+        self._ready_r: int | None = None  # a warm worker's "imports done" pipe, until it says so
+        self.ready = False  # a warm worker that has imported the runtime
+        self.warm = False  # this run went to a warm worker (no interpreter start on the hand-off)
         self.returncode: int | None = None
 
+    def _placed(self, spec: SpawnSpec) -> SpawnSpec:
+        package = f"{APP_DIR}/package" if self.uid is not None else str(self.workdir.resolve() / "package")
+        return spec.model_copy(update={"package_dir": package})
+
     async def start(self) -> None:
+        if self.pool is not None and self.spec is not None and _fresh(self.workdir):
+            worker = self.pool.take()
+            if worker is not None and await self._become(worker):
+                return
         # Popen + a pidfd, not asyncio subprocesses: SPADE installs uvloop's loop policy,
         # whose child watcher the standard loop cannot use.
         self.proc = await asyncio.to_thread(self._popen)
         self._waiter = exit_future(self.proc)
+        if self._ready_r is not None:
+            asyncio.get_running_loop().add_reader(self._ready_r, self._ready_said)
+
+    async def _become(self, worker: "AgentProcess") -> bool:
+        """This run goes to the idle warm `worker`: same process, uid, sandbox and exit future.
+        False when the worker died after the pool checked it: reaped, and the run starts cold."""
+        self.uid, self.proc, self._waiter = worker.uid, worker.proc, worker._waiter
+        spec_w, worker._spec_w = worker._spec_w, None
+        worker._forget_ready()
+        self.spec, self.warm = self._placed(self._given), True
+        try:
+            await asyncio.to_thread(self._hand_over, worker.workdir, spec_w)
+            return True
+        except BrokenPipeError:
+            await self.stop(grace=0.0)
+            self.proc = self._waiter = self.returncode = None
+            self.uid, self.warm = self.sandbox.new_uid(), False  # a fresh uid for the cold start
+            self.spec = self._placed(self._given)
+            return False
+        except BaseException:
+            await self.stop(grace=0.0)  # a worker whose hand-off failed is never left running
+            raise
+
+    def _hand_over(self, warm_dir: Path, spec_w: int) -> None:
+        """Package into the worker's directory (its /app), given to its uid as Sandbox.prepare
+        does; the directory takes this run's name (the worker's bind mount follows the directory,
+        not its name); then the spec, which the worker has been blocked reading."""
+        try:
+            os.replace(self.workdir / "package", warm_dir / "package")
+            if self.uid is not None:
+                for p in [warm_dir / "package", *(warm_dir / "package").rglob("*")]:
+                    os.lchown(p, self.uid, self.uid)
+            os.replace(warm_dir, self.workdir)  # onto the now empty NNNN-<rapp> directory
+            os.write(spec_w, self._spec_bytes())
+        finally:
+            os.close(spec_w)
+
+    def _spec_bytes(self) -> bytes:
+        data = self.spec.model_dump_json().encode()
+        if len(data) > 60_000:  # a pipe holds 64 KiB: the write must not block
+            raise ValueError(f"spawn spec of {len(data)} bytes is too large")
+        return data
 
     def _popen(self) -> subprocess.Popen:
         self.sandbox.prepare(self.workdir, self.uid)
         spec_r, spec_w = os.pipe()
-        fds = [spec_r]
+        fds, keep = [spec_r], []
         try:
-            data = self.spec.model_dump_json().encode()
-            if len(data) > 60_000:  # a pipe holds 64 KiB: the write below must not block
-                raise ValueError(f"spawn spec of {len(data)} bytes is too large")
-            os.write(spec_w, data)
-            os.close(spec_w)
             extra = {"RAPP_SPEC_FD": str(spec_r)}
+            if self.spec is not None:
+                try:
+                    os.write(spec_w, self._spec_bytes())
+                finally:
+                    os.close(spec_w)
+            else:  # a warm worker: the spec comes at the hand-off; "imports done" comes back
+                keep.append(spec_w)
+                ready_r, ready_w = os.pipe()
+                keep.append(ready_r)
+                fds.append(ready_w)
+                extra["RAPP_READY_FD"] = str(ready_w)
             if self.settings.trace_file:  # append-only: the child can add lines, not read any
                 trace_fd = os.open(self.settings.trace_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
                 fds.append(trace_fd)
                 extra["RAPP_TRACE_FD"] = str(trace_fd)
             with open(self.workdir / "stdout.log", "ab") as out, open(self.workdir / "stderr.log", "ab") as err:
-                return subprocess.Popen(
+                proc = subprocess.Popen(
                     self.argv, cwd=self.workdir, env=self.sandbox.env(self.settings, extra), stdout=out,
                     stderr=err, stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=fds,
                     preexec_fn=self.sandbox.preexec(self.workdir, self.uid, self.limits))
+        except BaseException:
+            for fd in keep:
+                os.close(fd)
+            raise
         finally:
             for fd in fds:
                 os.close(fd)
+        if keep:
+            self._spec_w, self._ready_r = keep
+        return proc
+
+    def _ready_said(self) -> None:
+        try:
+            self.ready = os.read(self._ready_r, 1) == b"1"  # b"": it died first
+        except OSError:
+            pass
+        self._forget_ready()
+
+    def _forget_ready(self) -> None:
+        if self._ready_r is not None:
+            asyncio.get_running_loop().remove_reader(self._ready_r)
+            os.close(self._ready_r)
+            self._ready_r = None
+
+    def exited(self) -> asyncio.Future:
+        """Resolves with the exit code once the process has exited and been reaped."""
+        assert self._waiter is not None
+        return self._waiter
 
     @property
     def pid(self) -> int | None:
@@ -155,6 +247,10 @@ class AgentProcess:
         self._signal(signal.SIGKILL)  # leftovers in the group (grandchildren)
         if self.uid is not None:
             self._kill_uid()
+        self._forget_ready()
+        if self._spec_w is not None:  # an idle warm worker: its spec never comes
+            os.close(self._spec_w)
+            self._spec_w = None
         return await self.wait()
 
     def _signal(self, sig: int) -> None:
@@ -245,10 +341,20 @@ def check_spawn_mode(mode: str, what: str = "mode") -> str:
 
 
 def spawn_agent(spec: SpawnSpec, workdir: Path, settings, *, mode: str = "process", limits: Limits = Limits(),
-                sandbox: Sandbox | None = None) -> AgentProcess | InProcessAgent:
+                sandbox: Sandbox | None = None, pool=None) -> AgentProcess | InProcessAgent:
     """The one way Dynamic Agents (by the Core) and Cloud Agents (by the Platform) are made from an
-    unpacked package in `workdir/package`: a sandboxed process, or a task of this process for tests
-    and for measuring what the process costs. Not started yet: `await agent.start()`."""
+    unpacked package in `workdir/package`: a sandboxed process (through an idle warm worker of
+    `pool`, agents/warm_pool.py, when there is one), or a task of this process for tests and for
+    measuring what the process costs. Not started yet: `await agent.start()`."""
     if check_spawn_mode(mode) == "inprocess":
         return InProcessAgent(spec.name, spec, workdir, settings)
-    return AgentProcess(spec.name, spec, workdir, settings, limits, sandbox)
+    return AgentProcess(spec.name, spec, workdir, settings, limits, sandbox, pool)
+
+
+def _fresh(workdir: Path) -> bool:
+    """A run directory a warm worker can take: nothing in it but the unpacked package (a Cloud
+    Agent restarted in its old directory starts cold)."""
+    try:
+        return os.listdir(workdir) == ["package"]
+    except OSError:
+        return False

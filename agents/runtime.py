@@ -4,8 +4,9 @@ package and run it as an agent with its own XMPP identity, in this process.
     python -m agents.runtime      (what the Core / Platform start, agents/process.py)
 
 The spec (ontology/spawn.py SpawnSpec, with the run's one-time password) arrives on an inherited
-pipe; where to connect comes from the allow-listed environment (agents/sandbox.py). The RApp's
-code is imported only after the agent has logged in.
+pipe, read after the imports every run needs (a warm worker has done them before its hand-off);
+where to connect comes from the allow-listed environment (agents/sandbox.py). The RApp's code is
+imported only after the agent has logged in.
 """
 from __future__ import annotations
 
@@ -97,6 +98,42 @@ def read_spec() -> SpawnSpec:
         return SpawnSpec.model_validate_json(f.read())
 
 
+# imported later by every run, at first use: by SPADE (its loop policy, its agent page's template
+# extension, built with every agent), slixmpp (at the first login: stream features, SASL, the
+# plugins SPADE registers) and the RApps' requests (the robot API, the Platform's services)
+LATER_IMPORTS = ("uvloop", "ctypes", "jinja2_time", "encodings.idna", "stringprep",
+                 *(f"slixmpp.features.feature_{n}" for n in ("bind", "mechanisms", "preapproval", "rosterver",
+                                                             "session", "starttls")),
+                 "slixmpp.util.sasl", "slixmpp.util.stringprep_profiles",
+                 *(f"slixmpp.plugins.xep_{n}" for n in ("0030", "0066", "0077", "0128", "0199")),
+                 "ontology.robot", "ontology.services")
+
+
+def preload() -> None:
+    """Import what every run needs before the spec is read: a warm worker (agents/warm_pool.py)
+    does this ahead of time, so a hand-off costs no interpreter start and no SPADE import."""
+    from xmpp_server.settings import XmppSettings  # noqa: F401
+    from . import cloud_agent, dynamic_agent  # noqa: F401 - SPADE, slixmpp, the project's agents
+
+    for name in LATER_IMPORTS:
+        try:
+            importlib.import_module(name)
+        except ImportError:  # a dependency's other version: imported at first use, as before
+            pass
+
+
+def say_ready() -> None:
+    """A warm worker tells its Core/Platform it has imported everything (RAPP_READY_FD), then
+    forgets the descriptor."""
+    fd = os.environ.pop("RAPP_READY_FD", None)
+    if fd is not None:
+        try:
+            os.write(int(fd), b"1")
+        except BrokenPipeError:
+            pass  # handed its spec before it was ready: nobody listens any more
+        os.close(int(fd))
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv or "RAPP_SPEC_FD" not in os.environ:
@@ -108,6 +145,8 @@ def main(argv: list[str] | None = None) -> int:
     if trace_fd:
         from .tracing import inherit_trace_fd
         inherit_trace_fd(int(trace_fd))
+    preload()
+    say_ready()
     return asyncio.run(run_spec(read_spec()))
 
 

@@ -1,0 +1,150 @@
+"""Warm workers: sandboxed processes started ahead of time, so a hand-off costs no interpreter start.
+
+Starting `python -m agents.runtime` and importing SPADE takes most of a second; a Dynamic or
+Cloud Agent started that way makes its user wait for it. A Core or the Platform keeps `size` such
+processes idle instead: each started exactly like a cold one (agents/process.py `AgentProcess`: its
+own fresh uid, run directory `NNNN-.warm`, rlimits, new session, parent-death signal, the sandbox's
+preexec), with the runtime imported, blocked reading its spec. A hand-off takes one
+(`AgentProcess.start` with `pool=`), moves the package into its directory and sends the spec: the
+worker becomes that Dynamic/Cloud Agent and is never used again (one process per RApp run).
+
+The pool refills in the background shortly after each hand-off. A worker that died while idle is
+reaped and replaced (after a back-off, should workers keep dying), never handed a RApp. `close()`
+kills and reaps the idle workers and removes their directories.
+"""
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import shutil
+from collections import deque
+from pathlib import Path
+
+from .process import AgentProcess, Limits
+from .sandbox import Sandbox
+
+log = logging.getLogger("rapp.warm")
+MAX_BACKOFF_S = 30.0
+# a refill waits this long after a hand-off: the fork of the Core's large process (Popen with a
+# preexec function forks holding the GIL) and the new worker's imports would otherwise slow the
+# hand-off it follows (bench/handoff.py: download -> spawn 23 ms without the wait, 10 ms with it)
+REFILL_AFTER_S = 0.5
+
+
+class WarmPool:
+    def __init__(self, workdir: str | Path, settings, *, size: int = 1, limits: Limits = Limits(),
+                 sandbox: Sandbox | None = None):
+        if not isinstance(size, int) or size < 0:
+            raise ValueError(f"warm_workers must be a whole number >= 0, not {size!r}")
+        self.workdir, self.settings, self.size = Path(workdir), settings, size
+        self.limits, self.sandbox = limits, sandbox or Sandbox()
+        self._idle: deque[AgentProcess] = deque()
+        self._serial = itertools.count(1)
+        self._filler: asyncio.Task | None = None
+        self._soon: asyncio.TimerHandle | None = None
+        self._closing = asyncio.Event()
+        self._discards: set[asyncio.Task] = set()
+        self._failures = 0  # workers in a row that died idle or did not start: back off
+        self.started = 0  # workers launched
+        self.lost = 0  # workers that died while idle
+
+    # -- what a Core / the Platform calls -------------------------------------------------------
+    def start(self) -> None:
+        """Begin filling the pool (in the background: Popen runs in a thread)."""
+        self._closing.clear()
+        self._refill()
+
+    def take(self) -> AgentProcess | None:
+        """An idle, live worker for one RApp run (the pool refills behind it), or None."""
+        while self._idle:
+            worker = self._idle.popleft()
+            if worker.alive():
+                self._failures = 0
+                if self._soon is None:
+                    self._soon = asyncio.get_running_loop().call_later(REFILL_AFTER_S, self._refill)
+                return worker
+            self._lost(worker, idle=False)
+        self._refill()
+        return None
+
+    async def close(self) -> None:
+        """Kill and reap the idle workers, remove their directories; no more refills."""
+        self._closing.set()
+        if self._soon is not None:
+            self._soon.cancel()
+            self._soon = None
+        if self._filler is not None:
+            await self._filler  # a launch in progress finishes, then its worker is discarded
+        workers, self._idle = list(self._idle), deque()
+        await asyncio.gather(*(self._discard(w) for w in workers), *self._discards)
+
+    # -- what tests and benchmarks look at ---------------------------------------------------------
+    @property
+    def idle(self) -> list[AgentProcess]:
+        return list(self._idle)
+
+    async def wait_ready(self, timeout: float = 60.0) -> None:
+        """Until `size` idle workers have imported the runtime (TimeoutError else)."""
+        async def ready() -> None:
+            while sum(w.ready for w in self._idle) < self.size:
+                await asyncio.sleep(0.02)
+
+        await asyncio.wait_for(ready(), timeout)
+
+    # -- filling ---------------------------------------------------------------------------------
+    def _refill(self) -> None:
+        self._soon = None
+        if self._closing.is_set() or self.size == 0 or (self._filler is not None and not self._filler.done()):
+            return
+        self._filler = asyncio.create_task(self._fill())
+
+    async def _fill(self) -> None:
+        while not self._closing.is_set() and len(self._idle) < self.size:
+            if self._failures and await self._backed_off():
+                return
+            worker = AgentProcess("warm", None, self.workdir / f"{next(self._serial):04d}-.warm", self.settings,
+                                  self.limits, self.sandbox)
+            try:
+                await worker.start()
+            except Exception as e:  # noqa: BLE001 - logged; hand-offs start cold meanwhile
+                self._failures += 1
+                log.warning("cannot start a warm worker: %s: %s", type(e).__name__, e)
+                await asyncio.to_thread(shutil.rmtree, worker.workdir, ignore_errors=True)
+                continue
+            self.started += 1
+            if self._closing.is_set():
+                await self._discard(worker)
+                return
+            self._idle.append(worker)
+            worker.exited().add_done_callback(lambda _f, w=worker: self._lost(w))
+
+    async def _backed_off(self) -> bool:
+        """Wait before the next launch after failures; True when the pool closed meanwhile."""
+        delay = min(MAX_BACKOFF_S, 0.5 * 2 ** (self._failures - 1))
+        try:
+            await asyncio.wait_for(self._closing.wait(), delay)
+            return True
+        except asyncio.TimeoutError:
+            return False
+
+    def _lost(self, worker: AgentProcess, idle: bool = True) -> None:
+        """A worker that exited before any hand-off: reaped (its exit future), cleaned, replaced."""
+        if idle:
+            if worker not in self._idle:
+                return  # handed a RApp, or discarded: not the pool's any more
+            self._idle.remove(worker)
+        if self._closing.is_set():
+            return
+        self.lost += 1
+        self._failures += 1
+        log.warning("warm worker %s exited while idle (code %s): %s", worker.pid, worker.proc.returncode,
+                    worker.stderr_tail(300).strip()[-300:])
+        task = asyncio.create_task(self._discard(worker))
+        self._discards.add(task)
+        task.add_done_callback(self._discards.discard)
+        self._refill()
+
+    async def _discard(self, worker: AgentProcess) -> None:
+        await worker.stop(grace=0.2)
+        await asyncio.to_thread(shutil.rmtree, worker.workdir, ignore_errors=True)

@@ -1,0 +1,133 @@
+"""Warm workers (agents/warm_pool.py): a hand-off goes to a process started ahead of time, in its
+own sandbox; the pool refills behind it; a worker that died while idle is never handed a RApp;
+idle workers are killed and reaped when the pool closes. Real processes, a real XMPP server: the
+worker becomes a Cloud Agent of the echo RApp and logs in with the spec's one-time identity."""
+from __future__ import annotations
+
+import asyncio
+import os
+import secrets
+import shutil
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from agents.process import spawn_agent, sweep_run_dirs
+from agents.tracing import read_trace
+from agents.warm_pool import WarmPool
+from ontology.spawn import SpawnSpec
+
+ECHO_APP = Path(__file__).parent / "fixtures" / "echo_app"
+
+
+def run_dir(workdir: Path, n: int) -> Path:
+    """A run directory as the Core/Platform leave it before the spawn: the unpacked package only."""
+    run = workdir / f"{n:04d}-echo-app"
+    shutil.copytree(ECHO_APP, run / "package")
+    return run
+
+
+def cloud_spec(settings, unique) -> SpawnSpec:
+    return SpawnSpec(kind="cloud", name=unique("warm-cloud"), password=secrets.token_urlsafe(16), package_dir="",
+                     platform=settings.jid("nobody-platform"), owner=settings.jid("nobody"))
+
+
+async def logged_in(settings, spec: SpawnSpec, timeout: float = 30.0) -> dict:
+    """The agent's `started` trace record (written by the process that logged in)."""
+    jid, deadline = settings.jid(spec.name), time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = [r for r in read_trace(settings.trace_file) if r["kind"] == "agent" and r["event"] == "started"
+                 and r["agent"] == jid]
+        if found:
+            return found[0]
+        await asyncio.sleep(0.05)
+    raise AssertionError(f"{jid} did not log in within {timeout}s")
+
+
+def gone(pid: int) -> bool:
+    """No such process (reaped, not a zombie)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def wait_for_zombie(pid: int, timeout: float = 5.0) -> None:
+    """Block (on purpose: the event loop must not notice the exit first) until `pid` has exited."""
+    deadline = time.monotonic() + timeout
+    while Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z":
+        assert time.monotonic() < deadline, f"{pid} did not die"
+        time.sleep(0.005)
+
+
+async def test_a_hand_off_goes_to_the_prestarted_worker_and_the_pool_refills(settings, tmp_path, unique):
+    pool = WarmPool(tmp_path, settings, size=1)
+    pool.start()
+    try:
+        await pool.wait_ready(60)
+        [worker] = pool.idle
+        warm_dir, uid = worker.workdir, worker.uid
+        run = run_dir(tmp_path, 1)
+        spec = cloud_spec(settings, unique)
+        agent = spawn_agent(spec, run, settings, pool=pool)
+        await agent.start()
+        assert agent.warm and agent.pid == worker.pid and agent.uid == uid
+        assert (await logged_in(settings, spec))["pid"] == worker.pid  # the worker became the agent
+        # its directory took the run's name: package, logs, tmp; the warm directory is no more
+        assert not warm_dir.exists() and {"package", "stdout.log", "stderr.log", "tmp"} <= set(os.listdir(run))
+        if uid is not None:  # the sandbox: the package is the run's uid's, the process runs as it
+            assert (run / "package" / "manifest.yaml").stat().st_uid == uid
+            assert os.stat(f"/proc/{agent.pid}").st_uid == uid
+        await pool.wait_ready(60)  # refilled in the background: a new process, a new uid
+        [fresh] = pool.idle
+        assert fresh.pid != worker.pid and pool.started == 2
+        assert uid is None or fresh.uid != uid
+        assert await agent.stop(grace=0.5) is not None and gone(agent.pid)
+    finally:
+        await pool.close()
+    assert pool.idle == [] and fresh.returncode is not None and gone(fresh.pid)  # idle: killed, reaped
+    assert not fresh.workdir.exists()
+
+
+async def test_a_worker_that_died_idle_is_replaced_never_handed_a_rapp(settings, tmp_path, unique):
+    pool = WarmPool(tmp_path, settings, size=1)
+    pool.start()
+    try:
+        await pool.wait_ready(60)
+        [first] = pool.idle
+        os.kill(first.pid, signal.SIGKILL)  # dies while idle: noticed through its exit future
+        await asyncio.wait_for(first.exited(), 10)
+        assert pool.lost == 1 and first not in pool.idle and first.proc.returncode == -signal.SIGKILL
+        await pool.wait_ready(60)  # replaced (after a short back-off)
+        [second] = pool.idle
+        assert second.pid != first.pid and not first.workdir.exists()
+        run = run_dir(tmp_path, 1)
+        spec = cloud_spec(settings, unique)
+        agent = spawn_agent(spec, run, settings, pool=pool)
+        os.kill(second.pid, signal.SIGKILL)
+        wait_for_zombie(second.pid)  # dead, and the loop has not run since: the pool does not know yet
+        await agent.start()  # (runs up to the pool's take() without giving the loop a turn)
+        try:
+            assert not agent.warm and agent.pid not in (first.pid, second.pid)  # a cold start instead
+            assert (await logged_in(settings, spec))["pid"] == agent.pid
+            assert second.proc.returncode == -signal.SIGKILL and pool.lost == 2
+        finally:
+            await agent.stop(grace=0.5)
+    finally:
+        await pool.close()
+
+
+async def test_pool_size_and_crash_leftovers(settings, tmp_path):
+    with pytest.raises(ValueError, match="warm_workers"):
+        WarmPool(tmp_path, settings, size=-1)
+    off = WarmPool(tmp_path, settings, size=0)
+    off.start()
+    assert off.take() is None and off.started == 0
+    await off.close()
+    (tmp_path / "0007-.warm" / "tmp").mkdir(parents=True)  # an idle worker's directory after a crash
+    (tmp_path / "0002-echo-app").mkdir()
+    sweep_run_dirs(tmp_path)
+    assert os.listdir(tmp_path) == []
