@@ -57,6 +57,7 @@ from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListene
                               heartbeat_template)
 from .core_commands import RobotCommands
 from .core_events import CoreEvents
+from .core_strategies import Strategies
 from .core_fsm import build_core_fsm
 from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
@@ -100,7 +101,7 @@ class DynamicSession:
     account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
 
 
-class CoreAgent(RobotCommands, CoreEvents, RappAgent):
+class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     """The Core Agent; its robot-API server (supervisor-only commands, locks, e-stop, safety
     check) is the RobotCommands mixin (agents/core_commands.py)."""
 

@@ -118,7 +118,8 @@ def heartbeat_template() -> Template:
 
 
 class SafetyMonitor(PeriodicBehaviour):
-    """Reads the range sensors; an obstacle closer than the safety distance latches the e-stop."""
+    """Reads the range sensors; an obstacle closer than the safety distance latches the e-stop, then
+    the reactive strategies (agents/core_strategies.py) decide how to hand the robot back."""
 
     def __init__(self, core: CoreAgent, period: float):
         super().__init__(period=period)
@@ -134,3 +135,4 @@ class SafetyMonitor(PeriodicBehaviour):
         if nearest is not None and nearest < core.safety_distance:
             await core.emergency_stop(f"obstacle ahead within {core.safety_distance:.2f} m of the "
                                       f"range sensors' minimum", by="safety")
+            core._in_background(core.react_to_obstacle())  # agents/core_strategies.py

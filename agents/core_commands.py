@@ -68,6 +68,7 @@ class RobotCommands:
     estop_reason: str | None  # set while the emergency stop is latched
     estop_by: str | None  # who latched it: "owner" or "safety"
     _estop_released: asyncio.Event  # set while not latched: held motions wait on it
+    fail_held: tuple[str, str] | None = None  # (code, reason): held motions fail at the release
     driving: bool  # a move_vel velocity is in force
 
     def _command_server(self) -> Responder:
@@ -117,6 +118,9 @@ class RobotCommands:
                 await ctx.feedback(Progress(text=f"held by the emergency stop ({self.estop_reason})",
                                             data={"paused": True}))
                 await self._estop_released.wait()
+                if self.fail_held is not None:  # a strategy handed back with the way blocked: re-plan
+                    code, why = self.fail_held
+                    raise Failure(f"{name}: {why}", code)
                 self.record_structure(StructureEvent.MOTION_RESUMED, action=name)
             try:
                 return await self.robot.handle(req)
@@ -160,6 +164,7 @@ class RobotCommands:
         `by`: who latched it ("owner" or "safety"); only the owner releases an owner's stop."""
         first = self.estop_reason is None
         self.estop_reason, self.estop_by = reason, by if first else self.estop_by
+        self.fail_held = None
         self._estop_released.clear()
         await self._stop_robot(everything=True)
         if first:

@@ -77,6 +77,7 @@ class StructureEvent(StrEnum):
     ESTOP_RELEASED = "estop-released"
     MOTION_HELD = "motion-held"  # a motion of the task waits for the emergency stop's release
     MOTION_RESUMED = "motion-resumed"  # ... and was (re-)issued after it
+    STRATEGY = "strategy"  # a reactive strategy of the Core (phase start/end; agents/core_strategies.py)
     # the Store
     PUBLISH = "publish"  # a package published
     REFUSED = "refused"  # an operation refused to a caller without the right (Store, Platform)

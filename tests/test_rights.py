@@ -112,27 +112,31 @@ async def test_stop_while_idle_holds_the_next_task_until_resume(system):
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
 
 
-async def test_obstacle_within_safety_distance_latches_estop(system):
+async def test_obstacle_within_safety_distance_latches_estop_and_strategies_hand_back(system):
+    """Paper 004's reactive strategies: a wall ahead stays, so waiting does not clear it; the Core backs
+    off and hands the robot back (the interrupted relative move has already failed: code estop)."""
     core = system.handle.core
     await run_command(system, "driveecho", "Emergency stop: obstacle ahead", timeout=60)
-    assert core.estop_reason and "obstacle" in core.estop_reason and core.estop_by == "safety"
-    assert any("obstacle" in r["reason"] for r in _events(system, "estop"))
-    # a relative move the stop interrupted is not resumed: the task learns it (code estop)
+    assert any("obstacle" in r["reason"] and r["by"] == "safety" for r in _events(system, "estop"))
     await system.handle.user.wait_for(lambda t: "drive-echo ended" in t, timeout=30)
+    await wait_until(lambda: core.estop_reason is None, timeout=30)  # released by the strategy
+    steps = [(r["strategy"], r["phase"], r.get("outcome")) for r in _events(system, "strategy")]
+    assert steps[-4:] == [("wait-for-clear", "start", None), ("wait-for-clear", "end", "still blocked"),
+                          ("back-off", "start", None), ("back-off", "end", "backed off")]
+    assert _events(system, "estop-released")[-1]["by"] == "strategy:back-off"
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
-    # the supervising RApp may release a safety stop (not an owner's: see the next test)
+
+
+async def test_the_task_may_release_a_safety_stop_but_not_the_owners(system):
+    core = system.handle.core
+    await core.emergency_stop("bumper pressed", by="safety")  # a stop no strategy handles
     await run_command(system, "releaseecho", "stop released")
     assert core.estop_reason is None
     await system.handle.user.wait_for(lambda t: "release-echo finished" in t, timeout=30)
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
-
-
-async def test_the_task_cannot_release_the_owners_stop(system):
-    core = system.handle.core
     await run_command(system, "stop", "Emergency stop")
     await run_command(system, "releaseecho", "release refused: permission")
     assert core.estop_reason == "stopped by the user"
-    await system.handle.user.wait_for(lambda t: "release-echo finished" in t, timeout=30)
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
     await run_command(system, "resume", "I may move again")
 
@@ -159,10 +163,13 @@ async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
     await run_command(system, "cruiseecho", "Emergency stop: obstacle ahead", timeout=60)
     pose = system.world.ground_truth().robots["nao"]
     await asyncio.sleep(0.3)
-    assert system.world.ground_truth().robots["nao"] == pose  # halted, and stays halted
+    assert system.world.ground_truth().robots["nao"] == pose  # halted while the strategy waits
+    await wait_until(lambda: core.estop_reason is None, timeout=30)  # backed off and handed back
+    pose = system.world.ground_truth().robots["nao"]
+    await asyncio.sleep(0.3)
+    assert system.world.ground_truth().robots["nao"] == pose  # a velocity is not restored
     await run_command(system, "cancel", "cruise-echo ended with a problem")
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
-    await run_command(system, "resume", "I may move again")
 
 
 async def test_resource_lock_held_by_core_behaviour_is_refused_to_rapp(system):
