@@ -33,13 +33,10 @@ def _variant(root: Path) -> Path:
     return dest
 
 
-async def _until(pred, timeout: float, what: str, poll: float = 0.0005) -> float:
-    loop = asyncio.get_running_loop()
-    end = loop.time() + timeout
-    while not pred():
-        if loop.time() > end:
-            raise TimeoutError(f"estop bench: {what} not within {timeout:g} s")
-        await asyncio.sleep(poll)
+async def _until(pred, timeout: float, what: str) -> float:
+    """When `pred()` became true (polled every 0.5 ms: the latency is a few ms)."""
+    from scenarios.system import wait_until
+    await wait_until(pred, timeout, f"estop bench: {what}", interval=0.0005)
     return time.time()
 
 
