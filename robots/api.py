@@ -12,7 +12,6 @@ import math
 from functools import partial
 from typing import Any
 
-import cv2
 import numpy as np
 
 from ontology.errors import ErrorCode
@@ -26,7 +25,7 @@ from . import tts
 from .controllers import GoToPose, JointMotion, LookAt, PathFollower, VelocityController
 from .effectors import check_speech
 from .errors import InvalidArgument, MotionInterrupted, UnsupportedOperation
-from .receptors import AudioInput, Camera, parse_resolution, spot_in_audio
+from .receptors import AudioInput, Camera, encode_frame, parse_resolution, spot_in_audio
 from .robot import Robot
 from .sound import BadAudio, decode_wav, encode_wav, house_sound, level_dbfs
 
@@ -179,10 +178,10 @@ class RobotAPI:
         cam = self._camera(req.camera)
         stamp = self.world.time
         img = await self.capture_array(req.camera, req.resolution)
-        loop = asyncio.get_running_loop()
-        ok, buf = await loop.run_in_executor(None, cv2.imencode, ".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-        return Image(camera=cam.name, width=img.shape[1], height=img.shape[0], encoding="png",
-                     data_b64=base64.b64encode(buf.tobytes()).decode(), stamp=stamp)
+        loop = asyncio.get_running_loop()  # a noisy camera's frame is sent as JPEG (robots/receptors.py)
+        encoding, data = await loop.run_in_executor(None, encode_frame, img, cam.noise is None)
+        return Image(camera=cam.name, width=img.shape[1], height=img.shape[0], encoding=encoding,
+                     data_b64=base64.b64encode(data).decode(), stamp=stamp)
 
     def _params(self, cam: Camera) -> CameraParams:
         p = cam.params

@@ -81,13 +81,26 @@ class BaseController(Controller):
 
     def drive(self, vx: float, vy: float, wz: float, dt: float) -> None:
         vx, vy, wz = self.robot.base.check_velocity(vx, vy, wz)
-        if self.robot.base.drive(vx, vy, wz, dt):
+        if drive_base(self.robot, vx, vy, wz, dt):
             self.blocked_time += dt
             if self.blocked_time >= BLOCKED_AFTER:
                 moved = math.hypot(self.robot.pose[0] - self.start_pose[0], self.robot.pose[1] - self.start_pose[1])
                 raise MotionBlocked(f"{self.robot.name}: an obstacle blocked the base after {moved:.2f} m")
         else:
             self.blocked_time = 0.0
+
+    def settle(self) -> None:
+        """The motion is done: a swaying body comes to rest over its feet."""
+        if self.robot.locomotion is not None:
+            self.robot.locomotion.settle(self.robot)
+
+
+def drive_base(robot: "Robot", vx: float, vy: float, wz: float, dt: float) -> bool:
+    """One step of the base: exact (ideal robot) or with the robot's slip and sway (robots/failure_modes.py);
+    True when an obstacle blocked the translation."""
+    if robot.locomotion is None:
+        return robot.base.drive(vx, vy, wz, dt)
+    return robot.locomotion.drive(robot, vx, vy, wz, dt)
 
 
 class VelocityController(BaseController):
@@ -98,7 +111,7 @@ class VelocityController(BaseController):
         self.v = robot.base.check_velocity(vx, vy, wz)
 
     def step(self, dt: float) -> bool:
-        self.robot.base.drive(*self.v, dt)  # pushes against obstacles without failing
+        drive_base(self.robot, *self.v, dt)  # pushes against obstacles without failing
         return False
 
 
@@ -140,6 +153,7 @@ class GoToPose(BaseController):
         dist = math.hypot(ex, ey)
         if s.holonomic:
             if dist < POS_TOL and abs(eth) < ANG_TOL:
+                self.settle()
                 return True
             k = 2.0
             vx, vy, wz = k * ex, k * ey, k * eth
@@ -170,6 +184,7 @@ class GoToPose(BaseController):
                 self.drive(_sat(2 * ex, s.max_vx, 0.02), 0.0, _sat(2 * bearing, s.max_wz), dt)
                 return False
         if abs(eth) < ANG_TOL:
+            self.settle()
             return True
         self.drive(0.0, 0.0, _sat(3 * eth, s.max_wz, 0.05), dt)
         return False

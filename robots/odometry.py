@@ -1,7 +1,9 @@
-"""Odometry: the robot's own pose estimate, integrated from the executed motion plus configurable drift.
+"""Odometry: the robot's own pose estimate, integrated from the motion the base was commanded (what a
+walk engine or wheel encoders report) plus configurable drift (OdometryNoise: calibration errors).
 
 The estimate diverges from ground truth unless corrected with ``set`` (what localization does through
-RobotAPI.set_global_pose)."""
+RobotAPI.set_global_pose): by this drift, and by what the robot's failure modes (robots/failure_modes.py:
+foot slip, wheel slip) made the true motion differ from the commanded one."""
 from __future__ import annotations
 
 import math

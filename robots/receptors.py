@@ -19,6 +19,7 @@ import numpy as np
 import pybullet as p
 
 from .errors import InvalidArgument
+from .failure_modes import CameraNoise, RangeNoise, camera_motion, noisy_ranges, reading_rng, seed_sequence
 from .spec import CameraSpec, RangeSpec
 
 if TYPE_CHECKING:
@@ -55,15 +56,90 @@ class ImageParams:
     gain: float = 1.0
     exposure: float = 1.0  # relative exposure; lamps saturate, walls darken at low exposure
     auto_exposure: bool = False
+    # the camera's failure modes at the moment of the capture (robots/failure_modes.py); defaults: ideal
+    metering: str = "median"  # auto-exposure: "median" (ideal) or "centre" (centre-weighted mean, a real camera's)
+    shot_variance: float = 0.0  # sensor noise variance per unit signal (full scale 1)
+    read_std: float = 0.0  # sensor read noise, full scale 1
+    noise_seed: tuple[int, ...] | None = None
+    blur_rate: tuple[float, float] = (0.0, 0.0)  # rad/s the scene moves in the image (horizontal, vertical)
+    exposure_time_s: float = 0.0  # exposure time at relative exposure 1 (motion blur)
+    hfov_rad: float = 0.0
+
+
+CAPTURE_DEFAULTS = dict(metering="median", shot_variance=0.0, read_std=0.0, noise_seed=None, blur_rate=(0.0, 0.0),
+                        exposure_time_s=0.0, hfov_rad=0.0)
+AE_TARGET = 0.45  # auto-exposure brings the metered brightness here
+AE_RANGE = (0.25, 4.0)
+
+
+def auto_exposure(radiance: np.ndarray, metering: str) -> float:
+    """Relative exposure an auto-exposure picks for this scene."""
+    if metering == "centre":  # centre-weighted mean of the (saturating) scene: a lit lamp darkens the rest
+        h, w = radiance.shape[:2]
+        yy, xx = np.mgrid[0:h, 0:w]
+        weight = np.exp(-(((xx - w / 2) / (0.35 * w)) ** 2 + ((yy - h / 2) / (0.35 * h)) ** 2))
+        level = float((np.minimum(radiance.mean(axis=2), 2.0) * weight).sum() / weight.sum())
+    else:
+        level = float(np.median(radiance))
+    return float(np.clip(AE_TARGET / max(level, 1e-3), *AE_RANGE))
+
+
+def motion_blur(radiance: np.ndarray, length_px: float, angle: float) -> np.ndarray:
+    """Linear motion blur of `length_px` along `angle` (rad, image x to y)."""
+    import cv2
+    size = int(math.ceil(length_px)) | 1
+    kernel = np.zeros((size, size), np.float32)
+    c = size // 2
+    for t in np.linspace(-length_px / 2, length_px / 2, max(2, int(math.ceil(length_px)) * 2)):
+        x, y = c + t * math.cos(angle), c + t * math.sin(angle)
+        x0, y0 = int(math.floor(x)), int(math.floor(y))
+        fx, fy = x - x0, y - y0
+        for dx, dy, wgt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+            if 0 <= x0 + dx < size and 0 <= y0 + dy < size:
+                kernel[y0 + dy, x0 + dx] += wgt
+    kernel /= kernel.sum()
+    return cv2.filter2D(radiance.astype(np.float32), -1, kernel, borderType=cv2.BORDER_REFLECT)
 
 
 def apply_params(radiance: np.ndarray, params: ImageParams) -> np.ndarray:
-    """radiance: float HxWx3 (1.0 = white wall fully lit) -> uint8 image."""
-    e = params.exposure * params.gain
+    """radiance: float HxWx3 (1.0 = white wall fully lit) -> uint8 image: exposure (set or automatic),
+    motion blur during the exposure, sensor noise, gain, contrast, brightness."""
+    e = params.exposure
     if params.auto_exposure:
-        e = float(np.clip(0.45 / max(float(np.median(radiance)), 1e-3), 0.25, 4.0)) * params.gain
-    img = (radiance * e - 0.5) * params.contrast + 0.5 + params.brightness
+        e = auto_exposure(radiance, params.metering)
+    rate = math.hypot(*params.blur_rate)
+    if rate > 0 and params.exposure_time_s > 0 and params.hfov_rad > 0:
+        f = (radiance.shape[1] / 2) / math.tan(params.hfov_rad / 2)
+        length = f * rate * params.exposure_time_s * min(e, 1.0 / (30 * params.exposure_time_s))
+        if length >= 0.5:
+            radiance = motion_blur(radiance, length, math.atan2(params.blur_rate[1], params.blur_rate[0]))
+    signal = radiance * e
+    if params.shot_variance or params.read_std:
+        rng = np.random.default_rng(params.noise_seed)
+        sigma = np.sqrt(params.shot_variance * np.clip(signal, 0.0, 1.0) + params.read_std ** 2)
+        signal = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
+    img = (signal * params.gain - 0.5) * params.contrast + 0.5 + params.brightness
     return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+FRAME_BYTES = 180_000  # an encoded frame's budget: base64 of it (240 000 chars) fits one message (agents/base.py MAX_BODY)
+JPEG_QUALITIES = (95, 90, 85, 80, 70, 60, 50)
+
+
+def encode_frame(rgb: np.ndarray, lossless: bool = True) -> tuple[str, bytes]:
+    """(encoding, bytes) of an RGB frame to send: PNG for a noise-free render (exact pixels); a noisy
+    sensor's frame does not compress losslessly (1.8 MB for 1280x960), so it is sent as a real camera
+    streams it: JPEG, at the best quality that fits FRAME_BYTES."""
+    import cv2
+    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    if lossless:
+        ok, buf = cv2.imencode(".png", bgr)
+        return "png", buf.tobytes()
+    for q in JPEG_QUALITIES:
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, q])
+        if len(buf) <= FRAME_BYTES:
+            break
+    return "jpeg", buf.tobytes()
 
 
 def pose_matrix(pos, quat) -> np.ndarray:
@@ -92,7 +168,31 @@ def render_radiance(cid: int, width: int, height: int, view, proj,
 class Camera:
     def __init__(self, robot: "Robot", spec: CameraSpec):
         self.robot, self.spec, self.name = robot, spec, spec.name
-        self.params = ImageParams()
+        self.settings = ImageParams()  # what the user set (set_params)
+        self.noise: CameraNoise | None = None  # failure modes (robots/failure_modes.py), None: ideal
+
+    def set_noise(self, noise: CameraNoise | None) -> None:
+        """The camera's failure modes (None: ideal); auto-exposure starts as the real camera's does."""
+        self.noise = noise
+        self.settings = replace(self.settings, auto_exposure=bool(noise is not None and noise.auto_exposure))
+
+    @property
+    def params(self) -> ImageParams:
+        """The image parameters of a capture now: the settings plus, with failure modes, the sensor noise
+        (seeded by the simulation step), auto-exposure metering and the motion blur of this moment."""
+        n = self.noise
+        if n is None:
+            return self.settings
+        r = self.robot
+        step = int(round(r.world.clock.time / r.world.clock.step))
+        return replace(self.settings, metering="centre", shot_variance=n.shot_variance, read_std=n.read_std,
+                       noise_seed=tuple(seed_sequence(r.world.plan.seed, "camera", r.name, self.name)) + (step,),
+                       blur_rate=camera_motion(r, n.scene_depth_m), exposure_time_s=n.exposure_time_s,
+                       hfov_rad=math.radians(self.spec.hfov_deg))
+
+    @params.setter
+    def params(self, value: ImageParams) -> None:
+        self.settings = replace(value, **CAPTURE_DEFAULTS)  # the user's part; the failure modes are added per capture
 
     # ---- geometry (pure, any thread)
     def fov(self, width: int, height: int) -> tuple[float, float]:
@@ -106,8 +206,13 @@ class Camera:
         return np.array([[f, 0, width / 2], [0, f, height / 2 - 1.0], [0, 0, 1.0]])
 
     def set_params(self, **kw) -> ImageParams:
-        self.params = replace(self.params, **{k: v for k, v in kw.items() if v is not None})
-        return self.params
+        """Change the settings given (None: unchanged). Setting the exposure switches auto-exposure off
+        unless auto_exposure is given too, as on a real camera."""
+        kw = {k: v for k, v in kw.items() if v is not None}
+        if "exposure" in kw and "auto_exposure" not in kw:
+            kw["auto_exposure"] = False
+        self.settings = replace(self.settings, **kw)
+        return self.settings
 
     # ---- pybullet thread
     def link_pose(self) -> np.ndarray:
@@ -144,12 +249,14 @@ class RangeSensor:
 
     def __init__(self, robot: "Robot", spec: RangeSpec):
         self.robot, self.spec, self.name = robot, spec, spec.name
+        self.noise: RangeNoise | None = None  # failure modes (robots/failure_modes.py), None: exact
 
     def angles(self) -> np.ndarray:
         return np.linspace(self.spec.angle_min, self.spec.angle_max, self.spec.rays)
 
-    def scan(self) -> np.ndarray:
-        """Ranges (m) of every ray, range_max when nothing is hit. pybullet thread."""
+    def scan(self, noisy: bool = True) -> np.ndarray:
+        """Ranges (m) of every ray, range_max when nothing is hit (with the sensor's noise unless
+        `noisy` is False). pybullet thread."""
         s = self.spec
         T = self.robot.link_pose(s.link)
         a = self.angles()
@@ -161,10 +268,18 @@ class RangeSensor:
         with self.robot.probe_hidden():
             hits = p.rayTestBatch(starts.tolist(), ends.tolist(), physicsClientId=self.robot.world.cid)
         frac = np.array([h[2] if h[0] >= 0 else 1.0 for h in hits])
-        return np.clip(frac * s.range_max, s.range_min, s.range_max)
+        ranges = np.clip(frac * s.range_max, s.range_min, s.range_max)
+        return self._noisy(ranges) if noisy else ranges
+
+    def _noisy(self, ranges: np.ndarray) -> np.ndarray:
+        if self.noise is None:
+            return ranges
+        s = self.spec
+        return noisy_ranges(ranges, self.noise, reading_rng(self.robot, self.name), s.range_min, s.range_max)
 
     def read(self) -> float:
-        return float(self.scan().min())
+        """The nearest echo of the cone (one noisy reading, as a sonar gives)."""
+        return float(self._noisy(np.array([self.scan(noisy=False).min()]))[0])
 
 
 class Microphone:

@@ -10,6 +10,7 @@ import numpy as np
 import pybullet as p
 
 from .effectors import BaseEffector, HeadEffector, JointsEffector, Loudspeaker
+from .failure_modes import Locomotion, defaults_for, make_locomotion
 from .odometry import Odometry, OdometryNoise
 from .receptors import Camera, Microphone, RangeSensor, pose_matrix
 from .spec import RobotSpec
@@ -73,10 +74,24 @@ class Robot:
         self.laser = RangeSensor(self, spec.laser) if spec.laser else None
         self.microphone = Microphone()
         self.controllers: dict[str, "Controller"] = {}
+        self.locomotion: Locomotion | None = None
+        self.set_failure_modes(defaults_for(spec.kind))
         for j, a in spec.postures.get("StandInit", {}).items():
             self.set_joint(j, a)
         self.update_lift()
         self.set_base_pose(*self.pose)
+
+    def set_failure_modes(self, params) -> None:
+        """The robot's failure modes (robots/failure_modes.py: NaoFailures / ElektronFailures), or None: an
+        ideal robot (exact motion, noise-free sensors, manual exposure). Set it before the robot moves."""
+        self.failure_modes = params
+        self.locomotion = make_locomotion(self.spec, params, self.world.plan.seed, self.name)
+        for cam in self.cameras.values():
+            cam.set_noise(getattr(params, "camera", None))
+        for sonar in self.sonars:
+            sonar.noise = getattr(params, "sonar", None)
+        if self.laser is not None:
+            self.laser.noise = getattr(params, "laser", None)
 
     # ------------------------------------------------------------ kinematics (pybullet thread)
     def _probe_z(self) -> float:

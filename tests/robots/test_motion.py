@@ -14,6 +14,13 @@ from .conftest import api_at
 POS_TOL, ANG_TOL = 0.05, math.radians(5)
 
 
+@pytest.fixture(autouse=True)
+def ideal_robots(monkeypatch):
+    """These tests check the motion controllers and the odometry model exactly: ideal robots, without
+    the walk's slip and sway or the wheels' slip (tests/robots/test_failure_modes.py tests those)."""
+    monkeypatch.setenv("RAPP_FAILURE_MODES", "off")
+
+
 def err(a, b):
     return math.hypot(a[0] - b[0], a[1] - b[1]), abs(wrap(a[2] - b[2]))
 

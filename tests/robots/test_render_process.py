@@ -144,6 +144,7 @@ async def test_render_error_reaches_the_caller_and_the_next_frame_renders(make_w
     from robots.errors import RobotError
     world = make_world("small", seed=1)
     api = api_at(world, "nao", (0.5, 0.0, 90))
+    api.robot.set_failure_modes(None)  # a fixed exposure: auto-exposure would not read the bad one
     good = await api.capture_array()
     cam = api.robot.cameras["top"]
     cam.params, saved = replace(cam.params, exposure="bad"), cam.params  # fails in the render process

@@ -12,7 +12,7 @@ from ontology import core as C
 from ontology.errors import ErrorCode
 from ontology.manifest import load_manifest
 from ontology.registry import Done
-from ontology.robot import CameraParams, LookAtPoint, SetCameraParams
+from ontology.robot import LookAtPoint, SetCameraParams
 from ontology.spawn import RobotInfo
 from rapps.hazard_detection.hazard_detection.task import HazardTask, door_look_point
 from scenarios import hazard_validation as V
@@ -73,6 +73,7 @@ async def test_the_simulated_camera_renders_the_exposure_it_is_set_to(house):
     the lit shade (emissive, 4x a white wall) stays bright."""
     spec = spec_of(house, LAMP_ID)
     api = robot_at(house, "nao", spec)
+    api.robot.set_failure_modes(None)  # exposure 1 against 0.2 (auto-exposure would darken the lamp's frame)
     await api.look_at_point(LookAtPoint(x=spec.look_at[0], y=spec.look_at[1], z=spec.look_at[2]))
     normal = (await api.capture_array()).astype(float)
     await api.set_camera_params(SetCameraParams(exposure=0.2))
@@ -107,11 +108,12 @@ async def test_the_camera_is_restored_when_the_capture_fails(house):
 
     spec = spec_of(house, LAMP_ID)
     api = robot_at(house, "nao", spec)
+    before = await api.set_camera_params(SetCameraParams())
     runtime = WiredRuntime(api, "nao", fail={"capture_image"})
     with pytest.raises(RequestFailed):
         await HazardTask(runtime).check_lamp(spec)
     assert runtime.actions()[-1] == "set_camera_params"
-    assert await api.set_camera_params(SetCameraParams()) == CameraParams()
+    assert await api.set_camera_params(SetCameraParams()) == before
 
 
 @pytest.mark.parametrize("method", ["image", "geometry"])

@@ -1,19 +1,34 @@
 """Self-localization sub-FSM (fig. 16 s2): capture, find QR landmarks on the Cloud Agent and solve the
 pose from every code seen so far; while that pose is not certain enough turn the head one step and try
-again until the head limit, then once more with the body turned half round; then set the pose on the
-robot (the odometry estimate stays if the pose is still too uncertain)."""
+again until the head limit, then once more with the body turned half round; then fuse the fix into the
+pose EKF (paper 001: QR-code global localization with EKF relative localization) and set the filter's
+pose on the robot.
+
+The EKF (rapps/sdk/ekf.py) predicts from the robot's odometry between fixes, so it knows how uncertain
+the pose has become: a certain fix replaces the pose almost entirely, a less certain one (too few or too
+far codes) is weighed against the odometry instead of being thrown away, and one that disagrees with
+the prediction beyond chance is refused. Its covariance also tells the task how long the next leg may
+be (`leg_length`)."""
 from __future__ import annotations
 
 import functools
 import math
 
 from rapps.sdk import FSM, RequestError, RequestFailed, Step
+from rapps.sdk.ekf import CHI2_3DOF_99, ODOMETRY, OdometryModel, PoseEKF
 
 # head joints, sweep limit (rad) and the pitch to look at landmarks at 0.7 m (positive = down), per robot model
 HEADS = {
     "HeadYaw": {"yaw": "HeadYaw", "pitch": "HeadPitch", "limit": 2.0, "tilt": -0.12},  # camera ~0.5 m: look up
     "HeadPan": {"yaw": "HeadPan", "pitch": "HeadTilt", "limit": 2.7, "tilt": 0.12},
 }
+
+
+START_STD_M, START_STD_RAD = 0.5, 0.3  # the start pose the robot was given is hardly trusted
+# a fix's standard deviations come from the corners' pixel noise only; the camera's pose on the robot,
+# the printed codes and the map add their own: never trust a fix more than this
+FIX_FLOOR_M, FIX_FLOOR_RAD = 0.004, 0.002
+FUSE_MAX_STD_M, FUSE_MAX_STD_RAD = 0.10, 0.05  # a fix less certain than this is no fix at all
 
 
 def sweep_angles(step: float, limit: float) -> list[float]:
@@ -47,6 +62,42 @@ class Localizer:
         self.task = task
         self.head: dict | None = None
         self.camera = None
+        self.ekf: PoseEKF | None = None
+        self.odom_ref: tuple[float, float, float] | None = None  # the robot's odometry pose the filter matched last
+        self.travelled = self.turned = 0.0  # motion since then (m, rad), as commanded
+
+    # -- the pose filter ---------------------------------------------------------------------
+    def odometry_model(self) -> OdometryModel:
+        return ODOMETRY.get(self.task.robot_type(), ODOMETRY["nao"])
+
+    def moved(self, distance: float = 0.0, rotation: float = 0.0) -> None:
+        """The task moved the base (m driven, rad turned): the odometry error grows with it."""
+        self.travelled += abs(distance)
+        self.turned += abs(rotation)
+
+    async def track(self) -> PoseEKF:
+        """Bring the filter up to the robot's odometry now (the first time: start it there)."""
+        p = await self.task.robot.get_global_pose()
+        odom = (p.x, p.y, p.theta)
+        if self.ekf is None:
+            self.ekf = PoseEKF(odom, START_STD_M, START_STD_RAD)
+        else:
+            self.ekf.predict_between(self.odom_ref, odom, self.odometry_model(), travelled_m=self.travelled,
+                                     turned_rad=self.turned)
+        self.odom_ref, self.travelled, self.turned = odom, 0.0, 0.0
+        return self.ekf
+
+    def leg_length(self, longest: float, cross_track_std_m: float, shortest: float = 0.3) -> float:
+        """The longest leg (at most `longest`) whose predicted sideways error stays within
+        `cross_track_std_m` (one sigma) by the filter's covariance and the odometry's error model."""
+        ekf, model = self.ekf, self.odometry_model()
+        if ekf is None or ekf.cross_track_std(longest, model) <= cross_track_std_m:
+            return longest
+        lo, hi = shortest, longest
+        for _ in range(20):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if ekf.cross_track_std(mid, model) <= cross_track_std_m else (lo, mid)
+        return lo
 
     def build(self, name: str = "localize") -> FSM:
         fsm = FSM(name, initial="l1_prepare")
@@ -80,6 +131,7 @@ class Localizer:
         memory["observations"] = []
         memory["localization"] = memory["prior"] = None
         memory["looked_behind"] = not params.get("look_behind", True)
+        await self.track()
 
     @noting_failure
     async def turn_around(self, memory):
@@ -87,6 +139,7 @@ class Localizer:
         seen before the turn are dropped: their camera-to-robot transforms no longer hold)."""
         memory["looked_behind"] = True
         await self.task.robot.move_to(x=0.0, y=0.0, theta=math.pi, _timeout=60.0)
+        self.moved(rotation=math.pi)
         memory["sweep"] = sweep_angles(float(self.task.params["head_step_rad"]), self.head["limit"])
         memory["observations"] = []
         memory["localization"] = memory["prior"] = None
@@ -138,17 +191,25 @@ class Localizer:
 
     @noting_failure
     async def set_pose(self, memory):
-        """Set the sweep's pose on the robot if it is certain enough (localize_max_std_m); otherwise
-        the odometry estimate stays."""
+        """Fuse the sweep's fix into the filter and set the filter's pose on the robot. A fix certain
+        enough (localize_max_std_m/rad) is always taken; a less certain one only while it agrees with
+        the prediction (Mahalanobis gate); without a fix the odometry estimate stays."""
+        ekf = await self.track()
         found = memory.get("localization")
-        if found is not None and self._certain(found, "localize_max_std_m", "localize_max_std_rad"):
+        entry = None
+        if found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None:
+            certain = self._certain(found, "localize_max_std_m", "localize_max_std_rad")
+            usable = found.std_m <= FUSE_MAX_STD_M and found.std_theta_rad <= FUSE_MAX_STD_RAD
             p = found.pose
-            await self.task.robot.set_global_pose(x=p.x, y=p.y, theta=p.theta)
-            memory.setdefault("localizations", []).append(
-                {"x": p.x, "y": p.y, "theta": p.theta, "markers": found.markers, "method": found.method,
-                 "std_m": found.std_m})
-        else:
-            memory.setdefault("localizations", []).append(None)
+            if (certain or usable) and ekf.update((p.x, p.y, p.theta), std_m=max(found.std_m, FIX_FLOOR_M),
+                                                  std_rad=max(found.std_theta_rad, FIX_FLOOR_RAD),
+                                                  gate=None if certain else CHI2_3DOF_99):
+                x, y, theta = ekf.pose
+                await self.task.robot.set_global_pose(x=x, y=y, theta=theta)
+                self.odom_ref = ekf.pose
+                entry = {"x": x, "y": y, "theta": theta, "markers": found.markers, "method": found.method,
+                         "fix_std_m": found.std_m, "std_m": ekf.std_m, "std_rad": ekf.std_rad, "certain": certain}
+        memory.setdefault("localizations", []).append(entry)
         await self._head_home()
 
     async def _head_home(self):

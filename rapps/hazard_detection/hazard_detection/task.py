@@ -16,10 +16,23 @@ from .models import ONTOLOGY, HazardReport
 PLAN_FOUND = 1
 FINAL_LEG_SLACK = 1.25  # the whole rest of the path is one leg when at most this many legs long
 MAX_BLOCKED = 3  # blocked legs per hazard before giving it up
+# a leg is at most as long as keeps the pose filter's predicted sideways error (1 sigma) within this:
+# three sigma stay inside the 10 cm tracking goal (params: leg_cross_track_std_m)
+LEG_CROSS_TRACK_STD_M = 0.035
 
 
 def path_length(poses) -> float:
     return sum(math.hypot(b.x - a.x, b.y - a.y) for a, b in zip(poses, poses[1:]))
+
+
+def leg_rotation(poses, turn: float, final: bool) -> float:
+    """About how far (rad) the base turns on a leg: the turn it starts with, then to the bearing of its
+    last segment (or, on the final leg, to the standing pose's heading)."""
+    if len(poses) < 2:
+        return abs(turn)
+    start = math.atan2(poses[1].y - poses[0].y, poses[1].x - poses[0].x)
+    end = poses[-1].theta if final else math.atan2(poses[-1].y - poses[-2].y, poses[-1].x - poses[-2].x)
+    return abs(turn) + abs(math.remainder(end - start, math.tau))
 
 
 def first_leg(poses, leg: float) -> tuple[list, bool]:
@@ -147,8 +160,11 @@ class HazardTask(Task):
             memory["error"] = "(gave up after 40 plans)"
             raise RuntimeError(f"could not reach {hazard.id}")
         localized = bool(memory.get("localizations")) and memory["localizations"][-1] is not None
+        longest = self.localizer.leg_length(
+            float(self.params["leg_length_m"]),
+            float(self.params.get("leg_cross_track_std_m", LEG_CROSS_TRACK_STD_M)))
         action, memory["turn"], leg = next_leg_action(
-            reply.path, pose.theta, float(self.params["leg_length_m"]), float(self.params["turn_first_rad"]),
+            reply.path, pose.theta, longest, float(self.params["turn_first_rad"]),
             localized=localized, turned=bool(memory.pop("leg_turned", False)))
         memory["leg"], memory["leg_final"] = first_leg(reply.path, leg)
         return action
@@ -161,9 +177,12 @@ class HazardTask(Task):
         except RequestError as e:
             memory["error"] = f"(motion failed: {e.reason})"
             raise
+        finally:
+            self.localizer.moved(rotation=memory["turn"])
 
     async def move_leg(self, memory) -> str:
         leg = memory["leg"]
+        self.localizer.moved(path_length(leg), leg_rotation(leg, memory["turn"], memory["leg_final"]))
         try:
             await self.robot.move_along_path(poses=leg, _timeout=900.0,  # feedback: shown as progress
                                              _feedback=lambda p: self._show(memory, 0.0, p.text))
@@ -178,6 +197,7 @@ class HazardTask(Task):
 
     async def back_off(self, memory):
         memory["leg_final"] = False
+        self.localizer.moved(float(self.params["back_off_m"]))
         try:
             await self.robot.move_to(x=-float(self.params["back_off_m"]), _timeout=60.0)
         except RequestError as e:
