@@ -103,7 +103,8 @@ class RecordingAPI:
         if self.frames_dir is None:
             return
         self.frames_dir.mkdir(parents=True, exist_ok=True)
-        path = self.frames_dir / f"{'frame' if self.every_capture else 'check'}_{len(self.frames) + 1:02d}.png"
+        ext = "jpg" if image.encoding == "jpeg" else "png"  # a noisy camera's frames travel as JPEG
+        path = self.frames_dir / f"{'frame' if self.every_capture else 'check'}_{len(self.frames) + 1:02d}.{ext}"
         path.write_bytes(base64.b64decode(image.data_b64))
         self.frames.append(path)
 

@@ -70,6 +70,7 @@ def test_recovery_tiny(tmp_path):
     assert metrics["recovery_hung_back"]["value"] >= metrics["recovery_hung_back"]["floor"]
 
 
+@pytest.mark.slow  # 10 s; `python -m bench --only estop` measures it
 async def test_estop_latency_tiny():
     """The owner's "stop" halts a RApp-driven base within the goal (twice it, for a loaded CI machine);
     the floor is the same message's delivery, so the stop cannot be faster than it."""
