@@ -88,13 +88,12 @@ class PlatformAgent(RappAgent):
         self.limits = limits
         # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
         self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox)
+        self._pool_started = False
         self.served = 0
         self._serial = itertools.count(1)
 
     async def setup(self) -> None:
         await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
-        if self.cloud_mode == "process":
-            self.warm_pool.start()
         handlers = {"register_user": self.register_user, "login": self.login,
                     "list_services": self.list_services, "register_robot": self.register_robot,
                     "start_cloud_agent": self.start_cloud, "stop_cloud_agent": self.stop_cloud,
@@ -275,6 +274,11 @@ class PlatformAgent(RappAgent):
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)
 
     def _spawn(self, spec: SpawnSpec, workdir: Path):
+        if self.cloud_mode == "process" and not self._pool_started:
+            # started at the first Cloud Agent, not at setup: most RApps have no Cloud part, and an
+            # idle worker costs ~100 MB and a second of CPU (the first Cloud Agent starts cold)
+            self._pool_started = True
+            self.warm_pool.start()
         return spawn_agent(spec, workdir, self.settings, mode=self.cloud_mode, limits=self.limits,
                            sandbox=self.sandbox, pool=self.warm_pool)
 
