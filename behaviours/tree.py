@@ -21,6 +21,7 @@ import asyncio
 from typing import Literal
 
 from .behaviour import Behaviour, Outcome
+from .pause import run_pausable
 
 
 class Composite(Behaviour):
@@ -96,7 +97,8 @@ class Decorator(Behaviour):
 
 
 class Timeout(Decorator):
-    """The child, bounded: an error "timeout after S s" when it runs longer (it is cancelled)."""
+    """The child, bounded: an error "timeout after S s" when it runs longer (it is cancelled). Time the
+    task spends paused (behaviours/pause.py) does not count, as for a behaviour's own timeout."""
 
     def __init__(self, child: Behaviour, seconds: float, name: str | None = None):
         super().__init__(child, name)
@@ -104,7 +106,7 @@ class Timeout(Decorator):
 
     async def _loop(self) -> Outcome:
         try:
-            return await asyncio.wait_for(self.child.run(self.ctx), self.seconds)
+            return await run_pausable(self.child.run(self.ctx), self.seconds, self.ctx.pause)
         except asyncio.TimeoutError:
             return Outcome(False, f"{self.child.name}: timeout after {self.seconds:g}s", None, self.name)
 

@@ -2,7 +2,7 @@
 next step, and a behaviour's timeout does not count paused time."""
 import asyncio
 
-from behaviours import FSM, Behaviour, Context, OneShot, PauseGate, Wait
+from behaviours import FSM, Behaviour, Context, OneShot, PauseGate, Timeout, Wait
 
 
 class Count(OneShot):
@@ -55,3 +55,23 @@ async def test_a_timeout_does_not_count_paused_time():
     never = Wait(lambda memory: False, period=0.05, timeout=0.2)
     out = await never.run(Context(pause=PauseGate()))
     assert not out.ok and "timeout" in out.reason
+
+
+async def test_the_timeout_decorator_does_not_count_paused_time_either():
+    gate = PauseGate()
+    slow = Timeout(Wait(lambda memory: memory.get("done", False), period=0.05), 0.3)
+    ctx = Context(pause=gate)
+
+    async def pause_then_finish():
+        gate.pause("stop")
+        await asyncio.sleep(0.5)  # longer than the timeout: only paused time
+        gate.resume()
+        await asyncio.sleep(0.1)
+        ctx.memory["done"] = True
+
+    helper = asyncio.create_task(pause_then_finish())
+    out = await slow.run(ctx)
+    await helper
+    assert out.ok, out.reason
+    out = await Timeout(Wait(lambda memory: False, period=0.05), 0.2).run(Context(pause=PauseGate()))
+    assert not out.ok and "timeout after 0.2s" in out.reason
