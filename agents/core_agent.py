@@ -144,6 +144,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox)
         self.estop_reason: str | None = None
         self.estop_by: str | None = None
+        self.subscriptions: dict[str, set[str]] = {}  # sensor events (agents/core_events.py)
         self._estop_released = asyncio.Event()
         self._estop_released.set()
         self.driving = False  # a move_vel velocity is in force

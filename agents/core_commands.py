@@ -58,7 +58,8 @@ class RobotCommands:
     - the safety check: `nearest_obstacle()` (read by core_behaviours.SafetyMonitor) and whether
       the base is being driven (`driving`).
 
-    The host (CoreAgent) sets the attributes below and provides `record_structure` and `tell_user`.
+    The host (CoreAgent) sets the attributes below and provides `record_structure`, `tell_user` and
+    `publish` (its sensor events, agents/core_events.py).
     """
 
     robot: RobotAPI

@@ -27,12 +27,12 @@ OBSTACLE_TTL_S, ESTOP_TTL_S = 1.0, 5.0
 
 class CoreEvents:
     """Mixed into CoreAgent (which provides `dynamic`, `notify`, `activate`, `deactivate`,
-    `nearest_obstacle`)."""
+    `nearest_obstacle`, and sets `subscriptions = {}` at construction)."""
 
     warn_distance = 0.5  # m beyond the sensors' minimum range: "something is close"
+    subscriptions: dict[str, set[str]]  # topic -> subscribed JIDs (only the current Dynamic Agent)
 
     def _events_service(self) -> Responder:
-        self.subscriptions: dict[str, set[str]] = {}
         return Responder(ONTOLOGY, {"subscribe_events": self._on_subscribe}, performative=Performative.SUBSCRIBE)
 
     async def _on_subscribe(self, req: SubscribeEvents, ctx) -> Done:
@@ -51,7 +51,7 @@ class CoreEvents:
         self.deactivate("obstacle-events")
 
     async def publish(self, topic: EventTopic, ttl_s: float | None, **data) -> Notification | None:
-        jids = getattr(self, "subscriptions", {}).get(topic)
+        jids = self.subscriptions.get(topic)
         if not jids:
             return None
         note = Notification.event(topic, ttl_s, **data)

@@ -27,11 +27,6 @@ from .messages import bare
 from .runtime import load_entry_point
 
 log = logging.getLogger("rapp.dynamic")
-
-
-def _log_handler_error(task: asyncio.Task) -> None:
-    if not task.cancelled() and task.exception() is not None:
-        log.error("event handler failed: %s", task.exception())
 HEARTBEAT_S = 0.25
 
 
@@ -58,6 +53,7 @@ class DynamicAgent(RappAgent):
         self.pause = PauseGate()  # the emergency stop as the task sees it (behaviours/pause.py)
         self.events: asyncio.Queue = asyncio.Queue(maxsize=100)  # the Core's notifications, newest kept
         self.event_handlers: dict[str, list] = {}
+        self._handler_tasks: set[asyncio.Task] = set()
 
     @property
     def paused(self) -> str | None:
@@ -116,7 +112,13 @@ class DynamicAgent(RappAgent):
         self.events.put_nowait(note)
         for handler in self.event_handlers.get(note.topic, []):
             task = asyncio.ensure_future(handler(note))
-            task.add_done_callback(_log_handler_error)
+            self._handler_tasks.add(task)  # the loop keeps only weak references to tasks
+            task.add_done_callback(self._handler_done)
+
+    def _handler_done(self, task: asyncio.Task) -> None:
+        self._handler_tasks.discard(task)
+        if not task.cancelled() and task.exception() is not None:
+            log.error("event handler failed: %s", task.exception())
 
     async def _status(self, state: C.TaskState, detail: str = "") -> None:
         try:

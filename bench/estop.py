@@ -44,7 +44,7 @@ async def run(quick: bool = True, n: int | None = None) -> list[dict]:
     n = n or (5 if quick else 20)
     from agents.tracing import read_trace
 
-    stops, floors = [], []
+    sent: list[tuple[float, float]] = []  # (owner's send, zero velocity) per measured stop
     with tempfile.TemporaryDirectory(prefix="bench-estop-") as tmp:
         app = _variant(Path(tmp))
         async with RobotSystem(Path(tmp) / "run", [app], trace=True, dynamic_mode="inprocess") as rs:
@@ -62,12 +62,17 @@ async def run(quick: bool = True, n: int | None = None) -> list[dict]:
                 await rs.command(h, "cancel", "cruise-echo ended")
                 await user.say(core.address, "resume")
                 await user.wait_for(lambda t: t.startswith("Resumed"), timeout=10, start=start)
-                heard = [r["t"] for r in await asyncio.to_thread(read_trace, rs.trace_file)
-                         if r["kind"] == RecordKind.STRUCTURE and r.get("event") == StructureEvent.COMMAND
-                         and r.get("text") == "stop" and r["t"] >= t0]
-                if i and heard:
-                    stops.append((t1 - t0) * 1e3)
-                    floors.append((heard[0] - t0) * 1e3)
+                if i:
+                    sent.append((t0, t1))
+            records = await asyncio.to_thread(read_trace, rs.trace_file)  # once, after the runs
+    heard = sorted(r["t"] for r in records if r["kind"] == RecordKind.STRUCTURE
+                   and r.get("event") == StructureEvent.COMMAND and r.get("text") == "stop")
+    stops, floors = [], []
+    for t0, t1 in sent:
+        delivered = next((t for t in heard if t >= t0), None)
+        if delivered is not None:
+            stops.append((t1 - t0) * 1e3)
+            floors.append((delivered - t0) * 1e3)
     med, floor = median(stops), median(floors)
     log(f"estop: owner's stop -> zero velocity median {med:.1f} ms (chat delivery {floor:.1f} ms), n={len(stops)}")
     return [metric("estop_latency", med, "ms", floor, ratio(med, floor), len(stops), samples=stops,
