@@ -127,7 +127,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         reports = hazard_reports(read_trace(trace, validate=True), handle.core.address)
         rows = score_hazards(info.hazards, world.ground_truth(), reported(reports))
         for row, frame in zip(rows_in_order(rows, [r.id for r in reports]), recorder.frames):
-            frame.rename(frame.with_name(f"{row['id']}.png"))
+            frame.rename(frame.with_name(f"{row['id']}{frame.suffix}"))  # .jpg from a noisy camera
         result = {
             "robot": robot, "seed": seed, "hazards": rows,
             "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),

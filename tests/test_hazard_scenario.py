@@ -34,11 +34,13 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     assert "hazard-detection finished" in chat
     assert set(parse_reports(chat.splitlines())) == hazard_ids  # the user got every hazard's report
     assert Path(result["plot"]).stat().st_size > 10_000
-    assert {p.stem for p in (out / "frames").glob("*.png")} == hazard_ids
+    assert {p.stem for p in (out / "frames").glob("*.*")} == hazard_ids  # PNG, or JPEG from a noisy camera
     assert json.loads((out / "result.json").read_text()) == result
 
 
-@pytest.mark.parametrize("robot", ["nao", "elektron"])
+# the Elektron's small-house run is slow-marked for the suite's time: by default it runs the door
+# check in test_two_robots_small_house and both robots' lamp checks in rapps/examples/lamp_patrol
+@pytest.mark.parametrize("robot", ["nao", pytest.param("elektron", marks=pytest.mark.slow)])
 async def test_hazard_detection_small_house(tmp_path, robot):
     result = await run_hazard_detection(robot, seed=1, house="small", out_dir=tmp_path)
     check_run(result, tmp_path, {"d1", "l1"})
