@@ -4,7 +4,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import ontology.robot  # also registers the robot-API models the command server serves
 from ontology.registry import Progress, actions
@@ -42,6 +42,16 @@ def path_progress(path: list[tuple[float, float]], x: float, y: float) -> float:
             best = (d, before + t * seg)
         before += seg
     return max(0.0, min(1.0, best[1] / total))
+
+
+AHEAD_RAD = 0.52  # the safety check's cone: readings within ±30° of straight ahead
+SONAR_BEARING_RAD = 0.44  # a NAO sonar looks 25° to its side (robots/nao.py)
+
+
+class ObstacleEcho(NamedTuple):
+    margin_m: float  # beyond the sensor's minimum range
+    range_m: float
+    bearing_rad: float  # from the robot's heading, counter-clockwise
 
 
 class RobotCommands:
@@ -207,16 +217,23 @@ class RobotCommands:
         """How far the nearest obstacle ahead is beyond what the sensors can still measure
         (sonar reading or laser ray within ±30° minus the sensor's minimum range); None when the
         robot has neither sensor."""
-        margins = []
+        echo = await self.nearest_echo()
+        return None if echo is None else echo.margin_m
+
+    async def nearest_echo(self) -> ObstacleEcho | None:
+        """The nearest reading ahead (sonar cone or laser ray within ±30°): its margin beyond the
+        sensor's minimum range, its range and bearing from the robot (x forward); None without sensors."""
+        best: ObstacleEcho | None = None
         for req in (ontology.robot.GetSonars(), ontology.robot.GetLaserScan()):
             try:
                 reply = await self.robot.handle(req)
             except Exception:  # noqa: BLE001 - a robot without this sensor
                 continue
             if isinstance(reply, ontology.robot.SonarReading):
-                margins += [reply.left - reply.range_min, reply.right - reply.range_min]
+                readings = [(reply.left, SONAR_BEARING_RAD), (reply.right, -SONAR_BEARING_RAD)]
             else:
-                for i, r in enumerate(reply.ranges):
-                    if abs(reply.angle_min + i * reply.angle_increment) <= 0.52:
-                        margins.append(r - reply.range_min)
-        return min(margins) if margins else None
+                readings = [(r, reply.angle_min + i * reply.angle_increment) for i, r in enumerate(reply.ranges)]
+            for r, bearing in readings:
+                if abs(bearing) <= AHEAD_RAD and (best is None or r - reply.range_min < best.margin_m):
+                    best = ObstacleEcho(r - reply.range_min, r, bearing)
+        return best

@@ -3,7 +3,11 @@ notifications.py): the supervising Dynamic Agent subscribes (FIPA subscribe) to 
 sends each matching Notification one way. Subscriptions end with the Dynamic Agent.
 
     obstacle / obstacle-clear   the range sensors' nearest margin crosses `warn_distance` (checked by
-                                ObstacleEvents every 0.25 s while someone subscribes; valid for 1 s)
+                                ObstacleEvents every 0.25 s while someone subscribes; valid for 1 s).
+                                Data: margin_m (beyond the sensor's minimum range), range_m and
+                                bearing_rad of the nearest reading ahead (within ±30°), and `pose`, the
+                                robot's own pose estimate then ([x, y, theta], get_global_pose): where
+                                the obstacle is (obstacle) or up to where the way is free (obstacle-clear)
     estop                       the emergency stop latched or was released (valid for 5 s)
 """
 from __future__ import annotations
@@ -16,6 +20,7 @@ from ontology.acl import Performative
 from ontology.errors import ErrorCode
 from ontology.notifications import ONTOLOGY, EventTopic, Notification, Notify, SubscribeEvents
 from ontology.registry import Done
+from ontology.robot import GetGlobalPose
 
 from .errors import Refusal
 from .messages import bare
@@ -26,8 +31,8 @@ OBSTACLE_TTL_S, ESTOP_TTL_S = 1.0, 5.0
 
 
 class CoreEvents:
-    """Mixed into CoreAgent (which provides `dynamic`, `notify`, `activate`, `deactivate`,
-    `nearest_obstacle`, and sets `subscriptions = {}` at construction)."""
+    """Mixed into CoreAgent (which provides `dynamic`, `notify`, `activate`, `deactivate`, `robot`,
+    `nearest_echo`, and sets `subscriptions = {}` at construction)."""
 
     warn_distance = 0.5  # m beyond the sensors' minimum range: "something is close"
     subscriptions: dict[str, set[str]]  # topic -> subscribed JIDs (only the current Dynamic Agent)
@@ -58,6 +63,15 @@ class CoreEvents:
         await self.send_notification(note, jids)
         return note
 
+    async def publish_echo(self, topic: EventTopic, echo) -> Notification | None:
+        """An obstacle / obstacle-clear event from a range reading (agents/core_commands.ObstacleEcho)."""
+        if not self.subscriptions.get(topic):
+            return None
+        pose = await self.robot.handle(GetGlobalPose())
+        return await self.publish(topic, OBSTACLE_TTL_S, margin_m=round(echo.margin_m, 3),
+                                  range_m=round(echo.range_m, 3), bearing_rad=round(echo.bearing_rad, 3),
+                                  pose=[round(pose.x, 3), round(pose.y, 3), round(pose.theta, 4)])
+
     async def send_notification(self, note: Notification, jids) -> None:
         for jid in list(jids):
             try:
@@ -74,11 +88,10 @@ class ObstacleEvents(PeriodicBehaviour):
         self.core, self.close = core, False
 
     async def run(self) -> None:
-        nearest = await self.core.nearest_obstacle()
-        if nearest is None:
+        echo = await self.core.nearest_echo()
+        if echo is None:
             return
-        close = nearest < self.core.warn_distance
+        close = echo.margin_m < self.core.warn_distance
         if close != self.close:
             self.close = close
-            topic = EventTopic.OBSTACLE if close else EventTopic.OBSTACLE_CLEAR
-            await self.core.publish(topic, OBSTACLE_TTL_S, margin_m=round(nearest, 3))
+            await self.core.publish_echo(EventTopic.OBSTACLE if close else EventTopic.OBSTACLE_CLEAR, echo)

@@ -10,6 +10,7 @@ pauses, its motion is held. Then, in the order of STRATEGIES:
     back-off         still blocked: back away `back_off_m` (the Core's own motion, with the base lock
                      taken from nobody: the task's motion is held), release the stop and fail the
                      held motion with code `blocked`, so the plan re-plans around what stands there
+                     (an obstacle event with the reading just before tells subscribers where it is)
 
 Each step is traced (structure `strategy`: name, phase start/end, outcome). An owner's stop never
 starts a strategy: only the owner releases it. Lost localization belongs to the RApp's plan monitor
@@ -22,6 +23,7 @@ from typing import NamedTuple
 
 import ontology.robot
 from ontology.errors import ErrorCode
+from ontology.notifications import EventTopic
 from ontology.trace import StructureEvent
 
 log = logging.getLogger("rapp.core")
@@ -40,8 +42,8 @@ STRATEGIES = (
 
 
 class Strategies:
-    """Mixed into CoreAgent (needs estop_reason/estop_by, resume_motion, nearest_obstacle, robot,
-    safety_distance, record_structure)."""
+    """Mixed into CoreAgent (needs estop_reason/estop_by, resume_motion, nearest_obstacle, nearest_echo,
+    publish_echo, robot, safety_distance, record_structure)."""
 
     wait_s = 2.0
     back_off_m = 0.25
@@ -72,6 +74,9 @@ class Strategies:
         self._strategy_trace(name, "end", outcome=outcome)
         if not self._still_ours():
             return ""
+        echo = await self.nearest_echo()  # where it stands: the plan's monitor enters it into the map
+        if echo is not None:
+            await self.publish_echo(EventTopic.OBSTACLE, echo)
         self.fail_held = (ErrorCode.BLOCKED, "the way ahead stayed blocked: the Core backed off (strategy back-off)")
         await self.resume_motion(by=f"strategy:{name}")
         return name

@@ -61,7 +61,11 @@ def cmd_run(a, rest: list[str]) -> int:
     if a.scenario == "rapp":
         from scenarios.run_rapp import main as rapp_main
         return rapp_main(rest)
-    raise CliError(f"unknown scenario {a.scenario!r} (known: demo, hazard-detection, hazard-table, two-robots, rapp)")
+    if a.scenario == "disturbances":
+        from scenarios.disturbance_suite import main as suite_main
+        return suite_main(rest)
+    raise CliError(f"unknown scenario {a.scenario!r} (known: demo, hazard-detection, hazard-table, two-robots, "
+                   "rapp, disturbances)")
 
 
 # -- package ----------------------------------------------------------------------------------
@@ -293,7 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--memory", action="store_true", help="in-memory database (pyjabber loses it on some disconnects)")
     s.add_argument("--verbose", action="store_true")
 
-    r = sub.add_parser("run", help="run a scenario (demo, hazard-detection, hazard-table, two-robots)")
+    r = sub.add_parser("run", help="run a scenario (demo, hazard-detection, hazard-table, two-robots, rapp, "
+                                   "disturbances)")
     r.add_argument("scenario")
 
     n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)")

@@ -11,7 +11,7 @@ of the run. Times are simulation seconds from the world's start, positions metre
       - {kind: box, id: toy, at: 12, position: [2.0, 2.0], size: [0.3, 0.2, 0.15], drop_height: 0.8}
 
 A person stands at the first waypoint until `start`, walks the route at `speed` (pausing where a waypoint
-says so) and stays at the last one; with `loop` it walks back to the first and goes round again (a wait at
+says so, and, unless `yields: false`, while a robot stands in their way) and stays at the last one; with `loop` it walks back to the first and goes round again (a wait at
 the end is the last waypoint's `pause`). A box is absent before `at`, then falls from `drop_height` (free
 fall, no bounce) to the floor. A number written [lo, hi] (speed, start, at) is drawn once from a generator
 seeded by the world's seed and the disturbance's id: the same seed gives the same run.
@@ -21,7 +21,7 @@ seeded by the world's seed and the disturbance's id: the same seed gives the sam
 
 People and boxes are kinematic PyBullet bodies (mass 0, placed every step in the world's pybullet thread):
 sonar/laser rays and camera renders see them (the render processes mirror them), a robot's collision check
-stops against them, a person does not stop for a robot. Contacts are counted with getClosestPoints, not
+stops against them; a person waits while a robot stands within YIELD_M ahead (`yields: false`: walks on). Contacts are counted with getClosestPoints, not
 getContactPoints: the world never runs stepSimulation, and Bullet reports no contacts between two mass-0
 bodies anyway."""
 from __future__ import annotations
@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from .world import World
 
 GRAVITY = 9.81
+YIELD_M = 0.25  # a person stops this far (beyond both bodies) from a robot ahead of them
 TOUCH_M = 0.01  # closest distance that counts as touching: a blocked robot stops up to one step (~4 mm) short
 PARKED = (0.0, 0.0, -60.0)  # where an absent body waits: below the floor, out of every ray and view
 PERSON_COLOR = (0.22, 0.33, 0.55)
@@ -105,6 +106,7 @@ class PersonSpec(BaseModel):
     speed: Speed = Field(default=1.0, description="m/s; at most 3 (running)")
     start: Seconds = 0.0
     loop: bool = False
+    yields: bool = Field(default=True, description="waits while a robot stands in the way (people do not walk into robots)")
     width: float = Field(default=0.35, gt=0.1, le=1.0)
     height: float = Field(default=1.7, gt=0.3, le=2.5)
     color: Color = PERSON_COLOR
@@ -304,10 +306,23 @@ class Person(Mover):
         self.route = Route([(w.x, w.y, w.pause) for w in spec.route], self.speed, self.start, spec.loop)
         self.shape = BodyShape("person", (spec.width, spec.width, spec.height), tuple(spec.color))
         self.radius = spec.width / 2
+        self.yields = spec.yields
+        self.delay = 0.0  # time spent waiting for robots to get out of the way (the route runs this late)
+        self.last_t: float | None = None
 
     def pose_at(self, t):
-        x, y, yaw = self.route.at(t)
+        x, y, yaw = self.route.at(t - self.delay)
         return x, y, self.shape.size[2] / 2, yaw
+
+    def robot_in_the_way(self, pose, robots) -> bool:
+        """A robot within YIELD_M of this person's next position, ahead of them."""
+        for rb in robots:
+            dx, dy = rb.pose[0] - pose[0], rb.pose[1] - pose[1]
+            d = math.hypot(dx, dy)
+            if d < self.radius + rb.spec.radius + YIELD_M and \
+                    (dx * math.cos(pose[3]) + dy * math.sin(pose[3])) > 0.3 * d:
+                return True
+        return False
 
 
 class DroppedBox(Mover):
@@ -412,8 +427,14 @@ class Disturbances:
         """Place every mover and door for time t, then count new contacts with robots."""
         world = self.world
         cid = world.cid
+        robots = list(world.robots.values())
         for m in self.movers:
             pose = m.pose_at(t)
+            if isinstance(m, Person) and m.yields:
+                if pose is not None and m.last_t is not None and m.robot_in_the_way(pose, robots):
+                    m.delay += t - m.last_t  # stays where it stood
+                    pose = m.pose_at(t)
+                m.last_t = t
             placed = (PARKED, (0.0, 0.0, 0.0, 1.0)) if pose is None else \
                 ((pose[0], pose[1], pose[2]), tuple(yaw_quat(pose[3])))
             if placed != m.placed:
@@ -422,7 +443,7 @@ class Disturbances:
         for d in self.doors:
             if not d.finished and t >= d.at:
                 world._set_door(d.door, d.angle_at(t, next(x.angle for x in world.plan.doors if x.id == d.door)))
-        self._count_contacts(t, list(world.robots.values()))
+        self._count_contacts(t, robots)
 
     def _count_contacts(self, t: float, robots: list[Robot]) -> None:
         cid = self.world.cid

@@ -22,7 +22,7 @@ from pathlib import Path
 from agents.services.context import ServiceState
 from agents.tracing import read_trace
 from ontology import core as C
-from ontology.trace import Direction, RecordKind
+from ontology.trace import Direction, RecordKind, StructureEvent
 from rapps.hazard_detection.hazard_detection.models import HazardReport
 from robots import OdometryNoise, RobotAPI, World
 
@@ -94,10 +94,15 @@ def score_hazards(specs, truth, reports: dict) -> list[dict]:
 
 async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "house", json_path=None,
                                out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0,
-                               progress: bool = False) -> dict:
+                               progress: bool = False, disturbances=None, during=None) -> dict:
+    """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
+    `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
+    owner's stop and resume. The result also counts the robot's contacts with people and objects and,
+    from the trace, the Core's reactive strategies and the plan monitor's failed plans (replans)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
-    world = World.from_file(house, seed=seed, overrides=hazard_overrides(house, seed), rtf=rtf)
+    world = World.from_file(house, seed=seed, overrides=hazard_overrides(house, seed), rtf=rtf,
+                            disturbances=disturbances)
     try:
         recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
                                 frames_dir=out / "frames")
@@ -118,13 +123,19 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             await wait_until(lambda: core_listening(handle.core), 30, "Core listening", interval=0.05)
             sim0, wall0 = world.time, time.monotonic()
             await handle.user.say(handle.core.address, COMMAND)
-            end = await handle.user.wait_for(lambda t: t.startswith(FINISHED)
-                                             or "did not understand" in t, timeout=timeout_s)
+            side = asyncio.create_task(during(handle, world, recorder)) if during is not None else None
+            try:
+                end = await handle.user.wait_for(lambda t: t.startswith(FINISHED)
+                                                 or "did not understand" in t, timeout=timeout_s)
+            finally:
+                if side is not None:
+                    side.cancel()
             if "did not understand" in end:
                 raise RuntimeError(f"the Core did not start the RApp: {end}")
             sim_s, wall_s = world.time - sim0, time.monotonic() - wall0
             texts = handle.user.texts()
-        reports = hazard_reports(read_trace(trace, validate=True), handle.core.address)
+        records = read_trace(trace, validate=True)
+        reports = hazard_reports(records, handle.core.address)
         rows = score_hazards(info.hazards, world.ground_truth(), reported(reports))
         for row, frame in zip(rows_in_order(rows, [r.id for r in reports]), recorder.frames):
             frame.rename(frame.with_name(f"{row['id']}{frame.suffix}"))  # .jpg from a noisy camera
@@ -134,6 +145,10 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             "localization_error_m": finite(recorder.localization_error()),
             "max_tracking_error_m": finite(recorder.tracking_error()),
             "duration_sim_s": round(sim_s, 2), "duration_wall_s": round(wall_s, 2),
+            "finished": end.startswith(FINISHED[0]), "end": end,
+            "routes_blocked": [r.model_dump() for r in reports if r.type == "route"],
+            "person_contacts": world.person_contacts(), "object_contacts": world.object_contacts(),
+            **monitoring(records),
             "trace": str(trace), "plot": str(out / "hazard_run.png"),
         }
         plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
@@ -147,6 +162,17 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         world.close()
     Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
     return result
+
+
+def monitoring(records: list[dict]) -> dict:
+    """From the trace: the reactive strategies the Core ran (in order), the plans that failed (the
+    plan monitor's `plan-failed`: the task re-planned) and the obstacles it entered into the map."""
+    events = [r for r in records if r["kind"] == RecordKind.STRUCTURE]
+    return {"strategies": [r["strategy"] for r in events if r.get("event") == StructureEvent.STRATEGY
+                           and r.get("phase") == "start"],
+            "replans": sum(r.get("event") == StructureEvent.PLAN_FAILED for r in events),
+            "obstacles_marked": sum(r.get("event") == StructureEvent.OBSTACLE_MARKED for r in events),
+            "estops": sum(r.get("event") == StructureEvent.ESTOP for r in events)}
 
 
 def finite(value: float, digits: int = 4) -> float | None:

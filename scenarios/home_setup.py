@@ -13,16 +13,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from agents.services import home as home_service
 from agents.services import navigation
 from agents.services.context import ServiceContext, ServiceState
-from ontology.services.home import DoorShape, HazardSpec, HomeInfo, LandmarkSpec, RoomSpec, UploadHomeInfo
+from ontology.services.home import DoorShape, DoorwaySpec, HazardSpec, HomeInfo, LandmarkSpec, RoomSpec, UploadHomeInfo
 from ontology.errors import ErrorCode
 from ontology.services.navigation import UploadMap
+from robots import HOUSES as HOUSE_DIR
 from robots.gridmap import OCCUPIED, build_grid_map
 from robots.house_gen import GENERATED, PASSAGE_OPEN_DEG, door_check_pose, generate, lamp_check_pose
 
@@ -52,11 +55,20 @@ def layout(house: str, world_or_plan=None, seed: int | None = None) -> dict:
     elif house == GENERATED and seed is not None:
         hz = generate(seed)["hazards"]
     else:
-        hz = {}
+        hz = described_hazards(house)
     if not hz:
         raise KeyError(f"no hazard layout for house {house!r} (known: {', '.join(HOUSES)})")
     return {"doors": dict(hz.get("doors", {})), "lamps": {k: tuple(v) for k, v in hz.get("lamps", {}).items()},
             "passages": list(hz.get("passages", []))}
+
+
+def described_hazards(house: str) -> dict:
+    """The `hazards` section of a house file (a bare name in robots/houses, or a path); {} if none."""
+    path = Path(house) if Path(house).exists() else HOUSE_DIR / f"{house}.yaml"
+    if not path.is_file():
+        return {}
+    desc = yaml.safe_load(path.read_text()) or {}
+    return dict(desc.get("hazards") or {}) if isinstance(desc, dict) else {}
 
 
 def has_layout(house: str, world_or_plan=None) -> bool:
@@ -86,6 +98,16 @@ def door_hazard(door, side: str) -> HazardSpec:
                       look_at=[look[0], look[1], 0.0],
                       door=DoorShape(hinge=list(door.hinge), closed_yaw_deg=math.degrees(door.closed_yaw),
                                      width_m=door.width))
+
+
+def doorway(plan, door) -> DoorwaySpec:
+    """A door as the home description lists it: where and how wide (its shape), and its rooms."""
+    shape = DoorShape(hinge=list(door.hinge), closed_yaw_deg=math.degrees(door.closed_yaw), width_m=door.width)
+    mid = (door.hinge[0] + 0.5 * door.width * math.cos(door.closed_yaw),
+           door.hinge[1] + 0.5 * door.width * math.sin(door.closed_yaw))
+    normal = (-math.sin(door.closed_yaw), math.cos(door.closed_yaw))
+    rooms = [plan.room_at(mid[0] + s * 0.3 * normal[0], mid[1] + s * 0.3 * normal[1]) for s in (1, -1)]
+    return DoorwaySpec(id=door.id, door=shape, rooms=[r for r in rooms if r])
 
 
 def lamp_hazard(lamp, into_room: tuple[float, float], distance: float = 1.4) -> HazardSpec:
@@ -139,7 +161,8 @@ def home_description(world, house: str, out_dir, home_id: str = "home") -> tuple
     hazards = [h.model_copy(update={"room": plan.room_at(*(h.look_at[:2] if h.type == "lamp" else (h.stand.x, h.stand.y)))})
                for h in hazard_list(world, house)]
     info = HomeInfo(home_id=home_id, map_id=f"{house}_map", hazards=hazards, landmarks=landmark_specs(world),
-                    rooms=[RoomSpec(name=r.name, rect=list(r.rect)) for r in plan.rooms])
+                    rooms=[RoomSpec(name=r.name, rect=list(r.rect)) for r in plan.rooms],
+                    doors=[doorway(plan, d) for d in plan.doors])
     return info, png.read_bytes(), yml.read_text()
 
 

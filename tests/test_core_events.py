@@ -5,6 +5,7 @@ import time
 import pytest
 from pydantic import ValidationError
 
+from agents.core_commands import ObstacleEcho
 from agents.core_events import ObstacleEvents
 from ontology.notifications import EventTopic, Notification, NotificationKind, SubscribeEvents
 
@@ -15,11 +16,12 @@ class _Core:
     def __init__(self, readings):
         self.readings, self.sent = list(readings), []
 
-    async def nearest_obstacle(self):
-        return self.readings.pop(0)
+    async def nearest_echo(self):
+        margin = self.readings.pop(0)
+        return None if margin is None else ObstacleEcho(margin, margin + 0.25, 0.44)
 
-    async def publish(self, topic, ttl_s, **data):
-        self.sent.append((topic, data["margin_m"]))
+    async def publish_echo(self, topic, echo):
+        self.sent.append((topic, echo.margin_m))
 
 
 async def test_obstacle_events_on_crossings_only():

@@ -47,3 +47,48 @@ async def test_wait_for_clear_hands_the_path_back(tmp_path):
             await handle.user.wait_for(lambda t: "path-echo finished" in t, timeout=30)
     finally:
         world.close()
+
+
+@pytest.mark.timeout(180)
+async def test_the_plan_monitor_stops_a_late_plan_and_learns_where_the_way_is_blocked(tmp_path):
+    """rapps/sdk/monitor.py with a real Core: a leg that cannot be done in time is stopped (arrive-by);
+    a box that stays in the way makes the Core's strategies give up (blocked), and the obstacle event
+    the Core sent just before tells the monitor where the box stands (path-free)."""
+    world = World.from_file("small", seed=2, rtf=2.0)
+    try:
+        async with RappSystem(tmp_path, trace_file=tmp_path / "trace.jsonl") as system:
+            await system.publish(variant(tmp_path, "late-echo", "lateecho", behaviour="monitored", within_s=1.5))
+            await system.publish(variant(tmp_path, "boxed-echo", "boxedecho", behaviour="monitored"))
+            handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
+            system.handle, core = handle, handle.core
+            core.wait_s = 0.5  # the box stays: no need to wait long for it to go
+            await wait_until(lambda: core.vocabulary and state(core) == "s3_listen")
+
+            reply = await run_command(system, "lateecho", "plan failed", timeout=60)
+            assert "arrive-by; obstacle nowhere" in reply
+            assert 1.5 <= float(reply.split("after ")[1].split(" s")[0]) <= 2.5
+            pose = world.ground_truth().robots["nao"]
+            await asyncio.sleep(0.5)
+            assert world.ground_truth().robots["nao"] == pose  # stopped, not walking on
+            await handle.user.wait_for(lambda t: "late-echo finished" in t, timeout=30)
+            await wait_until(lambda: state(core) == "s3_listen")
+
+            x0, y0, _ = world.ground_truth().robots["nao"]
+
+            def put_box():  # a box that stays, its near face 0.55 m ahead of the NAO
+                shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.15, 0.25, 0.4], physicsClientId=world.cid)
+                return p.createMultiBody(0, shape, basePosition=[x0 + 0.7, y0, 0.4], physicsClientId=world.cid)
+
+            await world.run(put_box)
+            reply = await run_command(system, "boxedecho", "plan failed", timeout=90)
+            assert "path-free; obstacle (" in reply
+            ox, oy = (float(v) for v in reply.split("obstacle (")[1].split(")")[0].split(", "))
+            assert abs(ox - (x0 + 0.55)) < 0.12 and abs(oy - y0) < 0.25  # the box's near face
+            assert world.person_contacts() == 0 and world.object_contacts() == 0
+            steps = [s[0] for s in _strategy(system.settings.trace_file)]
+            assert "back-off" in steps
+            failed = [r for r in read_trace(system.settings.trace_file) if r["kind"] == "structure"
+                      and r["event"] == "plan-failed"]
+            assert [r["expectation"] for r in failed] == ["arrive-by", "path-free"]
+    finally:
+        world.close()

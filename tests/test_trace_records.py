@@ -41,7 +41,8 @@ def _calls():
 
 def emitted() -> dict[str, dict[str, list[str]]]:
     """{kind: {event or "": [where]}} of every trace record written with literal names:
-    record_structure("event", ...), tracer.record("kind", event="...", ...), ctx.trace("kind", ...)."""
+    record_structure("event", ...), tracer.record("kind", event="...", ...), ctx.trace("kind", ...),
+    task._trace("kind", event=...)."""
     out: dict[str, dict[str, list[str]]] = {}
     for where, call in _calls():
         name = call.func.attr
@@ -50,7 +51,7 @@ def emitted() -> dict[str, dict[str, list[str]]]:
             assert names is not None, f"{where}: record_structure with a non-literal event name"
             for event in names:
                 out.setdefault("structure", {}).setdefault(event, []).append(where)
-        elif name in ("record", "trace") and call.args:
+        elif name in ("record", "trace", "_trace") and call.args:  # _trace: a RApp task's (rapps/sdk)
             kinds = _strings(call.args[0])
             if kinds is None:  # a pass-through (TraceWriter.record's own callers are checked)
                 continue

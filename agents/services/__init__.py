@@ -18,8 +18,8 @@ import ontology.services as _models  # noqa: F401  (registers the actions)
 from ontology.registry import Action, Content, lookup
 from ontology.errors import ErrorCode
 
-from . import (cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation, speech,
-               vision)
+from . import (cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation,
+               obstacles, speech, vision)
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
 
@@ -36,6 +36,9 @@ _IMPLS: dict[str, Callable] = {
     "path_planning_upload_map": navigation.upload_map,
     "path_planning_list_maps": navigation.list_maps,
     "path_planning_plan_path_2d": navigation.plan_path_2d,
+    "path_planning_add_obstacle": obstacles.add_obstacle,
+    "path_planning_clear_obstacles": obstacles.clear_obstacles,
+    "path_planning_list_obstacles": obstacles.list_obstacles,
     "qr_detection": localization.qr_detection,
     "compute_global_pose": localization.compute_global_pose,
     "hazard_detection_door_check": hazard.door_check,

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .maps import MapStore
+from .obstacles import ObstacleLayers
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 
@@ -23,6 +24,7 @@ class ServiceState:
     data_dir: Path = DATA_DIR
     work_dir: Path = field(default_factory=lambda: Path(tempfile.mkdtemp(prefix="rapp-services-")))
     maps: MapStore = field(default_factory=MapStore)
+    obstacles: ObstacleLayers = field(default_factory=ObstacleLayers)  # temporary marks per (user, map)
     _stores: dict[str, Any] = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 

@@ -1,4 +1,6 @@
-"""Navigation services: map upload / listing and 2-D path planning per robot type (paper 001)."""
+"""Navigation services: map upload / listing and 2-D path planning per robot type (paper 001).
+Plans go round the caller's temporary obstacle marks (agents/services/obstacles.py) unless the
+request says otherwise."""
 from __future__ import annotations
 
 import math
@@ -17,6 +19,7 @@ from . import planning
 from .context import ServiceContext
 from .images import b64_bytes
 from .maps import GridMap, parse_map
+from .obstacles import OverlayMap
 
 # footprint radius (m) of each robot type: the cost map inflates obstacles by it
 ROBOT_RADIUS = {"nao": 0.20, "elektron": 0.30}
@@ -42,10 +45,28 @@ def list_maps(req: ListMaps, ctx: ServiceContext) -> MapList:
 
 def free_cells(m: GridMap, robot_type: str, margin_m: float = 0.0) -> np.ndarray:
     """Free mask of the cost map: obstacles inflated by the robot's footprint radius plus margin_m
-    (cached per margin)."""
+    (cached per margin). An overlay's is its base map's less the inflated marks, inflated only
+    around them (inflating a union is the union of the inflations)."""
     margin_m = round(margin_m, 3)
     radius = (ROBOT_RADIUS[robot_type] + margin_m) / m.resolution
+    if isinstance(m, OverlayMap) and m.base is not None:
+        base = m.base
+        return m.cached(("free", robot_type, margin_m),
+                        lambda: _less_marks(free_cells(base, robot_type, margin_m), m.blocked & ~base.blocked, radius))
     return m.cached(("free", robot_type, margin_m), lambda: ~planning.inflate(m.blocked, radius))
+
+
+def _less_marks(free: np.ndarray, marked: np.ndarray, radius: float) -> np.ndarray:
+    """free without the cells within radius (cells) of a marked cell, computed on the marks' box."""
+    ys, xs = np.nonzero(marked)
+    if len(ys) == 0:
+        return free
+    pad = int(math.ceil(radius)) + 1
+    y0, y1 = max(0, ys.min() - pad), min(free.shape[0], ys.max() + pad + 1)
+    x0, x1 = max(0, xs.min() - pad), min(free.shape[1], xs.max() + pad + 1)
+    out = free.copy()
+    out[y0:y1, x0:x1] &= ndimage.distance_transform_edt(~marked[y0:y1, x0:x1]) > radius
+    return out
 
 
 def grid_graph(m: GridMap, robot_type: str, margin_m: float = 0.0) -> planning.GridGraph:
@@ -54,9 +75,25 @@ def grid_graph(m: GridMap, robot_type: str, margin_m: float = 0.0) -> planning.G
 
 
 def landmarks(m: GridMap, robot_type: str, margin_m: float = 0.0):
+    """ALT landmark tables (8 Dijkstra runs over the map, built once per cost map). An overlay
+    builds none: its base map's tables are lower bounds of its distances too (marks only remove
+    cells), so A* uses them when the base has them for this margin, else the octile distance alone."""
     margin_m = round(margin_m, 3)
-    return m.cached(("landmarks", robot_type, margin_m),
-                    lambda: planning.landmark_distances(grid_graph(m, robot_type, margin_m)))
+    key = ("landmarks", robot_type, margin_m)
+    if isinstance(m, OverlayMap) and m.base is not None:
+        return m.base._cache.get(key)  # a peek: building them would cost more than the search saves
+    return m.cached(key, lambda: planning.landmark_distances(grid_graph(m, robot_type, margin_m)))
+
+
+def connected(m: GridMap, robot_type: str, margin_m: float, a, b) -> bool:
+    """Whether cells a and b lie in one component of this margin's graph: its components are those
+    of the free mask's 4-neighbourhood (a diagonal move needs both orthogonal cells free), so an
+    overlay finds out without building the graph."""
+    margin_m = round(margin_m, 3)
+    free = free_cells(m, robot_type, margin_m)
+    labels = m.cached(("labels", robot_type, margin_m), lambda: ndimage.label(free)[0])
+    la, lb = (labels[int(round(c[1])), int(round(c[0]))] for c in (a, b))
+    return bool(la) and la == lb
 
 
 def nearest_free(m: GridMap, robot_type: str, margin_m: float, cell) -> tuple[tuple[float, float], float]:
@@ -64,15 +101,15 @@ def nearest_free(m: GridMap, robot_type: str, margin_m: float, cell) -> tuple[tu
     in metres (0 when the position's own cell is free)."""
     margin_m = round(margin_m, 3)
     free = free_cells(m, robot_type, margin_m)
+    ix, iy = int(round(cell[0])), int(round(cell[1]))
+    if free[iy, ix]:
+        return (float(cell[0]), float(cell[1])), 0.0
 
     def build():
         _, idx = ndimage.distance_transform_edt(~free, return_indices=True)
         return idx
 
     idx = m.cached(("nearest", robot_type, margin_m), build)
-    ix, iy = int(round(cell[0])), int(round(cell[1]))
-    if free[iy, ix]:
-        return (float(cell[0]), float(cell[1])), 0.0
     ny, nx = idx[0, iy, ix], idx[1, iy, ix]
     if not free[ny, nx]:  # no free cell at all
         return (float(cell[0]), float(cell[1])), math.inf
@@ -93,6 +130,8 @@ def plan_cells(m: GridMap, robot_type: str, algorithm: str, start_c, goal_c, tim
     put the exact start / goal back after the search."""
     free = free_cells(m, robot_type, margin_m)
     if algorithm in GRID_ALGORITHMS:
+        if isinstance(m, OverlayMap) and not connected(m, robot_type, margin_m, start_c, goal_c):
+            return None  # a margin the marks close: no graph built for it
         g = grid_graph(m, robot_type, margin_m)
         s_node = g.node(int(round(start_c[0])), int(round(start_c[1])))
         g_node = g.node(int(round(goal_c[0])), int(round(goal_c[1])))
@@ -119,23 +158,62 @@ def margins(clearance_m: float) -> list[float]:
     return [clearance_m, clearance_m / 2, clearance_m / 4, 0.0]
 
 
+def _base(m: GridMap) -> GridMap:
+    return m.base if isinstance(m, OverlayMap) and m.base is not None else m
+
+
+def _leave_marks(m: OverlayMap, rt: str, at) -> tuple[tuple[float, float] | None, str]:
+    """A start whose footprint reaches into temporary obstacle marks (the robot stands next to what
+    it marked) steps straight to the nearest cell free of them: at most as far as the footprint
+    reaches in, along a segment clear of the map's own obstacles that never closes in on a mark's
+    centre (it backs away from what it marked, never through it)."""
+    out, dist = nearest_free(m, rt, 0.0, at)
+    if dist == 0:
+        return (float(at[0]), float(at[1])), ""
+    p = np.asarray(m.cell_to_world(*at), float)
+    q = np.asarray(m.cell_to_world(*out), float)
+    reach = max(k.radius_m + ROBOT_RADIUS[rt] - math.hypot(*(p - (k.x, k.y))) for k in m.marks)
+    if not math.isfinite(dist) or dist > reach + 2 * m.resolution:
+        return None, "start pose is inside temporary obstacle marks, too deep to step out of them"
+    if not planning.segment_free(free_cells(m.base, rt), at, out):
+        return None, "start pose is inside temporary obstacle marks and cannot step out of them in a straight line"
+    d = q - p
+    for k in m.marks:  # those the step comes near must not be approached
+        c = np.array([k.x, k.y])
+        t = float(np.clip(np.dot(c - p, d) / max(float(np.dot(d, d)), 1e-12), 0.0, 1.0))
+        closest = math.hypot(*(p + t * d - c))
+        if closest < k.radius_m + ROBOT_RADIUS[rt] and closest < math.hypot(*(p - c)) - m.resolution:
+            return None, "start pose is inside temporary obstacle marks; stepping out would cross one"
+    return out, ""
+
+
 def plan_with_clearance(m: GridMap, req: PlanPath2D, start_c, goal_c):
     """(cells, margin, reason): the path at the widest margin that connects start and goal.
 
     An end inside a margin (a goal near a wall) joins the path at the nearest cell that keeps it,
     by a straight segment clear of the bare footprint. A start inside the bare footprint's inflation
     (a robot that stopped against an obstacle) first steps straight to the nearest free cell, if that
-    is within ESCAPE_M."""
+    is within ESCAPE_M; then, on an overlay, out of the temporary marks (`_leave_marks`)."""
     rt = req.robot_type
+    base = _base(m)
     hard = free_cells(m, rt)
-    escape, dist = nearest_free(m, rt, 0.0, start_c)
-    if m.blocked[int(round(start_c[1])), int(round(start_c[0]))]:
+    escape, dist = nearest_free(base, rt, 0.0, start_c)
+    if base.blocked[int(round(start_c[1])), int(round(start_c[0]))]:
         return None, 0.0, "start pose is in an obstacle"
     if dist > ESCAPE_M:
         return None, 0.0, ("start pose is in an obstacle or too close to one for this robot "
                            f"(more than {ESCAPE_M:.2f} m from free space)")
-    if nearest_free(m, rt, 0.0, goal_c)[1] > 0:
+    steps = [escape]
+    if m is not base:
+        out, reason = _leave_marks(m, rt, escape)
+        if out is None:
+            return None, 0.0, reason + " (clear them or plan with use_obstacles=False)"
+        steps.append(out)
+        escape = out
+    if nearest_free(base, rt, 0.0, goal_c)[1] > 0:
         return None, 0.0, "goal pose is in an obstacle or too close to one for this robot"
+    if m is not base and nearest_free(m, rt, 0.0, goal_c)[1] > 0:
+        return None, 0.0, "goal pose is in a temporary obstacle mark or too close to one for this robot"
     reason = ""
     for margin in margins(req.clearance_m):
         ends = []
@@ -150,10 +228,22 @@ def plan_with_clearance(m: GridMap, req: PlanPath2D, start_c, goal_c):
         if cells is None:
             reason = "no collision-free path between start and goal for this robot"
             continue
-        pts = [np.asarray(start_c, float), np.asarray(escape, float), *cells, np.asarray(goal_c, float)]
+        pts = [np.asarray(start_c, float), *(np.asarray(p, float) for p in steps), *cells, np.asarray(goal_c, float)]
         keep = [pts[0]] + [q for prev, q in zip(pts, pts[1:]) if np.hypot(*(q - prev)) > 1e-9]
         return np.asarray(keep), margin, ""
+    if m is not base:
+        reason += _blame_marks(m, rt, escape, goal_c)
     return None, 0.0, reason
+
+
+def _blame_marks(m: OverlayMap, rt: str, start_c, goal_c) -> str:
+    """Whether the marks are what keeps start and goal apart: the map alone connects them for the
+    bare footprint, the map with the marks does not."""
+    n = len(m.marks)
+    if connected(m.base, rt, 0.0, start_c, goal_c) and not connected(m, rt, 0.0, start_c, goal_c):
+        return (f": the {n} temporary obstacle mark(s) on this map block every route (clear them with "
+                "path_planning_clear_obstacles, or plan with use_obstacles=False)")
+    return f" ({n} temporary obstacle mark(s) on this map)"
 
 
 def plan_path_2d(req: PlanPath2D, ctx: ServiceContext) -> PlanPathReply:
@@ -172,10 +262,13 @@ def plan_path_2d(req: PlanPath2D, ctx: ServiceContext) -> PlanPathReply:
         if reason:
             return PlanPathReply(plan_found=PLAN_NOT_FOUND, reason=reason)
     start_c, goal_c = m.world_to_cell(req.start.x, req.start.y), m.world_to_cell(req.goal.x, req.goal.y)
+    if req.use_obstacles:
+        m = ctx.state.obstacles.overlay(ctx.user, m)
+    used = len(m.marks) if isinstance(m, OverlayMap) else 0
     cells, margin, reason = plan_with_clearance(m, req, start_c, goal_c)
     elapsed = time.perf_counter() - t0
     if cells is None:
-        return PlanPathReply(plan_found=PLAN_NOT_FOUND, planning_time_s=elapsed, reason=reason)
+        return PlanPathReply(plan_found=PLAN_NOT_FOUND, planning_time_s=elapsed, reason=reason, obstacles_used=used)
     pts = planning.resample(cells, req.waypoint_spacing_m / m.resolution)
     xs, ys = m.cell_to_world(pts[:, 0], pts[:, 1])
     headings = np.arctan2(np.diff(ys), np.diff(xs))
@@ -183,4 +276,4 @@ def plan_path_2d(req: PlanPath2D, ctx: ServiceContext) -> PlanPathReply:
     path = [Pose2D(x=float(x), y=float(y), theta=float(t)) for x, y, t in zip(xs, ys, thetas)]
     path[0] = Pose2D(x=req.start.x, y=req.start.y, theta=float(thetas[0]) if len(path) > 1 else req.start.theta)
     return PlanPathReply(plan_found=PLAN_FOUND, path=path, length_m=planning.path_length(cells) * m.resolution,
-                         planning_time_s=elapsed, clearance_m=margin)
+                         planning_time_s=elapsed, clearance_m=margin, obstacles_used=used)

@@ -22,6 +22,15 @@ class DoorShape(Content):
     width_m: float = Field(default=0.9, gt=0)
 
 
+class DoorwaySpec(Content):
+    """A door of the home as the map's owner knows it (where, how wide), never its state: a plan
+    monitor that finds the way blocked in a doorway can say which door is closed."""
+
+    id: str
+    door: DoorShape
+    rooms: list[str] = []  # the rooms it joins (when known)
+
+
 class RoomSpec(Content):
     """A named room: its axis-aligned rectangle x0, y0, x1, y1 (m, global frame)."""
 
@@ -49,6 +58,7 @@ class HomeInfo(Content):
     hazards: list[HazardSpec] = []
     landmarks: dict[str, LandmarkSpec] = {}  # keyed by the text encoded in the QR code
     rooms: list[RoomSpec] = []
+    doors: list[DoorwaySpec] = []  # every door of the home (hazards or not)
 
 
 @action("home_upload_info", ontology="platform", reply=HomeInfo, group=GROUP)

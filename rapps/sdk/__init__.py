@@ -14,6 +14,7 @@
 
 `self.robot.<action>(**fields)` is a robot-API request executed by the Core (ontology "robot"),
 `self.platform.<service>(**fields)` a Platform service (the token is added for you),
+`self.marks` the obstacles it entered into the Platform's map (plan monitoring: rapps/sdk/monitor.py),
 `self.cloud` the RApp's own Cloud Agent (`await self.cloud.start()` then
 `await self.cloud.call("action", **fields)`), `self.params` the parameters of the user's command.
 Errors arrive as RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (all RequestError),
@@ -44,11 +45,12 @@ from ontology.trace import RecordKind
 
 from .blackboard import Blackboard, BlackboardError, Key
 from .calls import PlatformCalls, RobotCalls
+from .monitor import ArriveBy, Expectation, Localized, ObstacleMarks, PathFree, PlanFailed, PlanMonitor
 
 __all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "Sequence", "Selector", "Parallel",
            "Timeout", "Retry", "Inverter", "Key", "Blackboard", "BlackboardError", "CloudAgentLost", "RequestError", "RequestFailed",
            "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode", "Notification", "NotificationKind",
-           "EventTopic"]
+           "EventTopic", "PlanMonitor", "PlanFailed", "Expectation", "ArriveBy", "PathFree", "Localized"]
 
 
 class _Dynamic:
@@ -168,6 +170,7 @@ class Task:
         self.root: Behaviour | None = None  # what build() returned (set by the runtime)
         self.memory: dict = getattr(runtime, "memory", {})
         self.log = TaskLog(self)
+        self.marks = ObstacleMarks(self)  # obstacles entered into the Platform's map (rapps/sdk/monitor.py)
         self.bb = Blackboard(self.keys, self.memory, writer=lambda: (self.state_path() or [""])[-1],
                              trace=self._trace)
 

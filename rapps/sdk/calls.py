@@ -15,7 +15,7 @@ from ontology.services.information import CurrentWeather, Forecast, NewsReply
 from ontology.services.interpretation import Interpretation, RAppDescription
 from ontology.services.knowledge import ClassList, CognitiveHistory, CognitiveTest, IsSubclass, ScoreRecord
 from ontology.services.localization import Landmark, MarkerObservation, QRDetections
-from ontology.services.navigation import MapInfo, MapList, PlanPathReply
+from ontology.services.navigation import MapInfo, MapList, ObstacleLayer, PlanPathReply
 from ontology.services.speech import NoiseProfile, Recognition, Speech
 from ontology.services.vision import Detections, FoundObjects
 
@@ -180,12 +180,24 @@ class PlatformCalls(_Calls):
     async def ontology_superclasses_of(self, *, cls: str, recursive: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
         return await self._call("ontology_superclasses_of", {"token": token, "cls": cls, "recursive": recursive}, _timeout, _feedback)
 
+    async def path_planning_add_obstacle(self, *, map_id: str, x: float, y: float, radius_m: float, ttl_s: float = 120.0, note: str = '', skip_within_m: float = 0.0, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ObstacleLayer:
+        """Mark a temporary obstacle (disc) on a map: the caller's next plans on it go round it."""
+        return await self._call("path_planning_add_obstacle", {"token": token, "map_id": map_id, "x": x, "y": y, "radius_m": radius_m, "ttl_s": ttl_s, "note": note, "skip_within_m": skip_within_m}, _timeout, _feedback)
+
+    async def path_planning_clear_obstacles(self, *, map_id: str, x: float | None = None, y: float | None = None, radius_m: float = 0.5, all: bool = False, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ObstacleLayer:
+        """Drop the caller's marks centred within radius_m of (x, y), a place seen free again; all=True: all marks."""
+        return await self._call("path_planning_clear_obstacles", {"token": token, "map_id": map_id, "x": x, "y": y, "radius_m": radius_m, "all": all}, _timeout, _feedback)
+
     async def path_planning_list_maps(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapList:
         return await self._call("path_planning_list_maps", {"token": token}, _timeout, _feedback)
 
-    async def path_planning_plan_path_2d(self, *, robot_type: str, algorithm: str = 'astar', map_id: str, start: Pose2D, goal: Pose2D, waypoint_spacing_m: float = 0.3, time_limit_s: float = 1.0, clearance_m: float = 0.2, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> PlanPathReply:
+    async def path_planning_list_obstacles(self, *, map_id: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ObstacleLayer:
+        """The caller's live temporary obstacle marks on a map."""
+        return await self._call("path_planning_list_obstacles", {"token": token, "map_id": map_id}, _timeout, _feedback)
+
+    async def path_planning_plan_path_2d(self, *, robot_type: str, algorithm: str = 'astar', map_id: str, start: Pose2D, goal: Pose2D, waypoint_spacing_m: float = 0.3, time_limit_s: float = 1.0, clearance_m: float = 0.2, use_obstacles: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> PlanPathReply:
         """Plan from start to goal for a robot type ("nao", "elektron") with an algorithm"""
-        return await self._call("path_planning_plan_path_2d", {"token": token, "robot_type": robot_type, "algorithm": algorithm, "map_id": map_id, "start": start, "goal": goal, "waypoint_spacing_m": waypoint_spacing_m, "time_limit_s": time_limit_s, "clearance_m": clearance_m}, _timeout, _feedback)
+        return await self._call("path_planning_plan_path_2d", {"token": token, "robot_type": robot_type, "algorithm": algorithm, "map_id": map_id, "start": start, "goal": goal, "waypoint_spacing_m": waypoint_spacing_m, "time_limit_s": time_limit_s, "clearance_m": clearance_m, "use_obstacles": use_obstacles}, _timeout, _feedback)
 
     async def path_planning_upload_map(self, *, map_id: str, png_b64: str, yaml_text: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapInfo:
         """A ROS map_server map: PNG (base64) + its YAML text (resolution, origin, thresholds, negate)."""

@@ -38,6 +38,7 @@ class FakeRuntime:
         self.robot_info = RobotInfo(robot_id="nao1", robot_type="nao")
         self.answers = answers
         self.reports: list[C.Report] = []
+        self.event_handlers: dict = {}  # the Core's notifications (the plan monitor subscribes)
 
     async def request(self, to, content, timeout=None, **kw):
         if isinstance(content, C.Report):

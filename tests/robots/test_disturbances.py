@@ -147,8 +147,9 @@ async def test_a_dropped_box_appears_at_its_time(make_world):
 
 async def test_a_person_walking_into_a_standing_robot_is_one_contact_per_episode(make_world):
     # back and forth through a NAO standing at (2, 2): two touching episodes, each counted once
+    # (a person who does not yield: `yields: false`)
     world = make_world("small", render="inline", disturbances=[
-        person([[0.6, 2.0], [3.2, 2.0]], speed=1.0, start=0.5, loop=True)])
+        person([[0.6, 2.0], [3.2, 2.0]], speed=1.0, start=0.5, loop=True, yields=False)])
     api_at(world, "nao", (2.0, 2.0, 0))
     await sleep_until(world, 3.1)  # the first pass is over
     assert world.person_contacts() == 1 and world.object_contacts() == 0
@@ -157,6 +158,21 @@ async def test_a_person_walking_into_a_standing_robot_is_one_contact_per_episode
     assert first.time == pytest.approx(0.5 + 2.0 - 0.17 - 0.175 - 0.6, abs=0.05)  # when the surfaces meet
     await sleep_until(world, 4.5)  # on its way back it walks through the robot again
     assert world.person_contacts() == 2 and world.person_contacts("nao") == 2 and world.person_contacts("x") == 0
+
+
+async def test_a_person_waits_for_a_robot_in_the_way_then_walks_on(make_world):
+    # the same walk with a yielding person (the default): they stop short of the NAO and never touch it;
+    # once the NAO has gone, they walk on (their route runs late by the wait)
+    world = make_world("small", render="inline", disturbances=[
+        person([[0.6, 2.0], [3.2, 2.0]], speed=1.0, start=0.5)])
+    api_at(world, "nao", (2.0, 2.0, 0))
+    await sleep_until(world, 4.0)
+    x, y, _ = world.disturbances.poses()["p1"]
+    gap = 2.0 - x - 0.175 - world.robots["nao"].spec.radius
+    assert 0.15 < gap <= 0.3 and world.person_contacts() == 0
+    await world.run(world.robots["nao"].set_base_pose, 2.0, 0.6, 0.0)  # the robot steps aside
+    await sleep_until(world, 7.0)
+    assert world.disturbances.poses()["p1"][0] == pytest.approx(3.2, abs=0.01) and world.person_contacts() == 0
 
 
 async def test_a_robot_driving_into_a_dropped_box_is_blocked_and_counted(make_world):

@@ -59,9 +59,10 @@ class HazardReport(Content):
     report's text says the same to the user), read back by scenarios/hazard.py to score the run."""
 
     id: str
-    type: Literal["door", "lamp"]
-    state: Literal["open", "closed", "on", "off", "unknown"]  # unknown: not reached or not checked
+    type: Literal["door", "lamp", "route"]  # route: the only way to a hazard is blocked (id "route-<hazard>")
+    state: Literal["open", "closed", "on", "off", "unknown", "blocked"]  # unknown: not reached or not checked
     hazard: bool | None  # None when unknown
+    blocked_by: list[str] = []  # routes: what closes the way (e.g. "door d2")
     angle_deg: float | None = None  # doors: the estimated opening angle
     method: str | None = None  # doors: how the angle was estimated
     light_level: float | None = None  # lamps

@@ -8,14 +8,16 @@ import math
 
 from ontology.services.common import CameraIntrinsics
 from ontology.services.hazard import DoorGeometry
-from rapps.sdk import FSM, ErrorCode, RequestError, RequestFailed, Step, Task
+from rapps.sdk import (FSM, ArriveBy, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task)
 
 from .localize import Localizer
 from .models import ONTOLOGY, HazardReport
 
 PLAN_FOUND = 1
 FINAL_LEG_SLACK = 1.25  # the whole rest of the path is one leg when at most this many legs long
-MAX_BLOCKED = 3  # blocked legs per hazard before giving it up
+MAX_BLOCKED = 4  # blocked legs per hazard before giving it up
+MAPPED_M = 0.12  # an obstacle this close to the map's walls is the wall (the pose estimate was off)
+DOORWAY_M = 0.35  # an obstacle this close to a doorway's line is in that doorway
 # a leg is at most as long as keeps the pose filter's predicted sideways error (1 sigma) within this:
 # three sigma stay inside the 10 cm tracking goal (params: leg_cross_track_std_m)
 LEG_CROSS_TRACK_STD_M = 0.035
@@ -97,8 +99,10 @@ class HazardTask(Task):
 
     def build_navigation(self) -> FSM:
         """s3/s4 plan from the current pose, s5 move one leg, re-localize; until the standing pose.
-        A leg blocked by an obstacle (the pose estimate was off near a door frame) backs off the way it
-        came, re-localizes and plans again."""
+        Each leg runs under a plan monitor (paper 004: rapps/sdk/monitor.py) expecting the robot at the
+        leg's end in time and the way free. A leg blocked by an obstacle enters it into the Platform's
+        map (unless it is the map's own wall: the pose estimate was off near a door frame), backs off
+        the way it came, re-localizes and plans again, round it; a late leg re-localizes and plans again."""
         nav = FSM("navigate", initial="n1_plan")
         nav.add_state("n1_plan", Step(self.plan))
         nav.add_state("n1_turn", Step(self.turn))
@@ -112,7 +116,7 @@ class HazardTask(Task):
         nav.add_transition("n1_plan", "n2_move_leg", when=lambda m, o: o.value != "turn")
         nav.add_transition("n1_turn", "n3_relocalize")
         nav.add_transition("n2_move_leg", "n2_back_off", when=lambda m, o: o.value == "blocked")
-        nav.add_transition("n2_move_leg", "n3_relocalize", when=lambda m, o: o.value != "blocked")
+        nav.add_transition("n2_move_leg", "n3_relocalize", when=lambda m, o: o.value != "blocked")  # moved / late
         nav.add_transition("n2_back_off", "n3_relocalize")
         nav.add_transition("n3_relocalize", "n4_arrived", when=lambda m, o: m["leg_final"])
         nav.add_transition("n3_relocalize", "n1_plan", when=lambda m, o: not m["leg_final"])
@@ -153,6 +157,9 @@ class HazardTask(Task):
             map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
             start=pose, goal=hazard.stand)
         if reply.plan_found != PLAN_FOUND:
+            blocked = blocking_doors(memory["home"].doors, memory.get("marked", []))
+            if blocked:  # the map's way there went through a door found closed: a hazard of its own
+                await self.report_blocked_route(memory, blocked)
             memory["error"] = f"(no path: {reply.reason})"  # said in the report of this hazard
             raise RuntimeError(f"no path to {hazard.id}: {reply.reason}")
         memory["replans"] += 1
@@ -183,17 +190,40 @@ class HazardTask(Task):
     async def move_leg(self, memory) -> str:
         leg = memory["leg"]
         self.localizer.moved(path_length(leg), leg_rotation(leg, memory["turn"], memory["leg_final"]))
+        within = path_length(leg) / float(self.params["leg_speed_floor_mps"]) + float(self.params["leg_slack_s"])
+        monitor = PlanMonitor(self, ArriveBy(leg[-1], within_s=within), PathFree(leg))
         try:
-            await self.robot.move_along_path(poses=leg, _timeout=900.0,  # feedback: shown as progress
-                                             _feedback=lambda p: self._show(memory, 0.0, p.text))
-        except RequestError as e:
-            blocked = isinstance(e, RequestFailed) and e.code == ErrorCode.BLOCKED
-            if not blocked or memory["blocked"] >= MAX_BLOCKED:
-                memory["error"] = f"(motion failed: {e.reason})"
+            await monitor.run(self.robot.move_along_path(poses=leg, _timeout=900.0,  # feedback: shown as progress
+                                                         _feedback=lambda p: self._show(memory, 0.0, p.text)))
+        except PlanFailed as e:
+            if memory["blocked"] >= MAX_BLOCKED:
+                memory["error"] = f"(gave up: {e.reason})"
                 raise
             memory["blocked"] += 1
+            if e.expectation != PathFree.name:
+                return "late"
+            await self.mark_obstacle(memory, e.obstacle)
             return "blocked"
+        except RequestError as e:
+            memory["error"] = f"(motion failed: {e.reason})"
+            raise
         return "moved"
+
+    async def mark_obstacle(self, memory, where) -> None:
+        """Enter what blocked the leg into the Platform's map, so that the next plan goes round it
+        (where the range sensors saw it; else just ahead of the robot)."""
+        if where is None:
+            pose = await self.robot.get_global_pose()
+            ahead = float(self.params["back_off_m"]) + 0.3
+            where = (pose.x + ahead * math.cos(pose.theta), pose.y + ahead * math.sin(pose.theta))
+        added = await self.marks.enter(memory["home"].map_id, where[0], where[1],
+                                       radius_m=float(self.params["obstacle_radius_m"]),
+                                       ttl_s=float(self.params["obstacle_ttl_s"]), skip_within_m=MAPPED_M,
+                                       note=f"blocked the way to {memory['hazard'].id}")
+        if added:
+            memory.setdefault("marked", []).append(tuple(where))
+        else:
+            self.log.info("what blocked the leg at (%.2f, %.2f) is the map's wall", *where)
 
     async def back_off(self, memory):
         memory["leg_final"] = False
@@ -251,11 +281,23 @@ class HazardTask(Task):
         return HazardReport(id=h.id, type="lamp", state="on" if reply.lamp_on else "off",
                             light_level=reply.light_level, hazard=reply.lamp_on)
 
+    async def report_blocked_route(self, memory, doors) -> None:
+        """A door on the only route to a hazard is closed: reported as a hazard of its own."""
+        h = memory["hazard"]
+        names = " and ".join(doors)
+        result = HazardReport(id=f"route-{h.id}", type="route", state="blocked", hazard=True,
+                              blocked_by=[f"door {d}" for d in doors])
+        memory["results"].append(result)
+        memory["error"] = f"(the way there is blocked: door {names} closed)"
+        await self.report(f"Hazard route-{h.id} (route): blocked, the door {names} is closed on the only way "
+                          f"to {h.id}.", hazard=result.model_dump())
+
     async def unreachable(self, memory):
         """s5 failed on the way or at the check: the hazard is reported unknown, with the reason the
         failing step left in memory["error"] (planning, motion, localization or the check)."""
         h = memory["hazard"]
         reason = memory.pop("error", "")  # this hazard's, never a stale one
+        memory.pop("marked", None)
         result = HazardReport(id=h.id, type=h.type, state="unknown", hazard=None)
         memory["results"].append(result)
         await self.report(describe(result) + (f" {reason}" if reason else ""), hazard=result.model_dump())
@@ -274,6 +316,23 @@ class HazardTask(Task):
 
     async def done(self, memory):
         await self.say("Hazard check finished.")
+
+
+def blocking_doors(doorways, marked) -> list[str]:
+    """The doors whose doorway holds an obstacle the task entered (what blocked it there is the door)."""
+    out = []
+    for d in doorways:
+        hinge, yaw, width = d.door.hinge, math.radians(d.door.closed_yaw_deg), d.door.width_m
+        latch = (hinge[0] + width * math.cos(yaw), hinge[1] + width * math.sin(yaw))
+        if any(segment_distance(p, hinge, latch) <= DOORWAY_M for p in marked):
+            out.append(d.id)
+    return out
+
+
+def segment_distance(p, a, b) -> float:
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    t = max(0.0, min(1.0, ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / (dx * dx + dy * dy or 1.0)))
+    return math.hypot(p[0] - a[0] - t * dx, p[1] - a[1] - t * dy)
 
 
 def door_geometry(K, camera_to_world, h) -> DoorGeometry:

@@ -1,0 +1,297 @@
+"""Plan monitoring (paper 004): a plan carries expectations, a monitor checks them while the plan runs.
+
+    monitor = PlanMonitor(task, ArriveBy(goal, within_s=60), PathFree(path), Localized(lambda: ekf.std_m, 0.15))
+    try:
+        await monitor.run(task.robot.move_along_path(poses=path, _timeout=900))
+    except PlanFailed as e:        # e.expectation, e.reason, e.obstacle (x, y) or None
+        if e.obstacle:
+            await task.marks.enter(map_id, *e.obstacle, note="something in the way")   # the Platform's layer
+        ...re-plan (plans avoid the marks)
+
+When an expectation fails the monitor blocks execution (the robot's base is stopped, the motion's request
+abandoned) and raises PlanFailed, traced as a structure record `plan-failed`. Expectations:
+
+    ArriveBy(goal, within_s)   where the robot should be, by when: the motion ends within `within_s`
+                               seconds of unpaused time and the robot's pose estimate is then within
+                               `tolerance_m` of the goal
+    PathFree(path)             the path stays free: fails when the Core's reactive strategies gave up
+                               (the motion failed with code `blocked`), or (patience_s) when an obstacle
+                               the range sensors see stands on the rest of the path that long; the
+                               obstacle's place comes from the Core's obstacle events
+    Localized(std_m, max_m)    the localization stays certain: `std_m()` stays within `max_m`
+
+`ObstacleMarks` (task.marks) enters obstacles into the Platform's temporary obstacle layer and takes each
+out again when the range sensors see its place free (the Core's obstacle-clear event), or it expires.
+Time spent paused (emergency stop) does not count against any deadline."""
+from __future__ import annotations
+
+import asyncio
+import math
+from typing import Any, Awaitable, Callable
+
+from agents.errors import RequestError, RequestFailed
+from ontology.errors import ErrorCode
+from ontology.notifications import EventTopic, Notification
+from ontology.trace import RecordKind, StructureEvent
+
+Point = tuple[float, float]
+
+
+class PlanFailed(Exception):
+    """An expectation of the running plan failed; the robot has been stopped."""
+
+    def __init__(self, expectation: str, reason: str, obstacle: Point | None = None):
+        super().__init__(f"{expectation}: {reason}")
+        self.expectation, self.reason, self.obstacle = expectation, reason, obstacle
+
+
+def echo_point(data: dict) -> Point | None:
+    """Where an obstacle event's nearest reading is, in the map frame (from the pose the Core sent)."""
+    try:
+        x, y, theta = data["pose"]
+        r, b = float(data["range_m"]), float(data["bearing_rad"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return x + r * math.cos(theta + b), y + r * math.sin(theta + b)
+
+
+def distance_to_path(p: Point, path: list[Point]) -> float:
+    if len(path) == 1:
+        return math.dist(p, path[0])
+    best = math.inf
+    for a, b in zip(path, path[1:]):
+        dx, dy = b[0] - a[0], b[1] - a[1]
+        seg2 = dx * dx + dy * dy
+        t = 0.0 if seg2 == 0 else max(0.0, min(1.0, ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / seg2))
+        best = min(best, math.dist(p, (a[0] + t * dx, a[1] + t * dy)))
+    return best
+
+
+def _xy(poses) -> list[Point]:
+    """(x, y) of poses given as Pose2D, {"x", "y"} dicts or (x, y, ...) sequences."""
+    return [(p.x, p.y) if hasattr(p, "x") else (float(p["x"]), float(p["y"])) if isinstance(p, dict)
+            else (float(p[0]), float(p[1])) for p in poses]
+
+
+class Expectation:
+    """One thing the plan expects; `check` answers the reason it failed, or None."""
+
+    name = "expectation"
+
+    def check(self, elapsed_s: float) -> str | None:
+        return None
+
+    def on_event(self, note: Notification, elapsed_s: float) -> None:
+        pass
+
+    def on_motion_error(self, e: RequestError) -> str | None:
+        """The motion failed: the reason when this expectation explains it (None: not mine)."""
+        return None
+
+    async def on_done(self, task) -> str | None:
+        """The motion finished: the reason when the result breaks this expectation."""
+        return None
+
+    obstacle: Point | None = None
+
+
+class ArriveBy(Expectation):
+    name = "arrive-by"
+
+    def __init__(self, goal, within_s: float, tolerance_m: float = 0.5):
+        self.goal = _xy([goal])[0]
+        self.within_s, self.tolerance_m = within_s, tolerance_m
+
+    def check(self, elapsed_s: float) -> str | None:
+        if elapsed_s > self.within_s:
+            return f"not at ({self.goal[0]:.2f}, {self.goal[1]:.2f}) after {self.within_s:.0f} s"
+        return None
+
+    async def on_done(self, task) -> str | None:
+        pose = await task.robot.get_global_pose()
+        off = math.dist((pose.x, pose.y), self.goal)
+        if off > self.tolerance_m:
+            return f"the motion ended {off:.2f} m from ({self.goal[0]:.2f}, {self.goal[1]:.2f})"
+        return None
+
+
+class PathFree(Expectation):
+    name = "path-free"
+
+    def __init__(self, path, clearance_m: float = 0.35, patience_s: float | None = None):
+        self.path = _xy(path)
+        self.clearance_m, self.patience_s = clearance_m, patience_s
+        self.since: float | None = None  # when an obstacle on the path was first seen
+
+    def on_event(self, note: Notification, elapsed_s: float) -> None:
+        if note.topic == EventTopic.OBSTACLE_CLEAR:
+            self.since = None
+            return
+        p = echo_point(note.data)
+        if p is not None and distance_to_path(p, self.path) <= self.clearance_m:
+            self.obstacle = p
+            self.since = elapsed_s if self.since is None else self.since
+
+    def check(self, elapsed_s: float) -> str | None:
+        if self.patience_s is not None and self.since is not None and elapsed_s - self.since > self.patience_s:
+            return f"an obstacle stood on the path for {self.patience_s:.0f} s"
+        return None
+
+    def on_motion_error(self, e: RequestError) -> str | None:
+        if isinstance(e, RequestFailed) and e.code == ErrorCode.BLOCKED:
+            return f"the way was blocked ({e.reason})"
+        return None
+
+
+class Localized(Expectation):
+    name = "localized"
+
+    def __init__(self, std_m: Callable[[], float], max_std_m: float):
+        self.std_m, self.max_std_m = std_m, max_std_m
+
+    def check(self, elapsed_s: float) -> str | None:
+        std = self.std_m()
+        if std > self.max_std_m:
+            return f"position uncertain (std {std:.2f} m > {self.max_std_m:.2f} m)"
+        return None
+
+
+class PlanMonitor:
+    """Runs one motion of a plan while checking its expectations every `period_s`."""
+
+    def __init__(self, task, *expectations: Expectation, period_s: float = 0.25):
+        self.task, self.expectations, self.period_s = task, list(expectations), period_s
+        self.elapsed_s = 0.0  # unpaused time since run() started
+
+    async def run(self, motion: Awaitable[Any]) -> Any:
+        job = asyncio.ensure_future(motion)
+        hub = None
+        try:
+            try:
+                hub = await events_hub(self.task)
+                hub.monitors.add(self)
+            except RequestError as e:  # no obstacle events (the path is then watched by its deadline only)
+                self.task.log.warning("plan monitor: no obstacle events: %s", e)
+            while True:
+                done, _ = await asyncio.wait({job}, timeout=self.period_s)
+                if not self.task.paused:
+                    self.elapsed_s += self.period_s
+                if done:
+                    return await self._finished(job)
+                for ex in self.expectations:
+                    reason = ex.check(self.elapsed_s)
+                    if reason:
+                        await self._block(job)
+                        self._fail(ex, reason)
+        finally:
+            if hub is not None:
+                hub.monitors.discard(self)
+            if not job.done():
+                job.cancel()
+
+    async def _finished(self, job) -> Any:
+        await asyncio.sleep(0)  # an event sent just before the motion's answer reaches the expectations first
+        try:
+            result = job.result()
+        except RequestError as e:
+            for ex in self.expectations:
+                reason = ex.on_motion_error(e)
+                if reason:
+                    self._fail(ex, reason)
+            raise
+        for ex in self.expectations:
+            reason = await ex.on_done(self.task)
+            if reason:
+                self._fail(ex, reason)
+        return result
+
+    def on_event(self, note: Notification) -> None:
+        for ex in self.expectations:
+            ex.on_event(note, self.elapsed_s)
+
+    async def _block(self, job) -> None:
+        """Stop the robot where it is; the motion's request is abandoned."""
+        job.cancel()
+        try:
+            await self.task.robot.move_stop(_timeout=10.0)
+        except RequestError as e:
+            self.task.log.warning("plan monitor: stopping the base failed: %s", e)
+
+    def _fail(self, ex: Expectation, reason: str):
+        obstacle = getattr(ex, "obstacle", None)
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.PLAN_FAILED, expectation=ex.name,
+                         reason=reason, obstacle=list(obstacle) if obstacle else None)
+        raise PlanFailed(ex.name, reason, obstacle)
+
+
+class ObstacleMarks:
+    """The obstacles this task entered into the Platform's temporary layer (`task.marks`)."""
+
+    def __init__(self, task):
+        self.task = task
+        self.marks: dict[str, tuple[str, Point]] = {}  # mark id -> (map id, where)
+
+    async def enter(self, map_id: str, x: float, y: float, radius_m: float = 0.25, ttl_s: float = 120.0,
+                    note: str = "", skip_within_m: float = 0.0) -> str:
+        """Enter an obstacle; its mark's id, or "" when the Platform did not add it (the map's own walls
+        lie within `skip_within_m` of it: what the robot met is mapped already)."""
+        await events_hub(self.task)  # so that a place seen free again clears its mark
+        layer = await self.task.platform.path_planning_add_obstacle(
+            map_id=map_id, x=x, y=y, radius_m=radius_m, ttl_s=ttl_s, note=note, skip_within_m=skip_within_m)
+        if not layer.added:
+            return ""
+        self.marks[layer.added] = (map_id, (x, y))
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_MARKED, mark=layer.added,
+                         x=round(x, 3), y=round(y, 3), radius_m=radius_m, note=note)
+        return layer.added
+
+    def near(self, point: Point, within_m: float) -> list[str]:
+        return [k for k, (_, p) in self.marks.items() if math.dist(p, point) <= within_m]
+
+    async def seen_free(self, note: Notification) -> None:
+        """An obstacle-clear event: nothing within range_m ahead (±30°): marks there are gone."""
+        try:
+            x, y, theta = note.data["pose"]
+            free_m = float(note.data["range_m"])
+        except (KeyError, TypeError, ValueError):
+            return
+        for mark_id, (map_id, (mx, my)) in list(self.marks.items()):
+            d = math.hypot(mx - x, my - y)
+            bearing = math.remainder(math.atan2(my - y, mx - x) - theta, math.tau)
+            if d < free_m - 0.1 and abs(bearing) <= 0.52:
+                await self.clear(mark_id)
+
+    async def clear(self, mark_id: str) -> None:
+        map_id, (x, y) = self.marks.pop(mark_id)
+        try:
+            await self.task.platform.path_planning_clear_obstacles(map_id=map_id, x=x, y=y, radius_m=0.01)
+        except RequestError as e:
+            self.task.log.warning("could not clear the obstacle mark %s: %s", mark_id, e)
+            return
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,
+                         x=round(x, 3), y=round(y, 3))
+
+
+class _EventsHub:
+    """One subscription per task to the obstacle events, handed to the running monitors and marks."""
+
+    def __init__(self, task):
+        self.task, self.monitors = task, set()
+
+    async def on_event(self, note: Notification) -> None:
+        for m in list(self.monitors):
+            m.on_event(note)
+        if note.topic == EventTopic.OBSTACLE_CLEAR:
+            await self.task.marks.seen_free(note)
+
+
+async def events_hub(task) -> _EventsHub:
+    hub = task.__dict__.get("_events_hub")
+    if hub is None:
+        hub = task._events_hub = _EventsHub(task)
+        try:
+            await task.subscribe(EventTopic.OBSTACLE, EventTopic.OBSTACLE_CLEAR, handler=hub.on_event)
+        except BaseException:
+            del task._events_hub  # the next monitor tries again
+            raise
+    return hub
