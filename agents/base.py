@@ -15,6 +15,7 @@ What it adds to spade.agent.Agent:
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import time
 from typing import Any
@@ -119,18 +120,24 @@ class RappAgent(Agent):
         self.submit(self._reconnect())
 
     async def _reconnect(self) -> None:
-        """Log in again with back-off (0.2 s doubling to 5 s) until the server is back."""
+        """Log in again with back-off (0.2 s doubling to 5 s) until the server is back; with
+        `settings.fallback` (other nodes of a cluster) each attempt takes the next address."""
         delay = 0.2
+        addresses = self.settings.addresses()
+        attempt = 0
         try:
             while not self._stopping:
+                host, port = addresses[attempt % len(addresses)]
+                attempt += 1
                 started = asyncio.get_running_loop().create_future()
                 handler = lambda _e: started.done() or started.set_result(True)  # noqa: E731
                 self.client.add_event_handler("session_start", handler)
-                self.client.connect(host=self.settings.host, port=self.settings.port)
+                self._connect_to(host=host, port=port)
                 try:
                     await asyncio.wait_for(started, max(2.0, delay))
                     self._reconnected_at = time.monotonic()
-                    self.tracer.record(RecordKind.AGENT, event="reconnected", agent=self.address)
+                    self.tracer.record(RecordKind.AGENT, event="reconnected", agent=self.address,
+                                       server=f"{host}:{port}")
                     self._resend_pending()
                     return
                 except asyncio.TimeoutError:
@@ -173,10 +180,27 @@ class RappAgent(Agent):
         self._container_real.unregister(str(self.jid))
 
     async def _async_connect(self) -> None:
-        connect = self.client.connect
+        connect = self._connect_to = self.client.connect  # _reconnect picks its address itself
         host, port = self.settings.host, self.settings.port
-        self.client.connect = lambda *a, **kw: connect(host=host, port=port)
-        await super()._async_connect()
+        self.client.connect = lambda *a, **kw: connect(host=host, port=port)  # SPADE passes the JID's
+        addresses = self.settings.addresses()
+        if len(addresses) == 1:
+            await super()._async_connect()
+            return
+        # slixmpp retries a refused address by itself; with fallback servers, try the next instead
+        # (later: the failed attempt reschedules itself first, and connect() cancels that)
+        turn, connecting = itertools.count(1), [True]
+        loop = asyncio.get_running_loop()
+
+        def next_server(_error) -> None:
+            h, p = addresses[next(turn) % len(addresses)]
+            loop.call_later(0.2, lambda: connecting[0] and connect(host=h, port=p))
+        self.client.add_event_handler("connection_failed", next_server)
+        try:
+            await super()._async_connect()
+        finally:
+            connecting[0] = False  # logged in, failed or given up: no further attempt
+            self.client.del_event_handler("connection_failed", next_server)
 
     async def stop(self) -> None:
         self._stopping = True
@@ -214,6 +238,13 @@ class RappAgent(Agent):
     # -- receiving --------------------------------------------------------------------------
     def _message_received(self, node):
         msg = read_message(node)
+        if node["type"] == "error":
+            # the server bounced a message of ours (peer gone); ejabberd returns it whole, and read
+            # as a message it would be a request "from" the peer: never delivered, only traced
+            self.tracer.record(RecordKind.DROPPED, agent=self.address, sender=bare(msg.sender),
+                               conversation_id=AclInfo.of(msg).conversation_id,
+                               reason=f"undeliverable: {node['error']['condition'] or 'error'}")
+            return []
         return self._route(msg, "xmpp")
 
     def dispatch(self, msg: Message):

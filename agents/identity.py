@@ -62,10 +62,8 @@ class EphemeralAccounts:
         """A new account `<prefix>-<random>`, in the ledger before it exists on the server."""
         ident = Identity(f"{prefix}-{secrets.token_hex(5)}", generate_password())
         self._write({**self._read(), ident.name: ident.password})
-        s = self.settings
         try:
-            await probe_login(s.host, s.port, s.domain, user=ident.name, password=ident.password,
-                              register=True, timeout=self.timeout)
+            await self._on_a_server(probe_login, user=ident.name, password=ident.password, register=True)
         except LoginError:
             await asyncio.to_thread(self._forget, ident.name)
             raise
@@ -91,15 +89,27 @@ class EphemeralAccounts:
         password = password or self._read().get(name)
         if password is None:
             return True
-        s = self.settings
         try:
-            await remove_account(s.host, s.port, s.domain, user=name, password=password, timeout=self.timeout)
+            await self._on_a_server(remove_account, user=name, password=password)
         except LoginError as e:
             if "authentication failed" not in str(e):  # server away: keep it for the next sweep
                 log.warning("could not delete account %s: %s", name, e)
                 return False
         self._forget(name)
         return True
+
+    async def _on_a_server(self, call, **kw):
+        """`call(host, port, domain, ...)` at settings.host:port, else at the fallback servers (other
+        nodes of a cluster) in turn; a refused login is not tried elsewhere."""
+        s, last = self.settings, None
+        for host, port in s.addresses():
+            try:
+                return await call(host, port, s.domain, timeout=self.timeout, **kw)
+            except LoginError as e:
+                if "authentication failed" in str(e):
+                    raise
+                last = e
+        raise last
 
     def _forget(self, name: str) -> None:
         accounts = self._read()

@@ -111,8 +111,8 @@ class Sandbox:
         env.update(PYTHONPATH=str(_project_root()), PYTHONDONTWRITEBYTECODE="1", PYTHONNOUSERSITE="1")
         if home:
             env.update(HOME=home, TMPDIR=f"{home}/tmp", MPLCONFIGDIR=f"{home}/tmp")
-        env.update(settings.to_env(fields=("host", "port", "domain", "auto_register", "verify_tls",
-                                            "force_xmpp", "start_timeout")))
+        env.update(settings.to_env(fields=("host", "port", "fallback", "domain", "auto_register",
+                                            "verify_tls", "force_xmpp", "start_timeout")))
         env.update(extra or {})
         return env
 

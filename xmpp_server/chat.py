@@ -40,7 +40,9 @@ class ChatUser(ClientXMPP):
         self.add_event_handler("failed_all_auth", lambda _: self._fail("authentication failed"))
         self.add_event_handler("message", self._on_message)
         self.add_event_handler("disconnected", self._on_disconnected)
+        self.add_event_handler("connection_failed", self._on_connection_failed)
         self._stopping = False
+        self._attempts = 0  # reconnection attempts so far: picks the address of the next one
         logging.getLogger("slixmpp").setLevel(logging.WARNING)
 
     async def _register(self, _event):  # slixmpp awaits only coroutine functions
@@ -66,8 +68,18 @@ class ChatUser(ClientXMPP):
 
     def _on_disconnected(self, _):
         if not self._stopping:  # the server went away: try again until it is back
-            asyncio.get_event_loop().call_later(0.5, lambda: self._stopping or self.connect(
-                host=self.settings.host, port=self.settings.port))
+            self._retry()
+
+    def _on_connection_failed(self, _):
+        # slixmpp retries the same address by itself; with other servers, try the next one instead
+        if not self._stopping and self.settings.fallback:
+            self._retry()
+
+    def _retry(self) -> None:
+        addresses = self.settings.addresses()  # host:port, then the fallback servers, in turn
+        host, port = addresses[self._attempts % len(addresses)]
+        self._attempts += 1
+        asyncio.get_event_loop().call_later(0.5, lambda: self._stopping or self.connect(host=host, port=port))
 
     async def stop(self) -> None:
         self._stopping = True

@@ -7,6 +7,9 @@ agents run against the embedded server, Prosody or ejabberd by configuration alo
 |----------------|-------------------------|-------------|
 | host           | RAPP_XMPP_HOST          | 127.0.0.1   | address the client connects to
 | port           | RAPP_XMPP_PORT          | 5222        |
+| fallback       | RAPP_XMPP_FALLBACK      | (none)      | other servers of the same domain (nodes of one
+|                |                         |             | cluster), "host:port,host:port": tried in turn
+|                |                         |             | after host:port when a connection is lost
 | domain         | RAPP_XMPP_DOMAIN        | localhost   | JID domain (user@domain)
 | password       | RAPP_XMPP_PASSWORD      | (none)      | this process's agent password, given by the
 |                |                         |             | deployer; else its credentials file
@@ -23,11 +26,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 _ENV = {
     "host": "RAPP_XMPP_HOST",
     "port": "RAPP_XMPP_PORT",
+    "fallback": "RAPP_XMPP_FALLBACK",
     "domain": "RAPP_XMPP_DOMAIN",
     "password": "RAPP_XMPP_PASSWORD",
     "credentials_dir": "RAPP_CREDENTIALS_DIR",
@@ -43,6 +47,7 @@ _ENV = {
 class XmppSettings(BaseModel):
     host: str = "127.0.0.1"
     port: int = Field(default=5222, ge=1, le=65535)
+    fallback: list[str] = Field(default_factory=list)  # "host:port" of other nodes of the domain
     domain: str = "localhost"
     password: str | None = None
     credentials_dir: Path | None = None
@@ -52,6 +57,21 @@ class XmppSettings(BaseModel):
     trace_file: Path | None = None
     start_timeout: float = Field(default=20.0, gt=0)
     web: bool = False
+
+    @field_validator("fallback", mode="before")
+    @classmethod
+    def _parse_fallback(cls, v):
+        items = [x.strip() for x in v.split(",") if x.strip()] if isinstance(v, str) else list(v or [])
+        for item in items:
+            host, _, port = str(item).rpartition(":")
+            if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+                raise ValueError(f"fallback server {item!r}: expected host:port")
+        return items
+
+    def addresses(self) -> list[tuple[str, int]]:
+        """Where to connect, in order of preference: host:port, then the fallback servers."""
+        rest = [(h, int(p)) for h, _, p in (a.rpartition(":") for a in self.fallback)]
+        return [(self.host, self.port), *rest]
 
     @classmethod
     def from_env(cls, env: dict[str, str] | None = None, **overrides) -> "XmppSettings":
@@ -79,7 +99,9 @@ class XmppSettings(BaseModel):
         out = {}
         for f, var in _ENV.items():
             v = getattr(self, f)
-            if v is None or f == "password" or (fields is not None and f not in fields):
+            if v is None or v == [] or f == "password" or (fields is not None and f not in fields):
                 continue
+            if isinstance(v, list):
+                v = ",".join(v)
             out[var] = str(v).lower() if isinstance(v, bool) else str(v)
         return out
