@@ -381,6 +381,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.activate("heartbeats", HeartbeatMonitor(self._beat), heartbeat_template())
         if self.safety_distance:
             self.activate("safety", SafetyMonitor(self, period=self.safety_period))
+            self.robot.protect(self.safety_distance)  # the same margin, checked by the robot at its own rate
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
         # the owner knows at once (chat only: the loudspeaker is the RApp's now)
         self._in_background(self.tell_user(f"Starting {self.dynamic.rapp}.", speak=False))
@@ -395,6 +396,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.deactivate("busy-chat")
         self.deactivate("heartbeats")
         self.deactivate("safety")
+        self.robot.protect(None)
         self.activate("user-listener", UserChat(self.owner, self._command_heard))
         self._listen_to_microphone()
         self.record_structure("resume", robot=self.robot_id)

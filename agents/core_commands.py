@@ -13,7 +13,7 @@ from ontology import core as C
 from ontology.errors import ErrorCode
 from ontology.notifications import EventTopic
 from ontology.trace import StructureEvent
-from robots.errors import MotionInterrupted
+from robots.errors import MotionBlocked, MotionInterrupted
 
 from .errors import Failure, Refusal
 from .core_events import ESTOP_TTL_S
@@ -66,10 +66,13 @@ class RobotCommands:
     - the e-stop latch: `emergency_stop()` halts every effector and holds the task's motions until
       `resume_motion()` (then re-issues those it interrupted when their target is absolute);
     - the safety check: `nearest_obstacle()` (read by core_behaviours.SafetyMonitor) and whether
-      the base is being driven (`driving`).
+      the base is being driven (`driving`); a task's motion the robot's own collision protection
+      stopped (MotionBlocked, RobotInterface.protect) latches the same safety stop when its target is
+      absolute: the reactive strategies then hand it back or fail it (`blocked`).
 
-    The host (CoreAgent) sets the attributes below and provides `record_structure`, `tell_user` and
-    `publish` (its sensor events, agents/core_events.py).
+    The host (CoreAgent) sets the attributes below and provides `record_structure`, `tell_user`,
+    `publish` (its sensor events, agents/core_events.py), `react_to_obstacle` (agents/core_strategies.py)
+    and `_in_background`.
     """
 
     robot: RobotAPI
@@ -81,6 +84,7 @@ class RobotCommands:
     _estop_released: asyncio.Event  # set while not latched: held motions wait on it
     fail_held: tuple[str, str] | None = None  # (code, reason): held motions fail at the release
     driving: bool  # a move_vel velocity is in force
+    safety_distance: float | None  # the safety check's margin (None: off)
 
     def _command_server(self) -> Responder:
         handlers = {name: self._robot_call for name in actions("robot")}
@@ -135,6 +139,16 @@ class RobotCommands:
                 self.record_structure(StructureEvent.MOTION_RESUMED, action=name)
             try:
                 return await self.robot.handle(req)
+            except MotionBlocked as e:
+                if not self.safety_distance or self.estop_reason is not None:
+                    raise
+                # the robot's collision protection (or its bumper) stopped it: the safety stop, as the
+                # safety check's; the reactive strategies hand the held motion back or fail it (blocked)
+                await self.emergency_stop(f"obstacle ahead ({e})", by="safety")
+                self._in_background(self.react_to_obstacle())
+                if not resumable(name):
+                    raise Failure(f"{name} was interrupted by the emergency stop ({self.estop_reason}); "
+                                  f"a relative motion is not resumed", ErrorCode.ESTOP) from None
             except MotionInterrupted:
                 if self.estop_reason is None:
                     raise

@@ -90,6 +90,9 @@ class RobotAPI:
         ctrl = self.robot.controllers.get("base")
         return ctrl is not None and not ctrl.done and self.robot.base.command[0] > min_speed
 
+    def protect(self, margin_m: float | None) -> None:
+        self.robot.protection_m = margin_m  # read by the base controllers in the pybullet thread
+
     async def halt(self, reason: str) -> None:
         """The emergency stop: every running motion (base, head, joints) is interrupted and the
         loudspeaker falls silent (what it was saying is cut off)."""

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
 
 POS_TOL, ANG_TOL = 0.003, 0.002
 BLOCKED_AFTER = 0.5  # s of blocked translation before a motion fails
+PROTECT_EVERY_S = 0.05  # the collision protection reads the range sensors this often (simulated time)
 
 
 class Controller:
@@ -78,9 +79,11 @@ class BaseController(Controller):
         self.robot = robot
         self.blocked_time = 0.0
         self.start_pose = robot.pose
+        self.unchecked_s = PROTECT_EVERY_S  # check at the first forward step
 
     def drive(self, vx: float, vy: float, wz: float, dt: float) -> None:
         vx, vy, wz = self.robot.base.check_velocity(vx, vy, wz)
+        self.protect(vx, dt)
         if drive_base(self.robot, vx, vy, wz, dt):
             self.blocked_time += dt
             if self.blocked_time >= BLOCKED_AFTER:
@@ -88,6 +91,21 @@ class BaseController(Controller):
                 raise MotionBlocked(f"{self.robot.name}: an obstacle blocked the base after {moved:.2f} m")
         else:
             self.blocked_time = 0.0
+
+    def protect(self, vx: float, dt: float) -> None:
+        """The robot's collision protection (RobotAPI.protect): stop before driving into what the
+        range sensors see ahead."""
+        margin_m = self.robot.protection_m
+        if margin_m is None or vx <= 0.02:
+            return
+        self.unchecked_s += dt
+        if self.unchecked_s < PROTECT_EVERY_S:
+            return
+        self.unchecked_s = 0.0
+        seen = self.robot.front_margin()
+        if seen is not None and seen < margin_m:
+            raise MotionBlocked(f"{self.robot.name}: its collision protection stopped it: something "
+                                f"{seen:.2f} m beyond the range sensors' minimum, ahead")
 
     def settle(self) -> None:
         """The motion is done: a swaying body comes to rest over its feet."""

@@ -30,6 +30,13 @@ class RobotInterface(Protocol):
     async def halt(self, reason: str) -> None:
         """Every effector stops now (base, head, joints, loudspeaker): the emergency stop."""
 
+    def protect(self, margin_m: float | None) -> None:
+        """The robot's own collision protection: a base motion driving forward stops (MotionBlocked)
+        when a range reading ahead (±30°) comes within `margin_m` of the sensor's minimum range;
+        None turns it off. A real robot's driver maps it to its own (NAO: ALMotion's external
+        collision protection; a laser scanner's protective field); the simulation checks every 50 ms
+        of simulated time, however fast the world runs."""
+
     @property
     def microphone(self) -> Microphone | None:
         """Where the owner's spoken commands are heard, or None (chat only)."""
@@ -39,5 +46,5 @@ def check_robot(api: object) -> RobotInterface:
     """`api` if it implements RobotInterface; else a TypeError naming what is missing."""
     if isinstance(api, RobotInterface):
         return api
-    missing = [n for n in ("handle", "moving_forward", "capabilities", "halt", "microphone") if not hasattr(api, n)]
+    missing = [n for n in ("handle", "moving_forward", "capabilities", "halt", "protect", "microphone") if not hasattr(api, n)]
     raise TypeError(f"{type(api).__name__} is not a robots.interface.RobotInterface: missing {', '.join(missing)}")

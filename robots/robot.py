@@ -13,6 +13,8 @@ from .effectors import BaseEffector, HeadEffector, JointsEffector, Loudspeaker
 from .failure_modes import Locomotion, defaults_for, make_locomotion
 from .odometry import Odometry, OdometryNoise
 from .receptors import Camera, Microphone, RangeSensor, pose_matrix
+
+AHEAD_RAD = 0.52  # "ahead" for the collision protection: readings within ±30° of the heading
 from .spec import RobotSpec
 
 if TYPE_CHECKING:
@@ -70,6 +72,7 @@ class Robot:
         self.head = HeadEffector(self)
         self.loudspeaker = Loudspeaker(self) if spec.speech else None
         self.cameras = {c.name: Camera(self, c) for c in spec.cameras}
+        self.protection_m: float | None = None  # the collision protection's margin (RobotAPI.protect)
         self.sonars = [RangeSensor(self, s) for s in spec.sonars]
         self.laser = RangeSensor(self, spec.laser) if spec.laser else None
         self.microphone = Microphone()
@@ -135,6 +138,17 @@ class Robot:
     def update_lift(self) -> None:
         if self.spec.lift_joint and self.spec.lift_height:
             self.set_joint(self.spec.lift_joint, self.spec.lift_height(self.q))
+
+    def front_margin(self) -> float | None:
+        """How far the nearest range reading ahead (sonar cones, laser rays within ±30°) is beyond its
+        sensor's minimum range; None without range sensors. pybullet thread."""
+        margins = [s.read() - s.spec.range_min for s in self.sonars]
+        if self.laser is not None:
+            ranges, angles = self.laser.scan(), self.laser.angles()
+            ahead = ranges[np.abs(angles) <= AHEAD_RAD]
+            if len(ahead):
+                margins.append(float(ahead.min()) - self.laser.spec.range_min)
+        return min(margins) if margins else None
 
     def link_pose(self, link: str) -> np.ndarray:
         cid = self.world.cid

@@ -33,6 +33,7 @@ class SpyAPI:
         self.api, self.core, self.calls = api, None, []
         self.microphone = api.microphone
         self.moving_forward, self.capabilities, self.halt = api.moving_forward, api.capabilities, api.halt
+        self.protect = api.protect
 
     async def handle(self, req):
         self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
