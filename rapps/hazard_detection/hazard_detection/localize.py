@@ -87,6 +87,10 @@ class Localizer:
         self.odom_ref, self.travelled, self.turned = odom, 0.0, 0.0
         return self.ekf
 
+    def position_std(self) -> float:
+        """The pose filter's position std (m) now; 0 before it starts (the plan monitor's "localized")."""
+        return self.ekf.std_m if self.ekf is not None else 0.0
+
     def leg_length(self, longest: float, cross_track_std_m: float, shortest: float = 0.3) -> float:
         """The longest leg (at most `longest`) whose predicted sideways error stays within
         `cross_track_std_m` (one sigma) by the filter's covariance and the odometry's error model."""

@@ -8,7 +8,7 @@ import math
 
 from ontology.services.common import CameraIntrinsics
 from ontology.services.hazard import DoorGeometry
-from rapps.sdk import (FSM, ArriveBy, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task)
+from rapps.sdk import FSM, ArriveBy, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
 
 from .localize import Localizer
 from .models import ONTOLOGY, HazardReport
@@ -102,7 +102,8 @@ class HazardTask(Task):
         Each leg runs under a plan monitor (paper 004: rapps/sdk/monitor.py) expecting the robot at the
         leg's end in time and the way free. A leg blocked by an obstacle enters it into the Platform's
         map (unless it is the map's own wall: the pose estimate was off near a door frame), backs off
-        the way it came, re-localizes and plans again, round it; a late leg re-localizes and plans again."""
+        the way it came, re-localizes and plans again, round it; a late leg, or one the pose filter is lost
+        on (its position std above lost_std_m), re-localizes and plans again."""
         nav = FSM("navigate", initial="n1_plan")
         nav.add_state("n1_plan", Step(self.plan))
         nav.add_state("n1_turn", Step(self.turn))
@@ -191,7 +192,8 @@ class HazardTask(Task):
         leg = memory["leg"]
         self.localizer.moved(path_length(leg), leg_rotation(leg, memory["turn"], memory["leg_final"]))
         within = path_length(leg) / float(self.params["leg_speed_floor_mps"]) + float(self.params["leg_slack_s"])
-        monitor = PlanMonitor(self, ArriveBy(leg[-1], within_s=within), PathFree(leg))
+        monitor = PlanMonitor(self, ArriveBy(leg[-1], within_s=within), PathFree(leg),
+                              Localized(self.localizer.position_std, float(self.params["lost_std_m"])))
         try:
             await monitor.run(self.robot.move_along_path(poses=leg, _timeout=900.0,  # feedback: shown as progress
                                                          _feedback=lambda p: self._show(memory, 0.0, p.text)))
@@ -201,7 +203,7 @@ class HazardTask(Task):
                 raise
             memory["blocked"] += 1
             if e.expectation != PathFree.name:
-                return "late"
+                return "late"  # or lost: re-localize, then plan again from where it is
             await self.mark_obstacle(memory, e.obstacle)
             return "blocked"
         except RequestError as e:
