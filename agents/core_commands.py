@@ -45,12 +45,12 @@ def path_progress(path: list[tuple[float, float]], x: float, y: float) -> float:
 
 
 AHEAD_RAD = 0.52  # the safety check's cone: readings within ±30° of straight ahead
-SONAR_BEARING_RAD = 0.44  # a NAO sonar looks 25° to its side (robots/nao.py)
+SONAR_BEARING_RAD = 0.44  # a NAO sonar looks 25° to its side (robots/nao.py), when the reading does not say
 
 
 class ObstacleEcho(NamedTuple):
     margin_m: float  # beyond the sensor's minimum range
-    range_m: float
+    range_m: float  # from the base's centre (the robot's pose)
     bearing_rad: float  # from the robot's heading, counter-clockwise
 
 
@@ -244,10 +244,13 @@ class RobotCommands:
             except Exception:  # noqa: BLE001 - a robot without this sensor
                 continue
             if isinstance(reply, ontology.robot.SonarReading):
-                readings = [(reply.left, SONAR_BEARING_RAD), (reply.right, -SONAR_BEARING_RAD)]
+                bearing = reply.bearing or SONAR_BEARING_RAD
+                readings = [(reply.left, bearing), (reply.right, -bearing)]
             else:
                 readings = [(r, reply.angle_min + i * reply.angle_increment) for i, r in enumerate(reply.ranges)]
             for r, bearing in readings:
                 if abs(bearing) <= AHEAD_RAD and (best is None or r - reply.range_min < best.margin_m):
-                    best = ObstacleEcho(r - reply.range_min, r, bearing)
+                    # range and bearing from the base's centre, where the robot's pose is
+                    x, y = reply.mount_x + r * math.cos(bearing), r * math.sin(bearing)
+                    best = ObstacleEcho(r - reply.range_min, math.hypot(x, y), math.atan2(y, x))
         return best

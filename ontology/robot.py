@@ -101,6 +101,8 @@ class SonarReading(Content):
     right: float
     range_min: float
     range_max: float
+    mount_x: float = 0.0  # how far ahead of the base's centre the sensors sit (m)
+    bearing: float = 0.0  # each sonar's axis from the heading (rad): left +bearing, right -bearing
 
 
 class LaserScan(Content):
@@ -110,6 +112,7 @@ class LaserScan(Content):
     range_min: float
     range_max: float
     ranges: list[float]
+    mount_x: float = 0.0  # how far ahead of the base's centre the scanner sits (m)
 
 
 # ---------------------------------------------------------------- communication

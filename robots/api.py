@@ -323,19 +323,21 @@ class RobotAPI:
         r = self.robot
         if not r.sonars:
             raise UnsupportedOperation(f"{r.kind} has no sonars (use get_laser_scan)")
-        left, right = await self.world.run(lambda: [s.read() for s in r.sonars])
+        left, right, mount = await self.world.run(lambda: [*(s.read() for s in r.sonars),
+                                                           r.sensor_mount(r.sonars[0].spec.link)])
         spec = r.sonars[0].spec
-        return SonarReading(left=left, right=right, range_min=spec.range_min, range_max=spec.range_max)
+        return SonarReading(left=left, right=right, range_min=spec.range_min, range_max=spec.range_max,
+                            mount_x=round(mount[0], 4), bearing=round(abs(mount[2]), 4))
 
     async def get_laser_scan(self, req: GetLaserScan) -> LaserScan:
         r = self.robot
         if r.laser is None:
             raise UnsupportedOperation(f"{r.kind} has no laser scanner (use get_sonars)")
-        ranges = await self.world.run(r.laser.scan)
+        ranges, mount = await self.world.run(lambda: (r.laser.scan(), r.sensor_mount(r.laser.spec.link)))
         s = r.laser.spec
         return LaserScan(angle_min=s.angle_min, angle_max=s.angle_max,
                          angle_increment=(s.angle_max - s.angle_min) / (s.rays - 1), range_min=s.range_min,
-                         range_max=s.range_max, ranges=[float(v) for v in ranges])
+                         range_max=s.range_max, ranges=[float(v) for v in ranges], mount_x=round(mount[0], 4))
 
     # ------------------------------------------------------------------ generic dispatch
     async def handle(self, req) -> Any:

@@ -140,15 +140,32 @@ class Robot:
             self.set_joint(self.spec.lift_joint, self.spec.lift_height(self.q))
 
     def front_margin(self) -> float | None:
-        """How far the nearest range reading ahead (sonar cones, laser rays within ±30°) is beyond its
-        sensor's minimum range; None without range sensors. pybullet thread."""
-        margins = [s.read() - s.spec.range_min for s in self.sonars]
+        """How close the nearest range reading ahead (sonar cones, laser rays within ±30°) is: beyond its
+        sensor's minimum range, or beyond the robot's body where the sensor sits behind the body's
+        edge (an Elektron's laser is 0.14 m inside its footprint), whichever is less; None without
+        range sensors. pybullet thread."""
+        margins = []
+        for s in self.sonars:
+            r, (mx, my, yaw) = s.read(), self.sensor_mount(s.spec.link)
+            margins.append(min(r - s.spec.range_min, self._clearance(mx, my, yaw, r)))
         if self.laser is not None:
             ranges, angles = self.laser.scan(), self.laser.angles()
-            ahead = ranges[np.abs(angles) <= AHEAD_RAD]
-            if len(ahead):
-                margins.append(float(ahead.min()) - self.laser.spec.range_min)
+            mx, my, yaw = self.sensor_mount(self.laser.spec.link)
+            for r, a in zip(ranges, angles):
+                if abs(a) <= AHEAD_RAD:
+                    margins.append(min(r - self.laser.spec.range_min, self._clearance(mx, my, yaw + a, r)))
         return min(margins) if margins else None
+
+    def _clearance(self, mx: float, my: float, bearing: float, r: float) -> float:
+        return math.hypot(mx + r * math.cos(bearing), my + r * math.sin(bearing)) - self.spec.radius
+
+    def sensor_mount(self, link: str) -> tuple[float, float, float]:
+        """Where a sensor link sits in the base frame: x ahead, y left (m), yaw. pybullet thread."""
+        T = self.link_pose(link)
+        x, y, th = self.pose
+        dx, dy = T[0, 3] - x, T[1, 3] - y
+        return (math.cos(th) * dx + math.sin(th) * dy, -math.sin(th) * dx + math.cos(th) * dy,
+                math.remainder(math.atan2(T[1, 0], T[0, 0]) - th, math.tau))
 
     def link_pose(self, link: str) -> np.ndarray:
         cid = self.world.cid

@@ -2,7 +2,7 @@
 things that move (issue 18; papers 003/004): in the house `twodoors` (robots/houses/twodoors.yaml) the
 robot walks from the living room to the bedroom's lamp, the short way through the north door, while
 
-    person-crossing     a person paces across the living room, over the robot's way
+    person-crossing     a person paces to and fro across the living room, over the robot's way
     person-standing     a person stands still on the robot's way
     door-closed         someone closes the north door: the robot goes round through the south door
     box-in-doorway      a box is dropped in the north doorway: the same
@@ -55,8 +55,8 @@ class Case:
 
 
 CASES = {c.name: c for c in (
-    Case("person-crossing", [{"kind": "person", "id": "walker", "speed": 0.7, "start": 2.0, "loop": True,
-                              "route": [{"x": 2.3, "y": 3.7, "pause": 4}, {"x": 2.3, "y": 1.8, "pause": 4}]}]),
+    Case("person-crossing", [{"kind": "person", "id": "walker", "speed": 0.6, "start": 2.0, "loop": True,
+                              "route": [{"x": 2.3, "y": 3.7, "pause": 0.5}, {"x": 2.3, "y": 2.3, "pause": 0.5}]}]),
     Case("person-standing", [{"kind": "person", "id": "stander", "route": [[2.2, 3.1]]}]),
     Case("door-closed", [close("d_north")]),
     Case("box-in-doorway", [{"kind": "box", "id": "basket", "at": 3.0, "position": [3.5, 3.15],
