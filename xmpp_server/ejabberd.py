@@ -32,7 +32,7 @@ from pathlib import Path
 
 from .ports import free_port
 from .probe import LoginError, probe_login
-from .process import ManagedServer, ServerStartError, _loop_running, terminate
+from .process import ExternalServer, ManagedServer, ServerStartError, _loop_running, listening, terminate
 from .prosody import make_self_signed_cert
 from .settings import XmppSettings
 
@@ -88,12 +88,6 @@ def erlang_distribution_problem(timeout: float = 20.0) -> str | None:
         epmd.stop()
 
 
-def _listening(host: str, port: int) -> bool:
-    try:
-        with socket.create_connection((host, port), timeout=0.5):
-            return True
-    except OSError:
-        return False
 
 
 class Epmd:
@@ -112,7 +106,7 @@ class Epmd:
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                      start_new_session=True)
         deadline = time.monotonic() + timeout
-        while not _listening(self.host, self.port):
+        while not listening(self.host, self.port):
             if self.proc.poll() is not None:
                 err = self.proc.stderr.read().decode(errors="replace").strip()
                 raise ServerStartError(f"epmd on {self.host}:{self.port} exited ({self.proc.returncode}): {err}")
@@ -129,7 +123,7 @@ class Epmd:
             self.proc = None
 
 
-class EjabberdNode(ManagedServer):
+class EjabberdNode(ExternalServer):
     """One private ejabberd node; same shape as ProsodyServer. Alone it starts its own epmd; in an
     EjabberdCluster the cluster gives it the shared cookie and epmd."""
 
@@ -268,12 +262,6 @@ modules:
                 out[cols[0].split("/")[0]] = cols[5]
         return out
 
-    def settings(self, **overrides) -> XmppSettings:
-        base = {"host": self.host, "port": self.port, "domain": self.domain, "verify_tls": False,
-                "auto_register": self.allow_registration}
-        base.update({k: v for k, v in overrides.items() if v is not None})
-        return XmppSettings.from_env(**base)
-
     # -- lifecycle ----------------------------------------------------------------------------
     def _spawn(self) -> None:
         if not self.ctl_path:
@@ -304,7 +292,7 @@ modules:
                 rc = None if self.proc is None else self.proc.returncode
                 self.stop()
                 raise ServerStartError(f"ejabberd node {self.node} exited ({rc}) at start: {why}")
-            if not await asyncio.to_thread(_listening, self.host, self.port):
+            if not await asyncio.to_thread(listening, self.host, self.port):
                 await asyncio.sleep(0.1)
                 continue
             if not self.allow_registration:

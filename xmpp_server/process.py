@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -71,6 +72,31 @@ class ManagedServer:
 
     async def __aexit__(self, *exc):
         await asyncio.to_thread(self.close)
+
+
+class ExternalServer(ManagedServer):
+    """A server binary of the system (Prosody, ejabberd) run privately: what its wrappers share."""
+
+    host: str
+    port: int
+    domain: str
+    allow_registration: bool
+
+    def settings(self, **overrides) -> XmppSettings:
+        """Agent settings for this server (self-signed TLS: not verified); None overrides are ignored."""
+        base = {"host": self.host, "port": self.port, "domain": self.domain, "verify_tls": False,
+                "auto_register": self.allow_registration}
+        base.update({k: v for k, v in overrides.items() if v is not None})
+        return XmppSettings.from_env(**base)
+
+
+def listening(host: str, port: int) -> bool:
+    """Something accepts TCP connections at host:port."""
+    try:
+        with socket.create_connection((host, port), timeout=0.5):
+            return True
+    except OSError:
+        return False
 
 
 class EmbeddedServer(ManagedServer):

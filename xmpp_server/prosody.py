@@ -22,8 +22,7 @@ from pathlib import Path
 
 from .ports import free_port
 from .probe import LoginError, probe_login
-from .process import ManagedServer, ServerStartError, _loop_running, terminate
-from .settings import XmppSettings
+from .process import ExternalServer, ServerStartError, _loop_running, listening, terminate
 
 
 def prosody_binary() -> str | None:
@@ -62,7 +61,7 @@ def make_self_signed_cert(domain: str, cert_file: Path, key_file: Path, days: in
     cert_file.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
 
 
-class ProsodyServer(ManagedServer):
+class ProsodyServer(ExternalServer):
     """Start and stop a private Prosody; same shape as EmbeddedServer."""
 
     def __init__(self, host: str = "127.0.0.1", port: int | None = None, domain: str = "localhost",
@@ -148,12 +147,6 @@ VirtualHost {_lua(self.domain)}
         """Create an account without in-band registration (works with the server running or not)."""
         self.prosodyctl("register", user, self.domain, password)
 
-    def settings(self, **overrides) -> XmppSettings:
-        base = {"host": self.host, "port": self.port, "domain": self.domain, "verify_tls": False,
-                "auto_register": self.allow_registration}
-        base.update({k: v for k, v in overrides.items() if v is not None})
-        return XmppSettings.from_env(**base)
-
     # -- lifecycle ----------------------------------------------------------------------------
     def _spawn(self) -> None:
         if not self.binary:
@@ -174,7 +167,7 @@ VirtualHost {_lua(self.domain)}
                 why = self.diagnostics()
                 self.stop()
                 raise ServerStartError(f"prosody exited ({self.proc_rc}) at start: {why}")
-            if not _listening(self.host, self.port):
+            if not listening(self.host, self.port):
                 await asyncio.sleep(0.05)
                 continue
             if self.allow_registration:
@@ -221,10 +214,3 @@ VirtualHost {_lua(self.domain)}
         self.proc = None
 
 
-def _listening(host: str, port: int) -> bool:
-    import socket
-    try:
-        with socket.create_connection((host, port), timeout=0.5):
-            return True
-    except OSError:
-        return False
