@@ -95,7 +95,9 @@ def _server(kind: str, tmp_path):
     return ProsodyServer(workdir=tmp_path / "prosody")
 
 
-@pytest.mark.parametrize("kind", SERVERS)
+# Prosody's variants are slow-marked here (its reconnect timing is the test's, and the default suite runs
+# four test files at once); test_prosody.py runs the whole lifecycle on Prosody by default
+@pytest.mark.parametrize("kind", ["embedded", pytest.param("prosody", marks=pytest.mark.slow)])
 @pytest.mark.parametrize("step", STEPS)
 async def test_no_reply_lost_when_the_server_goes_away(tmp_path, step, kind):
     await _runs(tmp_path, step, kind, int(os.environ.get("RAPP_DELIVERY_RUNS", "3")))
