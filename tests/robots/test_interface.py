@@ -30,5 +30,5 @@ def test_an_incomplete_robot_is_refused_naming_what_is_missing():
         async def handle(self, req):
             return None
 
-    with pytest.raises(TypeError, match="missing moving_forward, capabilities, halt, microphone"):
+    with pytest.raises(TypeError, match="missing moving_forward, capabilities, halt, protect, microphone"):
         check_robot(OnlyHandle())

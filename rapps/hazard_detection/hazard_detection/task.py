@@ -218,9 +218,11 @@ class HazardTask(Task):
             pose = await self.robot.get_global_pose()
             ahead = float(self.params["back_off_m"]) + 0.3
             where = (pose.x + ahead * math.cos(pose.theta), pose.y + ahead * math.sin(pose.theta))
-        added = await self.marks.enter(memory["home"].map_id, where[0], where[1],
+        in_doorway = bool(blocking_doors(memory["home"].doors, [where]))  # a doorway's frame and leaf are
+        added = await self.marks.enter(memory["home"].map_id, where[0], where[1],  # no wall: mark it there
                                        radius_m=float(self.params["obstacle_radius_m"]),
-                                       ttl_s=float(self.params["obstacle_ttl_s"]), skip_within_m=MAPPED_M,
+                                       ttl_s=float(self.params["obstacle_ttl_s"]),
+                                       skip_within_m=0.0 if in_doorway else MAPPED_M,
                                        note=f"blocked the way to {memory['hazard'].id}")
         if added:
             memory.setdefault("marked", []).append(tuple(where))
@@ -310,8 +312,10 @@ class HazardTask(Task):
         found = [r for r in results if r.hazard]
         if found:
             text = "Hazards found: " + "; ".join(f"the {r.type} {r.id} is {r.state}" for r in found) + "."
-        else:
+        elif all(r.state != "unknown" for r in results):
             text = f"No hazards: all {len(results)} checked doors are closed and lamps off."
+        else:
+            text = "No hazards found, but not everything could be checked."
         self.progress(1.0, f"{len(results)} hazards checked, {len(found)} found")
         await self.report(text, hazards=[r.model_dump() for r in results],
                           localizations=memory.get("localizations", []))
