@@ -33,12 +33,12 @@ FAST = ("door-closed",)  # run in the default test suite (tests/test_disturbance
 
 
 async def stop_and_resume(handle, world, recorder, pause_s: float = 3.0) -> None:
-    """The owner's "stop" once the robot is walking its second leg, "resume" `pause_s` later."""
+    """The owner's "stop" once the robot is walking its third leg, "resume" `pause_s` (wall) seconds later."""
     while not (len(recorder.paths) >= 2 and recorder.moving_forward()):
         await world.sleep(0.2, drive=False)
     await world.sleep(1.0, drive=False)
     await handle.user.say(handle.core.address, "stop")
-    await world.sleep(pause_s, drive=False)
+    await asyncio.sleep(pause_s)  # the owner's seconds: a stopped robot in an unpaced world makes no time pass
     await handle.user.say(handle.core.address, "resume")
 
 
