@@ -94,11 +94,11 @@ async def run_case(case: Case, robot: str, seed: int = 1, out_dir: Path | None =
 
 
 def table(rows: list[dict]) -> str:
-    head = ("| case | robot | finished | hazards correct | collisions | strategies | replans | sim s | wall s |\n"
-            "|---|---|---|---|---|---|---|---|---|")
+    head = ("| case | robot | finished | hazards correct | collisions | e-stops | strategies | replans | sim s | wall s |\n"
+            "|---|---|---|---|---|---|---|---|---|---|")
     lines = [f"| {r['case']} | {r['robot']} | {'yes' if r['finished'] else 'NO'} | "
-             f"{'yes' if r['hazards_correct'] else 'NO'} | {r['collisions']} | "
-             f"{', '.join(r['strategies']) or '-'}{' +e-stop' if r['estops'] else ''} | {r['replans']} | "
+             f"{'yes' if r['hazards_correct'] else 'NO'} | {r['collisions']} | {r['estops']} | "
+             f"{', '.join(r['strategies']) or '-'} | {r['replans']} | "
              f"{r['duration_sim_s']:.0f} | {r['duration_wall_s']:.0f} |" for r in rows]
     return "\n".join([head, *lines])
 

@@ -33,7 +33,7 @@ def test_the_only_route_case_needs_both_closed_doors_reported():
     assert not judge(case, result(all_correct=False, routes_blocked=both[:0]))["passed"]
     one = [{"id": "route-l_bed", "blocked_by": ["door d_north"]}]
     assert not judge(case, result(all_correct=False, routes_blocked=one))["passed"]
-    assert "| only-route-closed | nao | yes | yes | 0 |" in table([judge(case, result(routes_blocked=both))])
+    assert "| only-route-closed | nao | yes | yes | 0 | 0 |" in table([judge(case, result(routes_blocked=both))])
 
 
 @pytest.mark.timeout(400)
