@@ -25,6 +25,9 @@ def distance_to_polyline(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points[:, None, :] - closest, axis=2).min(1)
 
 
+SENSOR_READS = frozenset({"get_sonars", "get_laser_scan", "get_global_pose"})
+
+
 class RecordingAPI:
     def __init__(self, api, frames_dir: str | Path | None = None, sample_s: float = 0.1,
                  every_capture: bool = False):
@@ -66,7 +69,8 @@ class RecordingAPI:
                 self._save_frame(reply)
             return reply
         finally:
-            self._last = name
+            if name not in SENSOR_READS:  # the Core's own sensor polling must not sit between look and capture
+                self._last = name
 
     async def _set_pose(self, req):
         tx, ty, tth = self.robot.pose

@@ -77,8 +77,10 @@ def test_recovery_tiny(tmp_path):
         m = metrics[name]
         assert FIELDS <= set(m) and m["floor"] > 0 and "goal_met" in m, m
         assert 0 <= m["value"] <= 2 * goal, m
-    # a hang is seen only as missing heartbeats: never sooner than the Core's timeout
-    assert metrics["recovery_hung_back"]["value"] >= metrics["recovery_hung_back"]["floor"]
+    # a hang is seen only as missing heartbeats: never sooner than the Core's timeout after the last beat,
+    # which may come up to one beat period before the hang's state is entered
+    from agents.dynamic_agent import HEARTBEAT_S
+    assert metrics["recovery_hung_back"]["value"] >= metrics["recovery_hung_back"]["floor"] - HEARTBEAT_S * 1e3
 
 
 @pytest.mark.slow  # 10 s; `python -m bench --only estop` measures it
