@@ -9,10 +9,21 @@ sends each matching Notification one way. Subscriptions end with the Dynamic Age
                                 robot's own pose estimate then ([x, y, theta], get_global_pose): where
                                 the obstacle is (obstacle) or up to where the way is free (obstacle-clear)
     estop                       the emergency stop latched or was released (valid for 5 s)
+    person                      a people detector (the Platform's HOG, agents/services/vision.py) finds
+                                someone in the robot's camera image (PersonEvents looks every second
+                                while someone subscribes; valid for 2 s). Sent when people come into
+                                view, then every 3 s while they stay. Data: count, and of the best
+                                detection its bearing_rad from the camera's optical axis (counter-
+                                clockwise, from the box centre and the camera's field of view), box
+                                [x, y, w, h] in pixels of the image (image_size [w, h]), score, camera.
+                                Only what the camera sees: never where people really are.
 """
 from __future__ import annotations
 
+import asyncio
 import logging
+import math
+import time
 
 from spade.behaviour import PeriodicBehaviour
 
@@ -20,14 +31,16 @@ from ontology.acl import Performative
 from ontology.errors import ErrorCode
 from ontology.notifications import ONTOLOGY, EventTopic, Notification, Notify, SubscribeEvents
 from ontology.registry import Done
-from ontology.robot import GetGlobalPose
+from ontology.robot import CaptureImage, GetCameraInfo, GetGlobalPose
 
 from .errors import Refusal
 from .messages import bare
 from .responder import Responder
+from .services.images import decode_image
+from .services.vision import detect_people, distinct_people
 
 log = logging.getLogger("rapp.core")
-OBSTACLE_TTL_S, ESTOP_TTL_S = 1.0, 5.0
+OBSTACLE_TTL_S, ESTOP_TTL_S, PERSON_TTL_S = 1.0, 5.0, 2.0
 
 
 class CoreEvents:
@@ -48,12 +61,18 @@ class CoreEvents:
             self.subscriptions.setdefault(topic, set()).add(ctx.sender)
         if {EventTopic.OBSTACLE, EventTopic.OBSTACLE_CLEAR} & set(req.topics):
             self.activate("obstacle-events", ObstacleEvents(self))
+        if EventTopic.PERSON in req.topics:
+            if "camera" in self.robot.capabilities():
+                self.activate("person-events", PersonEvents(self))
+            else:
+                log.info("%s subscribed to person events, but the robot has no camera", ctx.sender)
         return Done()
 
     def end_subscriptions(self) -> None:
         """The Dynamic Agent is gone: nobody is told anything any more."""
         self.subscriptions = {}
         self.deactivate("obstacle-events")
+        self.deactivate("person-events")
 
     async def publish(self, topic: EventTopic, ttl_s: float | None, **data) -> Notification | None:
         jids = self.subscriptions.get(topic)
@@ -95,3 +114,62 @@ class ObstacleEvents(PeriodicBehaviour):
         if close != self.close:
             self.close = close
             await self.core.publish_echo(EventTopic.OBSTACLE if close else EventTopic.OBSTACLE_CLEAR, echo)
+
+
+class PersonEvents(PeriodicBehaviour):
+    """Tells subscribers when the robot's camera sees people: the frame of each period goes through the
+    Platform's people detector in a thread. An event when people come into view (after `gone_after`
+    frames without anyone: one missed detection is not someone leaving and coming back), then one
+    every `repeat_s` while they stay; nothing when they leave (the last event expires).
+
+    The Core captures through the robot API directly, as its safety check reads the range sensors:
+    it takes no resource lock (agents/locks.py), so the task's own captures and head motions go on;
+    the image is whatever the camera sees, pointed wherever the task points the head."""
+
+    RESOLUTION = "320x240"  # a person 4 m away is 115-165 px tall: enough for HOG's window (~100 px per person)
+    SMOOTH_PX = 1.2  # sensor noise makes HOG find "people" on doors and QR codes; a slight blur removes them
+
+    def __init__(self, core, period: float = 1.0, repeat_s: float = 3.0, gone_after: int = 2):
+        super().__init__(period=period)
+        self.core, self.repeat_s, self.gone_after = core, repeat_s, gone_after
+        self.absent = gone_after  # frames in a row without anyone (at the start: nobody in view)
+        self.sent_at: float | None = None  # monotonic time of the last event
+        self.camera = None  # CameraInfo at RESOLUTION (its field of view for the bearings)
+        self.failures = 0
+
+    async def run(self) -> None:
+        seen = await self.look()
+        if seen is None:
+            return
+        people, image = seen
+        if not people:
+            self.absent += 1
+            return
+        now = time.monotonic()
+        arrived, self.absent = self.absent >= self.gone_after, 0
+        if not arrived and self.sent_at is not None and now - self.sent_at < self.repeat_s:
+            return
+        self.sent_at = now
+        score, (x, y, w, h) = people[0]
+        K = self.camera.K  # bearing of the box centre from the optical axis, positive to the left
+        bearing = math.atan2(K[0][2] - (x + w / 2), K[0][0])
+        await self.core.publish(EventTopic.PERSON, PERSON_TTL_S, count=len(people), bearing_rad=round(bearing, 3),
+                                box=[x, y, w, h], image_size=[image.width, image.height], score=round(score, 2),
+                                camera=image.camera)
+
+    async def look(self):
+        """(people, the Image) of one frame, people as (score, (x, y, w, h)) best first; None when the
+        camera could not be read (logged, tried again next period)."""
+        try:
+            if self.camera is None:
+                self.camera = await self.core.robot.handle(GetCameraInfo(resolution=self.RESOLUTION))
+            image = await self.core.robot.handle(CaptureImage(resolution=self.RESOLUTION))
+            people = await asyncio.to_thread(self._detect, image.data_b64)
+        except Exception as e:  # noqa: BLE001 - a failed frame (render error, robot shutting down) is skipped
+            self.failures += 1
+            log.log(logging.WARNING if self.failures == 1 else logging.DEBUG, "person events: no frame: %s", e)
+            return None
+        return people, image
+
+    def _detect(self, data_b64: str) -> list:
+        return distinct_people(detect_people(decode_image(data_b64, "image"), smooth=self.SMOOTH_PX))

@@ -4,7 +4,8 @@ requests (something should be done), each stamped by its sender and valid until 
 A Dynamic Agent subscribes to the Core's sensor events with FIPA subscribe (`SubscribeEvents`); the
 Core then sends each matching `Notification` as a one-way inform (action "notification"). A receiver
 drops (and traces) one that has expired: a stale "obstacle ahead" must not steer a robot that has
-moved on. Time is the sender's wall clock (seconds since the epoch), as the trace's.
+moved on, nor a "person" seen seconds ago turn it towards someone who has walked away. Time is the
+sender's wall clock (seconds since the epoch), as the trace's.
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ class EventTopic(StrEnum):
     OBSTACLE = "obstacle"  # the range sensors see something closer than the Core's warning distance
     OBSTACLE_CLEAR = "obstacle-clear"  # ... and later nothing any more
     ESTOP = "estop"  # the emergency stop latched or was released (data: latched, reason, by)
+    PERSON = "person"  # a people detector finds someone in the robot's camera image (data: count, bearing_rad, box)
 
 
 class Notification(Content):

@@ -255,25 +255,70 @@ class Route:
 
 
 class BodyShape(NamedTuple):
-    """What a mover looks like; also sent to the render processes to mirror it."""
+    """What a mover looks like; also sent to the render processes to mirror it (both build it with
+    create_body, so a frame from either shows the same body)."""
 
     kind: str  # "person" | "box"
     size: tuple[float, float, float]  # person: (width, width, height); box: (sx, sy, sz)
-    color: tuple[float, float, float]
+    color: tuple[float, float, float]  # person: the shirt
+
+
+TROUSERS_COLOR = (0.12, 0.13, 0.17)  # darker than the default shirt: the legs stand out from the torso
+STRIDE_RAD, STANCE_RAD = 0.25, 0.06  # legs apart fore and aft (seen from the side) and sideways (from the front)
+
+
+def _limb(top: tuple[float, float, float], roll: float, pitch: float, length: float, radius: float,
+          color) -> tuple[tuple, tuple[float, float, float]]:
+    """A cylinder hanging from `top`, turned by roll (about x) then pitch (about y); and its lower end."""
+    q = p.getQuaternionFromEuler([roll, pitch, 0.0])
+    down = np.asarray(p.getMatrixFromQuaternion(q)).reshape(3, 3) @ (0.0, 0.0, -1.0)
+    centre, end = np.asarray(top) + down * length / 2, np.asarray(top) + down * length
+    return (p.GEOM_CYLINDER, (radius, length), tuple(centre), q, color), tuple(end)
+
+
+def person_parts(width: float, height: float, shirt) -> list[tuple]:
+    """The visual parts of a person, (shape, dims, position, orientation, colour) in the body frame
+    (origin at the centre, x the walking direction): legs in mid-stride, a torso, arms swinging the
+    other way, a neck and a head, in an adult's proportions of `height`, as wide as `width`."""
+    w, h, z0 = width, height, -height / 2
+    hip, shoulder, head_r = 0.50 * h, 0.81 * h, 0.065 * h
+    head = h - head_r  # the head's centre: the top of the head at `height`
+    torso_w, torso_d = 0.78 * w, 0.55 * w
+    leg_r, arm_r, arm_len = 0.2 * w, 0.12 * w, 0.36 * h
+    t0 = hip - 0.05 * h
+    parts = [(p.GEOM_BOX, (torso_d / 2, torso_w / 2, (shoulder - t0) / 2), (0.0, 0.0, z0 + (shoulder + t0) / 2),
+              (0.0, 0.0, 0.0, 1.0), shirt),
+             (p.GEOM_CYLINDER, (0.13 * w, head - shoulder), (0.0, 0.0, z0 + (shoulder + head) / 2),
+              (0.0, 0.0, 0.0, 1.0), SKIN_COLOR),
+             (p.GEOM_SPHERE, (head_r,), (0.0, 0.0, z0 + head), (0.0, 0.0, 0.0, 1.0), SKIN_COLOR)]
+    for side in (-1, 1):  # a leg from the hip to the floor: feet apart sideways, one ahead, one behind
+        roll, pitch = -side * STANCE_RAD, side * STRIDE_RAD
+        parts.append(_limb((0.0, side * (torso_w / 2 - leg_r), z0 + hip), roll, pitch,
+                           hip / (math.cos(roll) * math.cos(pitch)), leg_r, TROUSERS_COLOR)[0])
+    for side in (-1, 1):  # an arm in the shirt's sleeve, swinging against its leg, and a hand
+        roll, pitch = -side * STANCE_RAD, -side * STRIDE_RAD
+        arm, wrist = _limb((0.0, side * (torso_w / 2 + arm_r + 0.005), z0 + shoulder - arm_r), roll, pitch,
+                           arm_len + arm_r / 2, arm_r, shirt)
+        parts += [arm, (p.GEOM_SPHERE, (1.15 * arm_r,), wrist, (0.0, 0.0, 0.0, 1.0), SKIN_COLOR)]
+    return parts
 
 
 def create_body(cid: int, shape: BodyShape, collision: bool = True) -> int:
-    """A mass-0 body of `shape`, parked below the floor (its origin is its centre)."""
+    """A mass-0 body of `shape`, parked below the floor (its origin is its centre). A person looks
+    human (person_parts), so that a people detector finds them in camera images, but collides as a
+    cylinder of their width and height (what the range sensors and the robots' collision checks see)."""
     sx, sy, sz = shape.size
     if shape.kind == "person":
-        r = sx / 2
-        head = min(0.12, r)
-        torso = sz - 2 * head
-        col = p.createCollisionShape(p.GEOM_CYLINDER, radius=r, height=sz, physicsClientId=cid) if collision else -1
+        col = p.createCollisionShape(p.GEOM_CYLINDER, radius=sx / 2, height=sz, physicsClientId=cid) if collision else -1
+        parts = person_parts(sx, sz, shape.color)
         vis = p.createVisualShapeArray(
-            shapeTypes=[p.GEOM_CYLINDER, p.GEOM_SPHERE], radii=[r, head], lengths=[torso, 0.0],
-            visualFramePositions=[[0, 0, -sz / 2 + torso / 2], [0, 0, sz / 2 - head]],
-            rgbaColors=[[*shape.color, 1], [*SKIN_COLOR, 1]], physicsClientId=cid)
+            shapeTypes=[t for t, *_ in parts],
+            radii=[0.0 if t == p.GEOM_BOX else dims[0] for t, dims, *_ in parts],
+            lengths=[dims[1] if t == p.GEOM_CYLINDER else 0.0 for t, dims, *_ in parts],
+            halfExtents=[list(dims) if t == p.GEOM_BOX else [0.0, 0.0, 0.0] for t, dims, *_ in parts],
+            visualFramePositions=[list(pos) for _, _, pos, _, _ in parts],
+            visualFrameOrientations=[list(q) for *_, q, _ in parts],
+            rgbaColors=[[*color, 1] for *_, color in parts], physicsClientId=cid)
     else:
         half = [sx / 2, sy / 2, sz / 2]
         col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid) if collision else -1

@@ -1,12 +1,14 @@
-"""The Core's sensor events (agents/core_events.py): obstacle / obstacle-clear on crossings only, and
-the typed notification's expiry (ontology/notifications.py)."""
+"""The Core's sensor events (agents/core_events.py): obstacle / obstacle-clear on crossings only, person
+when the camera's people detector finds someone, and the typed notification's expiry
+(ontology/notifications.py)."""
+import asyncio
 import time
 
 import pytest
 from pydantic import ValidationError
 
 from agents.core_commands import ObstacleEcho
-from agents.core_events import ObstacleEvents
+from agents.core_events import ObstacleEvents, PersonEvents
 from ontology.notifications import EventTopic, Notification, NotificationKind, SubscribeEvents
 
 
@@ -40,3 +42,73 @@ def test_notification_stamp_and_expiry():
         SubscribeEvents(topics=["person-with-a-hat"])
     with pytest.raises(ValidationError):
         SubscribeEvents(topics=[])
+
+
+# --- person events: a real world and robot API, a stand-in Core that records what it publishes --------
+class _Watcher:
+    def __init__(self, robot):
+        self.robot, self.published = robot, []
+
+    async def publish(self, topic, ttl_s, **data):
+        self.published.append((topic, ttl_s, data))
+
+
+async def test_person_events_when_someone_comes_into_view_then_every_few_seconds():
+    from robots import RobotAPI, World
+
+    # the person waits behind the closed bedroom door, then walks in and stands 2.5 m ahead of an
+    # Elektron, 0.4 m to its left
+    walk_in = {"kind": "person", "id": "visitor", "start": 1.0, "speed": 1.5,
+               "route": [[4.6, 1.45], [3.1, 1.45], [3.1, 2.4]]}
+    world = World.from_file("small", seed=1, overrides={"doors": {"d1": 0}}, render="inline", disturbances=[walk_in])
+    try:
+        core = _Watcher(RobotAPI(world.add_robot("elektron", pose=(0.6, 2.0, 0.0))))
+        watch = PersonEvents(core, repeat_s=0.3)
+        await watch.run()
+        assert core.published == []  # nobody in view
+        await world.sleep(1.0 + (1.5 + 0.95) / 1.5 + 0.2 - world.time)
+        await watch.run()
+        assert len(core.published) == 1, core.published
+        topic, ttl, data = core.published[0]
+        assert (topic, ttl, data["count"], data["camera"], data["image_size"]) == (EventTopic.PERSON, 2.0, 1, "head", [320, 240])
+        assert 0.08 < data["bearing_rad"] < 0.25  # left of the optical axis: atan(0.4 / 2.56) = 0.155
+        x, y, w, h = data["box"]
+        assert x + w / 2 < 160 and h > 150, data  # left of the centre, most of the picture's height
+        await watch.run()
+        assert len(core.published) == 1  # still in view: not again at once
+        await asyncio.sleep(0.3)
+        await watch.run()
+        assert len(core.published) == 2 and core.published[1][2]["count"] == 1  # ... but after repeat_s
+    finally:
+        world.close()
+
+
+async def test_subscribing_to_person_starts_the_camera_watch_and_the_task_end_stops_it():
+    from types import SimpleNamespace
+
+    from agents.core_events import CoreEvents
+    from robots import RobotAPI, World
+
+    class Host(CoreEvents):  # the mixin's host: the CoreAgent's behaviour bookkeeping, nothing else
+        def __init__(self, robot):
+            self.robot, self.subscriptions, self.active = robot, {}, {}
+            self.dynamic = SimpleNamespace(jid="dyn-1@localhost/r", ended=asyncio.Event())
+
+        def activate(self, name, behaviour):
+            self.active.setdefault(name, behaviour)
+
+        def deactivate(self, name):
+            self.active.pop(name, None)
+
+    world = World.from_file("small", seed=1, render="inline")
+    try:
+        host = Host(RobotAPI(world.add_robot("nao")))
+        await host._on_subscribe(SubscribeEvents(topics=["estop"]), SimpleNamespace(sender="dyn-1@localhost"))
+        assert host.active == {}
+        await host._on_subscribe(SubscribeEvents(topics=["person"]), SimpleNamespace(sender="dyn-1@localhost"))
+        assert isinstance(host.active.get("person-events"), PersonEvents)
+        assert host.subscriptions == {"estop": {"dyn-1@localhost"}, "person": {"dyn-1@localhost"}}
+        host.end_subscriptions()
+        assert host.active == {} and host.subscriptions == {}
+    finally:
+        world.close()

@@ -87,14 +87,35 @@ def _clip(rect, dx: int, dy: int, w: int, h: int) -> tuple[int, int, int, int] |
     return (x0, y0, x1 - x0, y1 - y0) if x1 - x0 > 4 and y1 - y0 > 4 else None
 
 
-def human_detection(req: HumanDetect, ctx: ServiceContext) -> Detections:
-    img = decode_image(req.image_b64)
+def detect_people(img: np.ndarray, smooth: float = 0.0) -> list[tuple[float, tuple[int, int, int, int]]]:
+    """People in a colour (or gray) uint8 image: (score, (x, y, w, h)) best first, boxes clipped to the
+    image. `smooth` > 0: a Gaussian blur of that sigma (pixels) first, against a camera's sensor noise,
+    which HOG otherwise takes for edges (doors, QR codes on plain walls become "people").
+    Shared by the Platform's human_detection and the Core's person events (agents/core_events.py).
+    CPU work (~0.1 s at 320x240): call it from a thread."""
+    if smooth > 0:
+        img = cv2.GaussianBlur(img, (0, 0), smooth)
     h, w = img.shape[:2]
     padded, dx, dy = pad_for_people(img)
     rects, scores = people_detector().detectMultiScale(padded, winStride=(4, 4), padding=(8, 8), scale=1.05)
     scores = np.asarray(scores, float).ravel()
-    found = [(s, _clip(r, dx, dy, w, h)) for r, s in zip(rects, scores) if s >= MIN_PERSON_SCORE]
-    return _boxes([box for _, box in sorted(found, key=lambda f: -f[0]) if box is not None])
+    found = [(float(s), _clip(r, dx, dy, w, h)) for r, s in zip(rects, scores) if s >= MIN_PERSON_SCORE]
+    return [(s, box) for s, box in sorted(found, key=lambda f: -f[0]) if box is not None]
+
+
+def distinct_people(found: list[tuple[float, tuple[int, int, int, int]]], overlap: float = 0.5) -> list:
+    """`found` (best first) without a box that shares more than `overlap` of the smaller one's area
+    with a better box: HOG also reports a person's legs or upper body on their own."""
+    kept: list[tuple[float, tuple[int, int, int, int]]] = []
+    for score, (x, y, w, h) in found:
+        if all(max(0, min(x + w, kx + kw) - max(x, kx)) * max(0, min(y + h, ky + kh) - max(y, ky))
+               <= overlap * min(w * h, kw * kh) for _, (kx, ky, kw, kh) in kept):
+            kept.append((score, (x, y, w, h)))
+    return kept
+
+
+def human_detection(req: HumanDetect, ctx: ServiceContext) -> Detections:
+    return _boxes([box for _, box in detect_people(decode_image(req.image_b64))])
 
 
 class ObjectModels:

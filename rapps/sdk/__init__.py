@@ -221,7 +221,7 @@ class Task:
 
     async def subscribe(self, *topics: str, handler: Callable[[Notification], Awaitable[Any]] | None = None) -> None:
         """FIPA subscribe to the Core's sensor events (EventTopic: "obstacle", "obstacle-clear",
-        "estop"): each arrives as a Notification (kind, topic, stamp, expires, data) to `handler` (a
+        "estop", "person"): each arrives as a Notification (kind, topic, stamp, expires, data) to `handler` (a
         coroutine function, run as a task of its own) and to `next_event()`. Expired ones are dropped
         (and traced) before they reach you. Subscriptions end with the task."""
         wanted = [EventTopic(t) for t in topics]
