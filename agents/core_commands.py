@@ -13,7 +13,7 @@ from ontology import core as C
 from ontology.errors import ErrorCode
 from ontology.notifications import EventTopic
 from ontology.trace import StructureEvent
-from robots.errors import MotionBlocked, MotionInterrupted
+from robots.errors import MotionBlocked, MotionInterrupted, RobotError
 
 from .errors import Failure, Refusal
 from .core_events import ESTOP_TTL_S
@@ -238,10 +238,14 @@ class RobotCommands:
         """The nearest reading ahead (sonar cone or laser ray within ±30°): its margin beyond the
         sensor's minimum range, its range and bearing from the robot (x forward); None without sensors."""
         best: ObstacleEcho | None = None
-        for req in (ontology.robot.GetSonars(), ontology.robot.GetLaserScan()):
+        has = self.robot.capabilities()  # asked, not probed: a missing sensor is no failed request per check
+        reads = [req for cap, req in (("sonars", ontology.robot.GetSonars()), ("laser", ontology.robot.GetLaserScan()))
+                 if cap in has]
+        for req in reads:
             try:
                 reply = await self.robot.handle(req)
-            except Exception:  # noqa: BLE001 - a robot without this sensor
+            except RobotError as e:  # a failed reading (robot shutting down): the next check reads again
+                log.debug("range reading failed: %s", e)
                 continue
             if isinstance(reply, ontology.robot.SonarReading):
                 bearing = reply.bearing or SONAR_BEARING_RAD

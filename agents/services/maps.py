@@ -47,6 +47,11 @@ class GridMap:
         cx, cy = self.world_to_cell(x, y)
         return -0.5 <= cx < self.width - 0.5 and -0.5 <= cy < self.height - 0.5
 
+    def peek(self, key):
+        """What `cached` built for key, or None (never builds)."""
+        with self._lock:
+            return self._cache.get(key)
+
     def cached(self, key, build):
         """Per-map memo (cost maps, graphs) built once under a lock."""
         with self._lock:

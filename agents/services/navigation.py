@@ -81,7 +81,7 @@ def landmarks(m: GridMap, robot_type: str, margin_m: float = 0.0):
     margin_m = round(margin_m, 3)
     key = ("landmarks", robot_type, margin_m)
     if isinstance(m, OverlayMap) and m.base is not None:
-        return m.base._cache.get(key)  # a peek: building them would cost more than the search saves
+        return m.base.peek(key)  # a peek: building them would cost more than the search saves
     return m.cached(key, lambda: planning.landmark_distances(grid_graph(m, robot_type, margin_m)))
 
 

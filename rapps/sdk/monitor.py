@@ -172,10 +172,12 @@ class PlanMonitor:
                 hub.monitors.add(self)
             except RequestError as e:  # no obstacle events (the path is then watched by its deadline only)
                 self.task.log.warning("plan monitor: no obstacle events: %s", e)
+            loop = asyncio.get_running_loop()
             while True:
+                before = loop.time()
                 done, _ = await asyncio.wait({job}, timeout=self.period_s)
                 if not self.task.paused:
-                    self.elapsed_s += self.period_s
+                    self.elapsed_s += loop.time() - before
                 if done:
                     return await self._finished(job)
                 for ex in self.expectations:
@@ -210,12 +212,10 @@ class PlanMonitor:
             ex.on_event(note, self.elapsed_s)
 
     async def _block(self, job) -> None:
-        """Stop the robot where it is; the motion's request is abandoned."""
+        """Stop the robot where it is: cancelling the motion's request sends the Core a FIPA cancel,
+        and the Core stops the motion (rapps/sdk/_call.py)."""
         job.cancel()
-        try:
-            await self.task.robot.move_stop(_timeout=10.0)
-        except RequestError as e:
-            self.task.log.warning("plan monitor: stopping the base failed: %s", e)
+        await asyncio.gather(job, return_exceptions=True)
 
     def _fail(self, ex: Expectation, reason: str):
         obstacle = getattr(ex, "obstacle", None)
