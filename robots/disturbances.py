@@ -35,11 +35,11 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import pybullet as p
-import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import InvalidArgument
 from .robot import yaw_quat
+from .scenario_file import read_section
 
 if TYPE_CHECKING:
     from .floorplan import Plan
@@ -192,13 +192,7 @@ def load_disturbances(source: str | Path | dict | list | DisturbanceSpec, search
         if not path.exists() and search is not None and (search / f"{path}.yaml").exists():
             path = search / f"{path}.yaml"
         where = f"disturbance file {path}"
-        try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except (OSError, yaml.YAMLError) as exc:
-            raise DisturbanceError(f"cannot read {where}: {exc}") from None
-        if not isinstance(data, dict):
-            raise DisturbanceError(f"{where}: expected a mapping with a 'disturbances' list")
-        source = {"disturbances": data.get("disturbances") or []}  # other keys belong to other parts of a run
+        source = {"disturbances": read_section(path, "disturbances", DisturbanceError, "disturbance file")}
     if isinstance(source, list):
         source = {"disturbances": source}
     try:

@@ -16,8 +16,9 @@ import os
 import time
 from pathlib import Path
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from robots.scenario_file import read_section
 
 INBOX = "inbox"
 POLL_S = 0.2  # how often the run looks into its inbox (wall clock)
@@ -43,15 +44,7 @@ class ScriptError(ValueError):
 def load_script(path: str | Path) -> list[SpokenLine]:
     """The `speech:` lines of a scenario file (YAML; other keys belong to other parts of the run)."""
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ScriptError(f"cannot read scenario file {path}: {exc}") from None
-    if not isinstance(data, dict):
-        raise ScriptError(f"scenario file {path}: expected a mapping with a 'speech' list")
-    lines = data.get("speech") or []
-    if not isinstance(lines, list):
-        raise ScriptError(f"scenario file {path}: 'speech' must be a list of lines")
+    lines = read_section(path, "speech", ScriptError)
     out = []
     for i, line in enumerate(lines):
         try:
