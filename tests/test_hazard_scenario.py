@@ -113,20 +113,59 @@ async def test_two_robots_full_house(tmp_path):
 
 
 def test_table_rows_and_markdown():
-    from scenarios.hazard_table import markdown, summary_rows
+    from scenarios.hazard_table import judge, markdown, summary_rows
 
-    def run(robot, seed, loc, trk, wrong=()):
+    def run(robot, seed, loc, trk, wrong=(), house="generated"):
         hazards = [{"id": h, "true_state": "open", "reported_state": "open" if h not in wrong else "unknown"}
                    for h in ("d1", "l1")]
-        return {"robot": robot, "seed": seed, "hazards": hazards, "all_correct": not wrong,
+        return {"robot": robot, "seed": seed, "house": house, "hazards": hazards, "all_correct": not wrong,
                 "localization_error_m": loc, "max_tracking_error_m": trk, "duration_sim_s": 100.0,
-                "duration_wall_s": 30.0}
+                "duration_wall_s": 30.0, "finished": True, "end": "finished"}
 
-    results = [run("nao", 1, 0.012, 0.071), run("nao", 2, 0.062, 0.08, wrong=("l1",)), run("elektron", 1, None, 0.03)]
+    results = [run("nao", 1, 0.012, 0.071), run("nao", 2, 0.062, 0.08, wrong=("l1",)),
+               run("elektron", 1, None, 0.03, house="house"),
+               {"robot": "elektron", "seed": 2, "house": "generated", "hazards": [], "failed": "TimeoutError: x"}]
     summary = summary_rows(results)
-    assert "nao       all hazards correct in 1/2 runs; localization <= 5 cm in 1/2; tracking <= 10 cm in 2/2" in summary
-    assert not any(line.startswith("elektron  loc") for line in summary)  # no localization: no loc row
-    assert any(line.startswith("elektron  track") for line in summary)
+    # 3 of 4 checks right: under the 95 % bar; the NAO's 6.2 cm is inside the paper's 10 cm
+    assert "nao       checks right 3/4 (75.0 %; goal >= 95 %: NOT met); failed runs 0/2" in summary
+    assert any("nao       localization" in line and "(paper 10.0 cm: met)" in line for line in summary)
+    assert "elektron  checks right 2/2 (100.0 %; goal >= 95 %: met); failed runs 1/2" in summary
+    assert not any(line.startswith("elektron  localization") for line in summary)  # no localization: no row
+    nao = judge(results[:2], "nao")
+    assert nao["loc_max_m"] == 0.062 and nao["track_met"] and not nao["checks_met"]
+    assert not judge([run("elektron", 3, 0.071, 0.05)], "elektron")["loc_met"]  # the Elektron's bar is 7 cm
     text = markdown(results, "T")
-    assert "| nao | 2 | 6.2 | 8.0 | no | 100 | 30 | l1 |" in text
-    assert "| elektron | 1 | n/a | 3.0 | yes | 100 | 30 |  |" in text
+    assert "| nao | generated | 2 | 6.2 | 8.0 | no | 100 | 30 | l1 |  |" in text
+    assert "| elektron | house | 1 | n/a | 3.0 | yes | 100 | 30 |  |  |" in text
+    assert "| elektron | generated | 2 | | | no | | | | TimeoutError: x |" in text
+
+
+def test_table_from_json_merges_files(tmp_path):
+    from scenarios.hazard_table import main
+
+    def run(robot, house, seed, loc):
+        return {"robot": robot, "seed": seed, "house": house, "hazards": [{"id": "d1", "true_state": "open",
+                "reported_state": "open"}], "all_correct": True, "localization_error_m": loc,
+                "max_tracking_error_m": 0.05, "duration_sim_s": 1.0, "duration_wall_s": 1.0, "finished": True}
+
+    (tmp_path / "a.json").write_text(json.dumps([run("nao", "generated", 1, 0.02), run("nao", "house", 1, 0.02)]))
+    (tmp_path / "b.json").write_text(json.dumps([run("elektron", "generated", 1, 0.08)]))
+    md = tmp_path / "t.md"
+    assert main(["--from-json", str(tmp_path / "a.json"), str(tmp_path / "b.json"), "--markdown", str(md)]) == 1
+    text = md.read_text()  # the Elektron's 8 cm misses its 7 cm bar: exit 1
+    assert text.startswith("# Hazard detection on 1 generated houses (seeds 1..1) and the full 20 m x 20 m house")
+    assert "| elektron | generated | 1 | 8.0 |" in text
+
+
+@pytest.mark.slow
+def test_hazard_table_two_generated_houses(tmp_path):
+    """Issue #17 item 4, short version: both robots in 2 generated houses, image-only door method,
+    judged against the paper's bars (checks >= 95 % right, localization and tracking per robot)."""
+    from scenarios.hazard_table import judge, main
+
+    assert main(["--houses", "2", "--out", str(tmp_path), "--markdown", str(tmp_path / "t.md")]) == 0
+    results = json.loads((tmp_path / "table.json").read_text())
+    assert len(results) == 4 and not any(r.get("failed") for r in results)
+    for robot in ("nao", "elektron"):
+        j = judge([r for r in results if r["robot"] == robot], robot)
+        assert j["checks_met"] and j["loc_met"] and j["track_met"], j
