@@ -264,12 +264,16 @@ class RappAgent(Agent):
         if early is not None:  # still starting: held until setup() has activated the behaviours
             early.append((msg, info))
             return []
-        tasks = []
+        tasks, taken = [], False
         for behaviour in self.behaviours:
             if _accepts(behaviour, msg):
+                taken = True
                 direct = getattr(behaviour, "take_now", None)  # responders: no queue hop
-                tasks.append(direct(msg) if direct else self.submit(behaviour.enqueue(msg)))
-        if not tasks:
+                if direct is not None:
+                    tasks.append(direct(msg))
+                else:  # SPADE's enqueue spawns a task per message to put into an unbounded queue
+                    behaviour.queue.put_nowait(msg)
+        if not taken:
             tasks.append(self.submit(self._unhandled(msg, info)))
         return tasks
 

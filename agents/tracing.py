@@ -20,6 +20,8 @@ from typing import Any
 from ontology.trace import RecordKind, parse_record
 
 CONTENT_CAP = 2000  # characters of content kept per message
+# one encoder for every record: json.dumps with options builds a new JSONEncoder per call
+_ENCODE = json.JSONEncoder(default=str, ensure_ascii=False).encode
 
 
 class TraceWriter:
@@ -40,7 +42,7 @@ class TraceWriter:
         if self._fd is None:
             return
         rec = {"t": round(time.time(), 6), "kind": kind, "pid": os.getpid(), **fields}
-        line = (json.dumps(rec, default=str, ensure_ascii=False) + "\n").encode()
+        line = (_ENCODE(rec) + "\n").encode()
         with self._lock:
             os.write(self._fd, line)
 

@@ -6,7 +6,8 @@ On the wire, reply_with travels as the stanza id (agents/stanza.py); receivers s
 """
 from __future__ import annotations
 
-import uuid
+import os
+import threading
 from enum import Enum
 
 LANGUAGE = "json"
@@ -65,4 +66,24 @@ ANSWERS = {
 
 
 def new_id(prefix: str = "c") -> str:
-    return f"{prefix}-{uuid.uuid4().hex[:16]}"
+    """64 random bits (unguessable: a reply is matched by its conversation id), drawn from a
+    buffer of os.urandom: a uuid4 per id was a third of building a message."""
+    with _random_lock:
+        if len(_random) < 8:
+            _random.extend(os.urandom(4096))
+        chunk = _random[-8:]
+        del _random[-8:]
+    return f"{prefix}-{chunk.hex()}"
+
+
+_random = bytearray()
+_random_lock = threading.Lock()
+
+
+def _after_fork() -> None:  # a forked child must not repeat its parent's ids (nor inherit a held lock)
+    global _random_lock
+    _random.clear()
+    _random_lock = threading.Lock()
+
+
+os.register_at_fork(after_in_child=_after_fork)
