@@ -218,3 +218,48 @@ async def test_message_forms_stay_raw_xml_in_the_whole_process():
     other.register_plugin("xep_0077")
     other.register_plugin("xep_0004")
     assert "{jabber:x:data}x" not in Message.plugin_tag_map and "form" not in Message.plugin_attrib_map
+
+
+def test_stanza_reader_reads_our_writer_and_plain_spade():
+    """read_message walks the stanza's XML itself: it must read what message_xml writes (markup in
+    the body, a thread, the stanza id as reply-with) and what a plain SPADE agent sends (its form puts
+    the title after the fields and types every field)."""
+    import slixmpp
+    from slixmpp.stanza import Message as Stanza
+    from slixmpp.xmlstream import ET
+    from spade.message import Message
+
+    from agents.stanza import message_xml, read_message
+
+    ours = make_message("b@localhost/r", None, performative=Performative.INFORM, ontology="core", action="x")
+    ours.sender, ours.body, ours.thread = "a@localhost/s", '{"t": "<a & \'b\'>"}', "th-1"
+    wire = message_xml(ours).replace("<message ", '<message xmlns="jabber:client" ', 1)
+    got = read_message(Stanza(xml=ET.fromstring(wire)))
+    assert (str(got.to), str(got.sender), got.body, got.thread) == ("b@localhost/r", "a@localhost/s", ours.body, "th-1")
+    assert got._metadata == ours._metadata  # reply_with came back from the stanza id
+
+    client = slixmpp.ClientXMPP("c@localhost", "x")
+    client.register_plugin("xep_0004")
+    plain = Message(to="b@localhost", sender="c@localhost", body="hi", thread="t2",
+                    metadata={"performative": "inform", "k": "v"}).prepare(client)
+    got = read_message(plain)
+    assert (got.body, got.thread, got.get_metadata("k")) == ("hi", "t2", "v")
+    assert got.get_metadata("reply_with") == plain["id"]
+
+
+def test_ids_are_unique_and_not_shared_with_a_forked_child():
+    import os
+
+    from ontology.acl import new_id
+
+    ids = {new_id() for _ in range(5000)}
+    assert len(ids) == 5000 and all(len(i) == 18 for i in ids)  # "c-" + 16 hex digits
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child's next ids must not be the parent's next ones
+        os.write(write, " ".join(new_id() for _ in range(50)).encode())
+        os._exit(0)
+    os.close(write)
+    child = set(os.read(read, 65536).decode().split())
+    os.waitpid(pid, 0)
+    assert len(child) == 50 and not child & {new_id() for _ in range(50)}
