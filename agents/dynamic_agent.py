@@ -24,6 +24,7 @@ from ontology.trace import StructureEvent
 from .base import RappAgent
 from .errors import CloudAgentLost, RequestError
 from .messages import bare
+from .platform_directory import PlatformChooser
 from .runtime import load_entry_point
 
 log = logging.getLogger("rapp.dynamic")
@@ -46,6 +47,8 @@ class DynamicAgent(RappAgent):
         self.manifest = manifest
         self.package_dir = Path(package_dir)
         self.core, self.platform, self.token = core, platform, token
+        # which Platform agent serves each stateless service call (several may serve the domain)
+        self.platform_chooser = PlatformChooser(self, platform, token) if platform else None
         self.params = {**manifest.params, **(params or {})}
         self.beats = 0
         self.task = None

@@ -2,9 +2,17 @@
 (paper 000 sec. 5.3, fig. 6; paper 001 sec. 3).
 
 Every service request carries a token; a missing, unknown or expired one is refused before the
-service runs. Services are synchronous CPU work (agents/services) run in worker threads, so one
-robot's request never stalls another's; past `max_pending` concurrent calls new ones are refused
-with a reason rather than left unanswered.
+service runs. Services are synchronous work (agents/services): the CPU-bound ones (pool.POOLED:
+vision, hazard checks, speech, path planning) run in the Platform's worker processes
+(agents/services/pool.py, one per core, `service_workers=0`: in threads as before), the cheap and
+stateful ones in worker threads, so one robot's request never stalls another's and none runs on
+the event loop; past `max_pending` concurrent calls new ones are refused with a reason rather than
+left unanswered.
+
+Several Platform agents can serve one domain (agents/platform_directory.py, docs/deployment.md):
+the primary (`replicas=[names]`) keeps users, tokens, Cloud Agents and every stateful service; a
+replica (`primary=name`) serves the stateless CPU-bound services, verifies tokens with the primary
+and reports its load to it; clients choose among them by load.
 """
 from __future__ import annotations
 
@@ -24,8 +32,9 @@ from ontology import platform as P
 from ontology.registry import Done, actions
 from ontology.errors import ErrorCode
 
+from . import platform_directory as D
 from .base import RappAgent
-from .errors import Failure, Refusal, RequestError
+from .errors import Failure, Refusal, RequestError, RequestRefused
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .responder import Responder
 from .store_client import download_package
@@ -62,7 +71,8 @@ class PlatformAgent(RappAgent):
                  workdir: str | Path | None = None, max_pending: int = 64,
                  limits: Limits = Limits(), services: dict | None = None, services_state=None,
                  data_dir: str | Path | None = None, sandbox: Sandbox | None = None,
-                 cloud_mode: str = "process", warm_workers: int = 1):
+                 cloud_mode: str = "process", warm_workers: int = 1, service_workers: int | None = None,
+                 primary: str | None = None, replicas=()):
         super().__init__(name, settings)
         self.cloud_mode = check_spawn_mode(cloud_mode, "cloud_mode")
         from agents.services.context import ServiceState
@@ -91,8 +101,23 @@ class PlatformAgent(RappAgent):
         self._pool_started = False
         self.served = 0
         self._serial = itertools.count(1)
+        # CPU-bound services in worker processes (None: one per core; 0: threads, as before)
+        from agents.services.pool import ServicePool
+
+        self.service_pool = ServicePool(service_workers, name=name) if service_workers != 0 else None
+        self.capacity = self.service_pool.size if self.service_pool else 1
+        # several Platform agents per domain: a replica names its primary, a primary its replicas
+        self.primary = self.settings.jid(primary) if primary else None
+        self.platforms = D.PlatformDirectory({self.settings.jid(r) for r in replicas})
+        self._remote_tokens: dict[str, tuple[TokenInfo, float]] = {}  # replica: digest -> (info, fetched)
+        self._reporter: asyncio.Task | None = None
 
     async def setup(self) -> None:
+        if self.service_pool is not None:
+            self.service_pool.start()  # workers fork in the background
+        if self.primary is not None:
+            self._setup_replica()
+            return
         await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
         handlers = {"register_user": self.register_user, "login": self.login,
                     "list_services": self.list_services, "register_robot": self.register_robot,
@@ -104,9 +129,28 @@ class PlatformAgent(RappAgent):
             handlers[name] = self.run_service
         responder = Responder(P.ONTOLOGY, handlers, check=self._check_token)
         self.activate("platform-service", responder, responder.make_template())
+        directory = Responder(D.ONTOLOGY, {"platform_report": self.platform_report,
+                                           "list_platforms": self.list_platforms,
+                                           "lookup_token": self.lookup_token})
+        self.activate("platform-directory", directory, directory.make_template())
         self._sweeper = asyncio.create_task(self._sweep_accounts(self.accounts.pending()))
 
+    def _setup_replica(self) -> None:
+        """Only the stateless services; everything else is the primary's (refused with its name)."""
+        handlers = {name: self.primary_only for name in actions(P.ONTOLOGY)}
+        handlers.update({"ping": self.ping, "list_services": self.list_services})
+        handlers.update({name: self.run_service for name in D.REPLICATED if name in self.services})
+        responder = Responder(P.ONTOLOGY, handlers, check=self._check_token)
+        self.activate("platform-service", responder, responder.make_template())
+        directory = Responder(D.ONTOLOGY, {"token_revoked": self.token_revoked})
+        self.activate("platform-directory", directory, directory.make_template())
+        self._reporter = asyncio.create_task(self._report_loop())
+
     async def stop(self) -> None:
+        if self._reporter is not None:
+            self._reporter.cancel()
+        if self.service_pool is not None:
+            await asyncio.to_thread(self.service_pool.close)  # workers killed
         await self.warm_pool.close()  # idle workers killed and reaped
         for cloud in list(self.clouds.values()):
             await self._kill_cloud(cloud, "platform stopping")
@@ -140,6 +184,8 @@ class PlatformAgent(RappAgent):
     async def token_info(self, token: str) -> TokenInfo:
         if not token:
             raise Refusal("missing token: log in first and send the token with every call", ErrorCode.NO_TOKEN)
+        if self.primary is not None:
+            return await self._remote_token_info(token)
         info = self._tokens.get(token)
         if info is None:
             info = await asyncio.to_thread(self.directory.lookup, token)
@@ -151,6 +197,16 @@ class PlatformAgent(RappAgent):
             await asyncio.to_thread(self.directory.revoke, token)
             raise Refusal("token expired: log in again", ErrorCode.EXPIRED_TOKEN)
         return info
+
+    async def revoke_token(self, token: str) -> bool:
+        """Revoke a token here and, at once, on every live replica (each also forgets it by itself
+        within TOKEN_CACHE_S). False if it was unknown."""
+        self._tokens.pop(token, None)
+        gone = await asyncio.to_thread(self.directory.revoke, token)
+        note = D.TokenRevoked(digest=D.token_digest(token))
+        await asyncio.gather(*(self.request(r.jid, note, timeout=2.0, retries=0) for r in self.platforms.live()),
+                             return_exceptions=True)
+        return gone
 
     async def _issue(self, user: str, ttl_s: float, **kw) -> tuple[str, float]:
         return await asyncio.to_thread(self.directory.issue, user, ttl_s, **kw)
@@ -209,18 +265,102 @@ class PlatformAgent(RappAgent):
     async def run_service(self, req, ctx):
         from agents.services.context import ServiceContext
         from agents.services.errors import ServiceError
+        from agents.services.pool import POOLED
 
         if self.pending >= self.max_pending:
             raise Refusal(f"platform busy: {self.pending} calls in progress, retry shortly", ErrorCode.BUSY)
         spec = self.services[req.action_name]
         self.pending += 1
+        call = ServiceContext(user=ctx.user, state=self.state)
         try:
-            return await asyncio.to_thread(spec.run, req, ServiceContext(user=ctx.user, state=self.state))
+            if self.service_pool is not None and req.action_name in POOLED:
+                return await self.service_pool.run(req.action_name, req, call)
+            return await asyncio.to_thread(spec.run, req, call)
         except ServiceError as e:
             raise Failure(str(getattr(e, "reason", e)), getattr(e, "code", ErrorCode.SERVICE_ERROR)) from None
         finally:
             self.pending -= 1
             self.served += 1
+
+    # -- several Platform agents (agents/platform_directory.py) ---------------------------------
+    async def platform_report(self, req: D.PlatformReport, ctx) -> Done:
+        """A replica's registration and heartbeat: accepted from the replicas this primary names."""
+        if ctx.sender not in self.platforms.allowed:
+            self.record_structure("refused", action="platform_report", by=ctx.sender)
+            raise Refusal(f"{ctx.sender} is not a replica of {self.address}", ErrorCode.FORBIDDEN)
+        if not self.platforms.report(ctx.sender, req):
+            self.record_structure("replica-joined", replica=ctx.sender, capacity=req.capacity,
+                                  services=sorted(set(req.services) & D.REPLICATED))
+        return Done()
+
+    async def list_platforms(self, req: D.ListPlatforms, ctx) -> D.PlatformList:
+        info = await self.token_info(req.token)
+        if info.holder != ctx.sender:
+            raise Refusal(f"this token was issued to another agent, not to {ctx.sender}", ErrorCode.BAD_TOKEN)
+        me = D.PlatformEntry(jid=self.address, services=sorted(self.services), capacity=self.capacity,
+                             outstanding=self.pending, primary=True)
+        return D.PlatformList(platforms=self.platforms.entries(me))
+
+    async def lookup_token(self, req: D.LookupToken, ctx) -> D.TokenRecord:
+        if ctx.sender not in self.platforms.allowed:
+            raise Refusal(f"only this Platform's replicas look tokens up, not {ctx.sender}", ErrorCode.FORBIDDEN)
+        info = await self.token_info(req.token)
+        return D.TokenRecord(user=info.user, expires_at=info.expires_at, holder=info.holder, rapp=info.rapp,
+                             services=None if info.services is None else sorted(info.services), issuer=info.issuer)
+
+    # replica side
+    async def primary_only(self, req, ctx):
+        raise Refusal(f"{req.action_name} is served by the primary Platform {self.primary}, not by this replica",
+                      ErrorCode.NOT_SERVING)
+
+    async def _remote_token_info(self, token: str) -> TokenInfo:
+        """The primary's answer about a token, trusted for TOKEN_CACHE_S (revocations are also pushed)."""
+        digest = D.token_digest(token)
+        hit = self._remote_tokens.get(digest)
+        if hit is None or time.monotonic() - hit[1] > D.TOKEN_CACHE_S:
+            try:
+                rec = await self.request(self.primary, D.LookupToken(token=token), timeout=10.0)
+            except RequestRefused as e:
+                self._remote_tokens.pop(digest, None)
+                raise Refusal(e.reason, e.code) from None
+            except RequestError as e:
+                raise Refusal(f"cannot verify the token now: the primary Platform did not answer ({e.reason})",
+                              ErrorCode.UNAVAILABLE) from None
+            info = TokenInfo(rec.user, rec.expires_at, rec.holder, rec.rapp,
+                             None if rec.services is None else frozenset(rec.services), rec.issuer)
+            hit = self._remote_tokens[digest] = (info, time.monotonic())
+            if len(self._remote_tokens) > 10_000:  # old entries are useless after TOKEN_CACHE_S anyway
+                now = time.monotonic()
+                self._remote_tokens = {k: v for k, v in self._remote_tokens.items() if now - v[1] <= D.TOKEN_CACHE_S}
+        info = hit[0]
+        if time.time() > info.expires_at:
+            raise Refusal("token expired: log in again", ErrorCode.EXPIRED_TOKEN)
+        return info
+
+    async def token_revoked(self, req: D.TokenRevoked, ctx) -> Done:
+        if ctx.sender != self.primary:
+            raise Refusal(f"only the primary Platform revokes tokens here, not {ctx.sender}", ErrorCode.FORBIDDEN)
+        self._remote_tokens.pop(req.digest, None)
+        return Done()
+
+    async def _report_loop(self) -> None:
+        """Register with the primary and report the load every REPORT_S (the primary forgets a
+        replica it has not heard from for STALE_S)."""
+        served = sorted(D.REPLICATED & set(self.services))
+        told = False
+        while True:
+            try:
+                await self.request(self.primary, D.PlatformReport(services=served, capacity=self.capacity,
+                                                                  outstanding=self.pending, served=self.served),
+                                   timeout=5.0, retries=0)
+                if not told:
+                    self.record_structure("replica-registered", primary=self.primary, services=served)
+                    told = True
+            except RequestError as e:
+                if told or not getattr(self, "_report_warned", False):
+                    log.warning("load report to %s failed: %s", self.primary, e)
+                    self._report_warned, told = True, False
+            await asyncio.sleep(D.REPORT_S)
 
     # -- Cloud Agents -----------------------------------------------------------------------------
     async def start_cloud(self, req: P.StartCloudAgent, ctx) -> P.CloudAgentReply:
@@ -352,8 +492,7 @@ class PlatformAgent(RappAgent):
         code = await session.process.stop(grace=1.0)
         self.record_structure("cloud-destroy", cloud=session.jid, rapp=session.rapp, reason=reason,
                               exit_code=code)
-        self._tokens.pop(session.token, None)
-        await asyncio.to_thread(self.directory.revoke, session.token)
+        await self.revoke_token(session.token)
         gone = await self.accounts.delete(session.account.name, session.account.password)
         self.record_structure("account-deleted" if gone else "account-kept", account=session.jid)
         shutil.rmtree(session.process.workdir, ignore_errors=True)

@@ -58,8 +58,9 @@ class HazardFleet:
     (kind nao/elektron alternately) in its own World (small house, seed i + 1), owned by its own
     user whose home description is on the Platform."""
 
-    def __init__(self, workdir: Path):
+    def __init__(self, workdir: Path, platform_kw: dict | None = None):
         self.workdir = Path(workdir)
+        self.platform_kw = platform_kw or {}  # PlatformAgent options (services, service_workers, ...)
         self.trace_file = self.workdir / "trace.jsonl"
         self.system = self.state = self.home = None
         self.worlds, self.robots = [], []
@@ -72,7 +73,9 @@ class HazardFleet:
         quiet_logs()
         self.state = ServiceState(work_dir=self.workdir / "services")
         self.system = RappSystem(self.workdir / "system", trace_file=self.trace_file,
-                                 platform_kw={"services_state": self.state})
+                                 services=self.platform_kw.get("services"),
+                                 platform_kw={"services_state": self.state,
+                                              **{k: v for k, v in self.platform_kw.items() if k != "services"}})
         await self.system.start()
         await self.system.publish(RAPP_DIR)
         return self

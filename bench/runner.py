@@ -6,7 +6,7 @@ Every benchmark measures the project and a floor (or peer) side by side in the s
 their ratio. Each benchmark runs in a child process of its own (a fresh XMPP server, event loop and
 PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick finishes in under
 3 minutes on a 2-core machine. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery,
-speech, estop (metric names such as robot_rtt or plan_astar select their benchmark).
+speech, estop, platform_load (metric names such as robot_rtt or plan_astar select their benchmark).
 """
 from __future__ import annotations
 
@@ -24,11 +24,13 @@ from pathlib import Path
 
 from .common import ROOT, log, metric, table
 
-BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf", "recovery", "speech", "estop"]
-FULL_TIMEOUT_S = {"fleet": 1800}  # 21 hazard-detection runs in two rounds
+BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf", "recovery", "speech", "estop",
+              "platform_load"]
+FULL_TIMEOUT_S = {"fleet": 1800, "platform_load": 1500}  # 21 hazard-detection runs in two rounds; a run + 4 replays
 ALIASES = {"recovery_killed_told": "recovery", "recovery_hung_back": "recovery",
            "recovery_reconnect": "recovery", "recovery_command_answered": "recovery", "robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
-           "fleet_service_p95": "fleet", "sim": "sim_rtf"}
+           "fleet_service_p95": "fleet", "sim": "sim_rtf", "platform_load_threads": "platform_load",
+           "platform_load_pool": "platform_load", "platform_load_two": "platform_load"}
 
 
 # -- the benchmarks (each returns a list of metric dicts) ------------------------------------
@@ -91,6 +93,11 @@ def bench_speech(quick: bool, tiny: bool) -> list[dict]:
 def bench_estop(quick: bool, tiny: bool) -> list[dict]:
     from . import estop
     return asyncio.run(estop.run(quick, n=2 if tiny else None))
+
+
+def bench_platform_load(quick: bool, tiny: bool) -> list[dict]:
+    from . import platform_load
+    return asyncio.run(platform_load.run(quick, robots=2 if tiny else None, time_scale=0.05 if tiny else None))
 
 
 def _child(name: str, quick: bool, tiny: bool, out: str) -> int:
@@ -180,6 +187,10 @@ GOALS = {
     "speech_keyword_started": ("<= 500 ms", lambda m: m["value"] <= 500.0),
     "estop_latency": ("<= 100 ms", lambda m: m["value"] <= 100.0),
     "speech_platform_started": ("<= 1500 ms", lambda m: m["value"] <= 1500.0),
+    # issue #20 item 3: the recorded requests of 50 robots against one Platform (its process pool)
+    # and two Platform agents; p95 against one robot's, every request answered
+    **{f"platform_load_{c}": ("ratio <= 3, no errors", lambda m: m["ratio"] <= 3.0 and m.get("errors") == 0)
+       for c in ("pool", "two")},
 }
 
 

@@ -56,6 +56,7 @@ class StructureEvent(StrEnum):
 
     # the Core
     INIT = "init"  # its FSM starts
+    SUPERVISION_SPOTTING = "supervision-spotting"  # a supervision word (stop...) heard while a RApp runs
     REGISTER = "register"  # robot registered with the Platform/Store (also written by them)
     ACCOUNTS_SWEPT = "accounts-swept"  # leftover XMPP accounts of dead agents deleted (Core, Platform)
     VOCABULARY = "vocabulary"  # the RApps and keywords it understands
@@ -89,6 +90,8 @@ class StructureEvent(StrEnum):
     CLOUD_SPAWN = "cloud-spawn"  # a Cloud Agent started (or restarted)
     CLOUD_LOST = "cloud-lost"  # a Cloud Agent's process died
     CLOUD_DESTROY = "cloud-destroy"  # a Cloud Agent stopped
+    REPLICA_JOINED = "replica-joined"  # the primary Platform heard a replica's first load report
+    REPLICA_REGISTERED = "replica-registered"  # a replica Platform's first report was accepted
     # the Dynamic Agent
     CLOUD_DOWN = "cloud-down"  # its Cloud Agent is gone (restarted or not)
     TASK_PAUSED = "task-paused"  # the emergency stop latched: the task holds (not failed)

@@ -25,7 +25,8 @@ def distance_to_polyline(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points[:, None, :] - closest, axis=2).min(1)
 
 
-SENSOR_READS = frozenset({"get_sonars", "get_laser_scan", "get_global_pose"})
+# the Core polls these on its own (safety, obstacle events, listening for "stop") while a task runs
+SENSOR_READS = frozenset({"get_sonars", "get_laser_scan", "get_global_pose", "capture_audio", "microphone_energy"})
 
 
 class RecordingAPI:

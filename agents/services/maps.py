@@ -5,6 +5,7 @@ cell (ix, iy) centre at origin + ((ix + 0.5) * res, (iy + 0.5) * res). Unknown c
 """
 from __future__ import annotations
 
+import hashlib
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +52,16 @@ class GridMap:
         """What `cached` built for key, or None (never builds)."""
         with self._lock:
             return self._cache.get(key)
+
+    def content_key(self) -> str:
+        """A hash of the grid and its geometry (memoised): the service pool's workers cache a map
+        under it, so a map is sent to each worker once, and a map uploaded again with other content
+        is never mistaken for the old one."""
+        def build() -> str:
+            h = hashlib.sha1(np.ascontiguousarray(self.blocked).tobytes())
+            h.update(repr((self.blocked.shape, self.resolution, tuple(self.origin))).encode())
+            return h.hexdigest()
+        return self.cached(("content-key",), build)
 
     def cached(self, key, build):
         """Per-map memo (cost maps, graphs) built once under a lock."""

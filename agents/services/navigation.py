@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Callable
 
 import numpy as np
 from scipy import ndimage
@@ -247,8 +248,15 @@ def _blame_marks(m: OverlayMap, rt: str, start_c, goal_c) -> str:
 
 
 def plan_path_2d(req: PlanPath2D, ctx: ServiceContext) -> PlanPathReply:
-    t0 = time.perf_counter()
     m = ctx.state.maps.get(ctx.user, req.map_id)
+    return plan_on_map(req, m, lambda base: ctx.state.obstacles.overlay(ctx.user, base))
+
+
+def plan_on_map(req: PlanPath2D, m: GridMap | None, overlay: Callable[[GridMap], GridMap]) -> PlanPathReply:
+    """plan_path_2d on a map already looked up (None: unknown); `overlay(map)` is the map with the
+    caller's temporary obstacle marks (used when the request asks for them). The service pool's
+    workers call this with their cached copy of the map (agents/services/pool.py)."""
+    t0 = time.perf_counter()
     if m is None:
         return PlanPathReply(plan_found=PLAN_UNKNOWN_MAP, reason=f"unknown map {req.map_id!r}")
     if req.robot_type not in ROBOT_RADIUS:
@@ -263,7 +271,7 @@ def plan_path_2d(req: PlanPath2D, ctx: ServiceContext) -> PlanPathReply:
             return PlanPathReply(plan_found=PLAN_NOT_FOUND, reason=reason)
     start_c, goal_c = m.world_to_cell(req.start.x, req.start.y), m.world_to_cell(req.goal.x, req.goal.y)
     if req.use_obstacles:
-        m = ctx.state.obstacles.overlay(ctx.user, m)
+        m = overlay(m)
     used = len(m.marks) if isinstance(m, OverlayMap) else 0
     cells, margin, reason = plan_with_clearance(m, req, start_c, goal_c)
     elapsed = time.perf_counter() - t0

@@ -44,6 +44,7 @@ from ontology.errors import ErrorCode
 from ontology.trace import RecordKind
 
 from .blackboard import Blackboard, BlackboardError, Key
+from ._call import UNSET
 from .calls import PlatformCalls, RobotCalls
 from .monitor import ArriveBy, Expectation, Localized, ObstacleMarks, PathFree, PlanFailed, PlanMonitor
 
@@ -76,10 +77,38 @@ class RobotProxy(_Dynamic, RobotCalls):
 
 
 class PlatformProxy(_Dynamic, PlatformCalls):
-    """`self.platform`: the Platform's services (typed methods: rapps/sdk/calls.py); the token is added."""
+    """`self.platform`: the Platform's services (typed methods: rapps/sdk/calls.py); the token is added.
+
+    Where several Platform agents serve the domain (agents/platform_directory.py), the stateless
+    services go to the least loaded of two agents offering them (the primary's directory, read at
+    the first such call and every few seconds); everything else goes to the primary."""
 
     def __init__(self, agent, platform: str, token: str, timeout: float = 60.0):
         super().__init__(agent, platform, P.ONTOLOGY, timeout, extra={"token": token})
+        # the Dynamic Agent's (agents/platform_directory.py); without one, everything goes to `platform`
+        self.chooser = getattr(agent, "platform_chooser", None)
+
+    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None, feedback=None) -> Content:
+        chooser = self.chooser
+        target = await chooser.target(action) if chooser is not None else self._address
+        if target == self._address:
+            if chooser is None:
+                return await super()._call(action, fields, timeout, feedback)
+            with chooser.track(target):
+                return await super()._call(action, fields, timeout, feedback)
+        model = lookup(self._ontology, action)
+        given = {k: v for k, v in fields.items() if v is not UNSET}
+        given.setdefault("token", self._extra["token"])
+        try:
+            with chooser.track(target):
+                return await self._agent.request(target, model(**given), timeout=timeout or self._timeout,
+                                                 on_feedback=feedback)
+        except RequestRefused as e:
+            if e.code not in (ErrorCode.NOT_SERVING, ErrorCode.BUSY, ErrorCode.UNAVAILABLE):
+                raise
+            chooser.forget(target)  # a replica gone or full: the primary answers this one
+            with chooser.track(self._address):
+                return await super()._call(action, fields, timeout, feedback)
 
 
 class CloudProxy:
