@@ -22,6 +22,7 @@ from ontology.trace import FINAL_ANSWERS, RecordKind
 from .common import log, metric, ms, percentile, quiet_logs, ratio
 
 GOAL = 20
+QUICK_GOAL = 4
 HOUSE = "small"
 
 
@@ -159,7 +160,9 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
 
 
 async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float = 1200.0) -> list[dict]:
-    sizes = sizes or ([1, 2] if quick else [1, 20])
+    # quick mode judges a fleet of 4 (issue 20 item 6); the full run the goal's 20
+    sizes = sizes or ([1, QUICK_GOAL] if quick else [1, GOAL])
+    goal_n = max(sizes)
     rounds = []
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         async with HazardFleet(Path(tmp)) as fleet:
@@ -177,7 +180,7 @@ async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float
     first_fail = next((r for r in rounds if not r["ok"]), None)
     tried = ",".join(str(r["n"]) for r in rounds)
     return [
-        metric("fleet", n_best, "robots", GOAL, ratio(GOAL, n_best), len(rounds), rapp="hazard-detection",
+        metric("fleet", n_best, "robots", goal_n, ratio(goal_n, n_best), len(rounds), rapp="hazard-detection",
                house=HOUSE, sizes_tried=tried,
                first_failure=(f"N={first_fail['n']}: {first_fail['failed'][:1]} unanswered={first_fail['unanswered']}"
                               f" {first_fail['unanswered_actions']}") if first_fail else None,
