@@ -3,7 +3,8 @@
 machines: Store and Platform on a server, one Core per robot (docs/deployment.md).
 
     rapp agent store --data /var/lib/rapp/store
-    rapp agent platform --data /var/lib/rapp/platform --maps /var/lib/rapp/maps
+    rapp agent platform --data /var/lib/rapp/platform --maps /var/lib/rapp/maps --replica platform-2
+    rapp agent platform --name platform-2 --primary platform      # a replica: adds capacity
     rapp agent core --robot nao --robot-id nao1 --owner alice --trust dev.pub --house house --seed 1
 
 Each agent logs in with its own password (RAPP_XMPP_PASSWORD, or its file in the credentials
@@ -59,13 +60,16 @@ async def _platform(a, settings) -> None:
     from agents.platform_agent import PlatformAgent
     from agents.services.context import ServiceState
 
-    state = ServiceState(work_dir=data_dir("platform", a.data) / "services")  # per-user files (maildirs)
+    # a second Platform on the same machine (a replica) must not share the first one's files
+    home = data_dir(a.name or "platform", a.data)
+    state = ServiceState(work_dir=home / "services")  # per-user files (maildirs)
     if a.maps:
         print(f"maps preloaded: {', '.join(state.preload_maps(a.maps)) or 'none'}")
     await _run_until_stopped([PlatformAgent(a.name or "platform", store=a.store, settings=settings,
-                                            services_state=state, data_dir=data_dir("platform", a.data),
-                                            workdir=a.workdir or data_dir("platform", a.data) / "work",
-                                            sandbox=sandbox(a))])
+                                            services_state=state, data_dir=home,
+                                            workdir=a.workdir or home / "work",
+                                            sandbox=sandbox(a), primary=a.primary, replicas=a.replica,
+                                            service_workers=a.service_workers)])
 
 
 def owner_password(a, settings) -> str:
@@ -151,6 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workdir", help="core, platform: where RApp runs unpack and log (default: "
                                       "~/.local/share/rapp/<agent>/work; emptied at every stop and start)")
     p.add_argument("--maps", help="platform: directory of map_server YAML maps to preload")
+    p.add_argument("--primary", help="platform: run as a replica of this primary Platform (name or JID): "
+                                      "it serves the stateless services and reports its load there")
+    p.add_argument("--replica", action="append", default=[], metavar="NAME",
+                   help="platform: a replica this primary trusts (name or JID); repeatable")
+    p.add_argument("--service-workers", type=int, default=None, metavar="N",
+                   help="platform: processes for the CPU-bound services (default: one per core; 0: threads)")
     p.add_argument("--robot", choices=["nao", "elektron"], default="nao", help="core: robot model")
     p.add_argument("--robot-id")
     p.add_argument("--owner", default="owner", help="core: the user whose chat it listens to")

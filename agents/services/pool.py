@@ -87,7 +87,7 @@ class Job:
     marks: tuple = ()  # the caller's live obstacle marks on that map
 
 
-def _worker_main(conn) -> None:
+def _worker_main(conn, home: str) -> None:
     """A worker's loop: ("call", Job) -> ("ok", reply, stores) | ("error", reason, code) | ("need-map",)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the Platform's to handle; it kills us
     import cv2
@@ -99,7 +99,8 @@ def _worker_main(conn) -> None:
     from .obstacles import OverlayMap, disc_mask
 
     cv2.setNumThreads(1)  # one worker per core already
-    state = ServiceState(work_dir=tempfile.mkdtemp(prefix="rapp-pool-"))
+    # in the pool's private directory: removed with it (a worker dies by SIGKILL, it cannot clean up)
+    state = ServiceState(work_dir=Path(tempfile.mkdtemp(prefix="worker-", dir=home)))
     maps: OrderedDict[str, GridMap] = OrderedDict()
     overlays: OrderedDict[tuple, GridMap] = OrderedDict()
 
@@ -234,7 +235,7 @@ def _fork_server_main() -> None:
                 null = os.open(os.devnull, os.O_RDWR)
                 os.dup2(null, 0)
                 os.dup2(null, 1)
-                _worker_main(Client(address, authkey=bytes.fromhex(key)))
+                _worker_main(Client(address, authkey=bytes.fromhex(key)), os.path.dirname(address))
             except BaseException:  # noqa: BLE001 - a worker never returns into the server's loop
                 traceback.print_exc()
                 code = 1
