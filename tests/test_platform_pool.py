@@ -13,35 +13,24 @@ import cv2
 import numpy as np
 import pytest
 
-from agents.base import RappAgent
 from agents.errors import RequestFailed
-from agents.platform_agent import PlatformAgent
 from agents.services.images import encode_image
 from agents.services.maps import encode_map
-from ontology import platform as P
 from ontology.services.common import Pose2D
 from ontology.services.hazard import DoorCheck, LightCheck
 from ontology.services.information import WeatherCurrent
 from ontology.services.navigation import PLAN_FOUND, PLAN_NOT_FOUND, PlanPath2D, UploadMap
 from ontology.services.vision import HumanDetect
 
+from .test_platform_agent import _platform as bare_platform, _token
+
 
 @contextlib.asynccontextmanager
 async def _platform(settings, unique, **kw):
-    platform = PlatformAgent(unique("platform"), settings=settings, **kw)
-    client = RappAgent(unique("client"), settings)
-    await platform.start()
-    try:
-        await client.start()
+    """test_platform_agent's Platform and client, with the pool started and a token for "ann"."""
+    async with bare_platform(settings, unique, **kw) as (platform, client):
         assert await asyncio.to_thread(platform.service_pool.wait_ready, 60)
-        await client.request(platform.address, P.RegisterUser(user="ann", password="pw"))
-        token = (await client.request(platform.address, P.Login(user="ann", password="pw"))).token
-        try:
-            yield platform, client, token
-        finally:
-            await client.stop()
-    finally:
-        await platform.stop()
+        yield platform, client, await _token(client, platform, "ann")
 
 
 def _room(token: str, wall_across: bool = False) -> UploadMap:
