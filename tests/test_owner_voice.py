@@ -71,6 +71,12 @@ async def test_inbox_and_script_play_one_line_after_another(tmp_path):
         (voice.inbox / "bad.json").write_text("{not json")
         post_line(SpokenLine(say="hello robot"), run=tmp_path)
         server = asyncio.create_task(voice.serve_inbox())
+        # the inbox line first (its synthesis takes wall time; an unpaced world would reach the
+        # script's 2 s before it on a loaded machine), then the script's line while it still plays
+        for _ in range(300):
+            if voice.spoken:
+                break
+            await asyncio.sleep(0.05)
         script = asyncio.create_task(voice.run_script([SpokenLine(say="check the hazards", at=2.0, distance=3.0)]))
         for _ in range(200):
             await world.sleep(0.1)
