@@ -125,6 +125,21 @@ async def check_full_lifecycle(system) -> list[dict]:
     return trace
 
 
+async def check_lifecycle_over_the_wire(system) -> tuple[list[dict], dict]:
+    """check_full_lifecycle on an external server (Prosody, ejabberd): every message went through
+    it, the Dynamic Agent pinged the Platform, and its one-run account was deleted through the
+    server's in-band registration. Returns the trace and the run's spawn record."""
+    trace = await check_full_lifecycle(system)
+    spawn = [r for r in structure(trace) if r["event"] == "spawn"][-1]
+    sent = [r for r in trace if r["kind"] == "message" and r["dir"] == "send"]
+    assert sent and all(r["path"] == "xmpp" for r in sent)
+    assert any(r["receiver"] == system.platform.address and r["sender"] == spawn["dynamic"]
+               and r["action"] == "ping" for r in sent), "the Dynamic Agent pinged the Platform"
+    await wait_until(lambda: any(r["event"] == "account-deleted" and r["account"] == spawn["dynamic"]
+                                 for r in structure(read_trace(system.settings.trace_file))), timeout=10)
+    return trace, spawn
+
+
 async def test_full_lifecycle(system):
     await check_full_lifecycle(system)
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from .ports import free_port
 from .probe import LoginError, probe_login
-from .process import ExternalServer, ManagedServer, ServerStartError, _loop_running, listening, terminate
+from .process import ExternalServer, ManagedServer, ServerStartError, listening, terminate
 from .prosody import make_self_signed_cert
 from .settings import XmppSettings
 
@@ -323,14 +323,6 @@ modules:
             out.append(f"erl.out: ...{text[-tail:]}")
         return " | ".join(out) or "no output"
 
-    def start(self) -> "EjabberdNode":
-        if _loop_running():
-            raise RuntimeError("EjabberdNode.start() inside an event loop: use `await node.astart()`")
-        return asyncio.run(self.astart())
-
-    def running(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
     def kill(self) -> None:
         """The node fails at once (SIGKILL to its VM, no orderly shutdown): the kernel resets its
         clients' connections; the other nodes see it go down."""
@@ -394,10 +386,8 @@ class EjabberdCluster(ManagedServer):
             raise
         return self
 
-    def start(self) -> "EjabberdCluster":
-        if _loop_running():
-            raise RuntimeError("EjabberdCluster.start() inside an event loop: use `await cluster.astart()`")
-        return asyncio.run(self.astart())
+    def running(self) -> bool:
+        return bool(self.nodes) and all(node.running() for node in self.nodes)
 
     def stop(self) -> None:
         threads = [threading.Thread(target=node.stop) for node in self.nodes]  # ~1 s each, in parallel

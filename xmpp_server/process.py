@@ -50,10 +50,20 @@ def _signal_group(proc: subprocess.Popen, sig: int) -> None:
 
 
 class ManagedServer:
-    """Context-manager plumbing shared by the server wrappers: subclasses provide `astart()`,
-    `start()`, `stop()` and a temporary directory in `_tmp` (or None)."""
+    """Plumbing shared by the server wrappers: subclasses provide `astart()`, `stop()`, a temporary
+    directory in `_tmp` (or None) and, when they run one process, `proc`."""
 
     _tmp = None
+    proc = None
+
+    def start(self):
+        """`astart()` from synchronous code (not inside an event loop: there, await astart())."""
+        if _loop_running():
+            raise RuntimeError(f"{type(self).__name__}.start() inside an event loop: use `await astart()`")
+        return asyncio.run(self.astart())
+
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
 
     def close(self) -> None:
         self.stop()
@@ -162,12 +172,6 @@ class EmbeddedServer(ManagedServer):
             return f"process exited ({self.proc.poll()}): {err.strip()[-2000:]}"
         return line
 
-    def start(self) -> "EmbeddedServer":
-        return asyncio.run(self.astart()) if not _loop_running() else _raise_in_loop()
-
-    def running(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
     def stop(self, timeout: float = 5.0) -> None:
         if self.proc is None:
             return
@@ -185,6 +189,3 @@ def _loop_running() -> bool:
     except RuntimeError:
         return False
 
-
-def _raise_in_loop():
-    raise RuntimeError("EmbeddedServer.start() inside an event loop: use `await server.astart()`")

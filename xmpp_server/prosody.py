@@ -22,7 +22,7 @@ from pathlib import Path
 
 from .ports import free_port
 from .probe import LoginError, probe_login
-from .process import ExternalServer, ServerStartError, _loop_running, listening, terminate
+from .process import ExternalServer, ServerStartError, listening, terminate
 
 
 def prosody_binary() -> str | None:
@@ -193,14 +193,6 @@ VirtualHost {_lua(self.domain)}
                 if text:
                     out.append(f"{f.name}: ...{text[-tail:]}")
         return " | ".join(out) or "no output"
-
-    def start(self) -> "ProsodyServer":
-        if _loop_running():
-            raise RuntimeError("ProsodyServer.start() inside an event loop: use `await server.astart()`")
-        return asyncio.run(self.astart())
-
-    def running(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
 
     proc_rc: int | None = None
 
