@@ -44,7 +44,6 @@ from ontology.errors import ErrorCode
 from ontology.trace import RecordKind
 
 from .blackboard import Blackboard, BlackboardError, Key
-from ._call import UNSET
 from .calls import PlatformCalls, RobotCalls
 from .monitor import ArriveBy, Expectation, Localized, ObstacleMarks, PathFree, PlanFailed, PlanMonitor
 
@@ -88,23 +87,17 @@ class PlatformProxy(_Dynamic, PlatformCalls):
         # the Dynamic Agent's (agents/platform_directory.py); without one, everything goes to `platform`
         self.chooser = getattr(agent, "platform_chooser", None)
 
-    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None, feedback=None) -> Content:
+    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None, feedback=None,
+                    to: str | None = None) -> Content:
         chooser = self.chooser
-        target = await chooser.target(action) if chooser is not None else self._address
-        if target == self._address:
-            if chooser is None:
-                return await super()._call(action, fields, timeout, feedback)
-            with chooser.track(target):
-                return await super()._call(action, fields, timeout, feedback)
-        model = lookup(self._ontology, action)
-        given = {k: v for k, v in fields.items() if v is not UNSET}
-        given.setdefault("token", self._extra["token"])
+        if chooser is None:
+            return await super()._call(action, fields, timeout, feedback)
+        target = await chooser.target(action)
         try:
             with chooser.track(target):
-                return await self._agent.request(target, model(**given), timeout=timeout or self._timeout,
-                                                 on_feedback=feedback)
+                return await super()._call(action, fields, timeout, feedback, to=target)
         except RequestRefused as e:
-            if e.code not in (ErrorCode.NOT_SERVING, ErrorCode.BUSY, ErrorCode.UNAVAILABLE):
+            if target == self._address or e.code not in (ErrorCode.NOT_SERVING, ErrorCode.BUSY, ErrorCode.UNAVAILABLE):
                 raise
             chooser.forget(target)  # a replica gone or full: the primary answers this one
             with chooser.track(self._address):

@@ -20,13 +20,15 @@ class _Calls:
         self._agent, self._address, self._ontology = agent, address, ontology
         self._timeout, self._extra = timeout, extra or {}
 
-    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None, feedback=None) -> Content:
+    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None, feedback=None,
+                    to: str | None = None) -> Content:
         """`feedback(Progress)`: asks for progress informs (long motions send them); cancelling the
-        awaiting task cancels the action where it runs."""
+        awaiting task cancels the action where it runs. `to`: another agent serving the same
+        ontology (a Platform replica) instead of the proxy's own."""
         model = lookup(self._ontology, action)
         given = {k: v for k, v in fields.items() if v is not UNSET}
         for k, v in self._extra.items():
             if k in model.model_fields:
                 given.setdefault(k, v)
-        return await self._agent.request(self._address, model(**given), timeout=timeout or self._timeout,
+        return await self._agent.request(to or self._address, model(**given), timeout=timeout or self._timeout,
                                          on_feedback=feedback)
