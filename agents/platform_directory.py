@@ -1,5 +1,5 @@
-"""Several Platform agents serving one domain: the primary's directory of Platform agents, the
-messages replicas and clients exchange with it, and the clients' load-aware choice.
+"""Several Platform agents serving one domain: the primary's directory of Platform agents and the
+clients' load-aware choice (the messages they exchange: ontology/platform_directory.py).
 
 - The primary Platform keeps users, tokens, Cloud Agents and every stateful service (maps, obstacle
   marks, home descriptions, learned objects, e-mail, cognitive history, noise profiles).
@@ -26,9 +26,9 @@ from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-from ontology.registry import Action, Content, Done, action
+from ontology.platform_directory import (ONTOLOGY, ListPlatforms, LookupToken, PlatformEntry,  # noqa: F401
+                                         PlatformList, PlatformReport, TokenRecord, TokenRevoked)
 
-ONTOLOGY = "platform-directory"
 # stateless services a replica serves (the request carries all they need)
 REPLICATED = frozenset({
     "qr_detection", "compute_global_pose", "face_detection", "human_detection",
@@ -39,59 +39,6 @@ STALE_S = 3.5  # a replica not heard for this long is not listed
 TOKEN_CACHE_S = 2.0  # how long a replica trusts the primary's answer about a token
 REFRESH_S = 5.0  # how often a client reads the directory again
 RETRY_ABSENT_S = 60.0  # a primary without a directory (an older Platform) is asked again after this
-
-
-class PlatformEntry(Content):
-    jid: str
-    services: list[str]
-    capacity: int  # worker processes
-    outstanding: int  # calls running when it last reported
-    primary: bool = False
-    age_s: float = 0.0  # since that report
-
-
-class PlatformList(Content):
-    platforms: list[PlatformEntry]
-
-
-@action("platform_report", ontology=ONTOLOGY, reply=Done, group="directory")
-class PlatformReport(Action):
-    """A replica's registration and heartbeat (every REPORT_S) to its primary."""
-
-    services: list[str]
-    capacity: int = 1
-    outstanding: int = 0
-    served: int = 0
-
-
-@action("list_platforms", ontology=ONTOLOGY, reply=PlatformList, group="directory", idempotent=True)
-class ListPlatforms(Action):
-    """The Platform agents serving this domain (the primary first), for a holder of a valid token."""
-
-    token: str = ""
-
-
-class TokenRecord(Content):
-    user: str
-    expires_at: float
-    holder: str
-    rapp: str | None = None
-    services: list[str] | None = None
-    issuer: str | None = None
-
-
-@action("lookup_token", ontology=ONTOLOGY, reply=TokenRecord, group="directory", idempotent=True)
-class LookupToken(Action):
-    """A replica asks the primary what a token grants (answered to named replicas only)."""
-
-    token: str
-
-
-@action("token_revoked", ontology=ONTOLOGY, reply=Done, group="directory")
-class TokenRevoked(Action):
-    """The primary tells its replicas a token is gone (SHA-256 of the token, never the token)."""
-
-    digest: str
 
 
 def token_digest(token: str) -> str:
