@@ -39,7 +39,7 @@ from ontology.trace import RecordKind
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, is_feedback, make_message, reply_to
-from .stanza import message_xml, read_message
+from .stanza import message_xml, read_message, uses_form
 from .tracing import CONTENT_CAP, cap, tracer_for
 
 log = logging.getLogger("rapp.agent")
@@ -75,6 +75,7 @@ class RappAgent(Agent):
         self._pending: dict[str, asyncio.Queue] = {}
         self._pending_peer: dict[str, str] = {}  # conversation -> bare JID asked
         self._outbox: dict[str, Message] = {}  # conversation -> the request, until answered
+        self._form_peers: set[str] = set()  # bare JIDs that send SPADE's metadata form (agents/stanza.py)
         self._named: dict[str, Any] = {}
         self.unhandled: list[Message] = []  # kept, not dropped, for inspection
         self.web_url: str | None = None  # SPADE's agent page when settings.web is on
@@ -168,7 +169,7 @@ class RappAgent(Agent):
             for conv in waiting:
                 msg = self._outbox[conv]
                 self.tracer.record(RecordKind.RESEND, agent=self.address, peer=str(msg.to), conversation_id=conv)
-                self.client.send(message_xml(msg))
+                self.client.send(self._stanza(msg))
             await asyncio.sleep(RESEND_EVERY_S)
 
     async def _abort_connection(self) -> None:
@@ -224,7 +225,11 @@ class RappAgent(Agent):
             if self.client is None:
                 raise RuntimeError(f"{self.address} is not connected")
             # a str stanza is queued by slixmpp while disconnected and sent after reconnecting
-            self.client.send(message_xml(msg))
+            self.client.send(self._stanza(msg))
+
+    def _stanza(self, msg: Message) -> str:
+        """Compact metadata, or SPADE's form to a peer that speaks it (a plain SPADE agent)."""
+        return message_xml(msg, form=bool(self._form_peers) and bare(str(msg.to)) in self._form_peers)
 
     def _local_agent(self, to: str):
         real = self._container_real
@@ -238,6 +243,8 @@ class RappAgent(Agent):
     # -- receiving --------------------------------------------------------------------------
     def _message_received(self, node):
         msg = read_message(node)
+        if uses_form(msg):
+            self._form_peers.add(bare(msg.sender))
         if node["type"] == "error":
             # the server bounced a message of ours (peer gone); ejabberd returns it whole, and read
             # as a message it would be a request "from" the peer: never delivered, only traced

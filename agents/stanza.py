@@ -1,10 +1,17 @@
-"""Serialise a SPADE Message to its XMPP stanza text directly.
+"""Serialise a SPADE Message to its XMPP stanza text directly, and read one back.
 
-SPADE's Message.prepare builds the metadata as an XEP-0004 form through slixmpp's stanza objects,
-which costs ~350 µs a message (measured in bench/); the same XML written as text costs ~15 µs.
-The output is what spade.message.Message.from_node parses, trimmed for the wire: every form field
-costs ~0.03 ms of parsing per hop (server and receiver), so fields carry no `type` (text-single is
-XEP-0004's default) and FIPA's reply-with travels as the stanza id, which every stanza has anyway
+Two wire forms of the metadata, both read always:
+- compact (what our agents send each other): one element, the metadata as its attributes,
+  `<acl xmlns="urn:rapp:acl:1" performative="inform" conversation_id="c-.." .../>`. SPADE's form
+  is two elements per field plus the form and its title; parsing them was most of a message's
+  receive cost (bench/messages.py: expat's feed took 8x the raw-slixmpp floor's per message, and
+  the server parses every element too);
+- SPADE's XEP-0004 form (`jabber:x:data`, title spade:x:metadata), what spade.message.Message.
+  from_node reads: sent to a peer that sent us that form (a plain SPADE agent), so such a peer
+  gets its answers in its own dialect (`message_xml(msg, form=True)`).
+SPADE's Message.prepare builds the form through slixmpp's stanza objects (~350 µs a message); the
+XML written as text costs ~15 µs. Form fields carry no `type` (text-single is XEP-0004's default).
+In both forms FIPA's reply-with travels as the stanza id, which every stanza has anyway
 (`read_message` puts it back into the metadata).
 """
 from __future__ import annotations
@@ -20,6 +27,10 @@ from ontology import acl
 _XDATA = "{jabber:x:data}"
 _FORM, _TITLE, _FIELD, _VALUE = _XDATA + "x", _XDATA + "title", _XDATA + "field", _XDATA + "value"
 _MARKUP = re.compile(r"[&<>\"]")  # what escaping changes; most ids, names and JSON keys have none
+ACL_NS = "urn:rapp:acl:1"
+_ACL = "{%s}acl" % ACL_NS
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]*\Z")  # a metadata key that can be an attribute name
+_CONTROL = re.compile(r"[\t\n\r]")  # attribute values normalise these: such a value goes in a form
 
 
 def _text(value: str) -> str:
@@ -30,7 +41,9 @@ def _attr(value: str) -> str:
     return quoteattr(value) if _MARKUP.search(value) or "'" in value else f'"{value}"'
 
 
-def message_xml(msg: Message) -> str:
+def message_xml(msg: Message, form: bool = False) -> str:
+    """The stanza of `msg`; its metadata compact unless `form` (or a key or value that an attribute
+    cannot carry as it is)."""
     meta = msg._metadata  # SPADE keeps metadata here; there is no public accessor in 4.1.4
     stanza_id = meta.get(acl.REPLY_WITH) or uuid.uuid4().hex
     parts = [f"<message to={_attr(str(msg.to))} from={_attr(str(msg.sender))} type=\"chat\" "
@@ -40,7 +53,9 @@ def message_xml(msg: Message) -> str:
     fields = [(k, v) for k, v in meta.items() if k != acl.REPLY_WITH]
     if msg.thread:
         fields.append(("_thread_node", msg.thread))
-    if fields:
+    if fields and not form and all(_NAME.match(k) and not _CONTROL.search(v) for k, v in fields):
+        parts.append("<acl xmlns=\"%s\" %s/>" % (ACL_NS, " ".join(f"{k}={_attr(v)}" for k, v in fields)))
+    elif fields:
         parts.append(f"<x xmlns=\"jabber:x:data\" type=\"form\"><title>{SPADE_X_METADATA}</title>")
         parts.extend(f"<field var={_attr(k)}><value>{_text(v)}</value></field>" for k, v in fields)
         parts.append("</x>")
@@ -50,16 +65,20 @@ def message_xml(msg: Message) -> str:
 
 def read_message(node) -> Message:
     """The SPADE Message of a received slixmpp message stanza; an ACL message's stanza id is its
-    reply-with. Reads the stanza's XML element directly: what spade.message.Message.from_node
-    reads (body, the spade:x:metadata form, its _thread_node), without slixmpp's per-item plugin
-    lookups (a third of a message's receive cost in bench/messages.py)."""
+    reply-with. Reads the stanza's XML element directly: the body, the compact metadata or what
+    spade.message.Message.from_node reads (the spade:x:metadata form, its _thread_node), without
+    slixmpp's per-item plugin lookups (a third of a message's receive cost in bench/messages.py).
+    `uses_form(msg)` tells whether the metadata came as SPADE's form."""
     xml = node.xml
     body_tag = "{%s}body" % node.namespace
-    body, meta, thread = None, {}, None
+    body, meta, thread, form = None, {}, None, False
     for child in xml:  # one pass over the children; ElementPath's find/iterfind cost more
         if child.tag == body_tag:
             if body is None:
                 body = child.text or ""
+        elif child.tag == _ACL:
+            meta.update(child.attrib)
+            thread = meta.pop("_thread_node", thread)
         elif child.tag == _FORM and any(e.tag == _TITLE and e.text == SPADE_X_METADATA for e in child):
             for field in child:
                 value = field.find(_VALUE) if field.tag == _FIELD else None
@@ -69,7 +88,15 @@ def read_message(node) -> Message:
                     thread = value.text
                 else:
                     meta[field.get("var")] = value.text
+            form = True
     stanza_id = xml.get("id")
     if stanza_id and acl.PERFORMATIVE in meta and acl.REPLY_WITH not in meta:
         meta[acl.REPLY_WITH] = stanza_id
-    return Message(to=xml.get("to"), sender=xml.get("from"), body=body, thread=thread, metadata=meta)
+    msg = Message(to=xml.get("to"), sender=xml.get("from"), body=body, thread=thread, metadata=meta)
+    if form:
+        msg.spade_form = True  # read by uses_form: the sender speaks SPADE's form
+    return msg
+
+
+def uses_form(msg: Message) -> bool:
+    return getattr(msg, "spade_form", False)

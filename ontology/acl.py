@@ -1,7 +1,8 @@
 """FIPA-ACL conventions on SPADE message metadata.
 
 An ACL message is a SPADE message whose metadata carries the FIPA fields below and whose body is
-the JSON of a pydantic model. Metadata values must be strings (SPADE sends them as an XEP-0004 form).
+the JSON of a pydantic model. Metadata values must be strings (on the wire: attributes of one element
+between our agents, an XEP-0004 form to plain SPADE agents; agents/stanza.py).
 On the wire, reply_with travels as the stanza id (agents/stanza.py); receivers see it in the metadata.
 """
 from __future__ import annotations

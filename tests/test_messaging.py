@@ -247,6 +247,94 @@ def test_stanza_reader_reads_our_writer_and_plain_spade():
     assert got.get_metadata("reply_with") == plain["id"]
 
 
+def test_compact_metadata_is_one_element_and_falls_back_to_the_form():
+    """Our agents send the metadata as one element's attributes; a key that cannot be an attribute
+    name, a value an attribute would normalise (a newline) or form=True give SPADE's form; both read
+    back to the same metadata."""
+    from slixmpp.stanza import Message as Stanza
+    from slixmpp.xmlstream import ET
+
+    from agents.stanza import message_xml, read_message, uses_form
+
+    def wire(msg, **kw):
+        return message_xml(msg, **kw).replace("<message ", '<message xmlns="jabber:client" ', 1)
+
+    msg = make_message("b@localhost", None, performative=Performative.REQUEST, ontology="o", action="a")
+    msg.sender, msg.thread = "a@localhost/s", "th"
+    msg.set_metadata("note", 'quote " and <tag> & \'apostrophe\'')
+    compact = wire(msg)
+    assert "jabber:x:data" not in compact and compact.count("<acl ") == 1
+    got = read_message(Stanza(xml=ET.fromstring(compact)))
+    assert got._metadata == msg._metadata and got.thread == "th" and not uses_form(got)
+    for odd in ({"two words": "v"}, {"k": "line\nbreak"}):
+        other = make_message("b@localhost", None, performative=Performative.INFORM)
+        other.sender = "a@localhost"
+        for k, v in odd.items():
+            other.set_metadata(k, v)
+        text = wire(other)
+        assert "jabber:x:data" in text and "<acl " not in text
+        back = read_message(Stanza(xml=ET.fromstring(text)))
+        assert back._metadata == other._metadata and uses_form(back)
+    assert "jabber:x:data" in wire(msg, form=True)
+
+
+PLAIN_SPADE_CLIENT = """
+import asyncio, json, sys
+from spade.agent import Agent
+from spade.behaviour import OneShotBehaviour
+from spade.message import Message
+
+jid, port, to = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+
+class Ask(OneShotBehaviour):
+    async def run(self):
+        msg = Message(to=to, body=json.dumps({"a": 2, "b": 3}), metadata={
+            "performative": "request", "ontology": "test-math", "action": "add", "conversation_id": "plain-1"})
+        await self.send(msg)
+        got = []
+        while not any(m.get("performative") == "inform" for m in got):
+            reply = await self.receive(timeout=10)
+            if reply is None:
+                break
+            got.append({**reply._metadata, "body": reply.body})  # no public accessor in SPADE 4.1.4
+        print(json.dumps(got), flush=True)
+
+async def main():
+    agent = Agent(jid, "plain-pw", port=port, verify_security=False)
+    await agent.start(auto_register=True)
+    b = Ask()
+    agent.add_behaviour(b)
+    await b.join()
+    await agent.stop()
+
+asyncio.run(main())
+"""
+
+
+async def test_a_plain_spade_agent_gets_its_answers_in_its_own_form(xmpp_server, unique):
+    """Interop over the wire: a plain SPADE agent (its own process, no patches of ours) asks one of
+    ours; the answers come back in SPADE's form, so SPADE reads their metadata."""
+    import subprocess
+    import sys
+
+    settings = xmpp_server.settings(force_xmpp=True)
+    server = RappAgent(unique("calc"), settings)
+    await server.start()
+    responder = Responder("test-math", {"add": _add}, agree=True)
+    server.activate("math", responder, responder.make_template())
+    try:
+        proc = await asyncio.to_thread(
+            subprocess.run, [sys.executable, "-c", PLAIN_SPADE_CLIENT, settings.jid(unique("plain")),
+                             str(settings.port), server.address], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        got = json.loads(proc.stdout.strip().splitlines()[-1])
+        assert [m["performative"] for m in got] == ["agree", "inform"], got
+        assert all(m["conversation_id"] == "plain-1" and m["action"] == "add" for m in got)
+        assert json.loads(got[-1]["body"]) == {"total": 5}
+    finally:
+        await server.stop()
+
+
 def test_ids_are_unique_and_not_shared_with_a_forked_child():
     import os
 
