@@ -46,6 +46,7 @@ log = logging.getLogger("rapp.agent")
 _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
 _OPENING_VALUES = frozenset(p.value for p in acl.OPENING)
 RESEND_EVERY_S, RESEND_FOR_S = 1.0, 30.0  # pending requests after a reconnect (see _resend_pending)
+FIRST_CONTACT_RESEND_S, FIRST_CONTACT_RESENDS = 1.0, 5  # a peer never heard from (_first_contact)
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
 REPORT_CAP = MAX_BODY  # a RApp's report to its Core is traced whole: it is the run's result
 
@@ -76,6 +77,7 @@ class RappAgent(Agent):
         self._pending_peer: dict[str, str] = {}  # conversation -> bare JID asked
         self._outbox: dict[str, Message] = {}  # conversation -> the request, until answered
         self._form_peers: set[str] = set()  # bare JIDs that send SPADE's metadata form (agents/stanza.py)
+        self._heard_from: set[str] = set()  # bare JIDs that sent us anything (see _first_contact)
         self._named: dict[str, Any] = {}
         self.unhandled: list[Message] = []  # kept, not dropped, for inspection
         self.web_url: str | None = None  # SPADE's agent page when settings.web is on
@@ -248,16 +250,34 @@ class RappAgent(Agent):
         if node["type"] == "error":
             # the server bounced a message of ours (peer gone); ejabberd returns it whole, and read
             # as a message it would be a request "from" the peer: never delivered, only traced
+            conv = AclInfo.of(msg).conversation_id
             self.tracer.record(RecordKind.DROPPED, agent=self.address, sender=bare(msg.sender),
-                               conversation_id=AclInfo.of(msg).conversation_id,
-                               reason=f"undeliverable: {node['error']['condition'] or 'error'}")
+                               conversation_id=conv, reason=f"undeliverable: {node['error']['condition'] or 'error'}")
             return []
         return self._route(msg, "xmpp")
+
+    def _first_contact(self, conv: str, msg: Message, sent: int = 0) -> None:
+        """A request to a peer that has never sent us anything is sent again every
+        FIRST_CONTACT_RESEND_S until the peer is heard from: a server without offline storage
+        (Prosody) silently drops what reaches an agent that has logged in but whose presence it
+        has not processed yet (seen when agents start together). Responders answer a repeated
+        conversation from their store, so nothing runs twice; peers already heard from are not
+        resent to (their slow actions would only get duplicates)."""
+        def again() -> None:
+            if (self._outbox.get(conv) is not msg or bare(str(msg.to)) in self._heard_from
+                    or self.client is None or self._stopping):
+                return
+            self.tracer.record(RecordKind.RESEND, agent=self.address, peer=str(msg.to), conversation_id=conv)
+            self.client.send(self._stanza(msg))
+            self._first_contact(conv, msg, sent + 1)
+        if sent < FIRST_CONTACT_RESENDS:
+            asyncio.get_running_loop().call_later(FIRST_CONTACT_RESEND_S, again)
 
     def dispatch(self, msg: Message):
         return self._route(msg, "direct")
 
     def _route(self, msg: Message, path: str):
+        self._heard_from.add(bare(msg.sender))
         self._trace_message("recv", msg, path)
         return self._deliver(msg, AclInfo.of(msg))
 
@@ -356,6 +376,8 @@ class RappAgent(Agent):
         name = content.action_name
         try:
             await self.send(msg)
+            if bare(to) not in self._heard_from and (self.settings.force_xmpp or self._local_agent(to) is None):
+                self._first_contact(conv, msg)
             while True:
                 remaining = deadline - loop.time()
                 if remaining <= 0:

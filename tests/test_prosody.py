@@ -8,6 +8,8 @@ finished -> Core listening again).
 """
 from __future__ import annotations
 
+import asyncio
+
 import pytest
 
 from tests.test_lifecycle import check_lifecycle_over_the_wire, lifecycle_system, run_command
@@ -62,3 +64,40 @@ async def test_prosody_without_in_band_registration(tmp_path):
                           register=False, timeout=5)
         assert 'c2s_interfaces = { "127.0.0.1" }' in srv.config_file.read_text()
     assert not srv.running()
+
+
+async def test_a_request_to_an_agent_not_yet_online_is_sent_again_until_heard(prosody, tmp_path):
+    """Prosody (no offline storage here) silently drops a message to an agent that is not online.
+    A request to a peer never heard from is sent again every second until the peer answers: the
+    startup race the Store's first register_owner lost under load."""
+    from agents.base import RappAgent
+    from agents.responder import Responder
+    from agents.tracing import read_trace
+    from tests.test_messaging import Add, _add
+
+    class Calc(RappAgent):
+        async def setup(self):
+            responder = Responder("test-math", {"add": _add})
+            self.activate("math", responder, responder.make_template())
+
+    settings = prosody.settings(force_xmpp=True, trace_file=tmp_path / "trace.jsonl")
+    late = Calc("late-calc", settings)
+    await late.start()  # the account exists; the agent then goes offline
+    await late.stop()
+    asker = RappAgent("asker", settings)
+    await asker.start()
+
+    async def come_online_later():
+        await asyncio.sleep(0.8)
+        agent = Calc("late-calc", settings)
+        await agent.start()
+        return agent
+
+    coming = asyncio.ensure_future(come_online_later())
+    try:
+        assert (await asker.request(late.address, Add(a=1, b=2), timeout=8, retries=0)).total == 3
+    finally:
+        await (await coming).stop()
+        await asker.stop()
+    kinds = [r["kind"] for r in read_trace(tmp_path / "trace.jsonl")]
+    assert "resend" in kinds
