@@ -413,12 +413,17 @@ class PlatformAgent(RappAgent):
         session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)
 
-    def _spawn(self, spec: SpawnSpec, workdir: Path):
+    def start_cloud_workers(self) -> None:
+        """Fill the Cloud Agents' warm pool now. Otherwise it starts at the first Cloud Agent, not at
+        setup: most RApps have no Cloud part, and an idle worker costs ~100 MB and a second of CPU
+        (the first Cloud Agent starts cold). A deployment that expects many robots to start Cloud
+        Agents at once sizes the pool to them (`rapp agent platform --warm-workers N`)."""
         if self.cloud_mode == "process" and not self._pool_started:
-            # started at the first Cloud Agent, not at setup: most RApps have no Cloud part, and an
-            # idle worker costs ~100 MB and a second of CPU (the first Cloud Agent starts cold)
             self._pool_started = True
             self.warm_pool.start()
+
+    def _spawn(self, spec: SpawnSpec, workdir: Path):
+        self.start_cloud_workers()
         return spawn_agent(spec, workdir, self.settings, mode=self.cloud_mode, limits=self.limits,
                            sandbox=self.sandbox, pool=self.warm_pool)
 

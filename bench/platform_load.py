@@ -19,6 +19,9 @@ many robots at once without their simulations (issue #20, item 3).
 Metrics: platform_load_<config> = service p95 (ms) at `robots` robots; floor = one robot's p95;
 ratio = p95 / floor (goal: <= 3 for pool and two); throughput_rps = requests answered / wall time
 of the replay; errors = requests not answered with a reply.
+platform_capacity_<config> = requests/s when the same robots replay without any pause (each
+request as soon as the previous answer came): what each configuration can serve; floor = the
+threads configuration's (ratio = floor / value, > 1: fewer than threads).
 """
 from __future__ import annotations
 
@@ -88,7 +91,7 @@ def _home_for(home: tuple, i: int) -> tuple:
 
 
 async def replay(settings, workdir: Path, config: str, recorded: list[Recorded], home: tuple, robots: int,
-                 time_scale: float, seed: int = 1) -> dict:
+                 time_scale: float, seed: int = 1, suffix: str = "") -> dict:
     from agents.base import RappAgent
     from agents.platform_agent import PlatformAgent
     from agents.platform_directory import PlatformChooser
@@ -99,7 +102,7 @@ async def replay(settings, workdir: Path, config: str, recorded: list[Recorded],
     from scenarios.home_setup import upload_home
     from scenarios.system import wait_until
 
-    tag = f"{config}{robots}"
+    tag = f"{config}{robots}{suffix}"
     state = ServiceState(work_dir=workdir / f"services-{tag}")
     primary_name = f"platform-{tag}"
     agents = [PlatformAgent(primary_name, settings=settings, services_state=state, workdir=workdir / primary_name,
@@ -178,6 +181,8 @@ async def run(quick: bool = True, robots: int | None = None, time_scale: float |
             settings = server.settings(credentials_dir=work / "credentials")
             one = await replay(settings, work, "pool", recorded, home, 1, time_scale)
             rounds = [await replay(settings, work, c, recorded, home, robots, time_scale) for c in configs]
+            # capacity: no pauses at all, each robot's next request as soon as its previous answer came
+            saturated = [await replay(settings, work, c, recorded, home, robots, 0.0, suffix="s") for c in configs]
         finally:
             await asyncio.to_thread(server.close)
     floor = percentile(one["lat_ms"], 95)
@@ -190,4 +195,12 @@ async def run(quick: bool = True, robots: int | None = None, time_scale: float |
                           first_errors="; ".join(r["errors"][:3]) or None, served=str(r["served"]),
                           one_robot_throughput_rps=one["throughput_rps"], requests_per_run=len(recorded),
                           request_mix=str(mix), floor_meaning="service p95 of one robot alone (pool), same run"))
+    base = next((r["throughput_rps"] for r in saturated if r["config"] == "threads"), None)
+    for r in saturated:
+        out.append(metric(f"platform_capacity_{r['config']}", r["throughput_rps"], "req/s", base,
+                          ratio(base, r["throughput_rps"]), len(r["lat_ms"]), robots=robots, wall_s=r["wall_s"],
+                          p95_ms=percentile(r["lat_ms"], 95) if r["lat_ms"] else None,
+                          median_ms=percentile(r["lat_ms"], 50) if r["lat_ms"] else None, errors=len(r["errors"]),
+                          served=str(r["served"]), ratio_meaning="floor/value (>1: fewer requests/s than threads)",
+                          floor_meaning="requests/s of one Platform running the services in threads, no pauses"))
     return out

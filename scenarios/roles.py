@@ -65,11 +65,20 @@ async def _platform(a, settings) -> None:
     state = ServiceState(work_dir=home / "services")  # per-user files (maildirs)
     if a.maps:
         print(f"maps preloaded: {', '.join(state.preload_maps(a.maps)) or 'none'}")
-    await _run_until_stopped([PlatformAgent(a.name or "platform", store=a.store, settings=settings,
-                                            services_state=state, data_dir=home,
-                                            workdir=a.workdir or home / "work",
-                                            sandbox=sandbox(a), primary=a.primary, replicas=a.replica,
-                                            service_workers=a.service_workers)])
+    platform = PlatformAgent(a.name or "platform", store=a.store, settings=settings, services_state=state,
+                             data_dir=home, workdir=a.workdir or home / "work", sandbox=sandbox(a),
+                             primary=a.primary, replicas=a.replica, service_workers=a.service_workers,
+                             **({"warm_workers": a.warm_workers} if a.warm_workers is not None else {}))
+    async def fill_pool() -> None:  # asked for: filled from the start, not at the first Cloud Agent
+        if a.warm_workers:
+            platform.start_cloud_workers()
+            try:
+                await platform.warm_pool.wait_ready(timeout=60.0 + 10.0 * a.warm_workers)
+                print(f"cloud workers ready: {a.warm_workers}", flush=True)
+            except asyncio.TimeoutError:
+                print(f"cloud workers not all ready: {len(platform.warm_pool.idle)} of {a.warm_workers}", flush=True)
+
+    await _run_until_stopped([platform], after_start=fill_pool)
 
 
 def owner_password(a, settings) -> str:
@@ -161,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="platform: a replica this primary trusts (name or JID); repeatable")
     p.add_argument("--service-workers", type=int, default=None, metavar="N",
                    help="platform: processes for the CPU-bound services (default: one per core; 0: threads)")
+    p.add_argument("--warm-workers", type=int, default=None, metavar="N",
+                   help="platform: Cloud Agent processes kept started ahead of time (default: 1, from the "
+                        "first Cloud Agent on; N: filled at start, for N robots starting Cloud Agents at once)")
     p.add_argument("--robot", choices=["nao", "elektron"], default="nao", help="core: robot model")
     p.add_argument("--robot-id")
     p.add_argument("--owner", default="owner", help="core: the user whose chat it listens to")

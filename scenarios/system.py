@@ -52,7 +52,10 @@ class RappSystem:
     def __init__(self, workdir: str | Path | None = None, *, settings: XmppSettings | None = None,
                  trace_file: str | Path | None = None, force_xmpp: bool | None = None,
                  limits: Limits = Limits(), services: dict | None = None,
-                 platform_kw: dict | None = None):
+                 platform_kw: dict | None = None, store_and_platform: bool = True):
+        # store_and_platform=False: they run elsewhere (own processes, `rapp agent store/platform`)
+        # under the names "store" and "platform"; publish() and the Cores reach them over XMPP
+        self._own_agents = store_and_platform
         self._services = services
         self._platform_kw = platform_kw or {}
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-run-"))
@@ -84,22 +87,33 @@ class RappSystem:
         else:
             self.settings = self._given_settings.model_copy(
                 update={k: v for k, v in overrides.items() if v is not None})
+        self.publisher = RappAgent("publisher", self.settings)
+        if not self._own_agents:
+            await self.publisher.start()
+            return self
         self.store = StoreAgent("store", self.workdir / "store", self.settings)
         self.platform = PlatformAgent("platform", store="store", settings=self.settings, services=self._services,
                                       workdir=self.workdir / "platform", limits=self.limits,
                                       **self._platform_kw)
-        self.publisher = RappAgent("publisher", self.settings)
         await asyncio.gather(self.store.start(), self.platform.start(), self.publisher.start())
         return self
+
+    @property
+    def store_address(self) -> str:
+        return self.settings.jid("store")
+
+    @property
+    def platform_address(self) -> str:
+        return self.settings.jid("platform")
 
     async def publish(self, src_dir: str | Path, owner: tuple[str, str] = DEVELOPER) -> str:
         """Build the RApp in src_dir, signed with this run's key, and publish it through the Store
         Agent (over XMPP)."""
         from ontology.store import RegisterOwner
 
-        await self.publisher.request(self.store.address, RegisterOwner(owner=owner[0], password=owner[1]))
+        await self.publisher.request(self.store_address, RegisterOwner(owner=owner[0], password=owner[1]))
         data = await asyncio.to_thread(build_package_bytes, src_dir, self.signing_key)
-        details = await publish_package(self.publisher, self.store.address, owner[0], owner[1], data)
+        details = await publish_package(self.publisher, self.store_address, owner[0], owner[1], data)
         return f"{details.summary.name} {details.summary.version}"
 
     async def add_robot(self, robot_type: str, *, api, robot_id: str | None = None,

@@ -8,82 +8,23 @@
 
 Each ServiceSpec.run(request, ctx) is synchronous, takes the registered request model and returns
 its reply model, raising agents.services.errors.ServiceError(reason, code) on bad input.
+The registry (agents/services/registry.py) is imported at first use of SERVICES, ServiceSpec or
+run_service: importing one service module (a RApp's `rapps.sdk.vision` needs images and
+localization) must not import them all (speech, rendering: ~0.4 s of a Cloud Agent's start).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
-
-import ontology.services as _models  # noqa: F401  (registers the actions)
-from ontology.registry import Action, Content, lookup
-from ontology.errors import ErrorCode
-
-from . import (cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation,
-               obstacles, speech, vision)
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
 
-
-@dataclass(frozen=True)
-class ServiceSpec:
-    name: str
-    request: type[Action]
-    reply: type[Content]
-    run: Callable[[Action, ServiceContext], Content]
+_REGISTRY = ("SERVICES", "ServiceSpec", "run_service")
 
 
-_IMPLS: dict[str, Callable] = {
-    "path_planning_upload_map": navigation.upload_map,
-    "path_planning_list_maps": navigation.list_maps,
-    "path_planning_plan_path_2d": navigation.plan_path_2d,
-    "path_planning_add_obstacle": obstacles.add_obstacle,
-    "path_planning_clear_obstacles": obstacles.clear_obstacles,
-    "path_planning_list_obstacles": obstacles.list_obstacles,
-    "qr_detection": localization.qr_detection,
-    "compute_global_pose": localization.compute_global_pose,
-    "hazard_detection_door_check": hazard.door_check,
-    "hazard_detection_light_check": hazard.light_check,
-    "home_upload_info": home.upload_info,
-    "home_get_info": home.get_info,
-    "face_detection": vision.face_detection,
-    "human_detection": vision.human_detection,
-    "object_detection_learn_object": vision.learn_object,
-    "object_detection_find_objects": vision.find_objects,
-    "object_detection_clear_models": vision.clear_objects,
-    "interpret_command": interpretation.interpret_command,
-    "weather_report_current": information.weather_current,
-    "weather_report_forecast": information.weather_forecast,
-    "news_explore": information.news_explore,
-    "email_send": email.email_send,
-    "email_fetch": email.email_fetch,
-    "ontology_subclasses_of": knowledge.subclasses_of,
-    "ontology_superclasses_of": knowledge.superclasses_of,
-    "ontology_is_subclass_of": knowledge.is_subclass_of,
-    "cognitive_test_chooser": cognitive.choose_test,
-    "cognitive_record_performance": cognitive.record_performance,
-    "cognitive_get_history": cognitive.get_history,
-    "speech_recognition": speech.speech_recognition,
-    "speech_noise_profile": speech.noise_profile,
-    "text_to_speech": speech.text_to_speech,
-}
-
-
-def _spec(name: str, fn: Callable) -> ServiceSpec:
-    req = lookup("platform", name)
-    return ServiceSpec(name, req, req.reply_model, fn)  # type: ignore[arg-type]
-
-
-SERVICES: dict[str, ServiceSpec] = {n: _spec(n, fn) for n, fn in _IMPLS.items()}
-
-
-def run_service(name: str, request: Action, ctx: ServiceContext) -> Content:
-    """Run a service by action name after checking the request type (ServiceError otherwise)."""
-    spec = SERVICES.get(name)
-    if spec is None:
-        raise ServiceError(f"unknown service {name!r}", ErrorCode.UNKNOWN_SERVICE)
-    if not isinstance(request, spec.request):
-        raise ServiceError(f"service {name!r} expects {spec.request.__name__}", ErrorCode.BAD_REQUEST)
-    return spec.run(request, ctx)
+def __getattr__(name: str):
+    if name in _REGISTRY:
+        from . import registry
+        return getattr(registry, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = ["SERVICES", "ServiceSpec", "ServiceContext", "ServiceState", "ServiceError", "run_service"]
