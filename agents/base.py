@@ -278,8 +278,9 @@ class RappAgent(Agent):
 
     def _route(self, msg: Message, path: str):
         self._heard_from.add(bare(msg.sender))
-        self._trace_message("recv", msg, path)
-        return self._deliver(msg, AclInfo.of(msg))
+        info = AclInfo.of(msg)
+        self._trace_message("recv", msg, path, info)
+        return self._deliver(msg, info)
 
     def _deliver(self, msg: Message, info: AclInfo):
         if len(msg.body or "") > MAX_BODY:
@@ -482,19 +483,17 @@ class RappAgent(Agent):
         self.tracer.record(RecordKind.STRUCTURE, event=event, agent=self.address, **fields)
 
     # -- tracing ----------------------------------------------------------------------------
-    def _trace_message(self, direction: str, msg: Message, path: str) -> None:
+    def _trace_message(self, direction: str, msg: Message, path: str, info: AclInfo | None = None) -> None:
         if not self.tracer.enabled:
             return
-        info = AclInfo.of(msg)
-        extra = {"feedback": True} if is_feedback(msg) else {}  # a progress inform, not an answer
-        self.tracer.record(
-            RecordKind.MESSAGE, **extra, dir=direction, agent=self.address, sender=bare(msg.sender),
-            receiver=bare(msg.to), performative=info.performative or "chat",
-            conversation_id=info.conversation_id, ontology=info.ontology, action=info.action,
-            message_id=info.reply_with, in_reply_to=info.in_reply_to, path=path,
-            size=len(msg.body or ""),
+        info = info or AclInfo.of(msg)
+        self.tracer.message(
+            direction, self.address, bare(msg.sender), bare(msg.to), info.performative or "chat",
+            info.conversation_id, info.ontology, info.action, info.reply_with, info.in_reply_to, path,
+            len(msg.body or ""),
             # a RApp's report is its result: kept whole (up to a message's size limit), the rest capped
-            content=cap(msg.body, REPORT_CAP if (info.ontology, info.action) == (C.ONTOLOGY, "report") else CONTENT_CAP))
+            cap(msg.body, REPORT_CAP if (info.ontology, info.action) == (C.ONTOLOGY, "report") else CONTENT_CAP),
+            feedback=is_feedback(msg))  # a progress inform, not an answer
 
 
 def _accepts(behaviour, msg: Message) -> bool:

@@ -1,7 +1,7 @@
 """Building and reading ACL messages (SPADE Message + FIPA metadata + pydantic content)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from spade.message import Message
 
@@ -55,8 +55,9 @@ def is_feedback(msg: Message) -> bool:
     return msg.get_metadata(acl.FEEDBACK) == "1"
 
 
-@dataclass(frozen=True)
-class AclInfo:
+class AclInfo(NamedTuple):
+    """A message's FIPA fields ("" when absent). A named tuple: one is built per message and side,
+    and a frozen dataclass's __init__ cost three times as much."""
     performative: str
     ontology: str
     action: str
@@ -67,16 +68,12 @@ class AclInfo:
 
     @classmethod
     def of(cls, msg: Message) -> "AclInfo":
-        g = msg.get_metadata
-        return cls(
-            performative=g(acl.PERFORMATIVE) or "",
-            ontology=g(acl.ONTOLOGY) or "",
-            action=g(acl.ACTION) or "",
-            conversation_id=g(acl.CONVERSATION_ID) or msg.thread or "",
-            reply_with=g(acl.REPLY_WITH) or "",
-            in_reply_to=g(acl.IN_REPLY_TO) or "",
-            protocol=g(acl.PROTOCOL) or (acl.Protocol.REQUEST.value if g(acl.PERFORMATIVE) else ""),
-        )
+        g = msg._metadata.get  # SPADE's get_metadata, without its call; no public mapping in 4.1.4
+        performative = g(acl.PERFORMATIVE) or ""
+        return cls(performative, g(acl.ONTOLOGY) or "", g(acl.ACTION) or "",
+                   g(acl.CONVERSATION_ID) or msg.thread or "", g(acl.REPLY_WITH) or "",
+                   g(acl.IN_REPLY_TO) or "",
+                   g(acl.PROTOCOL) or (acl.Protocol.REQUEST.value if performative else ""))
 
     @property
     def language(self) -> str:

@@ -22,6 +22,16 @@ from ontology.trace import RecordKind, parse_record
 CONTENT_CAP = 2000  # characters of content kept per message
 # one encoder for every record: json.dumps with options builds a new JSONEncoder per call
 _ENCODE = json.JSONEncoder(default=str, ensure_ascii=False).encode
+_STR = json.encoder.encode_basestring  # a JSON string (C), as _ENCODE writes it (ensure_ascii off)
+_pid = os.getpid()  # a syscall per record otherwise; a forked child resets it
+
+
+def _after_fork() -> None:
+    global _pid
+    _pid = os.getpid()
+
+
+os.register_at_fork(after_in_child=_after_fork)
 
 
 class TraceWriter:
@@ -41,10 +51,31 @@ class TraceWriter:
     def record(self, kind: RecordKind | str, **fields: Any) -> None:
         if self._fd is None:
             return
-        rec = {"t": round(time.time(), 6), "kind": kind, "pid": os.getpid(), **fields}
-        line = (_ENCODE(rec) + "\n").encode()
+        rec = {"t": round(time.time(), 6), "kind": kind, "pid": _pid, **fields}
+        self._write((_ENCODE(rec) + "\n").encode())
+
+    def message(self, direction: str, agent: str, sender: str, receiver: str, performative: str,
+                conversation_id: str, ontology: str, action: str, message_id: str, in_reply_to: str,
+                path: str, size: int, content: str, feedback: bool = False) -> None:
+        """A `message` record (ontology.trace.MessageRecord), written as text: one is written per
+        message and side, and building the dict for the JSON encoder cost twice as much
+        (bench/messages.py, traced)."""
+        if self._fd is None:
+            return
+        s = _STR
+        line = (f'{{"t": {time.time():.6f}, "kind": "message", "pid": {_pid}, '
+                + ('"feedback": true, ' if feedback else '')
+                + f'"dir": {s(direction)}, "agent": {s(agent)}, "sender": {s(sender)}, '
+                f'"receiver": {s(receiver)}, "performative": {s(performative)}, '
+                f'"conversation_id": {s(conversation_id)}, "ontology": {s(ontology)}, "action": {s(action)}, '
+                f'"message_id": {s(message_id)}, "in_reply_to": {s(in_reply_to)}, "path": {s(path)}, '
+                f'"size": {int(size)}, "content": {s(content)}}}\n')
+        self._write(line.encode())
+
+    def _write(self, line: bytes) -> None:
         with self._lock:
-            os.write(self._fd, line)
+            if self._fd is not None:
+                os.write(self._fd, line)
 
     def close(self) -> None:
         with self._lock:

@@ -124,3 +124,20 @@ def test_writing_does_not_validate(tmp_path):
     w.close()
     assert [r["event"] for r in read_trace(path)] == ["no-such-event", "resume"]
     assert [r["event"] for r in read_trace(path, validate=True)] == ["resume"]
+
+
+def test_a_message_record_written_as_text_is_the_json_of_its_fields(tmp_path):
+    """TraceWriter.message builds the line itself (one per message and side): it must be the JSON
+    the generic writer would give, whatever the content holds, and a valid MessageRecord."""
+    fields = dict(dir="recv", agent="a@localhost", sender="b@localhost", receiver="a@localhost",
+                  performative="inform", conversation_id="c-1", ontology="core", action="report",
+                  message_id="m-1", in_reply_to="m-0", path="xmpp", size=42,
+                  content='{"text": "quote \\" back\\\\slash\\nnew line, tab\\t, é ☃, </x>, \\u0001"}' + "\n\t\x01 real control characters")
+    writer = TraceWriter(tmp_path / "t.jsonl")
+    writer.message(**{k if k != "dir" else "direction": v for k, v in fields.items()}, feedback=True)
+    writer.message(**{k if k != "dir" else "direction": v for k, v in fields.items()})
+    writer.record(RecordKind.MESSAGE, **fields)
+    text, _, generic = [json.loads(line) for line in (tmp_path / "t.jsonl").read_text().splitlines()]
+    assert {k: v for k, v in text.items() if k not in ("t", "feedback")} == {k: v for k, v in generic.items() if k != "t"}
+    assert text["feedback"] is True and abs(text["t"] - generic["t"]) < 5
+    assert len(read_trace(tmp_path / "t.jsonl", validate=True)) == 3
