@@ -97,7 +97,8 @@ class PlatformAgent(RappAgent):
         self.max_pending, self.pending = max_pending, 0
         self.limits = limits
         # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
-        self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox)
+        self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
+                                  preload_extra=True)  # Cloud parts compute: numpy, cv2, scipy ready
         self._pool_started = False
         self.served = 0
         self._serial = itertools.count(1)

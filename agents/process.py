@@ -94,8 +94,9 @@ class AgentProcess:
     down the worker's pipe; without one idle it starts a process as before (a cold start)."""
 
     def __init__(self, name: str, spec: SpawnSpec | None, workdir: Path, settings, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None, pool=None):
+                 sandbox: Sandbox | None = None, pool=None, preload_extra: bool = False):
         self.name = name
+        self.preload_extra = preload_extra  # a warm worker: numpy, cv2, scipy too (agents/runtime.py)
         self.workdir = Path(workdir)
         self.settings, self.limits = settings, limits
         self.sandbox = sandbox or Sandbox()
@@ -185,6 +186,8 @@ class AgentProcess:
                 keep.append(ready_r)
                 fds.append(ready_w)
                 extra["RAPP_READY_FD"] = str(ready_w)
+                if self.preload_extra:
+                    extra["RAPP_PRELOAD_EXTRA"] = "1"
             if self.settings.trace_file:  # append-only: the child can add lines, not read any
                 trace_fd = os.open(self.settings.trace_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
                 fds.append(trace_fd)

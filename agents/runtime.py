@@ -110,8 +110,10 @@ LATER_IMPORTS = ("uvloop", "ctypes", "jinja2_time", "encodings.idna", "stringpre
 
 
 # what RApps' own modules commonly import (the SDK's vision helpers, the hazard RApp's Cloud part):
-# ~1 s of a warm Cloud Agent's 1.1 s start in bench/fleet.py; a warm worker imports them ahead of
-# time too (~60 MB more per idle worker); a cold start does not (a RApp without them would pay)
+# ~1 s of a warm Cloud Agent's 1.1 s start in bench/fleet.py. The Platform's warm workers import
+# them ahead of time (WarmPool(preload_extra=True); ~60 MB more per idle worker); a cold start does
+# not (a RApp without them would pay), nor a Core's (a robot's memory; a bigger process also forks
+# slower, which the sandbox's fork-limit test felt under load)
 WARM_EXTRA_IMPORTS = ("numpy", "cv2", "scipy.optimize")
 
 
@@ -155,7 +157,9 @@ def main(argv: list[str] | None = None) -> int:
     if trace_fd:
         from .tracing import inherit_trace_fd
         inherit_trace_fd(int(trace_fd))
-    preload(warm="RAPP_READY_FD" in os.environ)  # set for a warm worker only (agents/process.py)
+    # a warm worker of a pool that asked for them (the Platform's): the RApps' usual imports too
+    extra = os.environ.pop("RAPP_PRELOAD_EXTRA", "") == "1" and "RAPP_READY_FD" in os.environ
+    preload(warm=extra)
     say_ready()
     return asyncio.run(run_spec(read_spec()))
 

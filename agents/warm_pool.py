@@ -34,11 +34,12 @@ REFILL_AFTER_S = 0.5
 
 class WarmPool:
     def __init__(self, workdir: str | Path, settings, *, size: int = 1, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None):
+                 sandbox: Sandbox | None = None, preload_extra: bool = False):
         if not isinstance(size, int) or size < 0:
             raise ValueError(f"warm_workers must be a whole number >= 0, not {size!r}")
         self.workdir, self.settings, self.size = Path(workdir), settings, size
         self.limits, self.sandbox = limits, sandbox or Sandbox()
+        self.preload_extra = preload_extra  # workers import numpy, cv2, scipy too (agents/runtime.py)
         self._idle: deque[AgentProcess] = deque()
         self._serial = itertools.count(1)
         self._filler: asyncio.Task | None = None
@@ -104,7 +105,7 @@ class WarmPool:
             if self._failures and await self._backed_off():
                 return
             worker = AgentProcess("warm", None, self.workdir / f"{next(self._serial):04d}-.warm", self.settings,
-                                  self.limits, self.sandbox)
+                                  self.limits, self.sandbox, preload_extra=self.preload_extra)
             try:
                 await worker.start()
             except Exception as e:  # noqa: BLE001 - logged; hand-offs start cold meanwhile
