@@ -29,6 +29,7 @@ from ontology.trace import FINAL_ANSWERS, RecordKind
 
 from .common import log, metric, ms, percentile, quiet_logs, ratio
 
+CLOUD_LIFECYCLE = ("start_cloud_agent", "stop_cloud_agent")  # reported apart as context, still judged
 ROBOTS_NICE = 10  # the robots' side's CPU priority below the Platform's (HazardFleet apart)
 GOAL = 20
 QUICK_GOAL = 4
@@ -62,6 +63,7 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
         if kind == "platform":
             lat["by_action"].setdefault(s["action"], []).append(a["t"] - s["t"])
     lat["lost_status_acks"] = lost_status
+    lat["services"] = [x for a, v in lat["by_action"].items() if a not in CLOUD_LIFECYCLE for x in v]
     return lat, missing
 
 
@@ -224,7 +226,7 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "misclassified": wrong,
            "unanswered": len(missing), "unanswered_actions": missing[:5],
            "lost_status_acks": len(lat["lost_status_acks"]),
-           "platform_ms": ms(lat["platform"]), "robot_ms": ms(lat["robot"]),
+           "platform_ms": ms(lat["platform"]), "robot_ms": ms(lat["robot"]), "services_ms": ms(lat["services"]),
            # which services make the p95: per action, p95 ms and count
            "platform_p95_by_action": {a: [round(percentile(ms(v), 95), 1), len(v)]
                                       for a, v in sorted(lat["by_action"].items())}}
@@ -269,6 +271,11 @@ async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float
         metric("fleet_service_p95", p95, "ms", base_p95, ratio(p95, base_p95),
                len(best["platform_ms"]) if best else 0, samples=best["platform_ms"] if best else None,
                at_n=n_best, by_action_at_n=best["platform_p95_by_action"] if best else None,
-               floor_by_action=base["platform_p95_by_action"], robot_call_p95_ms=percentile(best["robot_ms"], 95) if best else None,
+               floor_by_action=base["platform_p95_by_action"],
+               # context: the p95 without the Cloud Agents' starts and stops, which a fleet told at
+               # once does in one burst (the goal is judged on every call, these included)
+               services_p95_without_cloud_lifecycle_ms=percentile(best["services_ms"], 95) if best else None,
+               floor_services_p95_without_cloud_lifecycle_ms=percentile(base["services_ms"], 95),
+               robot_call_p95_ms=percentile(best["robot_ms"], 95) if best else None,
                rapp="hazard-detection", floor_meaning="platform service p95 with 1 robot, same run"),
     ]
