@@ -4,6 +4,7 @@ says when each is active).
   UserChat            plain chat from the robot's owner (user-listener, busy-chat)
   MicrophoneListener  what the robot's microphone hears while the Core supervises (typed utterances)
   AudioListener       the microphone's sound while the Core supervises: voice activity -> utterances
+  MicrophoneStream    the same listening as a plain loop (the Core's supervision words during a task)
   HeartbeatMonitor    the Dynamic Agent's one-way heartbeats (with `heartbeat_template()`)
   SafetyMonitor       the range sensors: an obstacle too close latches the emergency stop (paper 003)
 """
@@ -13,6 +14,7 @@ import asyncio
 import base64
 import logging
 import time
+from collections import deque
 from typing import TYPE_CHECKING
 
 from spade.behaviour import CyclicBehaviour, PeriodicBehaviour
@@ -64,40 +66,120 @@ class MicrophoneListener(CyclicBehaviour):
             await self.on_text(text.strip())
 
 
-class AudioListener(CyclicBehaviour):
-    """Listens continuously (fig. 5, s3): the microphone's sound in CHUNK_S pieces through the robot
-    interface (capture_audio), voice activity detection, each finished utterance to `on_utterance`.
-    Paced at real time at most (a world running as fast as possible is not driven faster by listening).
-    While the robot itself speaks (`muted()`) the sound is dropped: the Core never hears itself."""
+class MicrophoneStream:
+    """The microphone's sound through the robot interface (capture_audio), voice activity detection,
+    each finished utterance to `on_utterance`. While `muted()` (the robot itself speaks) the sound is
+    dropped: the Core never hears itself. Capturing takes nothing from anyone: a RApp capturing the
+    same microphone meanwhile gets the same samples.
 
-    CHUNK_S = 0.1
+    A capture records from "now", and the world moves on between two requests (more so while a RApp's
+    own calls drive it), so pieces of 2 x `chunk_s` are kept in flight two at a time, staggered by
+    `chunk_s`, and stitched by their time stamps: each new piece adds the sound after the last one's
+    end, and none falls between two unless the next request comes more than `chunk_s` late. Paced at
+    real time at most (a world running as fast as possible is not driven faster by listening), except
+    for a while after a gap showed that something else drives it."""
 
-    def __init__(self, robot, on_utterance, muted):
-        super().__init__()
-        self.robot, self.on_utterance, self.muted = robot, on_utterance, muted
-        self.vad = VoiceActivity(max_seconds=5.0)  # what one speech_recognition request carries
+    CHUNK_S = 0.1  # new sound per piece (its latency)
+    UNPACED_PIECES = 50  # after a gap: pieces taken at once, not paced
 
-    async def run(self) -> None:
+    def __init__(self, robot, on_utterance, muted, alive=lambda: True, chunk_s: float = CHUNK_S,
+                 vad: VoiceActivity | None = None, observe: bool = False):
+        self.robot, self.on_utterance, self.muted, self.alive = robot, on_utterance, muted, alive
+        # observe: record only what others make pass (beside a task: listening must not drive the world;
+        # a fast world otherwise ran thousands of simulated seconds while the task waited on the Platform)
+        self.observe = observe
+        self.chunk_s = chunk_s
+        # a listener's detector may outlive it: what it learnt of the room's noise stays useful
+        self.vad = vad if vad is not None else VoiceActivity(max_seconds=5.0)  # 5 s: one speech_recognition request
+        self.vad.reset()  # but no half utterance from before
+        self._next: float | None = None  # simulation time the sound so far ends
+        self._inflight: deque[asyncio.Future] = deque()
+        self._unpaced = 0
+
+    def _capture(self, seconds: float) -> None:
+        self._inflight.append(asyncio.ensure_future(self.robot.handle(CaptureAudio(seconds=seconds,
+                                                                                    observe=self.observe))))
+
+    async def step(self) -> bool:
+        """Take the next piece of sound; False when the robot has no audio input."""
         start = time.monotonic()
         was_muted = self.muted()
+        if not self._inflight:  # the short one ends half-way through the long one
+            self._capture(2 * self.chunk_s)
+            self._capture(self.chunk_s)
+        done, _ = await asyncio.wait(self._inflight, return_when=asyncio.FIRST_COMPLETED)
+        piece = next(f for f in self._inflight if f in done)
+        self._inflight.remove(piece)
         try:
-            audio = await self.robot.handle(CaptureAudio(seconds=self.CHUNK_S))
+            audio = piece.result()
             pcm, _ = decode_wav(base64.b64decode(audio.data_b64))
         except UnsupportedOperation:
-            self.kill()
-            return
+            self.close()
+            return False
         except Exception as e:  # noqa: BLE001 - a world being closed, a driver hiccup: listen again soon
             logging.getLogger("rapp.core").debug("audio capture failed: %s", e)
+            self.close()
             await asyncio.sleep(1.0)
-            return
-        if self.is_killed():
-            return  # deactivated meanwhile: the microphone is the RApp's now
+            return True
+        if self._unpaced > 0:
+            self._capture(2 * self.chunk_s)  # at once, before this piece is looked at
+        pcm = self._new_sound(audio, pcm)
+        if not self.alive():
+            return True  # stopped meanwhile: the utterance is no longer ours to act on
         if was_muted or self.muted():
             self.vad.reset()
-        else:
+        elif pcm.size:
             for utterance in self.vad.feed(pcm):
                 await self.on_utterance(utterance)
-        await asyncio.sleep(max(0.0, start + self.CHUNK_S - time.monotonic()))
+        if len(self._inflight) < 2:
+            await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
+            self._capture(2 * self.chunk_s)
+        return True
+
+    def _new_sound(self, audio, pcm):
+        """The part of a piece after the sound so far (a gap, if any, switches pacing off a while)."""
+        end = audio.stamp + audio.seconds
+        if self._next is None or audio.stamp > self._next + 0.002:
+            if self._next is not None:
+                self._unpaced = self.UNPACED_PIECES
+            self._next = end
+            return pcm
+        self._unpaced = max(0, self._unpaced - 1)
+        skip = max(0, round((self._next - audio.stamp) * audio.sample_rate))
+        self._next = max(self._next, end)
+        return pcm[skip:]
+
+    def close(self) -> None:
+        for f in self._inflight:
+            f.cancel()
+        self._inflight.clear()
+        self._next = None
+
+    async def run_forever(self) -> None:
+        """Listen until cancelled (or the robot turns out to have no audio input)."""
+        try:
+            while await self.step():
+                pass
+        finally:
+            self.close()
+
+
+class AudioListener(CyclicBehaviour):
+    """Listens continuously while the Core supervises (fig. 5, s3): a MicrophoneStream as a behaviour."""
+
+    CHUNK_S = MicrophoneStream.CHUNK_S
+
+    def __init__(self, robot, on_utterance, muted, vad: VoiceActivity | None = None):
+        super().__init__()
+        self.stream = MicrophoneStream(robot, on_utterance, muted, alive=lambda: not self.is_killed(), vad=vad)
+        self.vad = self.stream.vad
+
+    async def run(self) -> None:
+        if not await self.stream.step():
+            self.kill()
+
+    async def on_end(self) -> None:
+        self.stream.close()
 
 
 class HeartbeatMonitor(CyclicBehaviour):
