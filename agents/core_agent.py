@@ -291,7 +291,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if self.hear_audio and self.vocabulary and "microphone" in self.robot.capabilities():
             # its decoder loads in the background, not at the first word (and only where it can hear)
             self._in_background(asyncio.to_thread(self.keywords.warm_up))
-            self._in_background(asyncio.to_thread(self.supervision_words.warm_up))
+            if self.voice_supervision:  # a second decoder: only built where it is used
+                self._in_background(asyncio.to_thread(self.supervision_words.warm_up))
         self.record_structure("vocabulary", rapps=[p.name for p in packages],
                               keywords=sorted(self.vocabulary))
 
