@@ -76,8 +76,11 @@ class MicrophoneStream:
     own calls drive it), so pieces of 2 x `chunk_s` are kept in flight two at a time, staggered by
     `chunk_s`, and stitched by their time stamps: each new piece adds the sound after the last one's
     end, and none falls between two unless the next request comes more than `chunk_s` late. Paced at
-    real time at most (a world running as fast as possible is not driven faster by listening), except
-    for a while after a gap showed that something else drives it."""
+    real time at most (a world running as fast as possible is not driven faster by listening). After a
+    gap showed that something else drives the world, extra pieces are taken at once for a while, but
+    only as observers: they record the time others make pass and drive nothing. (Driving catch-up
+    pieces fed back: two Cores on one unpaced world each saw the other's pieces as gaps and drove it at
+    ~100 simulated s per s, taking a core between them.)"""
 
     CHUNK_S = 0.1  # new sound per piece (its latency)
     UNPACED_PIECES = 50  # after a gap: pieces taken at once, not paced
@@ -94,11 +97,18 @@ class MicrophoneStream:
         self.vad.reset()  # but no half utterance from before
         self._next: float | None = None  # simulation time the sound so far ends
         self._inflight: deque[asyncio.Future] = deque()
+        self._paced: set[asyncio.Future] = set()  # the paced pieces in flight (the others: catch-up observers)
+        self._muted_at_request: set[asyncio.Future] = set()  # requested while the robot spoke: its sound is dropped
         self._unpaced = 0
 
-    def _capture(self, seconds: float) -> None:
-        self._inflight.append(asyncio.ensure_future(self.robot.handle(CaptureAudio(seconds=seconds,
-                                                                                    observe=self.observe))))
+    def _capture(self, seconds: float, catch_up: bool = False) -> None:
+        piece = asyncio.ensure_future(self.robot.handle(CaptureAudio(seconds=seconds,
+                                                                     observe=self.observe or catch_up)))
+        self._inflight.append(piece)
+        if not catch_up:
+            self._paced.add(piece)
+        if self.muted():
+            self._muted_at_request.add(piece)
 
     async def step(self) -> bool:
         """Take the next piece of sound; False when the robot has no audio input."""
@@ -110,6 +120,10 @@ class MicrophoneStream:
         done, _ = await asyncio.wait(self._inflight, return_when=asyncio.FIRST_COMPLETED)
         piece = next(f for f in self._inflight if f in done)
         self._inflight.remove(piece)
+        self._paced.discard(piece)
+        if piece in self._muted_at_request:  # it began while the robot spoke: its tail is the robot's voice
+            self._muted_at_request.discard(piece)
+            was_muted = True
         try:
             audio = piece.result()
             pcm, _ = decode_wav(base64.b64decode(audio.data_b64))
@@ -122,7 +136,7 @@ class MicrophoneStream:
             await asyncio.sleep(1.0)
             return True
         if self._unpaced > 0:
-            self._capture(2 * self.chunk_s)  # at once, before this piece is looked at
+            self._capture(2 * self.chunk_s, catch_up=True)  # at once, before this piece is looked at
         pcm = self._new_sound(audio, pcm)
         if not self.alive():
             return True  # stopped meanwhile: the utterance is no longer ours to act on
@@ -131,7 +145,7 @@ class MicrophoneStream:
         elif pcm.size:
             for utterance in self.vad.feed(pcm):
                 await self.on_utterance(utterance)
-        if len(self._inflight) < 2:
+        if len(self._paced) < 2:
             await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
             self._capture(2 * self.chunk_s)
         return True
@@ -153,6 +167,8 @@ class MicrophoneStream:
         for f in self._inflight:
             f.cancel()
         self._inflight.clear()
+        self._paced.clear()
+        self._muted_at_request.clear()
         self._next = None
 
     async def run_forever(self) -> None:
