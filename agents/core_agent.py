@@ -149,6 +149,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._background: set[asyncio.Task] = set()
         self._deletions: set[asyncio.Task] = set()  # ephemeral accounts being deleted
         self._speech: asyncio.Task | None = None  # the last utterance queued on the loudspeaker
+        self.sentences_begun = 0  # sentences given to the loudspeaker so far (the listener drops sound meanwhile)
         self.locks = ResourceLocks()
         check_spawn_mode(dynamic_mode, "dynamic_mode")
         self.dynamic_mode = dynamic_mode
@@ -183,7 +184,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             self.activate("microphone-listener", MicrophoneListener(mic, self._command_heard))
         if self.hear_audio and "microphone" in self.robot.capabilities():
             self.activate("audio-listener", AudioListener(self.robot, self._speech_heard, self.speaking,
-                                                          vad=self._voices[0]))
+                                                          vad=self._voices[0], sentences=lambda: self.sentences_begun,
+                                                          spoke_during=self._loudspeaker_during))
 
     def _listen_for_supervision_words(self) -> None:
         """While a RApp runs, the microphone is also the Core's for its supervision words (a real NAO
@@ -193,8 +195,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             return
         # longer pieces than s3's: a RApp's own work delays the Core's requests, and a "stop" may take
         # a few tenths of a second more
+        self._voices[1].learn_room_from(self._voices[0])  # s3's detector knows the room: hear a "stop" at once
         stream = MicrophoneStream(self.robot, self._heard_during_task, self._robot_talking, chunk_s=0.3,
-                                  vad=self._voices[1], observe=True)
+                                  vad=self._voices[1], observe=True, spoke_during=self._loudspeaker_during)
         self._voice_supervision = asyncio.create_task(stream.run_forever())
         self._background.add(self._voice_supervision)
         self._voice_supervision.add_done_callback(self._background.discard)
@@ -219,6 +222,16 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             return False
         start, _, pcm = speaker.played[-1]
         return robot.world.time < start + len(pcm) / 16000 + 0.3
+
+    def _loudspeaker_during(self, t0: float, t1: float) -> bool:
+        """The simulated robot's loudspeaker sounded (or its echo, 0.3 s) in [t0, t1] of simulation time
+        (False where the robot cannot tell: a real robot's interface)."""
+        robot = getattr(self.robot, "robot", None)
+        speaker = getattr(robot, "loudspeaker", None)
+        for start, _, pcm in reversed(speaker.played[-4:] if speaker is not None else []):
+            if start < t1 and start + len(pcm) / 16000 + 0.3 > t0:
+                return True
+        return False
 
     def speaking(self) -> bool:
         """The robot's loudspeaker is busy with the Core's own sentences."""
@@ -592,6 +605,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.told.append(text)
         await self.send(Message(to=self.owner, body=text))
         if self.say_reports and speak:
+            self.sentences_begun += 1  # the listener drops any sound in flight meanwhile (its own voice)
             previous = self._speech
             self._speech = asyncio.create_task(self._say_after(previous, text))
             self._background.add(self._speech)

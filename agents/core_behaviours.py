@@ -76,18 +76,32 @@ class MicrophoneStream:
     own calls drive it), so pieces of 2 x `chunk_s` are kept in flight two at a time, staggered by
     `chunk_s`, and stitched by their time stamps: each new piece adds the sound after the last one's
     end, and none falls between two unless the next request comes more than `chunk_s` late. Paced at
-    real time at most (a world running as fast as possible is not driven faster by listening). After a
-    gap showed that something else drives the world, extra pieces are taken at once for a while, but
-    only as observers: they record the time others make pass and drive nothing. (Driving catch-up
-    pieces fed back: two Cores on one unpaced world each saw the other's pieces as gaps and drove it at
-    ~100 simulated s per s, taking a core between them.)"""
+    real time at most (a world running as fast as possible is not driven faster by listening).
+
+    A listener that drives the world (s3) hears the world at that pace: time others make pass faster
+    than real time (another robot's sentence in an unpaced world) goes by it, as it always did. Only an
+    observing stream (beside a task, `observe`) catches up after a gap, with more observing pieces taken
+    at once for a while: they record the time the task makes pass and drive nothing. (Catching up in
+    s3 fed back: two Cores on one unpaced world took each other's pieces for gaps and drove it at ~100
+    simulated s per s; and each heard the other's sentences and answered them, "Sorry, I did not
+    understand", back and forth.)
+
+    `sentences()` counts the sentences the robot has begun to say: a piece in flight while it changed
+    is dropped like a muted one, even when the sentence began and ended (an unpaced world plays it at
+    once) between two looks at `muted()`. `spoke_during(t0, t1)`, where the robot can tell, says whether
+    its loudspeaker sounded in that stretch of simulation time: a piece that holds the robot's voice is
+    dropped whenever it is looked at (the detector had otherwise learnt a RApp's loud sentence as the
+    room's noise, and then missed the owner's "stop")."""
 
     CHUNK_S = 0.1  # new sound per piece (its latency)
     UNPACED_PIECES = 50  # after a gap: pieces taken at once, not paced
+    MAX_HOLE_S = 0.05  # an observing stream bridges a hole this short (a driving stream none)
 
     def __init__(self, robot, on_utterance, muted, alive=lambda: True, chunk_s: float = CHUNK_S,
-                 vad: VoiceActivity | None = None, observe: bool = False):
+                 vad: VoiceActivity | None = None, observe: bool = False, sentences=lambda: 0,
+                 spoke_during=None):
         self.robot, self.on_utterance, self.muted, self.alive = robot, on_utterance, muted, alive
+        self.sentences, self.spoke_during = sentences, spoke_during
         # observe: record only what others make pass (beside a task: listening must not drive the world;
         # a fast world otherwise ran thousands of simulated seconds while the task waited on the Platform)
         self.observe = observe
@@ -97,18 +111,16 @@ class MicrophoneStream:
         self.vad.reset()  # but no half utterance from before
         self._next: float | None = None  # simulation time the sound so far ends
         self._inflight: deque[asyncio.Future] = deque()
-        self._paced: set[asyncio.Future] = set()  # the paced pieces in flight (the others: catch-up observers)
         self._muted_at_request: set[asyncio.Future] = set()  # requested while the robot spoke: its sound is dropped
+        self._said_at_request: dict[asyncio.Future, int] = {}  # sentences() when each piece was requested
         self._unpaced = 0
 
-    def _capture(self, seconds: float, catch_up: bool = False) -> None:
-        piece = asyncio.ensure_future(self.robot.handle(CaptureAudio(seconds=seconds,
-                                                                     observe=self.observe or catch_up)))
+    def _capture(self, seconds: float) -> None:
+        piece = asyncio.ensure_future(self.robot.handle(CaptureAudio(seconds=seconds, observe=self.observe)))
         self._inflight.append(piece)
-        if not catch_up:
-            self._paced.add(piece)
         if self.muted():
             self._muted_at_request.add(piece)
+        self._said_at_request[piece] = self.sentences()
 
     async def step(self) -> bool:
         """Take the next piece of sound; False when the robot has no audio input."""
@@ -120,9 +132,10 @@ class MicrophoneStream:
         done, _ = await asyncio.wait(self._inflight, return_when=asyncio.FIRST_COMPLETED)
         piece = next(f for f in self._inflight if f in done)
         self._inflight.remove(piece)
-        self._paced.discard(piece)
         if piece in self._muted_at_request:  # it began while the robot spoke: its tail is the robot's voice
             self._muted_at_request.discard(piece)
+            was_muted = True
+        if self._said_at_request.pop(piece, None) != self.sentences():  # the robot began a sentence meanwhile
             was_muted = True
         try:
             audio = piece.result()
@@ -135,40 +148,48 @@ class MicrophoneStream:
             self.close()
             await asyncio.sleep(1.0)
             return True
+        if self.spoke_during is not None and self.spoke_during(audio.stamp, audio.stamp + audio.seconds):
+            was_muted = True
         if self._unpaced > 0:
-            self._capture(2 * self.chunk_s, catch_up=True)  # at once, before this piece is looked at
-        pcm = self._new_sound(audio, pcm)
+            self._capture(2 * self.chunk_s)  # at once, before this piece is looked at (observing: drives nothing)
+        pcm, gap = self._new_sound(audio, pcm)
         if not self.alive():
             return True  # stopped meanwhile: the utterance is no longer ours to act on
+        if gap:  # sound went by unheard: an utterance with a hole in it is none (the recognisers mishear it)
+            self.vad.reset()
         if was_muted or self.muted():
             self.vad.reset()
         elif pcm.size:
             for utterance in self.vad.feed(pcm):
                 await self.on_utterance(utterance)
-        if len(self._paced) < 2:
+        if len(self._inflight) < 2:
             await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
             self._capture(2 * self.chunk_s)
         return True
 
     def _new_sound(self, audio, pcm):
-        """The part of a piece after the sound so far (a gap, if any, switches pacing off a while)."""
+        """(the part of a piece after the sound so far, whether sound went by unheard before it). A gap
+        makes an observing stream catch up a while."""
         end = audio.stamp + audio.seconds
         if self._next is None or audio.stamp > self._next + 0.002:
-            if self._next is not None:
+            # an observing stream's pieces meet end to end, a few ms apart under load: only a hole of about
+            # a phone's length is a gap there; a driving stream's pieces overlap, and any hole is one
+            gap = self._next is not None and (not self.observe or audio.stamp > self._next + self.MAX_HOLE_S)
+            if self._next is not None and self.observe:
                 self._unpaced = self.UNPACED_PIECES
             self._next = end
-            return pcm
+            return pcm, gap
         self._unpaced = max(0, self._unpaced - 1)
         skip = max(0, round((self._next - audio.stamp) * audio.sample_rate))
         self._next = max(self._next, end)
-        return pcm[skip:]
+        return pcm[skip:], False
 
     def close(self) -> None:
         for f in self._inflight:
             f.cancel()
         self._inflight.clear()
-        self._paced.clear()
         self._muted_at_request.clear()
+        self._said_at_request.clear()
         self._next = None
 
     async def run_forever(self) -> None:
@@ -185,9 +206,11 @@ class AudioListener(CyclicBehaviour):
 
     CHUNK_S = MicrophoneStream.CHUNK_S
 
-    def __init__(self, robot, on_utterance, muted, vad: VoiceActivity | None = None):
+    def __init__(self, robot, on_utterance, muted, vad: VoiceActivity | None = None, sentences=lambda: 0,
+                 spoke_during=None):
         super().__init__()
-        self.stream = MicrophoneStream(robot, on_utterance, muted, alive=lambda: not self.is_killed(), vad=vad)
+        self.stream = MicrophoneStream(robot, on_utterance, muted, alive=lambda: not self.is_killed(), vad=vad,
+                                       sentences=sentences, spoke_during=spoke_during)
         self.vad = self.stream.vad
 
     async def run(self) -> None:

@@ -608,6 +608,14 @@ class VoiceActivity:
     def floor_db(self) -> float | None:
         return float(np.percentile(self.history, 20)) if len(self.history) >= 30 else None
 
+    def learn_room_from(self, other: "VoiceActivity") -> None:
+        """Take what another detector on the same microphone has learnt of the room's sound (until it has
+        heard 30 frames of it, a detector takes nothing for speech: an owner's word then is learnt as noise)."""
+        if len(other.history) > len(self.history):
+            self.history = deque(other.history, maxlen=self.history.maxlen)
+            self.band_history = deque(other.band_history, maxlen=self.band_history.maxlen)
+            self.shape_history = deque(other.shape_history, maxlen=self.shape_history.maxlen)
+
     def reset(self) -> None:
         """Forget any utterance in progress (the robot itself spoke meanwhile)."""
         self.frames, self.skipping = [], False
