@@ -134,8 +134,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.commands: asyncio.Queue[str | HeardUtterance] = asyncio.Queue()
         self.hear_audio = hear_audio  # listen to the microphone's sound (when the robot has a microphone)
         # also spot "stop" / "cancel" / "resume" in the microphone's sound while a RApp runs. Off by
-        # default: on a loaded machine it made a RApp's own word spotting miss answers (the cognitive
-        # game by voice, 1 of 2), cause not found yet
+        # default: the cognitive game by voice once heard 1 of 2 answers with it on under load; that miss
+        # was later found in the phrase decoder (it happened with it off too, and is fixed), but the
+        # game with supervision on has not been re-measured under load since
         self.voice_supervision = voice_supervision
         self.keywords = KeywordSpotter([])
         self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS)
