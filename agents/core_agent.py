@@ -224,15 +224,14 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         start, _, pcm = speaker.played[-1]
         return robot.world.time < start + len(pcm) / 16000 + 0.3
 
-    def _loudspeaker_during(self, t0: float, t1: float) -> bool:
-        """The simulated robot's loudspeaker sounded (or its echo, 0.3 s) in [t0, t1] of simulation time
-        (False where the robot cannot tell: a real robot's interface)."""
+    def _loudspeaker_during(self, t0: float, t1: float) -> float | None:
+        """When the simulated robot's loudspeaker sound within [t0, t1] of simulation time ends (+ 0.05 s:
+        its way to the microphone), or None: none (also where the robot cannot tell: a real robot)."""
         robot = getattr(self.robot, "robot", None)
         speaker = getattr(robot, "loudspeaker", None)
-        for start, _, pcm in reversed(speaker.played[-4:] if speaker is not None else []):
-            if start < t1 and start + len(pcm) / 16000 + 0.3 > t0:
-                return True
-        return False
+        ends = [start + len(pcm) / 16000 + 0.05 for start, _, pcm in (speaker.played[-4:] if speaker is not None else [])
+                if start < t1 and start + len(pcm) / 16000 + 0.05 > t0]
+        return max(ends) if ends else None
 
     def speaking(self) -> bool:
         """The robot's loudspeaker is busy with the Core's own sentences."""

@@ -88,10 +88,11 @@ class MicrophoneStream:
 
     `sentences()` counts the sentences the robot has begun to say: a piece in flight while it changed
     is dropped like a muted one, even when the sentence began and ended (an unpaced world plays it at
-    once) between two looks at `muted()`. `spoke_during(t0, t1)`, where the robot can tell, says whether
-    its loudspeaker sounded in that stretch of simulation time: a piece that holds the robot's voice is
-    dropped whenever it is looked at (the detector had otherwise learnt a RApp's loud sentence as the
-    room's noise, and then missed the owner's "stop")."""
+    once) between two looks at `muted()`. `spoke_during(t0, t1)`, where the robot can tell, is the
+    simulation time its loudspeaker's sound in that stretch ends (None: silent): only a piece's sound
+    after it is heard, whenever the piece is looked at (the detector had otherwise learnt a RApp's loud
+    sentence as the room's noise, and then missed the owner's "stop"); the owner's words right after
+    the robot's are kept."""
 
     CHUNK_S = 0.1  # new sound per piece (its latency)
     UNPACED_PIECES = 50  # after a gap: pieces taken at once, not paced
@@ -148,8 +149,7 @@ class MicrophoneStream:
             self.close()
             await asyncio.sleep(1.0)
             return True
-        if self.spoke_during is not None and self.spoke_during(audio.stamp, audio.stamp + audio.seconds):
-            was_muted = True
+        robot_until = self.spoke_during(audio.stamp, audio.stamp + audio.seconds) if self.spoke_during else None
         if self._unpaced > 0:
             self._capture(2 * self.chunk_s)  # at once, before this piece is looked at (observing: drives nothing)
         pcm, gap = self._new_sound(audio, pcm)
@@ -157,6 +157,10 @@ class MicrophoneStream:
             return True  # stopped meanwhile: the utterance is no longer ours to act on
         if gap:  # sound went by unheard: an utterance with a hole in it is none (the recognisers mishear it)
             self.vad.reset()
+        if robot_until is not None:  # the robot's own voice is in this piece: only the sound after it counts
+            self.vad.reset()
+            new_from = audio.stamp + audio.seconds - pcm.size / audio.sample_rate
+            pcm = pcm[max(0, round((robot_until - new_from) * audio.sample_rate)):]
         if was_muted or self.muted():
             self.vad.reset()
         elif pcm.size:
