@@ -37,6 +37,7 @@ from .common import log, metric, ms, percentile, quiet_logs, ratio
 ROBOTS = 50
 CLIENTS = 10  # agents the simulated robots' requests leave from (each robot: its own user and token)
 GOAL_RATIO = 3.0
+SATURATED_RUNS = 10  # runs per robot in the replay without pauses
 
 
 @dataclasses.dataclass
@@ -91,7 +92,7 @@ def _home_for(home: tuple, i: int) -> tuple:
 
 
 async def replay(settings, workdir: Path, config: str, recorded: list[Recorded], home: tuple, robots: int,
-                 time_scale: float, seed: int = 1, suffix: str = "") -> dict:
+                 time_scale: float, seed: int = 1, suffix: str = "", repeat: int = 1) -> dict:
     from agents.base import RappAgent
     from agents.platform_agent import PlatformAgent
     from agents.platform_directory import PlatformChooser
@@ -134,8 +135,9 @@ async def replay(settings, workdir: Path, config: str, recorded: list[Recorded],
         rng = random.Random(seed)
 
         async def robot(proxy) -> None:
-            await asyncio.sleep(rng.random())  # owners do not all speak in the same millisecond
-            for rec in recorded:
+            if time_scale > 0:
+                await asyncio.sleep(rng.random())  # owners do not all speak in the same millisecond
+            for rec in recorded * repeat:
                 await asyncio.sleep(rec.think_s * time_scale)
                 t0 = time.perf_counter()
                 try:
@@ -182,7 +184,9 @@ async def run(quick: bool = True, robots: int | None = None, time_scale: float |
             one = await replay(settings, work, "pool", recorded, home, 1, time_scale)
             rounds = [await replay(settings, work, c, recorded, home, robots, time_scale) for c in configs]
             # capacity: no pauses at all, each robot's next request as soon as its previous answer came
-            saturated = [await replay(settings, work, c, recorded, home, robots, 0.0, suffix="s") for c in configs]
+            # (every robot's run SATURATED_RUNS times over: a few seconds of full load, not one burst)
+            saturated = [await replay(settings, work, c, recorded, home, robots, 0.0, suffix="s",
+                                      repeat=SATURATED_RUNS) for c in configs]
         finally:
             await asyncio.to_thread(server.close)
     floor = percentile(one["lat_ms"], 95)

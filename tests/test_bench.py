@@ -92,3 +92,15 @@ async def test_estop_latency_tiny():
     [m] = await estop.run(n=2)
     assert FIELDS <= set(m) and m["n"] == 2, m
     assert 0 < m["floor"] <= m["value"] <= 2 * estop.GOAL_MS, m
+
+
+def test_the_fleet_p95_is_judged_only_at_the_goals_size():
+    """A fleet that failed below its goal keeps the p95 of its last passing size (one robot: ratio 1),
+    which must not read as the goal met."""
+    from bench.runner import goal_lines
+
+    below = {"name": "fleet_service_p95", "value": 50.0, "ratio": 1.0, "at_n": 1, "goal_n": 20}
+    at_goal = dict(below, at_n=20, ratio=2.5)
+    too_slow = dict(at_goal, ratio=3.5)
+    goal_lines([below, at_goal, too_slow])
+    assert [m["goal_met"] for m in (below, at_goal, too_slow)] == [False, True, False]
