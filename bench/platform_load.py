@@ -37,7 +37,7 @@ from .common import log, metric, ms, percentile, quiet_logs, ratio
 ROBOTS = 50
 CLIENTS = 10  # agents the simulated robots' requests leave from (each robot: its own user and token)
 GOAL_RATIO = 3.0
-SATURATED_RUNS = 10  # runs per robot in the replay without pauses
+SATURATED_RUNS = 10  # runs per robot in the replay without pauses (quick mode: 3)
 
 
 @dataclasses.dataclass
@@ -186,7 +186,7 @@ async def run(quick: bool = True, robots: int | None = None, time_scale: float |
             # capacity: no pauses at all, each robot's next request as soon as its previous answer came
             # (every robot's run SATURATED_RUNS times over: a few seconds of full load, not one burst)
             saturated = [await replay(settings, work, c, recorded, home, robots, 0.0, suffix="s",
-                                      repeat=SATURATED_RUNS) for c in configs]
+                                      repeat=3 if quick else SATURATED_RUNS) for c in configs]
         finally:
             await asyncio.to_thread(server.close)
     floor = percentile(one["lat_ms"], 95)

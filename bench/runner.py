@@ -4,8 +4,9 @@
 
 Every benchmark measures the project and a floor (or peer) side by side in the same run and reports
 their ratio. Each benchmark runs in a child process of its own (a fresh XMPP server, event loop and
-PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick finishes in under
-3 minutes on a 2-core machine. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery,
+PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick took 5 1/2 minutes
+on a quiet 2-core machine (2026-11-23): speech (its commands are spoken in real time) ~2 min, the
+fleet of 4 ~1 min, platform_load ~1 min; the full run ~15 minutes. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery,
 speech, estop, platform_load (metric names such as robot_rtt or plan_astar select their benchmark).
 """
 from __future__ import annotations
@@ -235,7 +236,7 @@ def select(only: list[str] | None) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="small sizes; under 3 minutes in total")
+    ap.add_argument("--quick", action="store_true", help="small sizes; about 5 minutes in total (the full run: ~15)")
     ap.add_argument("--json", metavar="FILE", help="write the results as JSON to FILE")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="run only these benchmarks")
     ap.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)  # smoke tests
