@@ -29,7 +29,8 @@ _FORM, _TITLE, _FIELD, _VALUE = _XDATA + "x", _XDATA + "title", _XDATA + "field"
 _MARKUP = re.compile(r"[&<>\"]")  # what escaping changes; most ids, names and JSON keys have none
 ACL_NS = "urn:rapp:acl:1"
 _ACL = "{%s}acl" % ACL_NS
-_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]*\Z")  # a metadata key that can be an attribute name
+# a metadata key that can be an attribute name (not one XML reserves: "xmlns" would clash with ours)
+_NAME = re.compile(r"(?![Xx][Mm][Ll])[A-Za-z_][A-Za-z0-9_.-]*\Z")
 _CONTROL = re.compile(r"[\t\n\r]")  # attribute values normalise these: such a value goes in a form
 
 
@@ -53,7 +54,8 @@ def message_xml(msg: Message, form: bool = False) -> str:
     fields = [(k, v) for k, v in meta.items() if k != acl.REPLY_WITH]
     if msg.thread:
         fields.append(("_thread_node", msg.thread))
-    if fields and not form and all(_NAME.match(k) and not _CONTROL.search(v) for k, v in fields):
+    if (fields and not form and all(_NAME.match(k) and not _CONTROL.search(v) for k, v in fields)
+            and len({k for k, _ in fields}) == len(fields)):  # a key "_thread_node" beside a thread
         parts.append("<acl xmlns=\"%s\" %s/>" % (ACL_NS, " ".join(f"{k}={_attr(v)}" for k, v in fields)))
     elif fields:
         parts.append(f"<x xmlns=\"jabber:x:data\" type=\"form\"><title>{SPADE_X_METADATA}</title>")

@@ -266,15 +266,17 @@ def test_compact_metadata_is_one_element_and_falls_back_to_the_form():
     assert "jabber:x:data" not in compact and compact.count("<acl ") == 1
     got = read_message(Stanza(xml=ET.fromstring(compact)))
     assert got._metadata == msg._metadata and got.thread == "th" and not uses_form(got)
-    for odd in ({"two words": "v"}, {"k": "line\nbreak"}):
+    for odd in ({"two words": "v"}, {"k": "line\nbreak"}, {"xmlns": "urn:x"}, {"_thread_node": "t"}):
         other = make_message("b@localhost", None, performative=Performative.INFORM)
-        other.sender = "a@localhost"
+        other.sender, other.thread = "a@localhost", "th" if "_thread_node" in odd else None
         for k, v in odd.items():
             other.set_metadata(k, v)
         text = wire(other)
         assert "jabber:x:data" in text and "<acl " not in text
-        back = read_message(Stanza(xml=ET.fromstring(text)))
-        assert back._metadata == other._metadata and uses_form(back)
+        back = read_message(Stanza(xml=ET.fromstring(text)))  # well-formed: parsed at all
+        assert uses_form(back)
+        if "_thread_node" not in odd:
+            assert back._metadata == other._metadata
     assert "jabber:x:data" in wire(msg, form=True)
 
 
@@ -333,6 +335,34 @@ async def test_a_plain_spade_agent_gets_its_answers_in_its_own_form(xmpp_server,
         assert json.loads(got[-1]["body"]) == {"total": 5}
     finally:
         await server.stop()
+
+
+def test_handlers_tried_only_on_their_tag_match_as_before():
+    """xmpp_server/compat.match_only_its_tag: on an agent's client, every handler matches exactly the
+    stanzas its own matcher matches (message, chat error, presence, iq set/get/result)."""
+    from slixmpp.xmlstream import ET
+
+    from xmpp_server.compat import rapp_xmpp_client_class
+
+    client = rapp_xmpp_client_class()("tags-a@localhost", "pw", False, True)
+    client.register_plugin("xep_0030")
+    iq = client.Iq(stype="get", sto="tags-a@localhost/r", sfrom="localhost")
+    iq.enable("ping")
+    stanzas = [ET.fromstring(x) for x in (
+        '<message xmlns="jabber:client" to="tags-a@localhost" from="b@localhost"><body>hi</body></message>',
+        '<message xmlns="jabber:client" type="error" from="b@localhost"><error type="cancel"/></message>',
+        '<presence xmlns="jabber:client" from="b@localhost/r"/>',
+        '<iq xmlns="jabber:client" type="set" id="r1"><query xmlns="jabber:iq:roster"/></iq>',
+        '<iq xmlns="jabber:client" type="get" id="d1"><query xmlns="http://jabber.org/protocol/disco#info"/></iq>',
+        '<iq xmlns="jabber:client" type="result" id="x1"/>')] + [iq.xml]
+    handlers = client._XMLStream__handlers  # slixmpp keeps them private (pinned 1.12.0)
+    filtered = [h for h in handlers if getattr(h, "matches_only_its_tag", False)]
+    assert len(filtered) >= 10  # the iq, presence and message handlers of SPADE's plugins
+    for xml in stanzas:
+        stanza = client._build_stanza(xml)
+        for h in filtered:
+            assert h.match(stanza) == bool(h.unfiltered_match(stanza)), (h.name, xml.tag)
+    assert sum(h.match(client._build_stanza(stanzas[0])) for h in handlers) == 1  # the chat handler only
 
 
 def test_ids_are_unique_and_not_shared_with_a_forked_child():

@@ -200,7 +200,7 @@ def match_only_its_tag(handler) -> None:
         t = stanza.xml.tag
         return (t if full else t[t.rfind("}") + 1:]) == tag and real(stanza)
 
-    handler.match, handler.matches_only_its_tag = match, True
+    handler.match, handler.unfiltered_match, handler.matches_only_its_tag = match, real, True
 
 
 def _matcher_tag(matcher) -> str | None:
