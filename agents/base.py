@@ -250,9 +250,9 @@ class RappAgent(Agent):
         if node["type"] == "error":
             # the server bounced a message of ours (peer gone); ejabberd returns it whole, and read
             # as a message it would be a request "from" the peer: never delivered, only traced
-            conv = AclInfo.of(msg).conversation_id
             self.tracer.record(RecordKind.DROPPED, agent=self.address, sender=bare(msg.sender),
-                               conversation_id=conv, reason=f"undeliverable: {node['error']['condition'] or 'error'}")
+                               conversation_id=AclInfo.of(msg).conversation_id,
+                               reason=f"undeliverable: {node['error']['condition'] or 'error'}")
             return []
         return self._route(msg, "xmpp")
 

@@ -416,7 +416,7 @@ class PlatformAgent(RappAgent):
 
     def start_cloud_workers(self) -> None:
         """Fill the Cloud Agents' warm pool now. Otherwise it starts at the first Cloud Agent, not at
-        setup: most RApps have no Cloud part, and an idle worker costs ~100 MB and a second of CPU
+        setup: most RApps have no Cloud part, and an idle worker costs ~160 MB and a second of CPU
         (the first Cloud Agent starts cold). A deployment that expects many robots to start Cloud
         Agents at once sizes the pool to them (`rapp agent platform --warm-workers N`)."""
         if self.cloud_mode == "process" and not self._pool_started:

@@ -120,10 +120,10 @@ class HazardFleet:
         warm = self.platform_kw.get("warm_workers")
         roles = {"store": ["store"], "platform": ["platform"] + (["--warm-workers", str(warm)] if warm else [])}
         for name, args in roles.items():
-            log_file = open(self.workdir / f"{name}.log", "ab")
-            self.processes.append((name, subprocess.Popen(
-                [sys.executable, "-m", "cli.main", "agent", *args], env=env, stdout=log_file,
-                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)))
+            with open(self.workdir / f"{name}.log", "ab") as log_file:  # the child keeps its own copy
+                self.processes.append((name, subprocess.Popen(
+                    [sys.executable, "-m", "cli.main", "agent", *args], env=env, stdout=log_file,
+                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)))
         await self._wait_log("store", "running", 60)
         await self._wait_log("platform", "running", 60)
         if warm:
@@ -197,18 +197,10 @@ class HazardFleet:
             await asyncio.to_thread(self._stop_apart)
 
     def _stop_apart(self) -> None:
-        import signal
-        import subprocess
+        from xmpp_server.process import terminate
 
-        for _, proc in self.processes:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGTERM)
-        for _, proc in self.processes:
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+        for _, proc in reversed(self.processes):  # the Platform first, then the Store
+            terminate(proc, 20.0)
 
 
 async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
