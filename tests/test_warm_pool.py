@@ -58,7 +58,7 @@ def gone(pid: int) -> bool:
 def wait_for_zombie(pid: int, timeout: float = 5.0) -> None:
     """Block (on purpose: the event loop must not notice the exit first) until `pid` has exited."""
     deadline = time.monotonic() + timeout
-    # the leader shows "Z" while its other threads (a warm worker's BLAS threads) still exit, and
+    # the leader shows "Z" while its other threads (a Platform warm worker's BLAS threads) still exit, and
     # only then can it be reaped: wait for both
     while (Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
            or len(os.listdir(f"/proc/{pid}/task")) > 1):
