@@ -142,10 +142,13 @@ MAX_AUDIO_B64 = 4 * (44 + 2 * 16000 * int(MAX_AUDIO_SECONDS)) // 3 + 4
 
 @robot_action("capture_audio", reply=Audio)
 class CaptureAudio(Action):
-    """Record the microphone for `seconds` of simulation time."""
+    """Record the microphone for `seconds` of simulation time. `observe`: only record the time that
+    other motions and waits make pass (a simulation run as fast as possible is not stepped for this
+    recording; a listener beside a task must not drive the world)."""
 
     seconds: float = Field(default=3.0, gt=0, le=MAX_AUDIO_SECONDS)
     sample_rate: Literal[8000, 16000] = 16000
+    observe: bool = False
 
 
 @robot_action("play_audio", reply=Done)

@@ -56,6 +56,7 @@ class StructureEvent(StrEnum):
 
     # the Core
     INIT = "init"  # its FSM starts
+    SUPERVISION_SPOTTING = "supervision-spotting"  # a supervision word (stop...) heard while a RApp runs
     REGISTER = "register"  # robot registered with the Platform/Store (also written by them)
     ACCOUNTS_SWEPT = "accounts-swept"  # leftover XMPP accounts of dead agents deleted (Core, Platform)
     VOCABULARY = "vocabulary"  # the RApps and keywords it understands

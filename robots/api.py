@@ -131,15 +131,15 @@ class RobotAPI:
         await self.world.sleep(speaker.play(pcm, self.world.time))
         return Done()
 
-    async def _record(self, seconds: float, rate: int = 16000) -> tuple[float, np.ndarray]:
+    async def _record(self, seconds: float, rate: int = 16000, drive: bool = True) -> tuple[float, np.ndarray]:
         """(start time, int16 samples) of the microphone over the next `seconds` of simulation time."""
         t0, pos = self.world.time, self.audio_in.position()
-        await self.world.sleep(seconds)
+        await self.world.sleep(seconds, drive=drive)
         loop = asyncio.get_running_loop()
         return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, seconds, rate)
 
     async def capture_audio(self, req: CaptureAudio) -> Audio:
-        t0, pcm = await self._record(req.seconds, req.sample_rate)
+        t0, pcm = await self._record(req.seconds, req.sample_rate, drive=not req.observe)
         wav = encode_wav(pcm, req.sample_rate)
         return Audio(sample_rate=req.sample_rate, seconds=len(pcm) / req.sample_rate,
                      data_b64=base64.b64encode(wav).decode(), stamp=t0)
