@@ -186,7 +186,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if self.hear_audio and "microphone" in self.robot.capabilities():
             self.activate("audio-listener", AudioListener(self.robot, self._speech_heard, self.speaking,
                                                           vad=self._voices[0], sentences=lambda: self.sentences_begun,
-                                                          spoke_during=self._loudspeaker_during))
+                                                          spoke_during=self._own_voice_times()))
 
     def _listen_for_supervision_words(self) -> None:
         """While a RApp runs, the microphone is also the Core's for its supervision words (a real NAO
@@ -198,7 +198,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # a few tenths of a second more
         self._voices[1].learn_room_from(self._voices[0])  # s3's detector knows the room: hear a "stop" at once
         stream = MicrophoneStream(self.robot, self._heard_during_task, self._robot_talking, chunk_s=0.3,
-                                  vad=self._voices[1], observe=True, spoke_during=self._loudspeaker_during)
+                                  vad=self._voices[1], observe=True, spoke_during=self._own_voice_times())
         self._voice_supervision = asyncio.create_task(stream.run_forever())
         self._background.add(self._voice_supervision)
         self._voice_supervision.add_done_callback(self._background.discard)
@@ -224,14 +224,22 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         start, _, pcm = speaker.played[-1]
         return robot.world.time < start + len(pcm) / 16000 + 0.3
 
+    def _simulated_loudspeaker(self):
+        """The loudspeaker of the simulated robot behind a RobotAPI, or None (a real robot, no speech)."""
+        return getattr(getattr(self.robot, "robot", None), "loudspeaker", None)
+
     def _loudspeaker_during(self, t0: float, t1: float) -> float | None:
         """When the simulated robot's loudspeaker sound within [t0, t1] of simulation time ends (+ 0.05 s:
-        its way to the microphone), or None: none (also where the robot cannot tell: a real robot)."""
-        robot = getattr(self.robot, "robot", None)
-        speaker = getattr(robot, "loudspeaker", None)
-        ends = [start + len(pcm) / 16000 + 0.05 for start, _, pcm in (speaker.played[-4:] if speaker is not None else [])
+        its way to the microphone), or None: none."""
+        speaker = self._simulated_loudspeaker()
+        ends = [start + len(pcm) / 16000 + 0.05 for start, _, pcm in (speaker.played[-8:] if speaker is not None else [])
                 if start < t1 and start + len(pcm) / 16000 + 0.05 > t0]
         return max(ends) if ends else None
+
+    def _own_voice_times(self):
+        """What a microphone stream cuts the robot's own voice by: its loudspeaker's simulation times where
+        the robot can tell them, else None (the stream then drops what it heard while the Core spoke)."""
+        return self._loudspeaker_during if self._simulated_loudspeaker() is not None else None
 
     def speaking(self) -> bool:
         """The robot's loudspeaker is busy with the Core's own sentences."""

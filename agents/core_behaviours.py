@@ -14,7 +14,6 @@ import asyncio
 import base64
 import logging
 import time
-from collections import deque
 from typing import TYPE_CHECKING
 
 from spade.behaviour import CyclicBehaviour, PeriodicBehaviour
@@ -68,35 +67,29 @@ class MicrophoneListener(CyclicBehaviour):
 
 class MicrophoneStream:
     """The microphone's sound through the robot interface (capture_audio), voice activity detection,
-    each finished utterance to `on_utterance`. While `muted()` (the robot itself speaks) the sound is
-    dropped: the Core never hears itself. Capturing takes nothing from anyone: a RApp capturing the
-    same microphone meanwhile gets the same samples.
+    each finished utterance to `on_utterance`. The Core never hears itself: its own voice is cut out
+    (below). Capturing takes nothing from anyone: a RApp capturing the same microphone meanwhile gets
+    the same samples.
 
-    A capture records from "now", and the world moves on between two requests (more so while a RApp's
-    own calls drive it), so pieces of 2 x `chunk_s` are kept in flight two at a time, staggered by
-    `chunk_s`, and stitched by their time stamps: each new piece adds the sound after the last one's
-    end, and none falls between two unless the next request comes more than `chunk_s` late. Paced at
-    real time at most (a world running as fast as possible is not driven faster by listening).
+    One piece at a time, each `since` the end of the one before (CaptureAudio.since): the robot's audio
+    device buffers the sound, so a listener that falls behind (a slow CPU, a RApp's own calls driving
+    the world meanwhile) hears every sample, only later; nothing falls between two pieces. (Pieces
+    recorded "from now" left holes whenever a request came late, ~0.1 s each under CI's load, and the
+    recognisers misheard the utterance around a hole: "let's play a game" came out "read my e-mail".)
+    A piece is at least `chunk_s` of new sound (its latency). Paced at real time at most (a world
+    running as fast as possible is not driven faster by listening); a listener that drives the world
+    (s3) drives it no further than its own next piece, one that observes (beside a task, `observe`)
+    drives nothing.
 
-    A listener that drives the world (s3) hears the world at that pace: time others make pass faster
-    than real time (another robot's sentence in an unpaced world) goes by it, as it always did. Only an
-    observing stream (beside a task, `observe`) catches up after a gap, with more observing pieces taken
-    at once for a while: they record the time the task makes pass and drive nothing. (Catching up in
-    s3 fed back: two Cores on one unpaced world took each other's pieces for gaps and drove it at ~100
-    simulated s per s; and each heard the other's sentences and answered them, "Sorry, I did not
-    understand", back and forth.)
-
-    `sentences()` counts the sentences the robot has begun to say: a piece in flight while it changed
-    is dropped like a muted one, even when the sentence began and ended (an unpaced world plays it at
-    once) between two looks at `muted()`. `spoke_during(t0, t1)`, where the robot can tell, is the
-    simulation time its loudspeaker's sound in that stretch ends (None: silent): only a piece's sound
-    after it is heard, whenever the piece is looked at (the detector had otherwise learnt a RApp's loud
-    sentence as the room's noise, and then missed the owner's "stop"); the owner's words right after
-    the robot's are kept."""
+    The robot's own voice: where the robot can tell, `spoke_during(t0, t1)` is the simulation time its
+    loudspeaker's sound within that stretch ends (None: silent), and only a piece's sound after it is
+    heard; the owner's words right after the robot's are kept (the detector had otherwise learnt a
+    RApp's loud sentence as the room's noise, and then missed the owner's "stop"). Where it cannot
+    (`spoke_during` None), a piece is dropped when the robot spoke around it: `muted()` (the robot
+    speaks) at its request or reply, or `sentences()` (sentences the robot has begun) changed
+    meanwhile (an unpaced world plays a sentence at once, between two looks at `muted()`)."""
 
     CHUNK_S = 0.1  # new sound per piece (its latency)
-    UNPACED_PIECES = 50  # after a gap: pieces taken at once, not paced
-    MAX_HOLE_S = 0.05  # an observing stream bridges a hole this short (a driving stream none)
 
     def __init__(self, robot, on_utterance, muted, alive=lambda: True, chunk_s: float = CHUNK_S,
                  vad: VoiceActivity | None = None, observe: bool = False, sentences=lambda: 0,
@@ -111,35 +104,16 @@ class MicrophoneStream:
         self.vad = vad if vad is not None else VoiceActivity(max_seconds=5.0)  # 5 s: one speech_recognition request
         self.vad.reset()  # but no half utterance from before
         self._next: float | None = None  # simulation time the sound so far ends
-        self._inflight: deque[asyncio.Future] = deque()
-        self._muted_at_request: set[asyncio.Future] = set()  # requested while the robot spoke: its sound is dropped
-        self._said_at_request: dict[asyncio.Future, int] = {}  # sentences() when each piece was requested
-        self._unpaced = 0
-
-    def _capture(self, seconds: float) -> None:
-        piece = asyncio.ensure_future(self.robot.handle(CaptureAudio(seconds=seconds, observe=self.observe)))
-        self._inflight.append(piece)
-        if self.muted():
-            self._muted_at_request.add(piece)
-        self._said_at_request[piece] = self.sentences()
+        self._piece: asyncio.Future | None = None
 
     async def step(self) -> bool:
         """Take the next piece of sound; False when the robot has no audio input."""
         start = time.monotonic()
-        was_muted = self.muted()
-        if not self._inflight:  # the short one ends half-way through the long one
-            self._capture(2 * self.chunk_s)
-            self._capture(self.chunk_s)
-        done, _ = await asyncio.wait(self._inflight, return_when=asyncio.FIRST_COMPLETED)
-        piece = next(f for f in self._inflight if f in done)
-        self._inflight.remove(piece)
-        if piece in self._muted_at_request:  # it began while the robot spoke: its tail is the robot's voice
-            self._muted_at_request.discard(piece)
-            was_muted = True
-        if self._said_at_request.pop(piece, None) != self.sentences():  # the robot began a sentence meanwhile
-            was_muted = True
+        said, was_muted = self.sentences(), self.muted()
+        self._piece = asyncio.ensure_future(self.robot.handle(
+            CaptureAudio(seconds=self.chunk_s, observe=self.observe, since=self._next)))
         try:
-            audio = piece.result()
+            audio = await self._piece
             pcm, _ = decode_wav(base64.b64decode(audio.data_b64))
         except UnsupportedOperation:
             self.close()
@@ -149,51 +123,31 @@ class MicrophoneStream:
             self.close()
             await asyncio.sleep(1.0)
             return True
-        robot_until = self.spoke_during(audio.stamp, audio.stamp + audio.seconds) if self.spoke_during else None
-        if self._unpaced > 0:
-            self._capture(2 * self.chunk_s)  # at once, before this piece is looked at (observing: drives nothing)
-        pcm, gap = self._new_sound(audio, pcm)
+        finally:
+            self._piece = None
         if not self.alive():
             return True  # stopped meanwhile: the utterance is no longer ours to act on
-        if gap:  # sound went by unheard: an utterance with a hole in it is none (the recognisers mishear it)
+        rate = audio.sample_rate
+        if self._next is not None and audio.stamp > self._next + 0.5 / rate:
+            self.vad.reset()  # older than the device keeps: sound went by unheard, an utterance with a hole is none
+        self._next = audio.stamp + len(pcm) / rate
+        if self.spoke_during is not None:
+            robot_until = self.spoke_during(audio.stamp, self._next)
+            if robot_until is not None:  # the robot's own voice is in this piece: only the sound after it counts
+                self.vad.reset()
+                pcm = pcm[max(0, round((robot_until - audio.stamp) * rate)):]
+        elif was_muted or self.muted() or self.sentences() != said:
             self.vad.reset()
-        if robot_until is not None:  # the robot's own voice is in this piece: only the sound after it counts
-            self.vad.reset()
-            new_from = audio.stamp + audio.seconds - pcm.size / audio.sample_rate
-            pcm = pcm[max(0, round((robot_until - new_from) * audio.sample_rate)):]
-        if was_muted or self.muted():
-            self.vad.reset()
-        elif pcm.size:
+            pcm = pcm[:0]
+        if pcm.size:
             for utterance in self.vad.feed(pcm):
                 await self.on_utterance(utterance)
-        if len(self._inflight) < 2:
-            await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
-            self._capture(2 * self.chunk_s)
+        await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
         return True
 
-    def _new_sound(self, audio, pcm):
-        """(the part of a piece after the sound so far, whether sound went by unheard before it). A gap
-        makes an observing stream catch up a while."""
-        end = audio.stamp + audio.seconds
-        if self._next is None or audio.stamp > self._next + 0.002:
-            # an observing stream's pieces meet end to end, a few ms apart under load: only a hole of about
-            # a phone's length is a gap there; a driving stream's pieces overlap, and any hole is one
-            gap = self._next is not None and (not self.observe or audio.stamp > self._next + self.MAX_HOLE_S)
-            if self._next is not None and self.observe:
-                self._unpaced = self.UNPACED_PIECES
-            self._next = end
-            return pcm, gap
-        self._unpaced = max(0, self._unpaced - 1)
-        skip = max(0, round((self._next - audio.stamp) * audio.sample_rate))
-        self._next = max(self._next, end)
-        return pcm[skip:], False
-
     def close(self) -> None:
-        for f in self._inflight:
-            f.cancel()
-        self._inflight.clear()
-        self._muted_at_request.clear()
-        self._said_at_request.clear()
+        if self._piece is not None:
+            self._piece.cancel()
         self._next = None
 
     async def run_forever(self) -> None:

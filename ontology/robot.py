@@ -137,6 +137,7 @@ class WordSpotting(Action):
 
 
 MAX_AUDIO_SECONDS = 5.0  # a 16 kHz recording of this length still fits one message (agents/base.py MAX_BODY)
+AUDIO_BUFFER_S = 30.0  # the sound a robot's audio device keeps for a capture `since` an earlier time
 MAX_AUDIO_B64 = 4 * (44 + 2 * 16000 * int(MAX_AUDIO_SECONDS)) // 3 + 4
 
 
@@ -144,11 +145,19 @@ MAX_AUDIO_B64 = 4 * (44 + 2 * 16000 * int(MAX_AUDIO_SECONDS)) // 3 + 4
 class CaptureAudio(Action):
     """Record the microphone for `seconds` of simulation time. `observe`: only record the time that
     other motions and waits make pass (a simulation run as fast as possible is not stepped for this
-    recording; a listener beside a task must not drive the world)."""
+    recording; a listener beside a task must not drive the world).
+
+    `since` (a simulation time, the end of an earlier recording: its stamp + seconds): record from
+    then, not from now. The robot's audio device keeps the last AUDIO_BUFFER_S of sound, so a listener
+    whose next request comes late (a slow CPU) still gets every sample, only later: the reply holds at
+    least `seconds` from `since` (waiting for them as needed) and at most MAX_AUDIO_SECONDS (what has
+    already passed is returned at once; ask again for the rest). Its `stamp` is later than `since`
+    only where `since` was older than the buffer: that sound is lost."""
 
     seconds: float = Field(default=3.0, gt=0, le=MAX_AUDIO_SECONDS)
     sample_rate: Literal[8000, 16000] = 16000
     observe: bool = False
+    since: float | None = Field(default=None, ge=0)
 
 
 @robot_action("play_audio", reply=Done)

@@ -16,8 +16,9 @@ import numpy as np
 
 from ontology.errors import ErrorCode
 from ontology.registry import Done
-from ontology.robot import (Audio, CameraInfo, CameraParams, CaptureAudio, CaptureImage, GetCameraInfo, GetGlobalPose,
-                            GetJointAngles, GetLaserScan, GetSonars, GetTransform, Image, JointAngles, LaserScan,
+from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, Audio, CameraInfo, CameraParams, CaptureAudio,
+                            CaptureImage, GetCameraInfo, GetGlobalPose, GetJointAngles, GetLaserScan, GetSonars,
+                            GetTransform, Image, JointAngles, LaserScan,
                             LookAtPoint, MicrophoneEnergy, MicrophoneLevel, MoveAlongPath, MoveJoint, MoveStop, MoveTo,
                             MoveVel, PlayAudio, Pose2D, Rest, Say, SetCameraParam, SetCameraParams, SetGlobalPose,
                             SonarReading, TakePredefinedPosture, Transform, WordSpotted, WordSpotting)
@@ -138,8 +139,26 @@ class RobotAPI:
         loop = asyncio.get_running_loop()
         return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, seconds, rate)
 
+    async def _record_since(self, since: float, seconds: float, rate: int, drive: bool) -> tuple[float, np.ndarray]:
+        """(start time, int16 samples) of the microphone from `since` (CaptureAudio.since): the sound is a
+        function of simulation time, so the device's buffer is the house's sound of that past stretch
+        (heard where the microphone is now)."""
+        now = self.world.time
+        if since > now + 1e-6:
+            raise InvalidArgument(f"capture_audio since={since:.3f} s is later than the simulation time {now:.3f} s")
+        t0 = max(since, now - AUDIO_BUFFER_S)
+        if now < t0 + seconds - 1e-9:
+            await self.world.sleep(t0 + seconds - now, drive=drive)
+        t1 = min(max(self.world.time, t0 + seconds), t0 + MAX_AUDIO_SECONDS)
+        pos = self.audio_in.position()
+        loop = asyncio.get_running_loop()
+        return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, t1 - t0, rate)
+
     async def capture_audio(self, req: CaptureAudio) -> Audio:
-        t0, pcm = await self._record(req.seconds, req.sample_rate, drive=not req.observe)
+        if req.since is not None:
+            t0, pcm = await self._record_since(req.since, req.seconds, req.sample_rate, drive=not req.observe)
+        else:
+            t0, pcm = await self._record(req.seconds, req.sample_rate, drive=not req.observe)
         wav = encode_wav(pcm, req.sample_rate)
         return Audio(sample_rate=req.sample_rate, seconds=len(pcm) / req.sample_rate,
                      data_b64=base64.b64encode(wav).decode(), stamp=t0)

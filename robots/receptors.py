@@ -556,22 +556,28 @@ WORD_SPOTTING_ACCEPT = 0.0
 async def spot_in_audio(audio: AudioInput, world, words: list[str], timeout: float, chunk: float = 0.5
                         ) -> tuple[str | None, str | None]:
     """Listen (simulation time) for an isolated keyword: record in chunks, cut utterances at pauses,
-    decode each with a grammar of the words. (word, what was heard) or (None, None) at the timeout."""
+    decode each with a grammar of the words. (word, what was heard) or (None, None) at the timeout.
+
+    The sound is heard from the request on, every sample of it: each chunk is recorded from the end of
+    the one before up to the world's time, however far the world went on meanwhile (others driving it
+    while a chunk was decoded, the decoder built on a slow CPU): late, never lost."""
     loop = asyncio.get_running_loop()
+    t_next = world.time
+    t_end = t_next + timeout
     dec = await loop.run_in_executor(None, partial(PhraseDecoder, words, trust_search=True))
     if not dec.phrases:
-        await world.sleep(timeout)  # no word the recogniser knows: the microphone only passes time
+        await world.sleep(max(0.0, t_end - world.time))  # no word the recogniser knows: the microphone only passes time
         return None, None
     by_norm = {normalize(w): w for w in words}
     buf = np.zeros(0, np.int16)
-    t_end = world.time + timeout
-    while world.time < t_end:
-        t0, pos = world.time, audio.position()
-        step = min(chunk, t_end - t0)
-        await world.sleep(step)
-        buf = np.concatenate([buf, await loop.run_in_executor(None, audio.record, pos, t0, step)])
+    while t_next < t_end - 1e-9:
+        if world.time < min(t_next + chunk, t_end) - 1e-9:
+            await world.sleep(min(t_next + chunk, t_end) - world.time)
+        t0, step = t_next, min(world.time, t_end) - t_next
+        t_next = t0 + step
+        buf = np.concatenate([buf, await loop.run_in_executor(None, audio.record, audio.position(), t0, step)])
         segs = speech_segments(buf)
-        done = [s for s in segs if s[1] < len(buf) - 0.35 * 16000] or (segs if world.time >= t_end else [])
+        done = [s for s in segs if s[1] < len(buf) - 0.35 * 16000] or (segs if t_next >= t_end - 1e-9 else [])
         for s, e in done:
             heard, _ = await loop.run_in_executor(None, dec.decode, buf[s:e], WORD_SPOTTING_ACCEPT)
             if heard is not None:

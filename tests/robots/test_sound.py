@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from ontology.errors import ErrorCode
-from ontology.robot import CaptureAudio, MicrophoneEnergy, PlayAudio, Say, WordSpotting
-from robots import UnsupportedOperation, tts
+from ontology.robot import AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, CaptureAudio, MicrophoneEnergy, PlayAudio, Say, WordSpotting
+from robots import InvalidArgument, UnsupportedOperation, tts
 from robots.floorplan import load_plan
 from robots.sound import (WALL_LOSS_DB, DOOR_LOSS_DB, BadAudio, HouseSound, NoiseSource, decode_wav, encode_wav,
                           house_sound, level_dbfs)
@@ -113,6 +113,33 @@ async def test_capture_and_play_audio_through_the_api(small):
     with pytest.raises(BadAudio) as e:
         await nao.play_audio(PlayAudio(data_b64=base64.b64encode(b"not a wav").decode()))
     assert e.value.code == ErrorCode.MALFORMED
+
+
+async def test_a_late_capture_since_the_last_one_loses_no_sound(small):
+    nao = api_at(small, "nao", (1.0, 2.4, 0))
+    pos = nao.audio_in.position()
+    house_sound(small).play("owner", (2.0, 2.4, 1.6), SPEECH, at=small.time + 0.05)
+    first = await nao.capture_audio(CaptureAudio(seconds=0.1))
+    await small.sleep(1.0)  # the listener falls behind (a slow CPU): the world goes on without it
+    t_now = small.time
+    late = await nao.capture_audio(CaptureAudio(seconds=0.1, since=first.stamp + first.seconds))
+    assert small.time == t_now  # what has passed comes at once
+    assert late.stamp == pytest.approx(first.stamp + first.seconds, abs=1e-9)
+    assert late.seconds == pytest.approx(1.0, abs=0.02)
+    pcm = np.concatenate([decode_wav(base64.b64decode(a.data_b64))[0] for a in (first, late)])
+    assert np.array_equal(pcm, nao.audio_in.record(pos, first.stamp, len(pcm) / 16000))  # one recording, no hole
+    # up to date: it waits for `seconds` of new sound
+    since = late.stamp + late.seconds
+    nxt = await nao.capture_audio(CaptureAudio(seconds=0.1, since=since))
+    assert nxt.stamp == pytest.approx(since) and nxt.seconds == pytest.approx(0.1, abs=0.02) and small.time >= since + 0.1
+    quiet = decode_wav(base64.b64decode(nxt.data_b64))[0]
+    assert level_dbfs(pcm)[0] > level_dbfs(quiet)[0] + 10  # the owner's sentence is in what came late
+    # a lag longer than one message holds comes in several; beyond the device's buffer the sound is lost
+    await small.sleep(AUDIO_BUFFER_S + 2.0)
+    old = await nao.capture_audio(CaptureAudio(seconds=0.1, since=since))
+    assert old.stamp == pytest.approx(small.time - AUDIO_BUFFER_S) and old.seconds == pytest.approx(MAX_AUDIO_SECONDS)
+    with pytest.raises(InvalidArgument, match="later than the simulation time"):
+        await nao.capture_audio(CaptureAudio(seconds=0.1, since=small.time + 1.0))
 
 
 async def test_a_tv_raises_the_microphone_level(small):

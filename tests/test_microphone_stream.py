@@ -1,0 +1,43 @@
+"""The Core's microphone stream (agents/core_behaviours.py, MicrophoneStream) on a slow CPU: the world goes
+on between two of its pieces (others drive it while the listener waits for the CPU), and every sample
+still reaches the voice detector, late: the utterance heard is one uninterrupted stretch of the house's
+sound, the owner's whole sentence."""
+from __future__ import annotations
+
+import numpy as np
+
+from agents.core_behaviours import MicrophoneStream
+from robots import RobotAPI, World, tts
+from robots.sound import house_sound, talker_at
+
+
+async def test_a_stream_that_falls_behind_hears_the_whole_utterance():
+    world = World.from_file("small", seed=4)
+    try:
+        api = RobotAPI(world.add_robot("nao", pose=(0.6, 0.6, 0.0)))
+        heard = []
+
+        async def on_utterance(utterance):
+            heard.append(utterance)
+
+        stream = MicrophoneStream(api, on_utterance, muted=lambda: False, spoke_during=lambda t0, t1: None)
+        t_start = world.time
+        for _ in range(8):  # the detector learns the room's quiet
+            await stream.step()
+        pcm = tts.synthesize("check my inbox")
+        t_said = world.time + 0.3
+        house_sound(world).play("owner", talker_at((0.6, 0.6), 1.0, api.audio_in.position()[2]), pcm, at=t_said,
+                                level_db=60)
+        while not heard and world.time < t_said + len(pcm) / 16000 + 2.0:
+            await world.sleep(0.37)  # others drive the world while the listener is late
+            await stream.step()
+        assert len(heard) == 1 and not heard[0].too_long
+        got = heard[0].pcm
+        house = api.audio_in.record(api.audio_in.position(), t_start, world.time - t_start)
+        # the detector's 10 ms frames start at the stream's first sample: the utterance is a run of them
+        starts = [o for o in range(0, len(house) - len(got) + 1, 160) if np.array_equal(house[o:o + len(got)], got)]
+        assert len(starts) == 1, "the utterance is not one uninterrupted stretch of the house's sound"
+        t0 = t_start + starts[0] / 16000
+        assert t0 <= t_said and t0 + len(got) / 16000 >= t_said + len(pcm) / 16000 - 0.3  # the whole sentence
+    finally:
+        world.close()
