@@ -81,6 +81,7 @@ HEARTBEAT_TIMEOUT_S = 1.5  # a_dyn beats every 0.25 s: a hang is noticed within 
 STOP_WORDS = {"stop", "halt", "freeze", "emergency stop"}  # latch the emergency stop: the task pauses
 CANCEL_WORDS = {"cancel", "abort"}  # end the running task (no task: as "stop")
 RESUME_WORDS = {"resume", "continue", "go on"}
+MAX_APOLOGIES_ALOUD = 2  # in a row, for heard sound not understood (CoreAgent.apology_aloud)
 SUPERVISION_WORDS = {**{w: "stop" for w in STOP_WORDS}, **{w: "cancel" for w in CANCEL_WORDS},
                      **{w: "resume" for w in RESUME_WORDS}}  # heard by voice during a task too
 
@@ -151,6 +152,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._deletions: set[asyncio.Task] = set()  # ephemeral accounts being deleted
         self._speech: asyncio.Task | None = None  # the last utterance queued on the loudspeaker
         self.sentences_begun = 0  # sentences given to the loudspeaker so far (the listener drops sound meanwhile)
+        self._heard_apologies = 0  # apologies in a row for heard sound not understood (see apology_aloud)
         self.locks = ResourceLocks()
         check_spawn_mode(dynamic_mode, "dynamic_mode")
         self.dynamic_mode = dynamic_mode
@@ -374,7 +376,16 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         return ""
 
     # -- s5 ------------------------------------------------------------------------------
+    def apology_aloud(self) -> bool:
+        """Whether an apology for heard sound not understood is said aloud (it always reaches the chat):
+        the first MAX_APOLOGIES_ALOUD in a row are, until a command is understood again. The microphone
+        hears all the house's sound, other robots' voices too: two idle Cores in one room otherwise
+        answered each other's "Sorry, I did not understand" without end."""
+        self._heard_apologies += 1
+        return self._heard_apologies <= MAX_APOLOGIES_ALOUD
+
     async def fetch_package(self, rapp: str) -> tuple[Package, bytes]:
+        self._heard_apologies = 0  # a command was understood (s5)
         info, data = await download_package(self, self.store, rapp, token=await self.fresh_token())
         package = await asyncio.to_thread(read_package, data, trusted_keys=self.trusted_keys,
                                           require_signature=self.require_signature)

@@ -85,9 +85,11 @@ class MicrophoneStream:
     loudspeaker's sound within that stretch ends (None: silent), and only a piece's sound after it is
     heard; the owner's words right after the robot's are kept (the detector had otherwise learnt a
     RApp's loud sentence as the room's noise, and then missed the owner's "stop"). Where it cannot
-    (`spoke_during` None), a piece is dropped when the robot spoke around it: `muted()` (the robot
-    speaks) at its request or reply, or `sentences()` (sentences the robot has begun) changed
-    meanwhile (an unpaced world plays a sentence at once, between two looks at `muted()`)."""
+    (`spoke_during` None), a piece is dropped when the robot may have spoken while its sound was made:
+    a piece's sound is made after the previous piece's request (its end was the world's time then, or
+    later), so `muted()` (the robot speaks) at the previous piece's request or reply or at this one's,
+    or `sentences()` (sentences the robot has begun) changed since the previous piece's request (an
+    unpaced world plays a sentence at once, between two looks at `muted()`), drops it."""
 
     CHUNK_S = 0.1  # new sound per piece (its latency)
 
@@ -105,11 +107,14 @@ class MicrophoneStream:
         self.vad.reset()  # but no half utterance from before
         self._next: float | None = None  # simulation time the sound so far ends
         self._piece: asyncio.Future | None = None
+        # without spoke_during: (sentences(), muted at request or reply) of the previous piece
+        self._before: tuple[int, bool] | None = None
 
     async def step(self) -> bool:
         """Take the next piece of sound; False when the robot has no audio input."""
         start = time.monotonic()
         said, was_muted = self.sentences(), self.muted()
+        said_before, muted_before = self._before if self._before is not None else (said, was_muted)
         self._piece = asyncio.ensure_future(self.robot.handle(
             CaptureAudio(seconds=self.chunk_s, observe=self.observe, since=self._next)))
         try:
@@ -136,9 +141,12 @@ class MicrophoneStream:
             if robot_until is not None:  # the robot's own voice is in this piece: only the sound after it counts
                 self.vad.reset()
                 pcm = pcm[max(0, round((robot_until - audio.stamp) * rate)):]
-        elif was_muted or self.muted() or self.sentences() != said:
-            self.vad.reset()
-            pcm = pcm[:0]
+        else:
+            muted_now = self.muted()
+            self._before = said, was_muted or muted_now
+            if muted_before or was_muted or muted_now or self.sentences() != said_before:
+                self.vad.reset()
+                pcm = pcm[:0]
         if pcm.size:
             for utterance in self.vad.feed(pcm):
                 await self.on_utterance(utterance)
@@ -148,7 +156,7 @@ class MicrophoneStream:
     def close(self) -> None:
         if self._piece is not None:
             self._piece.cancel()
-        self._next = None
+        self._next, self._before = None, None
 
     async def run_forever(self) -> None:
         """Listen until cancelled (or the robot turns out to have no audio input)."""

@@ -73,7 +73,8 @@ class Keyword(CoreState):  # s4a: an isolated keyword -> its RApp, here on the r
         command = self.memory["command"]
         if isinstance(command, HeardUtterance):
             if command.too_long:
-                await self.core.tell_user("Sorry, I did not understand: that was too long for a command.")
+                await self.core.tell_user("Sorry, I did not understand: that was too long for a command.",
+                                          speak=self.core.apology_aloud())
                 raise RuntimeError("utterance too long")
             rapp = await self.core.spot_keyword(command)
         else:
@@ -86,20 +87,22 @@ class Keyword(CoreState):  # s4a: an isolated keyword -> its RApp, here on the r
 class Interpret(CoreState):  # s4b: anything else -> the Platform (speech recognition, interpretation)
     async def action(self):
         text = self.memory["command"]
-        if isinstance(text, HeardUtterance):
+        heard = isinstance(text, HeardUtterance)
+        if heard:
             try:
                 text = await self.core.recognise(text)
             except RequestError as e:
-                await self.core.tell_user(f"Sorry, I did not understand: {e.reason}")
+                await self.core.tell_user(f"Sorry, I did not understand: {e.reason}", speak=self.core.apology_aloud())
                 raise
             if not text:
-                await self.core.tell_user("Sorry, I did not understand.")
+                await self.core.tell_user("Sorry, I did not understand.", speak=self.core.apology_aloud())
                 raise RuntimeError("nothing recognised")
         try:
             found = await self.core.interpret(text)
         except RequestError as e:  # the Platform's reason names the command ("I did not understand ...")
             await self.core.tell_user(f"Sorry, {e.reason}" if "understand" in e.reason
-                                      else f"Sorry, I did not understand \"{text}\": {e.reason}")
+                                      else f"Sorry, I did not understand \"{text}\": {e.reason}",
+                                      speak=not heard or self.core.apology_aloud())
             raise
         except Exception as e:  # any failure reaches the user as one sentence
             await self.core.tell_user(f"Sorry, I could not interpret \"{text}\": {_why(e)}")
