@@ -624,7 +624,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.told.append(text)
         await self.send(Message(to=self.owner, body=text))
         if self.say_reports and speak:
-            self.sentences_begun += 1  # the listener drops any sound in flight meanwhile (its own voice)
+            self.sentences_begun += 1  # without the loudspeaker's times the listener drops sound made meanwhile
             previous = self._speech
             self._speech = asyncio.create_task(self._say_after(previous, text))
             self._background.add(self._speech)

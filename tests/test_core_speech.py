@@ -165,3 +165,17 @@ async def test_the_cognitive_game_is_answered_by_voice(system):
     # the robot said the questions and the verdicts itself (the NAO speaks)
     spoken = [t for _, t in system.nao.loudspeaker.spoken]
     assert any(t.startswith("Question 1:") for t in spoken) and "Correct!" in spoken
+
+
+async def test_apologies_for_heard_sound_are_said_aloud_twice_in_a_row_then_chatted(system):
+    # the microphone hears other robots too: two idle Cores answered each other's apologies without end.
+    # Last in the module: the count starts again only at an understood command (s5)
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    shout = np.clip(tts.synthesize("check the hazards").astype(np.int32) * 20, -32768, 32767).astype(np.int16)
+    told, spoken = len(core.told), len(system.nao.loudspeaker.spoken)
+    for n in range(1, 4):
+        await core.commands.put(HeardUtterance(shout, 1.2))  # refused by the Platform: clipped
+        await wait_until(lambda n=n: sum(t.startswith("Sorry") for t in core.told[told:]) == n and listening(core), 30)
+    assert [t for t in user.texts()[-3:] if "clipped" in t] == user.texts()[-3:]  # all three reach the chat
+    assert sum(t.startswith("Sorry") for _, t in system.nao.loudspeaker.spoken[spoken:]) == 2
