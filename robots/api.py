@@ -150,9 +150,12 @@ class RobotAPI:
         if now < t0 + seconds - 1e-9:
             await self.world.sleep(t0 + seconds - now, drive=drive)
         t1 = min(max(self.world.time, t0 + seconds), t0 + MAX_AUDIO_SECONDS)
+        # whole samples up to the world's time: the next `since` (stamp + samples / rate) is not later
+        # than it (a half sample rounded up was: the next request, before the world moved, was refused)
+        n = int((t1 - t0) * rate + 1e-6)
         pos = self.audio_in.position()
         loop = asyncio.get_running_loop()
-        return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, t1 - t0, rate)
+        return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, n / rate, rate)
 
     async def capture_audio(self, req: CaptureAudio) -> Audio:
         if req.since is not None:
