@@ -37,7 +37,7 @@ class EphemeralAccounts:
         self.settings, self.timeout = settings, timeout
         directory = Path(settings.credentials_dir) if settings.credentials_dir else default_credentials_dir()
         self.ledger = directory / f"{owner}.ephemeral.json"
-        self._spare: dict[str, asyncio.Task] = {}
+        self._spare: dict[str, list[asyncio.Task]] = {}  # prefix -> accounts being made / made
 
     # -- ledger ---------------------------------------------------------------------------
     def _read(self) -> dict[str, str]:
@@ -69,15 +69,18 @@ class EphemeralAccounts:
             raise
         return ident
 
-    def prepare(self, prefix: str) -> None:
-        """Create the next account for `prefix` in the background (a hand-off then only logs in)."""
-        if prefix not in self._spare:
-            self._spare[prefix] = asyncio.create_task(self.create(prefix))
+    def prepare(self, prefix: str, count: int = 1) -> None:
+        """Have `count` accounts for `prefix` made in the background (a hand-off then only logs in;
+        the Platform keeps one per warm Cloud worker, for a fleet's burst of starts)."""
+        spare = self._spare.setdefault(prefix, [])
+        spare.extend(asyncio.create_task(self.create(prefix)) for _ in range(count - len(spare)))
 
     async def take(self, prefix: str) -> Identity:
-        """The prepared account for `prefix`, or a new one."""
-        task = self._spare.pop(prefix, None)
-        if task is not None:
+        """A prepared account for `prefix` (a made one first), or a new one."""
+        spare = self._spare.get(prefix) or []
+        if spare:
+            task = next((t for t in spare if t.done()), spare[0])
+            spare.remove(task)
             try:
                 return await task
             except (LoginError, asyncio.CancelledError) as e:
@@ -127,10 +130,13 @@ class EphemeralAccounts:
 
     async def close(self) -> None:
         """Delete prepared, unused accounts."""
-        for prefix, task in list(self._spare.items()):
-            self._spare.pop(prefix, None)
-            try:
-                ident = await task
-            except (LoginError, asyncio.CancelledError):
-                continue
-            await self.delete(ident.name, ident.password)
+        spare = [t for tasks in self._spare.values() for t in tasks]
+        self._spare.clear()
+        await asyncio.gather(*(self._delete_made(task) for task in spare))
+
+    async def _delete_made(self, task: asyncio.Task) -> None:
+        try:
+            ident = await task
+        except (LoginError, asyncio.CancelledError):
+            return
+        await self.delete(ident.name, ident.password)

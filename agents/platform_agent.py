@@ -94,6 +94,7 @@ class PlatformAgent(RappAgent):
         self.sandbox = sandbox or Sandbox()
         self.robots: dict[str, P.RegisterRobot] = {}
         self.clouds: dict[str, CloudSession] = {}
+        self._cleanups: set[asyncio.Task] = set()  # stopped Cloud Agents' accounts and directories
         self.max_pending, self.pending = max_pending, 0
         self.limits = limits
         # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
@@ -155,6 +156,12 @@ class PlatformAgent(RappAgent):
         await self.warm_pool.close()  # idle workers killed and reaped
         for cloud in list(self.clouds.values()):
             await self._kill_cloud(cloud, "platform stopping")
+        if self._cleanups:  # an account not deleted by then stays in the ledger for the next start
+            await asyncio.wait(list(self._cleanups), timeout=5.0)
+        try:  # prepared, unused accounts (any left stay in the ledger for the next start's sweep)
+            await asyncio.wait_for(self.accounts.close(), 10.0)
+        except asyncio.TimeoutError:
+            log.warning("prepared Cloud Agent accounts not all deleted; the next start sweeps them")
         await super().stop()
         self.directory.close()
         await asyncio.to_thread(sweep_run_dirs, self.workdir, self._own_workdir)
@@ -379,10 +386,12 @@ class PlatformAgent(RappAgent):
         n = next(self._serial)
         workdir = self.workdir / f"{n:04d}-{info.name}"
         await asyncio.to_thread(unpack_package, data, workdir / "package")
+        prefix = f"cloud-{info.name}".replace("_", "-")
         try:
-            ident = await self.accounts.create(f"cloud-{info.name}".replace("_", "-"))
+            ident = await self.accounts.take(prefix)
         except LoginError as e:
             raise Failure(f"cannot create the Cloud Agent's account: {e}", ErrorCode.CLOUD_START) from None
+        self.accounts.prepare(prefix, max(1, self.warm_pool.size))  # the next starts of this RApp only log in
         jid = self.settings.jid(ident.name)
         scope = ctx.token
         # the Cloud Agent is RApp code: never more than its manifest declares
@@ -499,6 +508,13 @@ class PlatformAgent(RappAgent):
         self.record_structure("cloud-destroy", cloud=session.jid, rapp=session.rapp, reason=reason,
                               exit_code=code)
         await self.revoke_token(session.token)
+        # the process is gone and its token dead: the account (a login of its own) and the run
+        # directory go after the reply (a fleet's 20 stops at once waited ~250 ms for them)
+        cleanup = asyncio.create_task(self._clean_up_after(session))
+        self._cleanups.add(cleanup)
+        cleanup.add_done_callback(self._cleanups.discard)
+
+    async def _clean_up_after(self, session: CloudSession) -> None:
         gone = await self.accounts.delete(session.account.name, session.account.password)
         self.record_structure("account-deleted" if gone else "account-kept", account=session.jid)
-        shutil.rmtree(session.process.workdir, ignore_errors=True)
+        await asyncio.to_thread(shutil.rmtree, session.process.workdir, ignore_errors=True)
