@@ -36,6 +36,7 @@ from . import platform_directory as D
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError, RequestRefused
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
+from .runtime import WARM_EXTRA_IMPORTS
 from .responder import Responder
 from .store_client import download_package
 from .identity import EphemeralAccounts, Identity
@@ -72,7 +73,7 @@ class PlatformAgent(RappAgent):
                  limits: Limits = Limits(), services: dict | None = None, services_state=None,
                  data_dir: str | Path | None = None, sandbox: Sandbox | None = None,
                  cloud_mode: str = "process", warm_workers: int = 1, service_workers: int | None = None,
-                 primary: str | None = None, replicas=()):
+                 primary: str | None = None, replicas=(), warm_imports: tuple[str, ...] = WARM_EXTRA_IMPORTS):
         super().__init__(name, settings)
         self.cloud_mode = check_spawn_mode(cloud_mode, "cloud_mode")
         from agents.services.context import ServiceState
@@ -98,8 +99,9 @@ class PlatformAgent(RappAgent):
         self.max_pending, self.pending = max_pending, 0
         self.limits = limits
         # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
+        # Cloud parts compute: numpy, cv2, scipy imported ahead (`warm_imports`, and what the builder adds)
         self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
-                                  preload_extra=True)  # Cloud parts compute: numpy, cv2, scipy ready
+                                  preload=warm_imports)
         self._pool_started = False
         self.served = 0
         self._serial = itertools.count(1)

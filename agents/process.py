@@ -94,9 +94,9 @@ class AgentProcess:
     down the worker's pipe; without one idle it starts a process as before (a cold start)."""
 
     def __init__(self, name: str, spec: SpawnSpec | None, workdir: Path, settings, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None, pool=None, preload_extra: bool = False, nice: int = 0):
+                 sandbox: Sandbox | None = None, pool=None, preload: tuple[str, ...] = (), nice: int = 0):
         self.name = name
-        self.preload_extra = preload_extra  # a warm worker: numpy, cv2, scipy too (agents/runtime.py)
+        self.preload = check_module_names(preload)  # a warm worker imports these too (agents/runtime.py)
         self.nice = nice  # a warm worker's priority while idle (raised back at its hand-off)
         self.workdir = Path(workdir)
         self.settings, self.limits = settings, limits
@@ -192,8 +192,8 @@ class AgentProcess:
                 keep.append(ready_r)
                 fds.append(ready_w)
                 extra["RAPP_READY_FD"] = str(ready_w)
-                if self.preload_extra:
-                    extra["RAPP_PRELOAD_EXTRA"] = "1"
+                if self.preload:
+                    extra["RAPP_PRELOAD"] = ",".join(self.preload)
             if self.settings.trace_file:  # append-only: the child can add lines, not read any
                 trace_fd = os.open(self.settings.trace_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
                 fds.append(trace_fd)
@@ -358,6 +358,14 @@ def spawn_agent(spec: SpawnSpec, workdir: Path, settings, *, mode: str = "proces
     if check_spawn_mode(mode) == "inprocess":
         return InProcessAgent(spec.name, spec, workdir, settings)
     return AgentProcess(spec.name, spec, workdir, settings, limits, sandbox, pool)
+
+
+def check_module_names(names) -> tuple[str, ...]:
+    names = tuple(names)
+    bad = [n for n in names if not all(part.isidentifier() for part in str(n).split("."))]
+    if bad:
+        raise ValueError(f"not module names: {bad}")
+    return names
 
 
 def _niced(preexec, nice: int):

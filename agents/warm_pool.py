@@ -22,7 +22,7 @@ import shutil
 from collections import deque
 from pathlib import Path
 
-from .process import AgentProcess, Limits, may_raise_priority
+from .process import AgentProcess, Limits, check_module_names, may_raise_priority
 from .sandbox import Sandbox
 
 log = logging.getLogger("rapp.warm")
@@ -40,12 +40,12 @@ REFILL_NICE = 10
 
 class WarmPool:
     def __init__(self, workdir: str | Path, settings, *, size: int = 1, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None, preload_extra: bool = False, refill_nice: int = REFILL_NICE):
+                 sandbox: Sandbox | None = None, preload: tuple[str, ...] = (), refill_nice: int = REFILL_NICE):
         if not isinstance(size, int) or size < 0:
             raise ValueError(f"warm_workers must be a whole number >= 0, not {size!r}")
         self.workdir, self.settings, self.size = Path(workdir), settings, size
         self.limits, self.sandbox = limits, sandbox or Sandbox()
-        self.preload_extra = preload_extra  # workers import numpy, cv2, scipy too (agents/runtime.py)
+        self.preload = check_module_names(preload)  # modules workers import too, ahead of time (agents/runtime.py)
         # only where the hand-off can raise it back (root, as the sandbox needs, or RLIMIT_NICE)
         self.refill_nice = refill_nice if refill_nice and may_raise_priority() else 0
         self._idle: deque[AgentProcess] = deque()
@@ -114,7 +114,7 @@ class WarmPool:
                 return
             refill = self.started >= self.size
             worker = AgentProcess("warm", None, self.workdir / f"{next(self._serial):04d}-.warm", self.settings,
-                                  self.limits, self.sandbox, preload_extra=self.preload_extra,
+                                  self.limits, self.sandbox, preload=self.preload,
                                   nice=self.refill_nice if refill else 0)
             try:
                 await worker.start()

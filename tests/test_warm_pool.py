@@ -163,3 +163,21 @@ async def test_pool_size_and_crash_leftovers(settings, tmp_path):
     (tmp_path / "0002-echo-app").mkdir()
     sweep_run_dirs(tmp_path)
     assert os.listdir(tmp_path) == []
+
+
+def test_a_pool_refuses_what_is_not_a_module_name_to_import_ahead(settings, tmp_path):
+    """The names travel to the sandboxed worker in its environment: only dotted identifiers."""
+    with pytest.raises(ValueError, match="not module names"):
+        WarmPool(tmp_path, settings, preload=("numpy", "os; import shutil", ""))
+    assert WarmPool(tmp_path, settings, preload=("rapps.sdk", "scipy.optimize")).preload == ("rapps.sdk", "scipy.optimize")
+
+
+def test_the_runtime_imports_a_warm_workers_extra_modules_before_it_says_ready():
+    import subprocess
+    import sys
+
+    code = ("import sys; from agents.runtime import preload; preload(('rapps.sdk', 'no_such_module_x'));"
+            "print('rapps.sdk' in sys.modules, 'rapps.sdk.vision' in sys.modules)")
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=60)
+    assert done.stdout.split() == ["True", "False"], done.stderr[-1500:]  # a missing one is skipped
