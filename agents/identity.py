@@ -37,7 +37,9 @@ class EphemeralAccounts:
         self.settings, self.timeout = settings, timeout
         directory = Path(settings.credentials_dir) if settings.credentials_dir else default_credentials_dir()
         self.ledger = directory / f"{owner}.ephemeral.json"
-        self._spare: dict[str, list[asyncio.Task]] = {}  # prefix -> accounts being made / made
+        self._wanted: dict[str, int] = {}  # prefix -> how many accounts to keep made ahead
+        self._made: dict[str, list[Identity]] = {}
+        self._fillers: dict[str, asyncio.Task] = {}
 
     # -- ledger ---------------------------------------------------------------------------
     def _read(self) -> dict[str, str]:
@@ -70,21 +72,32 @@ class EphemeralAccounts:
         return ident
 
     def prepare(self, prefix: str, count: int = 1) -> None:
-        """Have `count` accounts for `prefix` made in the background (a hand-off then only logs in;
-        the Platform keeps one per warm Cloud worker, for a fleet's burst of starts)."""
-        spare = self._spare.setdefault(prefix, [])
-        spare.extend(asyncio.create_task(self.create(prefix)) for _ in range(count - len(spare)))
+        """Keep `count` accounts for `prefix` made ahead, made one after another in the background
+        (a hand-off then only logs in; the Platform keeps one per warm Cloud worker for a fleet's
+        burst of starts, and made all at once they slowed the start that asked for them)."""
+        self._wanted[prefix] = max(count, self._wanted.get(prefix, 0))
+        filler = self._fillers.get(prefix)
+        if filler is None or filler.done():
+            self._fillers[prefix] = asyncio.create_task(self._fill(prefix))
+
+    async def _fill(self, prefix: str) -> None:
+        made = self._made.setdefault(prefix, [])
+        while len(made) < self._wanted.get(prefix, 0):
+            try:
+                made.append(await self.create(prefix))
+            except LoginError as e:
+                log.info("cannot make an account for %s ahead (%s); each run makes its own", prefix, e)
+                return
 
     async def take(self, prefix: str) -> Identity:
-        """A prepared account for `prefix` (a made one first), or a new one."""
-        spare = self._spare.get(prefix) or []
-        if spare:
-            task = next((t for t in spare if t.done()), spare[0])
-            spare.remove(task)
-            try:
-                return await task
-            except (LoginError, asyncio.CancelledError) as e:
-                log.info("prepared account for %s failed (%s); creating one now", prefix, e)
+        """An account made ahead for `prefix` (the one being made, when that is all there is), or a
+        new one."""
+        made = self._made.get(prefix)
+        if not made and (filler := self._fillers.get(prefix)) is not None and not filler.done() \
+                and self._wanted.get(prefix) == 1:
+            await asyncio.shield(filler)  # the Core's one spare, nearly made: cheaper than another
+        if made:
+            return made.pop(0)
         return await self.create(prefix)
 
     async def delete(self, name: str, password: str | None = None) -> bool:
@@ -129,14 +142,10 @@ class EphemeralAccounts:
         return gone
 
     async def close(self) -> None:
-        """Delete prepared, unused accounts."""
-        spare = [t for tasks in self._spare.values() for t in tasks]
-        self._spare.clear()
-        await asyncio.gather(*(self._delete_made(task) for task in spare))
-
-    async def _delete_made(self, task: asyncio.Task) -> None:
-        try:
-            ident = await task
-        except (LoginError, asyncio.CancelledError):
-            return
-        await self.delete(ident.name, ident.password)
+        """Delete the accounts made ahead and not taken."""
+        self._wanted.clear()  # the fillers stop after the account in progress
+        await asyncio.gather(*self._fillers.values(), return_exceptions=True)
+        spare = [ident for made in self._made.values() for ident in made]
+        self._fillers.clear()
+        self._made.clear()
+        await asyncio.gather(*(self.delete(i.name, i.password) for i in spare))

@@ -393,7 +393,6 @@ class PlatformAgent(RappAgent):
             ident = await self.accounts.take(prefix)
         except LoginError as e:
             raise Failure(f"cannot create the Cloud Agent's account: {e}", ErrorCode.CLOUD_START) from None
-        self.accounts.prepare(prefix, max(1, self.warm_pool.size))  # the next starts of this RApp only log in
         jid = self.settings.jid(ident.name)
         scope = ctx.token
         # the Cloud Agent is RApp code: never more than its manifest declares
@@ -421,6 +420,8 @@ class PlatformAgent(RappAgent):
             await self._kill_cloud(session, "did not start")
             raise Failure(f"Cloud Agent of {req.rapp} did not start: {proc.stderr_tail(500)}", ErrorCode.CLOUD_START)
         exited.cancel()
+        # the next starts of this RApp only log in: accounts made one by one behind this start, not during it
+        self.accounts.prepare(prefix, max(1, self.warm_pool.size))
         session.restartable = bool(info.manifest.get("cloud_restartable"))
         session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)

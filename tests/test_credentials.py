@@ -74,15 +74,19 @@ async def test_prepared_accounts_are_taken_once_each_and_the_unused_deleted(xmpp
     accounts = EphemeralAccounts(s, owner="platform-x")
     accounts.prepare("cloud-app", 3)
     accounts.prepare("cloud-app", 3)  # topped up to 3, not 3 more
-    taken = [await accounts.take("cloud-app") for _ in range(2)]
     await wait_until(lambda: len(accounts.pending()) >= 3, timeout=10, what="three accounts made")
     await asyncio.sleep(0.3)
-    assert len(accounts.pending()) == 3
-    assert len({i.name for i in taken}) == 2 and all(i.name.startswith("cloud-app-") for i in taken)
-    for ident in taken:  # made before it was taken: logs in at once
+    made = accounts.pending()
+    assert len(made) == 3
+    taken = [await accounts.take("cloud-app") for _ in range(2)]
+    assert len({i.name for i in taken}) == 2 and {i.name for i in taken} <= set(made)  # made ahead, not now
+    for ident in taken:
         await probe_login(s.host, s.port, s.domain, user=ident.name, password=ident.password, register=False)
     await accounts.close()  # the third, never taken, is deleted; the taken ones are their runs'
     assert set(accounts.pending()) == {i.name for i in taken}
+    (spare,) = set(made) - {i.name for i in taken}
+    with pytest.raises(LoginError):
+        await probe_login(s.host, s.port, s.domain, user=spare, password=made[spare], register=False)
     for ident in taken:
         assert await accounts.delete(ident.name)
     assert accounts.pending() == {}
