@@ -126,6 +126,8 @@ class HazardFleet:
         import subprocess
         import sys
 
+        from xmpp_server.process import dies_with_parent
+
         env = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_")}
         env.update(self.system.settings.to_env(), XDG_DATA_HOME=str(self.workdir / "data"),
                    PYTHONPATH=str(Path(__file__).resolve().parent.parent))
@@ -135,7 +137,8 @@ class HazardFleet:
             with open(self.workdir / f"{name}.log", "ab") as log_file:  # the child keeps its own copy
                 self.processes.append((name, subprocess.Popen(
                     [sys.executable, "-m", "cli.main", "agent", *args], env=env, stdout=log_file,
-                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)))
+                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
+                    preexec_fn=dies_with_parent())))
         await self._wait_log("store", "running", 60)
         await self._wait_log("platform", "running", 60)
         if warm:

@@ -54,3 +54,39 @@ async def test_chat_user_keeps_its_connection_past_the_servers_silence_timeout()
         finally:
             await quiet.stop()
             await other.stop()
+
+
+def test_a_server_dies_with_the_process_that_started_it():
+    """A crashed `rapp run` or benchmark (SIGKILL, a native abort) leaves no server processes."""
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    code = ("from xmpp_server.process import EmbeddedServer; import time; s = EmbeddedServer(); s.start(); "
+            "print(s.proc.pid, flush=True); time.sleep(120)")
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                              cwd=Path(__file__).resolve().parents[1])
+    group = os.getpgid(int(parent.stdout.readline()))
+
+    def members() -> list[int]:
+        found = []
+        for d in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                if int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[2]) == group:
+                    found.append(int(d))
+            except (OSError, IndexError):
+                pass
+        return found
+
+    assert members(), "the server runs"
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 10
+    while members() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = members()
+    for pid in left:
+        os.kill(pid, 9)
+    assert not left, f"server processes outlived the process that started them: {left}"

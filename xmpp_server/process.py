@@ -27,6 +27,28 @@ class ServerStartError(RuntimeError):
     pass
 
 
+def dies_with_parent():
+    """A Popen preexec_fn: the child gets SIGTERM when the thread that started it ends (Linux's
+    parent-death signal; start it from a thread that lives as long as the parent, e.g. the event
+    loop's), so a crashed run or benchmark leaves no server or agent process behind. None where
+    libc or prctl is missing. libc is looked up here: the child only calls it."""
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    prctl = getattr(ctypes.CDLL(name), "prctl", None) if name and sys.platform.startswith("linux") else None
+    if prctl is None:
+        return None
+    parent = os.getpid()
+
+    def arm() -> None:
+        prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # the parent died before it was armed
+            os._exit(1)
+
+    return arm
+
+
 def terminate(proc: subprocess.Popen, timeout: float) -> int:
     """SIGTERM, then SIGKILL after `timeout`, to the server's whole process group (pyjabber forks
     a worker pool that inherits the listening socket: left alone, a killed server's worker kept
@@ -144,7 +166,7 @@ class EmbeddedServer(ManagedServer):
         root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
         self.proc = subprocess.Popen(self.command(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True, env=env, start_new_session=True)
+                                     text=True, env=env, start_new_session=True, preexec_fn=dies_with_parent())
 
     async def astart(self) -> "EmbeddedServer":
         self._spawn()
