@@ -40,6 +40,7 @@ class EphemeralAccounts:
         self._wanted: dict[str, int] = {}  # prefix -> how many accounts to keep made ahead
         self._made: dict[str, list[Identity]] = {}
         self._fillers: dict[str, asyncio.Task] = {}
+        self._making: dict[str, asyncio.Task] = {}  # prefix -> the account being made now
 
     # -- ledger ---------------------------------------------------------------------------
     def _read(self) -> dict[str, str]:
@@ -83,22 +84,24 @@ class EphemeralAccounts:
     async def _fill(self, prefix: str) -> None:
         made = self._made.setdefault(prefix, [])
         while len(made) < self._wanted.get(prefix, 0):
+            self._making[prefix] = making = asyncio.create_task(self._make_one(prefix, made))
             try:
-                made.append(await self.create(prefix))
+                await asyncio.shield(making)
             except LoginError as e:
                 log.info("cannot make an account for %s ahead (%s); each run makes its own", prefix, e)
                 return
 
+    async def _make_one(self, prefix: str, made: list[Identity]) -> None:
+        made.append(await self.create(prefix))
+
     async def take(self, prefix: str) -> Identity:
-        """An account made ahead for `prefix` (the one being made, when that is all there is), or a
-        new one."""
+        """An account made ahead for `prefix`; with none made, the one being made (its
+        registration is under way: cheaper than another), else a new one."""
+        making = self._making.get(prefix)
+        if not self._made.get(prefix) and making is not None and not making.done():
+            await asyncio.wait([making])  # a failure is the filler's to log
         made = self._made.get(prefix)
-        if not made and (filler := self._fillers.get(prefix)) is not None and not filler.done() \
-                and self._wanted.get(prefix) == 1:
-            await asyncio.shield(filler)  # the Core's one spare, nearly made: cheaper than another
-        if made:
-            return made.pop(0)
-        return await self.create(prefix)
+        return made.pop(0) if made else await self.create(prefix)
 
     async def delete(self, name: str, password: str | None = None) -> bool:
         """Delete the account; True when gone (also when it no longer existed)."""
@@ -147,5 +150,6 @@ class EphemeralAccounts:
         await asyncio.gather(*self._fillers.values(), return_exceptions=True)
         spare = [ident for made in self._made.values() for ident in made]
         self._fillers.clear()
+        self._making.clear()
         self._made.clear()
         await asyncio.gather(*(self.delete(i.name, i.password) for i in spare))

@@ -379,18 +379,24 @@ def _niced(preexec, nice: int):
     return run
 
 
-def set_priority(pid: int, nice: int) -> None:
-    """Every thread of `pid` to `nice` (Linux keeps one per thread: a warm worker's BLAS threads
-    started at its low priority). PermissionError where raising it needs a privilege we lack."""
+def each_thread(pid: int, call) -> None:
+    """`call(tid)` for every thread of `pid`: Linux keeps a priority and a scheduling policy per
+    thread (a warm worker's BLAS threads started at its low priority). A thread that ends meanwhile
+    is skipped."""
     try:
         tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
     except OSError:
         tids = [pid]
     for tid in tids:
         try:
-            os.setpriority(os.PRIO_PROCESS, tid, nice)
+            call(tid)
         except ProcessLookupError:
-            pass  # a thread that just ended
+            pass
+
+
+def set_priority(pid: int, nice: int) -> None:
+    """Every thread of `pid` to `nice`; PermissionError where raising it needs a privilege we lack."""
+    each_thread(pid, lambda tid: os.setpriority(os.PRIO_PROCESS, tid, nice))
 
 
 def may_raise_priority() -> bool:

@@ -73,11 +73,9 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
 
 def run_when_idle(pid: int) -> None:
     """Every thread of `pid` under SCHED_IDLE (no privilege needed to lower one's own children)."""
-    for tid in os.listdir(f"/proc/{pid}/task"):
-        try:
-            os.sched_setscheduler(int(tid), os.SCHED_IDLE, os.sched_param(0))
-        except ProcessLookupError:
-            pass
+    from agents.process import each_thread
+
+    each_thread(pid, lambda tid: os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0)))
 
 
 class HazardFleet:

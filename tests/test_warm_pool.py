@@ -172,7 +172,7 @@ def test_a_pool_refuses_what_is_not_a_module_name_to_import_ahead(settings, tmp_
     assert WarmPool(tmp_path, settings, preload=("rapps.sdk", "scipy.optimize")).preload == ("rapps.sdk", "scipy.optimize")
 
 
-def test_the_runtime_imports_a_warm_workers_extra_modules_before_it_says_ready():
+def test_the_runtime_imports_the_extra_modules_it_is_given_and_skips_missing_ones():
     import subprocess
     import sys
 

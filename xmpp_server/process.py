@@ -9,6 +9,7 @@ disconnects mid-query), so it lives in a temporary directory unless `db` is give
 from __future__ import annotations
 
 import asyncio
+import functools
 import os
 import signal
 import socket
@@ -27,22 +28,32 @@ class ServerStartError(RuntimeError):
     pass
 
 
+@functools.lru_cache(maxsize=1)
+def libc():
+    """The C library (errno kept), looked up once (find_library runs ldconfig); None without one."""
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    return ctypes.CDLL(name, use_errno=True) if name else None
+
+
+PR_SET_PDEATHSIG = 1
+
+
 def dies_with_parent():
     """A Popen preexec_fn: the child gets SIGTERM when the thread that started it ends (Linux's
     parent-death signal; start it from a thread that lives as long as the parent, e.g. the event
     loop's), so a crashed run or benchmark leaves no server or agent process behind. None where
     libc or prctl is missing. libc is looked up here: the child only calls it."""
-    import ctypes
-    import ctypes.util
-
-    name = ctypes.util.find_library("c")
-    prctl = getattr(ctypes.CDLL(name), "prctl", None) if name and sys.platform.startswith("linux") else None
+    lib = libc() if sys.platform.startswith("linux") else None
+    prctl = getattr(lib, "prctl", None)
     if prctl is None:
         return None
     parent = os.getpid()
 
     def arm() -> None:
-        prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+        prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
         if os.getppid() != parent:  # the parent died before it was armed
             os._exit(1)
 
