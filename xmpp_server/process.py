@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .ports import free_port
+from .ports import EXIT_PORT_IN_USE, free_port
 from .probe import LoginError, probe_login
 from .settings import XmppSettings
 
@@ -148,6 +148,7 @@ class EmbeddedServer(ManagedServer):
                  start_timeout: float = 20.0, connection_timeout: int | None = None):
         self.host = host
         self.port = port or free_port(host)
+        self.port_chosen = port is None  # ours to change until the server first listens
         self.domain = domain
         self.memory = memory
         self._tmp = None if (db or memory) else tempfile.TemporaryDirectory(prefix="rapp-xmpp-")
@@ -180,12 +181,24 @@ class EmbeddedServer(ManagedServer):
                                      text=True, env=env, start_new_session=True, preexec_fn=dies_with_parent())
 
     async def astart(self) -> "EmbeddedServer":
-        self._spawn()
+        """Start and wait for a real login. A port found in use is retried until the deadline (a
+        restart on the old port: another listener may hold it a moment) or, at a first start on a
+        port this object chose, replaced by another free one."""
         deadline = time.monotonic() + self.start_timeout
-        line = await asyncio.to_thread(self._read_ready_line, deadline)
-        if not line.startswith("READY"):
+        while True:
+            self._spawn()
+            line = await asyncio.to_thread(self._read_ready_line, deadline)
+            if line.startswith("READY"):
+                self.port_chosen = False  # clients know it now: a restart keeps it
+                break
+            in_use = self.proc.poll() == EXIT_PORT_IN_USE
             self.stop()
-            raise ServerStartError(f"embedded XMPP server did not start: {line}")
+            if not in_use or time.monotonic() > deadline:
+                raise ServerStartError(f"embedded XMPP server did not start: {line}")
+            if self.port_chosen:
+                self.port = free_port(self.host)
+            else:
+                await asyncio.sleep(0.2)
         last: Exception | None = None
         while time.monotonic() < deadline:
             try:
@@ -200,9 +213,12 @@ class EmbeddedServer(ManagedServer):
     def _read_ready_line(self, deadline: float) -> str:
         assert self.proc and self.proc.stdout
         line = self.proc.stdout.readline().strip()  # the child prints READY once listening
-        if not line:
-            err = self.proc.stderr.read() if self.proc.poll() is not None else ""
-            return f"process exited ({self.proc.poll()}): {err.strip()[-2000:]}"
+        if not line:  # its output closed: it is exiting (not necessarily reaped yet)
+            try:
+                self.proc.wait(max(0.5, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                return "its output closed but it did not exit"
+            return f"process exited ({self.proc.returncode}): {self.proc.stderr.read().strip()[-2000:]}"
         return line
 
     def stop(self, timeout: float = 5.0) -> None:
