@@ -116,7 +116,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                  limits: Limits = Limits(), say_reports: bool = True,
                  safety_distance: float | None = 0.10, safety_period: float = 0.2,
                  dynamic_mode: str = "process", sandbox: Sandbox | None = None, hear_audio: bool = True,
-                 warm_workers: int = 1, voice_supervision: bool = False):
+                 warm_workers: int = 1, warm_imports: tuple[str, ...] = (), voice_supervision: bool = False):
         super().__init__(name, settings)
         self.accounts = EphemeralAccounts(self.settings, owner=name)
         self.sandbox = sandbox or Sandbox()
@@ -157,7 +157,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         check_spawn_mode(dynamic_mode, "dynamic_mode")
         self.dynamic_mode = dynamic_mode
         # Dynamic Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
-        self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox)
+        self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
+                                  preload=warm_imports)  # modules its Dynamic Agents import ahead
         self.estop_reason: str | None = None
         self.estop_by: str | None = None
         self.subscriptions: dict[str, set[str]] = {}  # sensor events (agents/core_events.py)

@@ -37,7 +37,10 @@ class EphemeralAccounts:
         self.settings, self.timeout = settings, timeout
         directory = Path(settings.credentials_dir) if settings.credentials_dir else default_credentials_dir()
         self.ledger = directory / f"{owner}.ephemeral.json"
-        self._spare: dict[str, asyncio.Task] = {}
+        self._wanted: dict[str, int] = {}  # prefix -> how many accounts to keep made ahead
+        self._made: dict[str, list[Identity]] = {}
+        self._fillers: dict[str, asyncio.Task] = {}
+        self._making: dict[str, asyncio.Task] = {}  # prefix -> the account being made now
 
     # -- ledger ---------------------------------------------------------------------------
     def _read(self) -> dict[str, str]:
@@ -69,20 +72,36 @@ class EphemeralAccounts:
             raise
         return ident
 
-    def prepare(self, prefix: str) -> None:
-        """Create the next account for `prefix` in the background (a hand-off then only logs in)."""
-        if prefix not in self._spare:
-            self._spare[prefix] = asyncio.create_task(self.create(prefix))
+    def prepare(self, prefix: str, count: int = 1) -> None:
+        """Keep `count` accounts for `prefix` made ahead, made one after another in the background
+        (a hand-off then only logs in; the Platform keeps one per warm Cloud worker for a fleet's
+        burst of starts, and made all at once they slowed the start that asked for them)."""
+        self._wanted[prefix] = max(count, self._wanted.get(prefix, 0))
+        filler = self._fillers.get(prefix)
+        if filler is None or filler.done():
+            self._fillers[prefix] = asyncio.create_task(self._fill(prefix))
+
+    async def _fill(self, prefix: str) -> None:
+        made = self._made.setdefault(prefix, [])
+        while len(made) < self._wanted.get(prefix, 0):
+            self._making[prefix] = making = asyncio.create_task(self._make_one(prefix, made))
+            try:
+                await asyncio.shield(making)
+            except LoginError as e:
+                log.info("cannot make an account for %s ahead (%s); each run makes its own", prefix, e)
+                return
+
+    async def _make_one(self, prefix: str, made: list[Identity]) -> None:
+        made.append(await self.create(prefix))
 
     async def take(self, prefix: str) -> Identity:
-        """The prepared account for `prefix`, or a new one."""
-        task = self._spare.pop(prefix, None)
-        if task is not None:
-            try:
-                return await task
-            except (LoginError, asyncio.CancelledError) as e:
-                log.info("prepared account for %s failed (%s); creating one now", prefix, e)
-        return await self.create(prefix)
+        """An account made ahead for `prefix`; with none made, the one being made (its
+        registration is under way: cheaper than another), else a new one."""
+        making = self._making.get(prefix)
+        if not self._made.get(prefix) and making is not None and not making.done():
+            await asyncio.wait([making])  # a failure is the filler's to log
+        made = self._made.get(prefix)
+        return made.pop(0) if made else await self.create(prefix)
 
     async def delete(self, name: str, password: str | None = None) -> bool:
         """Delete the account; True when gone (also when it no longer existed)."""
@@ -126,11 +145,11 @@ class EphemeralAccounts:
         return gone
 
     async def close(self) -> None:
-        """Delete prepared, unused accounts."""
-        for prefix, task in list(self._spare.items()):
-            self._spare.pop(prefix, None)
-            try:
-                ident = await task
-            except (LoginError, asyncio.CancelledError):
-                continue
-            await self.delete(ident.name, ident.password)
+        """Delete the accounts made ahead and not taken."""
+        self._wanted.clear()  # the fillers stop after the account in progress
+        await asyncio.gather(*self._fillers.values(), return_exceptions=True)
+        spare = [ident for made in self._made.values() for ident in made]
+        self._fillers.clear()
+        self._making.clear()
+        self._made.clear()
+        await asyncio.gather(*(self.delete(i.name, i.password) for i in spare))

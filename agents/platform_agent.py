@@ -36,6 +36,7 @@ from . import platform_directory as D
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError, RequestRefused
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
+from .runtime import WARM_EXTRA_IMPORTS
 from .responder import Responder
 from .store_client import download_package
 from .identity import EphemeralAccounts, Identity
@@ -72,7 +73,7 @@ class PlatformAgent(RappAgent):
                  limits: Limits = Limits(), services: dict | None = None, services_state=None,
                  data_dir: str | Path | None = None, sandbox: Sandbox | None = None,
                  cloud_mode: str = "process", warm_workers: int = 1, service_workers: int | None = None,
-                 primary: str | None = None, replicas=()):
+                 primary: str | None = None, replicas=(), warm_imports: tuple[str, ...] = WARM_EXTRA_IMPORTS):
         super().__init__(name, settings)
         self.cloud_mode = check_spawn_mode(cloud_mode, "cloud_mode")
         from agents.services.context import ServiceState
@@ -94,11 +95,13 @@ class PlatformAgent(RappAgent):
         self.sandbox = sandbox or Sandbox()
         self.robots: dict[str, P.RegisterRobot] = {}
         self.clouds: dict[str, CloudSession] = {}
+        self._cleanups: set[asyncio.Task] = set()  # stopped Cloud Agents' accounts and directories
         self.max_pending, self.pending = max_pending, 0
         self.limits = limits
         # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
+        # Cloud parts compute: numpy, cv2, scipy imported ahead (`warm_imports`, and what the builder adds)
         self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
-                                  preload_extra=True)  # Cloud parts compute: numpy, cv2, scipy ready
+                                  preload=warm_imports)
         self._pool_started = False
         self.served = 0
         self._serial = itertools.count(1)
@@ -155,6 +158,12 @@ class PlatformAgent(RappAgent):
         await self.warm_pool.close()  # idle workers killed and reaped
         for cloud in list(self.clouds.values()):
             await self._kill_cloud(cloud, "platform stopping")
+        if self._cleanups:  # an account not deleted by then stays in the ledger for the next start
+            await asyncio.wait(list(self._cleanups), timeout=5.0)
+        try:  # prepared, unused accounts (any left stay in the ledger for the next start's sweep)
+            await asyncio.wait_for(self.accounts.close(), 10.0)
+        except asyncio.TimeoutError:
+            log.warning("prepared Cloud Agent accounts not all deleted; the next start sweeps them")
         await super().stop()
         self.directory.close()
         await asyncio.to_thread(sweep_run_dirs, self.workdir, self._own_workdir)
@@ -379,8 +388,9 @@ class PlatformAgent(RappAgent):
         n = next(self._serial)
         workdir = self.workdir / f"{n:04d}-{info.name}"
         await asyncio.to_thread(unpack_package, data, workdir / "package")
+        prefix = f"cloud-{info.name}".replace("_", "-")
         try:
-            ident = await self.accounts.create(f"cloud-{info.name}".replace("_", "-"))
+            ident = await self.accounts.take(prefix)
         except LoginError as e:
             raise Failure(f"cannot create the Cloud Agent's account: {e}", ErrorCode.CLOUD_START) from None
         jid = self.settings.jid(ident.name)
@@ -410,6 +420,8 @@ class PlatformAgent(RappAgent):
             await self._kill_cloud(session, "did not start")
             raise Failure(f"Cloud Agent of {req.rapp} did not start: {proc.stderr_tail(500)}", ErrorCode.CLOUD_START)
         exited.cancel()
+        # the next starts of this RApp only log in: accounts made one by one behind this start, not during it
+        self.accounts.prepare(prefix, max(1, self.warm_pool.size))
         session.restartable = bool(info.manifest.get("cloud_restartable"))
         session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)
@@ -499,6 +511,13 @@ class PlatformAgent(RappAgent):
         self.record_structure("cloud-destroy", cloud=session.jid, rapp=session.rapp, reason=reason,
                               exit_code=code)
         await self.revoke_token(session.token)
+        # the process is gone and its token dead: the account (a login of its own) and the run
+        # directory go after the reply (a fleet's 20 stops at once waited ~250 ms for them)
+        cleanup = asyncio.create_task(self._clean_up_after(session))
+        self._cleanups.add(cleanup)
+        cleanup.add_done_callback(self._cleanups.discard)
+
+    async def _clean_up_after(self, session: CloudSession) -> None:
         gone = await self.accounts.delete(session.account.name, session.account.password)
         self.record_structure("account-deleted" if gone else "account-kept", account=session.jid)
-        shutil.rmtree(session.process.workdir, ignore_errors=True)
+        await asyncio.to_thread(shutil.rmtree, session.process.workdir, ignore_errors=True)

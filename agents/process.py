@@ -94,9 +94,10 @@ class AgentProcess:
     down the worker's pipe; without one idle it starts a process as before (a cold start)."""
 
     def __init__(self, name: str, spec: SpawnSpec | None, workdir: Path, settings, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None, pool=None, preload_extra: bool = False):
+                 sandbox: Sandbox | None = None, pool=None, preload: tuple[str, ...] = (), nice: int = 0):
         self.name = name
-        self.preload_extra = preload_extra  # a warm worker: numpy, cv2, scipy too (agents/runtime.py)
+        self.preload = check_module_names(preload)  # a warm worker imports these too (agents/runtime.py)
+        self.nice = nice  # a warm worker's priority while idle (raised back at its hand-off)
         self.workdir = Path(workdir)
         self.settings, self.limits = settings, limits
         self.sandbox = sandbox or Sandbox()
@@ -137,7 +138,7 @@ class AgentProcess:
         worker._forget_ready()
         self.spec, self.warm = self._placed(self._given), True
         try:
-            await asyncio.to_thread(self._hand_over, worker.workdir, spec_w)
+            await asyncio.to_thread(self._hand_over, worker.workdir, spec_w, worker.nice)
             return True
         except BrokenPipeError:
             await self.stop(grace=0.0)
@@ -149,11 +150,16 @@ class AgentProcess:
             await self.stop(grace=0.0)  # a worker whose hand-off failed is never left running
             raise
 
-    def _hand_over(self, warm_dir: Path, spec_w: int) -> None:
+    def _hand_over(self, warm_dir: Path, spec_w: int, worker_nice: int = 0) -> None:
         """Package into the worker's directory (its /app), given to its uid as Sandbox.prepare
         does; the directory takes this run's name (the worker's bind mount follows the directory,
         not its name); then the spec, which the worker has been blocked reading."""
         try:
+            if worker_nice:  # the run at its parent's priority (the pool lowers it only where it may)
+                try:
+                    set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0))
+                except PermissionError:
+                    pass
             os.replace(self.workdir / "package", warm_dir / "package")
             if self.uid is not None:
                 for p in [warm_dir / "package", *(warm_dir / "package").rglob("*")]:
@@ -186,8 +192,8 @@ class AgentProcess:
                 keep.append(ready_r)
                 fds.append(ready_w)
                 extra["RAPP_READY_FD"] = str(ready_w)
-                if self.preload_extra:
-                    extra["RAPP_PRELOAD_EXTRA"] = "1"
+                if self.preload:
+                    extra["RAPP_PRELOAD"] = ",".join(self.preload)
             if self.settings.trace_file:  # append-only: the child can add lines, not read any
                 trace_fd = os.open(self.settings.trace_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
                 fds.append(trace_fd)
@@ -196,7 +202,7 @@ class AgentProcess:
                 proc = subprocess.Popen(
                     self.argv, cwd=self.workdir, env=self.sandbox.env(self.settings, extra), stdout=out,
                     stderr=err, stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=fds,
-                    preexec_fn=self.sandbox.preexec(self.workdir, self.uid, self.limits))
+                    preexec_fn=_niced(self.sandbox.preexec(self.workdir, self.uid, self.limits), self.nice))
         except BaseException:
             for fd in keep:
                 os.close(fd)
@@ -352,6 +358,54 @@ def spawn_agent(spec: SpawnSpec, workdir: Path, settings, *, mode: str = "proces
     if check_spawn_mode(mode) == "inprocess":
         return InProcessAgent(spec.name, spec, workdir, settings)
     return AgentProcess(spec.name, spec, workdir, settings, limits, sandbox, pool)
+
+
+def check_module_names(names) -> tuple[str, ...]:
+    names = tuple(names)
+    bad = [n for n in names if not all(part.isidentifier() for part in str(n).split("."))]
+    if bad:
+        raise ValueError(f"not module names: {bad}")
+    return names
+
+
+def _niced(preexec, nice: int):
+    if not nice:
+        return preexec
+
+    def run() -> None:
+        preexec()
+        os.nice(nice)  # lowering needs no privilege; after the uid change, so it is the run's own
+
+    return run
+
+
+def each_thread(pid: int, call) -> None:
+    """`call(tid)` for every thread of `pid`: Linux keeps a priority and a scheduling policy per
+    thread (a warm worker's BLAS threads started at its low priority). A thread that ends meanwhile
+    is skipped."""
+    try:
+        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        tids = [pid]
+    for tid in tids:
+        try:
+            call(tid)
+        except ProcessLookupError:
+            pass
+
+
+def set_priority(pid: int, nice: int) -> None:
+    """Every thread of `pid` to `nice`; PermissionError where raising it needs a privilege we lack."""
+    each_thread(pid, lambda tid: os.setpriority(os.PRIO_PROCESS, tid, nice))
+
+
+def may_raise_priority() -> bool:
+    """Whether this process can give a child it lowered its own priority back (root, or an
+    RLIMIT_NICE that allows it)."""
+    if os.geteuid() == 0:
+        return True
+    own = os.getpriority(os.PRIO_PROCESS, 0)
+    return 20 - resource.getrlimit(resource.RLIMIT_NICE)[0] <= own
 
 
 def _fresh(workdir: Path) -> bool:

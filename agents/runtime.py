@@ -109,22 +109,24 @@ LATER_IMPORTS = ("uvloop", "ctypes", "jinja2_time", "encodings.idna", "stringpre
                  "ontology.robot", "ontology.services")
 
 
-# what RApps' own modules commonly import (the SDK's vision helpers, the hazard RApp's Cloud part):
-# ~1 s of a warm Cloud Agent's 1.1 s start in bench/fleet.py. The Platform's warm workers import
-# them ahead of time (WarmPool(preload_extra=True); ~60 MB more per idle worker); a cold start does
-# not (a RApp without them would pay), nor a Core's (a robot's memory; a bigger process also forks
-# slower, which the sandbox's fork-limit test felt under load)
+# what RApps' own modules commonly import (the hazard RApp's Cloud part): ~1 s of a warm Cloud
+# Agent's 1.1 s start in bench/fleet.py. The Platform's warm workers import them ahead of time
+# (PlatformAgent(warm_imports=...), ~60 MB more per idle worker, the SDK added by whoever builds the
+# Platform: a layer above this one); a cold start does not (a RApp without them would pay), nor a
+# Core's by default (a robot's memory; a bigger process also forks slower, which the sandbox's
+# fork-limit test felt under load)
 WARM_EXTRA_IMPORTS = ("numpy", "cv2", "scipy.optimize")
 
 
-def preload(warm: bool = False) -> None:
-    """Import what every run needs before the spec is read: a warm worker (agents/warm_pool.py)
-    does this ahead of time, so a hand-off costs no interpreter start and no SPADE import."""
+def preload(extra: tuple[str, ...] = ()) -> None:
+    """Import what every run needs before the spec is read, and a warm worker's `extra` modules
+    (agents/warm_pool.py does this ahead of time: a hand-off costs no interpreter start and no SPADE
+    import)."""
     from xmpp_server.settings import XmppSettings  # noqa: F401
     from . import cloud_agent, dynamic_agent  # noqa: F401 - SPADE, slixmpp, the project's agents
 
     env = dict(os.environ)
-    for name in LATER_IMPORTS + (WARM_EXTRA_IMPORTS if warm else ()):
+    for name in LATER_IMPORTS + tuple(extra):
         try:
             importlib.import_module(name)
         except ImportError:  # a dependency's other version: imported at first use, as before
@@ -157,9 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     if trace_fd:
         from .tracing import inherit_trace_fd
         inherit_trace_fd(int(trace_fd))
-    # a warm worker of a pool that asked for them (the Platform's): the RApps' usual imports too
-    extra = os.environ.pop("RAPP_PRELOAD_EXTRA", "") == "1" and "RAPP_READY_FD" in os.environ
-    preload(warm=extra)
+    # a warm worker of a pool that names them (PlatformAgent/CoreAgent warm_imports): RApps' usual imports
+    extra = os.environ.pop("RAPP_PRELOAD", "")
+    preload(tuple(n for n in extra.split(",") if n) if "RAPP_READY_FD" in os.environ else ())
     say_ready()
     return asyncio.run(run_spec(read_spec()))
 

@@ -20,7 +20,6 @@ network; a deployment restricts the sandbox uids to the XMPP server with a firew
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 import os
 import secrets
@@ -29,6 +28,8 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from xmpp_server.process import PR_SET_PDEATHSIG, libc
 
 UID_BASE = 0x5AF0_0000  # sandbox uids: UID_BASE .. UID_BASE + 2**20, no account of the machine
 APP_DIR = "/app"
@@ -40,7 +41,7 @@ ENV_ALLOWED = ("PATH", "LANG", "LC_ALL", "LC_CTYPE", "TZ")
 _CLONE_NEWNS = 0x00020000
 _MS_RDONLY, _MS_NOSUID, _MS_NODEV, _MS_REMOUNT = 0x1, 0x2, 0x4, 0x20
 _MS_BIND, _MS_REC, _MS_PRIVATE = 0x1000, 0x4000, 0x40000
-_PR_SET_PDEATHSIG, _PR_SET_NO_NEW_PRIVS = 1, 38
+_PR_SET_NO_NEW_PRIVS = 38
 
 
 class SandboxError(RuntimeError):
@@ -52,7 +53,7 @@ def available() -> bool:
     """Can this process build the sandbox? Root on Linux, and a mount namespace can really be made
     (a root without CAP_SYS_ADMIN, as in an unprivileged container, cannot): tried once, in a
     throwaway child."""
-    if not (sys.platform.startswith("linux") and os.geteuid() == 0 and _libc() is not None):
+    if not (sys.platform.startswith("linux") and os.geteuid() == 0 and libc() is not None):
         return False
     probe = ("import ctypes, ctypes.util, sys; libc = ctypes.CDLL(ctypes.util.find_library('c')); "
              f"sys.exit(0 if libc.unshare({_CLONE_NEWNS}) == 0 else 1)")
@@ -60,17 +61,6 @@ def available() -> bool:
         return subprocess.run([sys.executable, "-c", probe], timeout=20, capture_output=True).returncode == 0
     except (OSError, subprocess.TimeoutExpired):
         return False
-
-
-_LIBC = None
-
-
-def _libc():
-    global _LIBC
-    if _LIBC is None:
-        name = ctypes.util.find_library("c")
-        _LIBC = ctypes.CDLL(name, use_errno=True) if name else False
-    return _LIBC or None
 
 
 def _check(ret: int, what: str) -> None:
@@ -134,19 +124,19 @@ class Sandbox:
     def preexec(self, workdir: Path, uid: int | None, limits):
         """The function Popen runs in the child between fork and exec (as root)."""
         binds = self._binds(workdir) if uid is not None else []
-        libc, parent = _libc(), os.getpid()
+        lib, parent = libc(), os.getpid()
 
         def run() -> None:
             try:
                 limits.apply(own_uid=uid is not None)
                 if uid is not None:
-                    _enter(libc, Path(workdir) / ".root", binds, self.tmpfs_mb)
+                    _enter(lib, Path(workdir) / ".root", binds, self.tmpfs_mb)
                     os.setgroups([])
                     os.setresgid(uid, uid, uid)
                     os.setresuid(uid, uid, uid)
-                    _check(libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")
-                if libc is not None:  # after the uid change, which clears it: dies with its Core/Platform
-                    _check(libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0), "parent-death signal")
+                    _check(lib.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")
+                if lib is not None:  # after the uid change, which clears it: dies with its Core/Platform
+                    _check(lib.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0), "parent-death signal")
                     if os.getppid() != parent:
                         os._exit(125)  # the parent died before the signal was armed
             except BaseException as e:  # noqa: BLE001 - say why in stderr.log, never exec unconfined

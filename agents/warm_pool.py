@@ -8,7 +8,8 @@ preexec), with the runtime imported, blocked reading its spec. A hand-off takes 
 (`AgentProcess.start` with `pool=`), moves the package into its directory and sends the spec: the
 worker becomes that Dynamic/Cloud Agent and is never used again (one process per RApp run).
 
-The pool refills in the background shortly after each hand-off. A worker that died while idle is
+The pool refills in the background shortly after each hand-off, each new worker importing at a
+lower priority until its own hand-off gives it its parent's (REFILL_NICE). A worker that died while idle is
 reaped and replaced (after a back-off, should workers keep dying), never handed a RApp. `close()`
 kills and reaps the idle workers and removes their directories.
 """
@@ -21,7 +22,7 @@ import shutil
 from collections import deque
 from pathlib import Path
 
-from .process import AgentProcess, Limits
+from .process import AgentProcess, Limits, check_module_names, may_raise_priority
 from .sandbox import Sandbox
 
 log = logging.getLogger("rapp.warm")
@@ -30,16 +31,23 @@ MAX_BACKOFF_S = 30.0
 # preexec function forks holding the GIL) and the new worker's imports would otherwise slow the
 # hand-off it follows (bench/handoff.py: download -> spawn 23 ms without the wait, 10 ms with it)
 REFILL_AFTER_S = 0.5
+# a refill's worker imports at this lower priority (nice increment) until its own hand-off: after a
+# burst of hand-offs the pool refills many at once (~1 s of CPU each with the Platform's imports),
+# which competed with the runs just started (bench/fleet.py, start_cloud_agent). The first fill
+# runs at normal priority: nothing is waiting for a hand-off yet, and the owner waits for it.
+REFILL_NICE = 10
 
 
 class WarmPool:
     def __init__(self, workdir: str | Path, settings, *, size: int = 1, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None, preload_extra: bool = False):
+                 sandbox: Sandbox | None = None, preload: tuple[str, ...] = (), refill_nice: int = REFILL_NICE):
         if not isinstance(size, int) or size < 0:
             raise ValueError(f"warm_workers must be a whole number >= 0, not {size!r}")
         self.workdir, self.settings, self.size = Path(workdir), settings, size
         self.limits, self.sandbox = limits, sandbox or Sandbox()
-        self.preload_extra = preload_extra  # workers import numpy, cv2, scipy too (agents/runtime.py)
+        self.preload = check_module_names(preload)  # modules workers import too, ahead of time (agents/runtime.py)
+        # only where the hand-off can raise it back (root, as the sandbox needs, or RLIMIT_NICE)
+        self.refill_nice = refill_nice if refill_nice and may_raise_priority() else 0
         self._idle: deque[AgentProcess] = deque()
         self._serial = itertools.count(1)
         self._filler: asyncio.Task | None = None
@@ -104,8 +112,10 @@ class WarmPool:
         while not self._closing.is_set() and len(self._idle) < self.size:
             if self._failures and await self._backed_off():
                 return
+            refill = self.started >= self.size
             worker = AgentProcess("warm", None, self.workdir / f"{next(self._serial):04d}-.warm", self.settings,
-                                  self.limits, self.sandbox, preload_extra=self.preload_extra)
+                                  self.limits, self.sandbox, preload=self.preload,
+                                  nice=self.refill_nice if refill else 0)
             try:
                 await worker.start()
             except Exception as e:  # noqa: BLE001 - logged; hand-offs start cold meanwhile

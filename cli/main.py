@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import faulthandler
 import sys
 from pathlib import Path
 
@@ -349,6 +350,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    try:  # a native crash in a library prints every thread's Python stack to stderr
+        faulthandler.enable()
+    except (OSError, ValueError, AttributeError):  # stderr is no file (captured, embedded): no stacks then
+        pass
     debug = "--debug" in argv
     if debug:
         argv.remove("--debug")

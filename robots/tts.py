@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import ctypes
 import threading
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +42,21 @@ def _collect(wav, n, events):  # called by espeak_Synth, in the calling thread, 
     return 0
 
 
-@lru_cache(maxsize=1)
+_engine_made: tuple[ctypes.CDLL, int] | None = None
+
+
 def _engine() -> tuple[ctypes.CDLL, int]:
+    """The library, initialised once per process. Under the lock: two first calls at once (20 NAOs
+    speaking in one process) both ran espeak_Initialize, and glibc aborted on a corrupted heap."""
+    global _engine_made
+    if _engine_made is None:
+        with _lock:
+            if _engine_made is None:
+                _engine_made = _initialise()
+    return _engine_made
+
+
+def _initialise() -> tuple[ctypes.CDLL, int]:
     try:
         import espeakng_loader
     except ImportError:

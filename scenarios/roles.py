@@ -59,6 +59,7 @@ async def _store(a, settings) -> None:
 async def _platform(a, settings) -> None:
     from agents.platform_agent import PlatformAgent
     from agents.services.context import ServiceState
+    from scenarios.system import CLOUD_WARM_IMPORTS
 
     # a second Platform on the same machine (a replica) must not share the first one's files
     home = data_dir(a.name or "platform", a.data)
@@ -68,6 +69,7 @@ async def _platform(a, settings) -> None:
     platform = PlatformAgent(a.name or "platform", store=a.store, settings=settings, services_state=state,
                              data_dir=home, workdir=a.workdir or home / "work", sandbox=sandbox(a),
                              primary=a.primary, replicas=a.replica, service_workers=a.service_workers,
+                             warm_imports=CLOUD_WARM_IMPORTS,
                              **({"warm_workers": a.warm_workers} if a.warm_workers is not None else {}))
     async def fill_pool() -> None:  # asked for: filled from the start, not at the first Cloud Agent
         if a.warm_workers:
@@ -130,6 +132,7 @@ def sandbox(a):
 async def _core(a, settings) -> None:
     from agents.core_agent import CoreAgent
     from robots import RobotAPI, World
+    from scenarios.system import DYNAMIC_WARM_IMPORTS
 
     world = World.from_file(a.house, seed=a.seed, rtf=a.rtf)
     api = RobotAPI(world.add_robot(a.robot))
@@ -138,7 +141,7 @@ async def _core(a, settings) -> None:
                      owner=a.owner, platform=a.platform, store=a.store, user=a.owner,
                      password=owner_password(a, settings), settings=settings, sandbox=sandbox(a),
                      workdir=a.workdir or data_dir(f"core-{robot_id}", None) / "work",
-                     **trust(a))
+                     warm_imports=DYNAMIC_WARM_IMPORTS, **trust(a))
 
     async def home() -> None:  # the owner's home description, for RApps that need one
         from scenarios.home_setup import ensure_home

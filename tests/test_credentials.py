@@ -2,6 +2,7 @@
 Platform restart, Store downloads that need a token (issue: RApps are untrusted code)."""
 from __future__ import annotations
 
+import asyncio
 import os
 import stat
 
@@ -14,6 +15,7 @@ from agents.platform_agent import PlatformAgent
 from agents.store_agent import StoreAgent
 from ontology import platform as P
 from ontology import store as S
+from scenarios.system import wait_until
 from xmpp_server.credentials import CredentialError, CredentialStore
 from xmpp_server.probe import LoginError, probe_login, remove_account
 from xmpp_server.settings import XmppSettings
@@ -64,6 +66,30 @@ async def test_ephemeral_account_is_deleted_and_a_crash_leftover_swept(xmpp_serv
     assert again.pending() == {}
     with pytest.raises(LoginError):
         await probe_login(s.host, s.port, s.domain, user=left.name, password=left.password, register=False)
+
+
+async def test_prepared_accounts_are_taken_once_each_and_the_unused_deleted(xmpp_server, tmp_path):
+    """The Platform keeps one made account per warm Cloud worker: a burst of starts only logs in."""
+    s = xmpp_server.settings(credentials_dir=tmp_path)
+    accounts = EphemeralAccounts(s, owner="platform-x")
+    accounts.prepare("cloud-app", 3)
+    accounts.prepare("cloud-app", 3)  # topped up to 3, not 3 more
+    await wait_until(lambda: len(accounts.pending()) >= 3, timeout=10, what="three accounts made")
+    await asyncio.sleep(0.3)
+    made = accounts.pending()
+    assert len(made) == 3
+    taken = [await accounts.take("cloud-app") for _ in range(2)]
+    assert len({i.name for i in taken}) == 2 and {i.name for i in taken} <= set(made)  # made ahead, not now
+    for ident in taken:
+        await probe_login(s.host, s.port, s.domain, user=ident.name, password=ident.password, register=False)
+    await accounts.close()  # the third, never taken, is deleted; the taken ones are their runs'
+    assert set(accounts.pending()) == {i.name for i in taken}
+    (spare,) = set(made) - {i.name for i in taken}
+    with pytest.raises(LoginError):
+        await probe_login(s.host, s.port, s.domain, user=spare, password=made[spare], register=False)
+    for ident in taken:
+        assert await accounts.delete(ident.name)
+    assert accounts.pending() == {}
 
 
 async def test_embedded_server_removes_only_the_logged_in_account(xmpp_server):

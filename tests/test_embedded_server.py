@@ -12,6 +12,8 @@ import pytest
 from scenarios.user import ChatUser
 from xmpp_server import EmbeddedServer
 from xmpp_server.compat import PASSWORD_ROUNDS
+from xmpp_server.ports import ephemeral_range, free_port
+from xmpp_server.process import ServerStartError
 from xmpp_server.probe import LoginError, probe_login
 
 
@@ -54,3 +56,80 @@ async def test_chat_user_keeps_its_connection_past_the_servers_silence_timeout()
         finally:
             await quiet.stop()
             await other.stop()
+
+
+def test_a_server_dies_with_the_process_that_started_it():
+    """A crashed `rapp run` or benchmark (SIGKILL, a native abort) leaves no server processes."""
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    code = ("from xmpp_server.process import EmbeddedServer; import time; s = EmbeddedServer(); s.start(); "
+            "print(s.proc.pid, flush=True); time.sleep(120)")
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                              cwd=Path(__file__).resolve().parents[1])
+    group = os.getpgid(int(parent.stdout.readline()))
+
+    def members() -> list[int]:
+        found = []
+        for d in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                if int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[2]) == group:
+                    found.append(int(d))
+            except (OSError, IndexError):
+                pass
+        return found
+
+    assert members(), "the server runs"
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 10
+    while members() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = members()
+    for pid in left:
+        os.kill(pid, 9)
+    assert not left, f"server processes outlived the process that started them: {left}"
+
+
+def _hold(port: int):
+    import socket
+
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # the stopped server's TIME_WAITs
+    s.bind(("127.0.0.1", port))
+    s.listen()
+    return s
+
+
+async def test_a_restart_waits_for_its_port_and_a_taken_given_port_is_a_clear_error():
+    """A restart on the old port that another listener holds a moment starts once it is free (CI
+    saw pyjabber exit 0 with no message when its port was taken); held past the start timeout,
+    the error names the port."""
+    server = EmbeddedServer(start_timeout=20.0)
+    await server.astart()
+    port = server.port
+    await asyncio.to_thread(server.stop)
+    holder = _hold(port)
+    loop = asyncio.get_running_loop()
+    loop.call_later(1.0, holder.close)
+    t0 = loop.time()
+    await server.astart()
+    try:
+        assert server.port == port and loop.time() - t0 >= 0.9
+        await probe_login(server.host, server.port, server.domain)
+    finally:
+        await asyncio.to_thread(server.close)
+    holder = _hold(port)
+    try:
+        with pytest.raises(ServerStartError, match=f"port {port} .* in use"):
+            await EmbeddedServer(port=port, start_timeout=1.0).astart()
+    finally:
+        holder.close()
+
+
+def test_free_ports_lie_below_the_ephemeral_range_where_clients_take_theirs():
+    low, _ = ephemeral_range()
+    assert all(free_port() < low for _ in range(20))

@@ -16,7 +16,7 @@ import pytest
 
 from agents.process import spawn_agent, sweep_run_dirs
 from agents.tracing import read_trace
-from agents.warm_pool import WarmPool
+from agents.warm_pool import REFILL_NICE, WarmPool
 from ontology.spawn import SpawnSpec
 
 ECHO_APP = Path(__file__).parent / "fixtures" / "echo_app"
@@ -44,6 +44,11 @@ async def logged_in(settings, spec: SpawnSpec, timeout: float = 30.0) -> dict:
             return found[0]
         await asyncio.sleep(0.05)
     raise AssertionError(f"{jid} did not log in within {timeout}s")
+
+
+def thread_priorities(pid: int) -> set[int]:
+    """The nice values of every thread of `pid` (Linux keeps one per thread)."""
+    return {os.getpriority(os.PRIO_PROCESS, int(t)) for t in os.listdir(f"/proc/{pid}/task")}
 
 
 def gone(pid: int) -> bool:
@@ -84,6 +89,9 @@ async def test_a_hand_off_goes_to_the_prestarted_worker_and_the_pool_refills(set
         if uid is not None:  # the sandbox: the package is the run's uid's, the process runs as it
             assert (run / "package" / "manifest.yaml").stat().st_uid == uid
             assert os.stat(f"/proc/{agent.pid}").st_uid == uid
+        # the run is at its parent's priority: the pool's first fill was, and the hand-off keeps it
+        base = os.getpriority(os.PRIO_PROCESS, 0)
+        assert worker.nice == 0 and thread_priorities(agent.pid) == {base}
         await pool.wait_ready(60)  # refilled in the background: a new process, a new uid
         [fresh] = pool.idle
         assert fresh.pid != worker.pid and pool.started == 2
@@ -93,6 +101,27 @@ async def test_a_hand_off_goes_to_the_prestarted_worker_and_the_pool_refills(set
         await pool.close()
     assert pool.idle == [] and fresh.returncode is not None and gone(fresh.pid)  # idle: killed, reaped
     assert not fresh.workdir.exists()
+
+
+async def test_a_refill_waits_at_a_lower_priority_and_its_run_gets_the_parents(settings, tmp_path, unique):
+    """After a burst of hand-offs the refills must not slow the runs just started."""
+    pool = WarmPool(tmp_path, settings, size=1)
+    if not pool.refill_nice:
+        pytest.skip("this process may not raise a child's priority back (not root, RLIMIT_NICE)")
+    base, runs = os.getpriority(os.PRIO_PROCESS, 0), []
+    pool.start()
+    try:
+        for n in (1, 2):
+            await pool.wait_ready(60)
+            [worker] = pool.idle
+            assert thread_priorities(worker.pid) == ({base} if n == 1 else {min(19, base + REFILL_NICE)})
+            runs.append(spawn_agent(cloud_spec(settings, unique), run_dir(tmp_path, n), settings, pool=pool))
+            await runs[-1].start()
+            assert runs[-1].warm and runs[-1].pid == worker.pid and thread_priorities(worker.pid) == {base}
+    finally:
+        for run in runs:
+            await run.stop(grace=0.5)
+        await pool.close()
 
 
 async def test_a_worker_that_died_idle_is_replaced_never_handed_a_rapp(settings, tmp_path, unique):
@@ -134,3 +163,21 @@ async def test_pool_size_and_crash_leftovers(settings, tmp_path):
     (tmp_path / "0002-echo-app").mkdir()
     sweep_run_dirs(tmp_path)
     assert os.listdir(tmp_path) == []
+
+
+def test_a_pool_refuses_what_is_not_a_module_name_to_import_ahead(settings, tmp_path):
+    """The names travel to the sandboxed worker in its environment: only dotted identifiers."""
+    with pytest.raises(ValueError, match="not module names"):
+        WarmPool(tmp_path, settings, preload=("numpy", "os; import shutil", ""))
+    assert WarmPool(tmp_path, settings, preload=("rapps.sdk", "scipy.optimize")).preload == ("rapps.sdk", "scipy.optimize")
+
+
+def test_the_runtime_imports_the_extra_modules_it_is_given_and_skips_missing_ones():
+    import subprocess
+    import sys
+
+    code = ("import sys; from agents.runtime import preload; preload(('rapps.sdk', 'no_such_module_x'));"
+            "print('rapps.sdk' in sys.modules, 'rapps.sdk.vision' in sys.modules)")
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=60)
+    assert done.stdout.split() == ["True", "False"], done.stderr[-1500:]  # a missing one is skipped

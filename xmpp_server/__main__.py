@@ -6,6 +6,7 @@ import asyncio
 import sys
 
 from .embedded import CONNECTION_TIMEOUT_S, serve
+from .ports import EXIT_PORT_IN_USE, bindable, free_port
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -20,18 +21,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--verbose", action="store_true")
     a = p.parse_args(argv)
     if a.s2s_port == 0:
-        from .ports import free_port
         a.s2s_port = free_port(a.host)
 
+    listening = False
+
     def ready() -> None:
+        nonlocal listening
+        listening = True
         print(f"READY {a.host}:{a.port} domain={a.domain}", flush=True)
 
+    for port in (a.port, a.s2s_port):
+        if not bindable(a.host, port):
+            print(f"error: port {port} on {a.host} is in use", file=sys.stderr, flush=True)
+            return EXIT_PORT_IN_USE
     try:
         asyncio.run(serve(bind_host=a.host, port=a.port, s2s_port=a.s2s_port, domain=a.domain,
                           db_path=a.db, ready_callback=ready, verbose=a.verbose,
                           connection_timeout=a.connection_timeout))
     except (KeyboardInterrupt, SystemExit):
-        pass
+        if not listening:  # pyjabber exits so when it cannot listen, and on a signal before that
+            print("error: the server stopped before it listened", file=sys.stderr, flush=True)
+            return 1
     except RuntimeError as e:
         print(f"error: {e}", file=sys.stderr, flush=True)
         return 1

@@ -9,6 +9,7 @@ disconnects mid-query), so it lives in a temporary directory unless `db` is give
 from __future__ import annotations
 
 import asyncio
+import functools
 import os
 import signal
 import socket
@@ -18,13 +19,45 @@ import tempfile
 import time
 from pathlib import Path
 
-from .ports import free_port
+from .ports import EXIT_PORT_IN_USE, free_port
 from .probe import LoginError, probe_login
 from .settings import XmppSettings
 
 
 class ServerStartError(RuntimeError):
     pass
+
+
+@functools.lru_cache(maxsize=1)
+def libc():
+    """The C library (errno kept), looked up once (find_library runs ldconfig); None without one."""
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    return ctypes.CDLL(name, use_errno=True) if name else None
+
+
+PR_SET_PDEATHSIG = 1
+
+
+def dies_with_parent():
+    """A Popen preexec_fn: the child gets SIGTERM when the thread that started it ends (Linux's
+    parent-death signal; start it from a thread that lives as long as the parent, e.g. the event
+    loop's), so a crashed run or benchmark leaves no server or agent process behind. None where
+    libc or prctl is missing. libc is looked up here: the child only calls it."""
+    lib = libc() if sys.platform.startswith("linux") else None
+    prctl = getattr(lib, "prctl", None)
+    if prctl is None:
+        return None
+    parent = os.getpid()
+
+    def arm() -> None:
+        prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before it was armed
+            os._exit(1)
+
+    return arm
 
 
 def terminate(proc: subprocess.Popen, timeout: float) -> int:
@@ -115,6 +148,7 @@ class EmbeddedServer(ManagedServer):
                  start_timeout: float = 20.0, connection_timeout: int | None = None):
         self.host = host
         self.port = port or free_port(host)
+        self.port_chosen = port is None  # ours to change until the server first listens
         self.domain = domain
         self.memory = memory
         self._tmp = None if (db or memory) else tempfile.TemporaryDirectory(prefix="rapp-xmpp-")
@@ -144,15 +178,27 @@ class EmbeddedServer(ManagedServer):
         root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
         self.proc = subprocess.Popen(self.command(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True, env=env, start_new_session=True)
+                                     text=True, env=env, start_new_session=True, preexec_fn=dies_with_parent())
 
     async def astart(self) -> "EmbeddedServer":
-        self._spawn()
+        """Start and wait for a real login. A port found in use is retried until the deadline (a
+        restart on the old port: another listener may hold it a moment) or, at a first start on a
+        port this object chose, replaced by another free one."""
         deadline = time.monotonic() + self.start_timeout
-        line = await asyncio.to_thread(self._read_ready_line, deadline)
-        if not line.startswith("READY"):
+        while True:
+            self._spawn()
+            line = await asyncio.to_thread(self._read_ready_line, deadline)
+            if line.startswith("READY"):
+                self.port_chosen = False  # clients know it now: a restart keeps it
+                break
+            in_use = self.proc.poll() == EXIT_PORT_IN_USE
             self.stop()
-            raise ServerStartError(f"embedded XMPP server did not start: {line}")
+            if not in_use or time.monotonic() > deadline:
+                raise ServerStartError(f"embedded XMPP server did not start: {line}")
+            if self.port_chosen:
+                self.port = free_port(self.host)
+            else:
+                await asyncio.sleep(0.2)
         last: Exception | None = None
         while time.monotonic() < deadline:
             try:
@@ -167,9 +213,12 @@ class EmbeddedServer(ManagedServer):
     def _read_ready_line(self, deadline: float) -> str:
         assert self.proc and self.proc.stdout
         line = self.proc.stdout.readline().strip()  # the child prints READY once listening
-        if not line:
-            err = self.proc.stderr.read() if self.proc.poll() is not None else ""
-            return f"process exited ({self.proc.poll()}): {err.strip()[-2000:]}"
+        if not line:  # its output closed: it is exiting (not necessarily reaped yet)
+            try:
+                self.proc.wait(max(0.5, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                return "its output closed but it did not exit"
+            return f"process exited ({self.proc.returncode}): {self.proc.stderr.read().strip()[-2000:]}"
         return line
 
     def stop(self, timeout: float = 5.0) -> None:

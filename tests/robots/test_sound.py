@@ -160,3 +160,33 @@ async def test_word_spotting_on_real_audio(small, said, expected):
     assert got.word == expected
     if expected:
         assert got.text == expected
+
+
+def test_espeak_is_initialised_once_when_many_threads_speak_first_at_once():
+    """20 NAOs in one process (bench/fleet.py) spoke their first words at once: each thread ran
+    espeak_Initialize and glibc aborted on a corrupted heap. A fresh process, the initialisation
+    slowed down so every thread arrives before it ends: it runs once, and every thread gets speech."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = """
+import threading, time
+from robots import tts
+calls, real = [], tts._initialise
+def slow():
+    calls.append(1)
+    time.sleep(0.3)
+    return real()
+tts._initialise = slow
+out = {}
+threads = [threading.Thread(target=lambda i=i: out.setdefault(i, len(tts.synthesize("hello")))) for i in range(6)]
+[t.start() for t in threads]
+[t.join() for t in threads]
+assert len(calls) == 1, f"initialised {len(calls)} times"
+assert len(out) == 6 and min(out.values()) > 0.99 * max(out.values()), out  # eSpeak varies a few samples
+print("ok")
+"""
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
