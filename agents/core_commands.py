@@ -140,12 +140,15 @@ class RobotCommands:
             try:
                 return await self.robot.handle(req)
             except MotionBlocked as e:
-                if not self.safety_distance or self.estop_reason is not None:
+                if not self.safety_distance:
                     raise
                 # the robot's collision protection (or its bumper) stopped it: the safety stop, as the
-                # safety check's; the reactive strategies hand the held motion back or fail it (blocked)
-                await self.emergency_stop(f"obstacle ahead ({e})", by="safety")
-                self._in_background(self.react_to_obstacle())
+                # safety check's; the reactive strategies hand the held motion back or fail it (blocked).
+                # The safety check may have latched it a moment before (both see the same obstacle;
+                # its stop had not yet interrupted the motion): then the motion is held as interrupted
+                if self.estop_reason is None:
+                    await self.emergency_stop(f"obstacle ahead ({e})", by="safety")
+                    self._in_background(self.react_to_obstacle())
                 if not resumable(name):
                     raise Failure(f"{name} was interrupted by the emergency stop ({self.estop_reason}); "
                                   f"a relative motion is not resumed", ErrorCode.ESTOP) from None

@@ -26,7 +26,11 @@ Camera optical frame: x right, y down, z forward; get_camera_info gives K consis
 get_transform("camera") the optical frame in the robot base frame (base frame at the floor, x forward).
 Maps: world.export_grid_map(dir) (ROS map_server PNG + YAML), world.write_landmark_map(path).
 """
-from .api import RobotAPI
+from .blas import one_blas_thread
+
+one_blas_thread()  # before numpy is used from several threads (robots/blas.py)
+
+from .api import RobotAPI  # noqa: E402
 from .errors import InvalidArgument, MotionBlocked, MotionInterrupted, RobotError, UnsupportedOperation
 from .odometry import OdometryNoise
 from .robot import Robot

@@ -18,6 +18,7 @@ from agents.base import RappAgent
 from agents.core_commands import RobotCommands
 from agents.errors import RequestTimeout
 from agents.locks import DEVICES, ResourceLocks, device_of
+from robots.errors import MotionBlocked
 from ontology.manifest import ROBOT_API_GROUPS as MANIFEST_GROUPS
 from ontology.registry import actions
 from ontology.robot_actions import ACTION_FACTS, ROBOT_API_GROUPS, markdown_table
@@ -226,3 +227,28 @@ def test_the_docs_table_is_the_code_table():
     assert shown, "docs/architecture-actions.md lost its ACTION_FACTS markers"
     assert shown.group(1) == markdown_table(), \
         "docs/architecture-actions.md differs from ontology/robot_actions.py: paste `python -m ontology.robot_actions`"
+
+
+async def test_a_motion_blocked_just_after_the_safety_check_latched_the_stop_is_held_not_failed():
+    """Both see the obstacle: the safety check latches the stop, and the robot's own collision
+    protection stops the motion before the latch's stop interrupts it (CI failed a task so: its
+    MotionBlocked went to the RApp while the wait-for-clear strategy had started)."""
+    core = _core()
+    core.safety_distance, core.fail_held = 0.10, None
+    attempts = []
+
+    async def handle(req):
+        attempts.append(req.action_name)
+        if len(attempts) == 1:
+            core.estop_reason, core.estop_by = "obstacle ahead", "safety"
+            core._estop_released.clear()
+            raise MotionBlocked("nao: its collision protection stopped it")
+
+    core.robot.handle = handle
+    call = asyncio.create_task(core._robot_call(_request("move_along_path", poses=[]), _ctx()))
+    await asyncio.sleep(0.05)
+    assert not call.done(), "the blocked motion went back to the task"
+    core.estop_reason = None
+    core._estop_released.set()  # the strategy found the way clear
+    await call
+    assert attempts == ["move_along_path", "move_along_path"]
