@@ -220,12 +220,11 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         """The Core's own sentences, or the RApp's on the loudspeaker (the Core never hears the robot)."""
         if self.speaking():
             return True
-        robot = getattr(self.robot, "robot", None)  # the simulated robot behind a RobotAPI
-        speaker = getattr(robot, "loudspeaker", None)
-        if speaker is None or not speaker.played:
+        speaker = self._simulated_loudspeaker()
+        if speaker is None:
             return False
-        start, _, pcm = speaker.played[-1]
-        return robot.world.time < start + len(pcm) / 16000 + 0.3
+        now = speaker.robot.world.time
+        return speaker.sounding_until(now, now, tail=0.3) is not None
 
     def _simulated_loudspeaker(self):
         """The loudspeaker of the simulated robot behind a RobotAPI, or None (a real robot, no speech)."""
@@ -234,10 +233,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     def _loudspeaker_during(self, t0: float, t1: float) -> float | None:
         """When the simulated robot's loudspeaker sound within [t0, t1] of simulation time ends (+ 0.05 s:
         its way to the microphone), or None: none."""
-        speaker = self._simulated_loudspeaker()
-        ends = [start + len(pcm) / 16000 + 0.05 for start, _, pcm in (speaker.played[-8:] if speaker is not None else [])
-                if start < t1 and start + len(pcm) / 16000 + 0.05 > t0]
-        return max(ends) if ends else None
+        return self._simulated_loudspeaker().sounding_until(t0, t1, tail=0.05)
 
     def _own_voice_times(self):
         """What a microphone stream cuts the robot's own voice by: its loudspeaker's simulation times where

@@ -151,6 +151,13 @@ class Loudspeaker:
                    level_db=None, full_scale_db=self.FULL_SCALE_DB_SPL)
         return len(pcm) / SAMPLE_RATE
 
+    def sounding_until(self, t0: float, t1: float, tail: float = 0.0) -> float | None:
+        """When the sound it played within [t0, t1] of simulation time ends (+ `tail`, e.g. its way to a
+        microphone), or None: silent then."""
+        from .sound import SAMPLE_RATE
+        recent = [(start, start + len(pcm) / SAMPLE_RATE + tail) for start, _, pcm in self.played[-8:]]
+        ends = [end for start, end in recent if start <= t1 and end > t0]
+        return max(ends) if ends else None
 
     def silence(self, t: float) -> None:
         """Cut off what is still playing at simulation time `t` (the emergency stop)."""

@@ -634,9 +634,6 @@ class VoiceActivity:
     def active(self) -> bool:
         return bool(self.frames) or self.skipping
 
-    def floor_db(self) -> float | None:
-        return float(np.percentile(self.history, 20)) if len(self.history) >= 30 else None
-
     def learn_room_from(self, other: "VoiceActivity") -> None:
         """Take what another detector on the same microphone has learnt of the room's sound (until it has
         heard 30 frames of it, a detector takes nothing for speech: an owner's word then is learnt as noise)."""
