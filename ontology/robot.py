@@ -143,9 +143,10 @@ MAX_AUDIO_B64 = 4 * (44 + 2 * 16000 * int(MAX_AUDIO_SECONDS)) // 3 + 4
 
 @robot_action("capture_audio", reply=Audio)
 class CaptureAudio(Action):
-    """Record the microphone for `seconds` of simulation time. `observe`: only record the time that
-    other motions and waits make pass (a simulation run as fast as possible is not stepped for this
-    recording; a listener beside a task must not drive the world).
+    """Record the microphone for `seconds` of simulation time.
+
+    `observe`: only record the time that other motions and waits make pass (a simulation run as fast
+    as possible is not stepped for this recording; a listener beside a task must not drive the world).
 
     `since` (a simulation time, the end of an earlier recording: its stamp + seconds): record from
     then, not from now. The robot's audio device keeps the last AUDIO_BUFFER_S of sound, so a listener
