@@ -185,14 +185,15 @@ class EmbeddedServer(ManagedServer):
         restart on the old port: another listener may hold it a moment) or, at a first start on a
         port this object chose, replaced by another free one."""
         deadline = time.monotonic() + self.start_timeout
-        while True:
+        await asyncio.to_thread(libc)  # looked up once (ldconfig) off the loop; the fork stays on the loop's
+        while True:  # thread: the parent-death signal follows the thread that forked (dies_with_parent)
             self._spawn()
             line = await asyncio.to_thread(self._read_ready_line, deadline)
             if line.startswith("READY"):
                 self.port_chosen = False  # clients know it now: a restart keeps it
                 break
             in_use = self.proc.poll() == EXIT_PORT_IN_USE
-            self.stop()
+            await asyncio.to_thread(self.stop)
             if not in_use or time.monotonic() > deadline:
                 raise ServerStartError(f"embedded XMPP server did not start: {line}")
             if self.port_chosen:
@@ -207,7 +208,7 @@ class EmbeddedServer(ManagedServer):
             except LoginError as e:
                 last = e
                 await asyncio.sleep(0.05)
-        self.stop()
+        await asyncio.to_thread(self.stop)  # waits for the process: not on the loop
         raise ServerStartError(f"embedded XMPP server on {self.host}:{self.port} accepts no login: {last}")
 
     def _read_ready_line(self, deadline: float) -> str:
