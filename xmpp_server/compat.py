@@ -415,11 +415,17 @@ def _patch_session_routes() -> None:
     connected resources of the highest non-negative priority (missing = 0, compared as numbers),
     else it is stored offline. Stored messages are delivered on the client's initial presence:
     pyjabber also flushed them at resource binding, before the client is online, into nothing.
+    They are stored and delivered here, in the stanza handlers, in the order the server reads
+    them: pyjabber's queue worker took a stored message and the recipient's "online" notice in no
+    fixed order when both were waiting, and a message stored after the notice waited for a next
+    one that never came (the owner's first command to a restarted Core, about one in two when
+    they met). Stored messages go out oldest first (pyjabber: newest first).
     Resource conflicts cannot arise: pyjabber binds a fresh random resource for every session."""
     from pyjabber.features.presence.Enums import PresenceType
     from pyjabber.features.presence.PresenceFeature import Presence
     from pyjabber.network.ConnectionManager import ConnectionManager
     from pyjabber.network.protocols.XMLProtocol import XMLProtocol
+    from pyjabber.queues.PendingMessage import PendingMessageWrapper
     from pyjabber.queues.QueueManager import QueueName, get_queue
     from pyjabber.stream.JID import JID
     from pyjabber.stream.handlers.StanzaHandler import StanzaHandler
@@ -450,6 +456,33 @@ def _patch_session_routes() -> None:
         else:
             status.pop(jid.bare(), None)
 
+    stored: dict[str, list[bytes]] = {}  # offline messages by recipient (bare or full JID)
+
+    class StoreLocalAtOnce:
+        """The stanza handler's message queue: a local recipient's message is stored at once,
+        messages for other servers go to pyjabber's worker as before."""
+
+        def __init__(self, queue):
+            self.queue = queue
+
+        async def put(self, item) -> None:
+            if isinstance(item, PendingMessageWrapper) and not item.is_external:
+                stored.setdefault(str(item.jid), []).append(item.payload)
+            else:
+                await self.queue.put(item)
+
+        def __getattr__(self, name):
+            return getattr(self.queue, name)
+
+    def deliver_stored(connections, jid) -> None:
+        clients = connections.get_transport_online(jid)
+        if not clients:
+            return
+        for key in (str(jid), jid.bare()):
+            for payload in stored.pop(key, []):
+                for client in clients:
+                    client.transport.write(payload)
+
     original_feed = Presence.feed
 
     async def feed(self, jid, element):
@@ -458,6 +491,8 @@ def _patch_session_routes() -> None:
         finally:  # a presence parsed before its stream's end but handled after it
             if isinstance(jid, JID) and not any(c.jid == jid for c in self._connections._peerList.values()):
                 forget(jid)
+            elif isinstance(jid, JID) and "to" not in element.attrib and element.get("type") is None:
+                deliver_stored(self._connections, jid)  # available now: what waited for it
 
     original_close = ConnectionManager.close
 
@@ -486,6 +521,7 @@ def _patch_session_routes() -> None:
             original_handler_init(self, transport)
         finally:
             del queue.put_nowait
+        self._message_queue = StoreLocalAtOnce(self._message_queue)
 
     Presence.most_priority = most_priority
     Presence.feed = feed
