@@ -3,9 +3,9 @@ Dynamic Agent is told within 2 s (the SDK raises CloudAgentLost); where the mani
 cloud part is restartable, the Platform starts it once more under the same JID."""
 from __future__ import annotations
 
-import asyncio
 import os
 import signal
+import time
 
 import pytest
 
@@ -37,7 +37,7 @@ async def _kill_cloud_of(system, keyword: str, rapp: str) -> tuple[float, int]:
     await user.say(system.handle.core.address, keyword)
     await user.wait_for(lambda t: t.startswith("watching cloud"), timeout=30, start=start)
     session = next(c for c in system.platform.clouds.values() if c.rapp == rapp)
-    killed = asyncio.get_running_loop().time()
+    killed = time.time()  # the trace's clock
     os.kill(session.process.pid, signal.SIGKILL)
     return killed, start
 
@@ -45,9 +45,14 @@ async def _kill_cloud_of(system, keyword: str, rapp: str) -> tuple[float, int]:
 async def test_killed_cloud_agent_is_reported_to_its_dynamic_agent_within_2s(system):
     killed, start = await _kill_cloud_of(system, "cloudlost", "cloud-lost")
     user = system.handle.user
-    await user.wait_for(lambda t: t == "cloud lost: cloud-lost", timeout=5, start=start)
-    assert asyncio.get_running_loop().time() - killed <= 2.0
     await user.wait_for(lambda t: t.startswith("cloud-lost finished"), timeout=20, start=start)
+    assert "cloud lost: cloud-lost" in user.texts()[start:]  # the RApp caught CloudAgentLost
+    # told: the Dynamic Agent's own record of the Platform's notice (the owner's chat adds the
+    # RApp's report and the Core's relay, which a loaded test machine may stall)
+    told = next((r for r in read_trace(system.settings.trace_file) if r["kind"] == "structure"
+                 and r["event"] == "cloud-down" and r["agent"].startswith("dyn-nao1-cloud-lost")), None)
+    assert told is not None, "the Dynamic Agent recorded no cloud-down"
+    assert told["t"] - killed <= 2.0, told["t"] - killed
     assert not any(c.rapp == "cloud-lost" for c in system.platform.clouds.values())
 
 
