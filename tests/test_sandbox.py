@@ -158,7 +158,7 @@ async def test_e_cannot_write_outside_its_directory(system):
 ])
 async def test_f_resource_limits_hold(system, name, check):
     report, end = await attack(system, name)
-    assert check(report), report
+    assert check(report), (report, end)
     await assert_safe_and_supervising(system.a)
 
 
