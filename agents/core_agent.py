@@ -65,6 +65,8 @@ from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
 from .identity import EphemeralAccounts, Identity
+from . import liveness
+from .liveness import SilenceWatch, sample_main_thread
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .sandbox import Sandbox
 from .responder import Responder
@@ -99,6 +101,8 @@ class DynamicSession:
     state: str = "Spawned"
     detail: str = ""
     last_beat: float = field(default_factory=time.monotonic)
+    beats: int = 0  # heartbeats and status reports so far
+    silence: SilenceWatch | None = None  # the current silence's first look at its process
     ended: asyncio.Event = field(default_factory=asyncio.Event)
     hung: bool = False  # ended for missing heartbeats: killed without a grace period
     ready: asyncio.Event = field(default_factory=asyncio.Event)
@@ -474,7 +478,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     def _beat(self, sender: str) -> None:
         d = self.dynamic
         if d is not None and sender == bare(d.jid):
-            d.last_beat = time.monotonic()
+            d.last_beat, d.beats = time.monotonic(), d.beats + 1
 
     def _resume(self) -> None:
         self.deactivate("command-server")
@@ -521,9 +525,11 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                 session.last_beat += stall
             if getattr(self, "_reconnecting", False) or now - getattr(self, "_reconnected_at", 0) < 2.0:
                 session.last_beat = now  # our own link was down: silence proves nothing
-            if now - session.last_beat > HEARTBEAT_TIMEOUT_S and session.state != "Finished":
+            silence = now - session.last_beat
+            late = self._late_not_hung(session, now, silence)  # looks from the second missed beat on
+            if silence > HEARTBEAT_TIMEOUT_S and session.state != "Finished" and not late:
                 session.hung = True  # its loop does not run: it cannot log out, no grace
-                self._end(session, f"no heartbeat for {now - session.last_beat:.1f}s (hung?)")
+                self._end(session, f"no heartbeat for {silence:.1f}s (hung?)")
             elif now - start > limit:
                 self._end(session, f"time limit of {limit:g}s exceeded")
             try:
@@ -531,6 +537,26 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             except asyncio.TimeoutError:
                 pass
         return session.end_reason
+
+    def _late_not_hung(self, session: DynamicSession, now: float, silence: float) -> bool:
+        """Whether a silence is the loaded machine's, not a hang (agents/liveness.py). Looks at the
+        Dynamic Agent's process from the second missed beat on; False while the silence is shorter
+        than the timeout."""
+        pid = session.process.pid if isinstance(session.process, AgentProcess) else None
+        if pid is None or silence <= liveness.MARK_AFTER_S:
+            return False  # a thread or in-process agent: nothing to look at
+        sample, watch = sample_main_thread(pid), session.silence
+        if watch is None or watch.beats != session.beats:  # a new silence: its first look
+            session.silence = watch = SilenceWatch(session.beats, now, sample)
+        watch.look(sample)
+        if silence <= HEARTBEAT_TIMEOUT_S:
+            return False
+        why = watch.late_not_hung(sample, now) if silence <= liveness.GRACE_S else None
+        if why and not watch.noted:
+            watch.noted = True
+            self.record_structure("heartbeat-late", dynamic=session.jid, rapp=session.rapp,
+                                  silence=round(silence, 2), why=why)
+        return why is not None
 
     # -- s10: destroy and resume ------------------------------------------------------------
     async def destroy_dynamic(self) -> None:
@@ -584,7 +610,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def _on_status(self, req: C.TaskStatus, ctx) -> Done:
         d = self._from_dynamic(ctx)
-        d.state, d.detail, d.last_beat = req.state.value, req.detail, time.monotonic()
+        d.state, d.detail, d.last_beat, d.beats = req.state.value, req.detail, time.monotonic(), d.beats + 1
         self.record_structure("status", dynamic=d.jid, state=d.state, detail=req.detail[:200])
         if req.state == C.TaskState.INIT:
             d.ready.set()

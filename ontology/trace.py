@@ -66,6 +66,7 @@ class StructureEvent(StrEnum):
     SPAWN = "spawn"  # a Dynamic Agent started
     HANDOFF = "handoff"  # supervision handed to the Dynamic Agent
     STATUS = "status"  # the Dynamic Agent's task status
+    HEARTBEAT_LATE = "heartbeat-late"  # the Dynamic Agent is silent but alive (agents/liveness.py): waited for
     ENDED = "ended"  # the task ended (finished, error, lost)
     DESTROY = "destroy"  # the Dynamic Agent stopped
     RESUME = "resume"  # the Core supervises again

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import signal
 
 import pytest
 
@@ -20,6 +21,7 @@ FAULTS = {  # keyword -> (params, time limit)
     "busyecho": ({"behaviour": "busy"}, 60),
     "killecho": ({"behaviour": "exit"}, 60),
     "silentecho": ({"behaviour": "silent"}, 3),
+    "lateecho": ({"behaviour": "linger", "seconds": 5}, 60),  # not a fault: its beats are held up
 }
 
 
@@ -93,3 +95,22 @@ async def test_dynamic_process_has_resource_limits(system):
     cwd, workdir = os.stat(f"/proc/{pid}/cwd"), os.stat(core.dynamic.workdir)
     assert (cwd.st_dev, cwd.st_ino) == (workdir.st_dev, workdir.st_ino)
     await task
+
+
+async def test_beats_held_up_on_the_way_are_not_a_hang(system):
+    """The server stalls for 2.5 s (SIGSTOP), as a loaded one does: the Dynamic Agent's beats
+    wait in it while its loop idles. The Core records that it waits (agents/liveness.py) and the
+    task runs to its end; before, it was ended after 1.5 s of silence."""
+    core = system.handle.core
+    task = asyncio.create_task(run_command(system, "lateecho", "late-echo finished", timeout=40))
+    await wait_until(lambda: core.dynamic is not None and "command-server" in core.active_behaviours())
+    await asyncio.sleep(0.5)
+    os.kill(system.server.proc.pid, signal.SIGSTOP)
+    try:
+        await asyncio.sleep(2.5)
+    finally:
+        os.kill(system.server.proc.pid, signal.SIGCONT)
+    await task
+    late = _records(system, "late-echo", "structure", "heartbeat-late")
+    assert late and late[-1]["why"] == "its loop waits for events", late
+    assert not _records(system, "late-echo", "structure", "ended")[-1]["reason"].startswith("no heartbeat")
