@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import shutil
 import time
 from pathlib import Path
 
@@ -136,6 +137,7 @@ async def run(quick: bool, per_condition: int | None = None, noises: list[str] |
             house.remove("tv")
     finally:
         world.close()
+        shutil.rmtree(work, ignore_errors=True)
     return summarise(results)
 
 
