@@ -1,18 +1,17 @@
 """agents/liveness.py on real processes: a spinning loop and a loop blocked in time.sleep are hung;
 an idle asyncio loop, and one that shares its CPU with a busy process at the lowest priority, are
-only late; so is a process that could not run at all (stopped here, then let go: the looks see it
-runnable without CPU); a process that is gone is hung."""
+only late; so is a runnable thread that got no CPU (the rule, on samples); a process that is gone
+is hung."""
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
 
 import pytest
 
-from agents.liveness import SilenceWatch, sample_main_thread
+from agents.liveness import SilenceWatch, ThreadSample, sample_main_thread
 
 LOOP = "import asyncio\nasync def m():\n    while True:\n        await asyncio.sleep(0.25)\nasyncio.run(m())"
 PROGRAMS = {
@@ -57,32 +56,27 @@ def test_a_loop_behind_a_busy_process_on_its_cpu_is_late():
         for p in (loop, hog):
             os.sched_setaffinity(p.pid, {cpu})
         os.sched_setscheduler(loop.pid, os.SCHED_IDLE, os.sched_param(0))  # runs only when the CPU is free
-        assert judge(loop.pid) == "its loop waits for events"
+        # seen waiting in its loop between the hog's slices, or (on a loaded machine) runnable without CPU
+        assert judge(loop.pid) in ("its loop waits for events", "it waits for a CPU")
     finally:
         for p in (loop, hog):
             p.kill()
             p.wait()
 
 
-def test_a_runnable_process_without_cpu_is_late():
-    """R without CPU since the first look: a stopped loop woken as the verdict is taken stands
-    for one the scheduler has not run yet."""
-    proc = start(LOOP)
-    try:
-        os.kill(proc.pid, signal.SIGSTOP)
-        time.sleep(0.3)  # its timer expires while stopped: runnable the moment it is let go
-        watch = SilenceWatch(0, time.monotonic(), sample_main_thread(proc.pid))
-        time.sleep(0.5)
-        assert watch.late_not_hung(sample_main_thread(proc.pid), time.monotonic()) is None  # stopped: hung
-        os.kill(proc.pid, signal.SIGCONT)
-        looks = [sample_main_thread(proc.pid) for _ in range(200)]
-        running = next((s for s in looks if s.state == "R"), None)
-        if running is None:
-            pytest.skip("the woken loop was never seen runnable")
-        assert watch.late_not_hung(running, time.monotonic()) == "it waits for a CPU"
-    finally:
-        proc.kill()
-        proc.wait()
+@pytest.mark.parametrize("cpu_used, window, expect", [
+    (0.0, 1.0, "it waits for a CPU"),  # runnable all along, never run
+    (0.02, 1.0, "it waits for a CPU"),  # two clock ticks: the scheduler's noise
+    (0.3, 1.0, None),  # it had the CPU and did not beat: a spin
+    (0.0, 0.2, None),  # too short a window to tell
+])
+def test_a_runnable_thread_is_late_only_without_cpu(cpu_used, window, expect):
+    """The rule on samples (a real thread's runnable-without-CPU moment cannot be made on demand)."""
+    first = ThreadSample("R", "0", 5.0)
+    watch = SilenceWatch(0, 100.0, first)
+    now = ThreadSample("R", "0", 5.0 + cpu_used)
+    watch.look(now)
+    assert watch.late_not_hung(now, 100.0 + window) == expect
 
 
 def test_a_process_that_is_gone_is_hung():
