@@ -232,7 +232,10 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
              if isinstance(r, dict) and not fleet.all_correct(i, records)]
     lat, missing = request_latencies(records, since, fleet.system.platform_address)
     ok = not failed and not missing and len(lat["platform"]) >= n
+    # silences of live Dynamic Agents the Core waited out instead of ending them (agents/liveness.py)
+    late = [r for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("event") == "heartbeat-late"]
     res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "misclassified": wrong,
+           "heartbeats_late": len(late), "longest_late_silence_s": max((r["silence"] for r in late), default=None),
            "unanswered": len(missing), "unanswered_actions": missing[:5],
            "lost_status_acks": len(lat["lost_status_acks"]),
            "platform_ms": ms(lat["platform"]), "robot_ms": ms(lat["robot"]), "services_ms": ms(lat["services"]),
@@ -240,7 +243,8 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
            "platform_p95_by_action": {a: [round(percentile(ms(v), 95), 1), len(v)]
                                       for a, v in sorted(lat["by_action"].items())}}
     log(f"fleet N={n}: {'ok' if ok else 'FAILED'} in {wall:.1f} s, {n - len(wrong)}/{n} all hazards correct, "
-        f"platform p95 {percentile(res['platform_ms'], 95):.1f} ms, robot p95 {percentile(res['robot_ms'], 95):.1f} ms"
+        f"platform p95 {percentile(res['platform_ms'], 95):.1f} ms, robot p95 {percentile(res['robot_ms'], 95):.1f} ms, "
+        f"{len(late)} late-heartbeat silences waited out"
         + (f"; failures {failed[:2]} unanswered {missing[:5]}" if not ok else "")
         + f"; p95 ms by service {res['platform_p95_by_action']}")
     return res
@@ -276,7 +280,8 @@ async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float
                               f" {first_fail['unanswered_actions']}") if first_fail else None,
                wall_s_at_n=best["wall_s"] if best else None,
                all_correct_at_n=(n_best - len(best["misclassified"])) if best else None,
-               lost_final_status_acks=sum(r["lost_status_acks"] for r in rounds), capped_by_sizes=first_fail is None),
+               lost_final_status_acks=sum(r["lost_status_acks"] for r in rounds), capped_by_sizes=first_fail is None,
+               heartbeats_late_by_round={r["n"]: r["heartbeats_late"] for r in rounds}),
         metric("fleet_service_p95", p95, "ms", base_p95, ratio(p95, base_p95),
                len(best["platform_ms"]) if best else 0, samples=best["platform_ms"] if best else None,
                at_n=n_best, goal_n=goal_n, by_action_at_n=best["platform_p95_by_action"] if best else None,

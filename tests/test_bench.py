@@ -60,6 +60,7 @@ def test_runner_tiny_fleet(tmp_path):
     fleet = next(m for m in metrics if m["name"] == "fleet")
     assert (fleet["value"], fleet["rapp"], fleet["all_correct_at_n"]) == (1, "hazard-detection", 1)
     assert fleet["floor"] == 1 and fleet["goal_met"] is True
+    assert list(fleet["heartbeats_late_by_round"]) == ["1"]  # counted per round (0 expected when quiet)
     assert next(m for m in metrics if m["name"] == "fleet_service_p95")["n"] > 0
 
 

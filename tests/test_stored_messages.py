@@ -15,6 +15,7 @@ import signal
 
 from xmpp_server import EmbeddedServer
 from xmpp_server.chat import ChatUser
+from xmpp_server.probe import remove_account
 
 TRIES = 8  # the old worker lost about one in two: all eight delivered is no luck
 
@@ -49,3 +50,30 @@ async def test_a_message_sent_as_its_recipient_comes_online_is_delivered():
                     await late.stop()
         finally:
             await sender.stop()
+
+
+async def test_a_removed_accounts_stored_messages_go_with_it():
+    """A message stored for an account that is then removed (a Dynamic Agent's, at its run's end)
+    is not handed to a later account of the same name."""
+    async with EmbeddedServer() as server:
+        settings = server.settings()
+        sender = ChatUser("sender", settings)
+        await sender.start()
+        old = LateUser("reused", settings)  # registers the account, never announces itself
+        await old.start()
+        await old.stop()
+        again = None
+        try:
+            await sender.say("reused", "for the old account")
+            await asyncio.sleep(0.5)  # stored
+            await remove_account(settings.host, settings.port, settings.domain, user="reused",
+                                 password=settings.password_for("reused"))
+            again = ChatUser("reused", settings)  # registers anew and announces itself
+            await again.start()
+            await sender.say("reused", "for the new one")
+            await again.wait_for(lambda t: t == "for the new one", timeout=5)
+            assert again.texts() == ["for the new one"]
+        finally:
+            await sender.stop()
+            if again is not None:
+                await again.stop()

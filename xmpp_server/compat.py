@@ -352,11 +352,14 @@ def _patch_password_rounds(rounds: int = PASSWORD_ROUNDS) -> None:
     SASL._rapp_rounds = rounds
 
 
+_offline: dict[str, list[bytes]] = {}  # the embedded server's offline messages, by recipient (bare or full JID)
+
+
 def _patch_account_removal() -> None:
     """XEP-0077 account removal (`<query xmlns='jabber:iq:register'><remove/></query>` from a logged-in
     client), which pyjabber 0.4.5 lacks (its PluginManager answers feature-not-implemented): the
-    account's credentials and roster rows are deleted, the answer is sent, then every stream of the
-    account is closed. Cores and the Platform delete the ephemeral accounts of RApp runs this way,
+    account's credentials, roster rows and stored messages are deleted, the answer is sent, then
+    every stream of the account is closed. Cores and the Platform delete the ephemeral accounts of RApp runs this way,
     as they do on Prosody and ejabberd."""
     from xml.etree import ElementTree as ET
 
@@ -382,6 +385,8 @@ def _patch_account_removal() -> None:
                 async with con.begin():
                     await con.execute(delete(Model.Credentials).where(Model.Credentials.c.jid == jid.user))
                     await con.execute(delete(Model.Roster).where(Model.Roster.c.jid.in_([jid.user, jid.bare()])))
+            for key in [k for k in _offline if k == jid.bare() or k.startswith(jid.bare() + "/")]:
+                del _offline[key]  # nobody will read them: a deleted account's messages go with it
             clients = [c for c in ConnectionManager()._peerList.values()
                        if c.jid is not None and c.jid.bare() == jid.bare()]
             loop = asyncio.get_running_loop()
@@ -456,8 +461,7 @@ def _patch_session_routes() -> None:
         else:
             status.pop(jid.bare(), None)
 
-    stored: dict[str, list[bytes]] = {}  # offline messages by recipient (bare or full JID)
-
+    stored = _offline
     class StoreLocalAtOnce:
         """The stanza handler's message queue: a local recipient's message is stored at once,
         messages for other servers go to pyjabber's worker as before."""
