@@ -515,6 +515,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         session = self.dynamic
         limit = session.manifest.time_limit_s
         start = prev = time.monotonic()
+        # silence before we watch is no evidence: the hand-over itself may have held our loop (a
+        # fleet's Cores in one process entered s8 5 s after their hand-off, every beat unread)
+        session.last_beat = max(session.last_beat, start)
         while not session.ended.is_set():
             now = time.monotonic()
             stall = now - prev - 0.1

@@ -4,13 +4,17 @@ only late; so is a runnable thread that got no CPU (the rule, on samples); a pro
 is hung."""
 from __future__ import annotations
 
+import asyncio
 import os
 import subprocess
 import sys
 import time
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
+from agents.core_agent import CoreAgent, DynamicSession
 from agents.liveness import SilenceWatch, ThreadSample, sample_main_thread
 
 LOOP = "import asyncio\nasync def m():\n    while True:\n        await asyncio.sleep(0.25)\nasyncio.run(m())"
@@ -85,3 +89,21 @@ def test_a_process_that_is_gone_is_hung():
     proc.wait()
     assert sample_main_thread(proc.pid) is None
     assert watch.late_not_hung(None, time.monotonic()) is None
+
+
+async def test_silence_before_the_core_watches_is_not_a_hang():
+    """The Core enters s8 late (its loop held up by the hand-over): the beats it has not read yet
+    are no evidence. The Dynamic Agent's last beat is 5 s old when serving begins; it ends by itself
+    0.5 s later, not as hung."""
+    session = DynamicSession(jid="dyn@localhost", rapp="r", version="1", manifest=SimpleNamespace(time_limit_s=60),
+                             workdir=Path("."), state="Working")
+    session.last_beat -= 5.0
+
+    def end(s, reason):
+        s.end_reason = reason
+        s.ended.set()
+
+    core = SimpleNamespace(dynamic=session, estop_reason=None, _late_not_hung=lambda *a: False,
+                           _end=end)
+    asyncio.get_running_loop().call_later(0.5, end, session, "finished")
+    assert await CoreAgent.serve_until_done(core) == "finished"
