@@ -547,7 +547,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         than the timeout."""
         pid = session.process.pid if isinstance(session.process, AgentProcess) else None
         if pid is None or silence <= liveness.MARK_AFTER_S:
-            return False  # a thread or in-process agent: nothing to look at
+            return False  # a thread or in-process agent (nothing to look at), or no beat missed yet
         sample, watch = sample_main_thread(pid), session.silence
         if watch is None or watch.beats != session.beats:  # a new silence: its first look
             session.silence = watch = SilenceWatch(session.beats, now, sample)

@@ -359,8 +359,8 @@ def _patch_account_removal() -> None:
     """XEP-0077 account removal (`<query xmlns='jabber:iq:register'><remove/></query>` from a logged-in
     client), which pyjabber 0.4.5 lacks (its PluginManager answers feature-not-implemented): the
     account's credentials, roster rows and stored messages are deleted, the answer is sent, then
-    every stream of the account is closed. Cores and the Platform delete the ephemeral accounts of RApp runs this way,
-    as they do on Prosody and ejabberd."""
+    every stream of the account is closed. Cores and the Platform delete the ephemeral accounts of
+    RApp runs this way, as they do on Prosody and ejabberd."""
     from xml.etree import ElementTree as ET
 
     from pyjabber.db.database import DB
@@ -461,7 +461,6 @@ def _patch_session_routes() -> None:
         else:
             status.pop(jid.bare(), None)
 
-    stored = _offline
     class StoreLocalAtOnce:
         """The stanza handler's message queue: a local recipient's message is stored at once,
         messages for other servers go to pyjabber's worker as before."""
@@ -471,7 +470,7 @@ def _patch_session_routes() -> None:
 
         async def put(self, item) -> None:
             if isinstance(item, PendingMessageWrapper) and not item.is_external:
-                stored.setdefault(str(item.jid), []).append(item.payload)
+                _offline.setdefault(str(item.jid), []).append(item.payload)
             else:
                 await self.queue.put(item)
 
@@ -483,7 +482,7 @@ def _patch_session_routes() -> None:
         if not clients:
             return
         for key in (str(jid), jid.bare()):
-            for payload in stored.pop(key, []):
+            for payload in _offline.pop(key, []):
                 for client in clients:
                     client.transport.write(payload)
 
