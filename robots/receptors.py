@@ -426,15 +426,11 @@ class PhraseDecoder:
     (a phrase is accepted only when its path scores at least as well as any phone sequence: the
     owner said one of the phrases, not something else). Not thread-safe: one per thread or call."""
 
-    def __init__(self, phrases: list[str] | None = None, jsgf: str | None = None, trust_search: bool = False,
-                 align_all_when_lost: bool = False):
+    def __init__(self, phrases: list[str] | None = None, jsgf: str | None = None, trust_search: bool = False):
         from pocketsphinx import Decoder, get_model_path
         self.decoder = Decoder(sphinx_config())
         # trust_search: the search's own best path, when a complete phrase, is the answer (see decode)
         self.trust_search = trust_search
-        # align_all_when_lost: when the grammar search ends on no complete phrase, every phrase is
-        # aligned alone (~15 ms each) and the best one judged against the phone loop as usual
-        self.align_all_when_lost = align_all_when_lost
         self.unknown: list[str] = []
         if jsgf is None:
             known = [p for p in dict.fromkeys(normalize(p) for p in phrases or []) if p and self.known(p)]
@@ -504,14 +500,10 @@ class PhraseDecoder:
     CANDIDATES = 2  # complete phrases aligned (~15 ms each)
 
     def _complete_phrases(self, pcm: np.ndarray) -> list[str]:
-        """The complete phrases to align: the search's best path and N-best. pocketsphinx's grammar
-        search over many phrases can prune the right one away at its default beams: eSpeak's
-        "tell me the forecast" (en-us+m3, 160 wpm, clean) ended on no phrase at all among 14, while
-        aligned alone it scores well."""
         hyp = self._run("phrases", pcm)
         self._best_path_complete = False
         if hyp is None:
-            return list(self.phrases) if self.align_all_when_lost else []
+            return []
         known = set(self.phrases) if self.phrases else None
         out: list[str] = []
         first = [hyp.hypstr.strip()]
@@ -525,7 +517,7 @@ class PhraseDecoder:
                 if len(out) >= self.CANDIDATES:
                     break
         self._best_path_complete = bool(out) and out[0] == first[0]
-        return out or (list(self.phrases) if self.align_all_when_lost else [])
+        return out
 
     def _align(self, words: str, pcm: np.ndarray) -> tuple[str, float, list[tuple[str, int, int]]] | None:
         """(words, log-score, segments) of a grammar of `words` alone on the audio (the same search as the

@@ -154,10 +154,7 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
 def _phrase_decoder(key: tuple) -> PhraseDecoder:
     """A fresh PhraseDecoder per request (~90 ms): a kept one's scores depend slightly on the
     utterances it decoded before, and a service's answer must not depend on other users' audio."""
-    if key[0] == "jsgf":
-        return PhraseDecoder(jsgf=key[1])
-    # the owner's command was heard as speech: a phrase the grammar search lost is looked for alone
-    return PhraseDecoder(list(key[1:]), align_all_when_lost=True)
+    return PhraseDecoder(jsgf=key[1]) if key[0] == "jsgf" else PhraseDecoder(list(key[1:]))
 
 
 MARGIN_SCALE = 0.03  # margin (PhraseDecoder.decode) at which the confidence is 0.73
