@@ -249,9 +249,15 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         return self._speech is not None and not self._speech.done()
 
     async def _speech_heard(self, utterance: HeardUtterance) -> None:
+        # sound is a command only while we listen for one (s3): heard while we start a RApp, it was
+        # queued and taken as a command when the task ended (in a two-robot house, the other robot's
+        # spoken report, 18 s old, started hazard-detection a second time)
+        listening = self.supervisor is not None and self.supervisor.behaviour.current == "s3_listen"
         self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
-                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long)
-        await self.commands.put(utterance)
+                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long,
+                              **({} if listening else {"dropped": "not listening"}))
+        if listening:
+            await self.commands.put(utterance)
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])

@@ -179,3 +179,20 @@ async def test_apologies_for_heard_sound_are_said_aloud_twice_in_a_row_then_chat
         await wait_until(lambda n=n: sum(t.startswith("Sorry") for t in core.told[told:]) == n and listening(core), 30)
     assert [t for t in user.texts()[-3:] if "clipped" in t] == user.texts()[-3:]  # all three reach the chat
     assert sum(t.startswith("Sorry") for _, t in system.nao.loudspeaker.spoken[spoken:]) == 2
+
+
+@pytest.mark.parametrize("fsm_state, queued", [("s3_listen", 1), ("s5_download", 0), ("s7_handoff", 0)])
+async def test_sound_is_a_command_only_while_the_core_listens(fsm_state, queued):
+    """An utterance heard while the Core starts a RApp (s4-s7) is not kept for later: in a two-robot
+    house the other robot's spoken report, heard then, was taken as a command when the task ended."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from agents.core_agent import CoreAgent
+
+    records = []
+    core = SimpleNamespace(supervisor=SimpleNamespace(behaviour=SimpleNamespace(current=fsm_state)),
+                           commands=asyncio.Queue(), record_structure=lambda event, **kw: records.append(kw))
+    await CoreAgent._speech_heard(core, HeardUtterance(np.zeros(16000, np.int16), 0.8))
+    assert core.commands.qsize() == queued
+    assert ("dropped" in records[0]) == (queued == 0)
