@@ -71,6 +71,17 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
     return lat, missing
 
 
+def keep_trace(trace: Path, directory: Path | None = None) -> Path:
+    """A copy of a failed round's trace, outside the run's temporary directory (deleted at its end),
+    named by the time: what was lost or late can be looked up afterwards."""
+    import shutil
+
+    directory = Path(directory or tempfile.gettempdir())
+    kept = directory / f"bench-fleet-failed-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.jsonl"
+    shutil.copyfile(trace, kept)
+    return kept
+
+
 def run_when_idle(pid: int) -> None:
     """Every thread of `pid` under SCHED_IDLE (no privilege needed to lower one's own children)."""
     from agents.process import each_thread
@@ -264,6 +275,8 @@ async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float
                 r = await one_round(fleet, n, timeout)
                 rounds.append(r)
                 if not r["ok"]:
+                    r["trace_kept"] = str(keep_trace(fleet.trace_file))  # the run's directory goes
+                    log(f"fleet N={n}: the trace of the failed round is kept in {r['trace_kept']}")
                     break
     base = rounds[0]
     passed = [r for r in rounds if r["ok"]]
@@ -278,6 +291,7 @@ async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float
                house=HOUSE, sizes_tried=tried,
                first_failure=(f"N={first_fail['n']}: {first_fail['failed'][:1]} unanswered={first_fail['unanswered']}"
                               f" {first_fail['unanswered_actions']}") if first_fail else None,
+               failed_round_trace=first_fail.get("trace_kept") if first_fail else None,
                wall_s_at_n=best["wall_s"] if best else None,
                all_correct_at_n=(n_best - len(best["misclassified"])) if best else None,
                lost_final_status_acks=sum(r["lost_status_acks"] for r in rounds), capped_by_sizes=first_fail is None,

@@ -105,3 +105,16 @@ def test_the_fleet_p95_is_judged_only_at_the_goals_size():
     too_slow = dict(at_goal, ratio=3.5)
     goal_lines([below, at_goal, too_slow])
     assert [m["goal_met"] for m in (below, at_goal, too_slow)] == [False, True, False]
+
+
+def test_a_failed_fleet_rounds_trace_is_kept(tmp_path):
+    """The fleet's run directory is temporary: a failed round's trace is copied out first."""
+    from bench.fleet import keep_trace
+
+    trace = tmp_path / "run" / "trace.jsonl"
+    trace.parent.mkdir()
+    trace.write_text('{"t": 1.0, "kind": "message"}\n')
+    kept = keep_trace(trace, tmp_path)
+    trace.unlink()
+    assert kept.parent == tmp_path and kept.name.startswith("bench-fleet-failed-")
+    assert kept.read_text() == '{"t": 1.0, "kind": "message"}\n'
