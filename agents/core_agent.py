@@ -65,8 +65,7 @@ from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
 from .identity import EphemeralAccounts, Identity
-from . import liveness
-from .liveness import SilenceWatch, sample_main_thread
+from .liveness import GRACE_S, MARK_AFTER_S, SilenceWatch, sample_main_thread
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .sandbox import Sandbox
 from .responder import Responder
@@ -101,8 +100,7 @@ class DynamicSession:
     state: str = "Spawned"
     detail: str = ""
     last_beat: float = field(default_factory=time.monotonic)
-    beats: int = 0  # heartbeats and status reports so far
-    silence: SilenceWatch | None = None  # the current silence's first look at its process
+    silence: SilenceWatch | None = None  # the looks at its process during the current silence
     ended: asyncio.Event = field(default_factory=asyncio.Event)
     hung: bool = False  # ended for missing heartbeats: killed without a grace period
     ready: asyncio.Event = field(default_factory=asyncio.Event)
@@ -484,7 +482,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     def _beat(self, sender: str) -> None:
         d = self.dynamic
         if d is not None and sender == bare(d.jid):
-            d.last_beat, d.beats = time.monotonic(), d.beats + 1
+            d.last_beat = time.monotonic()
 
     def _resume(self) -> None:
         self.deactivate("command-server")
@@ -552,15 +550,17 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         Dynamic Agent's process from the second missed beat on; False while the silence is shorter
         than the timeout."""
         pid = session.process.pid if isinstance(session.process, AgentProcess) else None
-        if pid is None or silence <= liveness.MARK_AFTER_S:
-            return False  # a thread or in-process agent (nothing to look at), or no beat missed yet
-        sample, watch = sample_main_thread(pid), session.silence
-        if watch is None or watch.beats != session.beats:  # a new silence: its first look
-            session.silence = watch = SilenceWatch(session.beats, now, sample)
+        if pid is None or silence <= MARK_AFTER_S:
+            session.silence = None  # a beat (or our own stall) ended the silence: the next starts afresh
+            return False  # (a thread or in-process agent: nothing to look at)
+        sample = sample_main_thread(pid)  # two small /proc reads: memory, not disk
+        if session.silence is None:  # a new silence: its first look
+            session.silence = SilenceWatch(now, sample)
+        watch = session.silence
         watch.look(sample)
         if silence <= HEARTBEAT_TIMEOUT_S:
             return False
-        why = watch.late_not_hung(sample, now) if silence <= liveness.GRACE_S else None
+        why = watch.late_not_hung(sample, now) if silence <= GRACE_S else None
         if why and not watch.noted:
             watch.noted = True
             self.record_structure("heartbeat-late", dynamic=session.jid, rapp=session.rapp,
@@ -619,7 +619,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def _on_status(self, req: C.TaskStatus, ctx) -> Done:
         d = self._from_dynamic(ctx)
-        d.state, d.detail, d.last_beat, d.beats = req.state.value, req.detail, time.monotonic(), d.beats + 1
+        d.state, d.detail, d.last_beat = req.state.value, req.detail, time.monotonic()
         self.record_structure("status", dynamic=d.jid, state=d.state, detail=req.detail[:200])
         if req.state == C.TaskState.INIT:
             d.ready.set()

@@ -40,10 +40,9 @@ class ThreadSample:
 
 @dataclass
 class SilenceWatch:
-    """The looks at a silent agent's main thread: the first one (after `beats` beats, at `at`,
-    monotonic) and whether any showed its loop waiting for events."""
+    """The looks at a silent agent's main thread: the first one (taken at `at`, monotonic) and
+    whether any showed its loop waiting for events."""
 
-    beats: int
     at: float
     first: ThreadSample | None
     loop_seen_waiting: bool = False

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -74,8 +75,6 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
 def keep_trace(trace: Path, directory: Path | None = None) -> Path:
     """A copy of a failed round's trace, outside the run's temporary directory (deleted at its end),
     named by the time: what was lost or late can be looked up afterwards."""
-    import shutil
-
     directory = Path(directory or tempfile.gettempdir())
     kept = directory / f"bench-fleet-failed-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.jsonl"
     shutil.copyfile(trace, kept)

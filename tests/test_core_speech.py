@@ -5,13 +5,16 @@ on the loudspeaker and the Core listens again; garbage sound is refused and noth
 cognitive game is then played by voice, end to end."""
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import re
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from agents.core_agent import CoreAgent
 from robots import RobotAPI, World, tts
 from robots.receptors import HeardUtterance
 from robots.sound import NoiseSource, house_sound, talker_at
@@ -185,11 +188,6 @@ async def test_apologies_for_heard_sound_are_said_aloud_twice_in_a_row_then_chat
 async def test_sound_is_a_command_only_while_the_core_listens(fsm_state, queued):
     """An utterance heard while the Core starts a RApp (s4-s7) is not kept for later: in a two-robot
     house the other robot's spoken report, heard then, was taken as a command when the task ended."""
-    import asyncio
-    from types import SimpleNamespace
-
-    from agents.core_agent import CoreAgent
-
     records = []
     core = SimpleNamespace(supervisor=SimpleNamespace(behaviour=SimpleNamespace(current=fsm_state)),
                            commands=asyncio.Queue(), record_structure=lambda event, **kw: records.append(kw))

@@ -34,7 +34,7 @@ def start(code: str) -> subprocess.Popen:
 
 def judge(pid: int, window_s: float = 1.0, looks: int = 10) -> str | None:
     """As the Core does: a first look, more every window_s / looks, the verdict at the last."""
-    watch = SilenceWatch(0, time.monotonic(), sample_main_thread(pid))
+    watch = SilenceWatch(time.monotonic(), sample_main_thread(pid))
     for _ in range(looks):
         time.sleep(window_s / looks)
         sample = sample_main_thread(pid)
@@ -77,7 +77,7 @@ def test_a_loop_behind_a_busy_process_on_its_cpu_is_late():
 def test_a_runnable_thread_is_late_only_without_cpu(cpu_used, window, expect):
     """The rule on samples (a real thread's runnable-without-CPU moment cannot be made on demand)."""
     first = ThreadSample("R", "0", 5.0)
-    watch = SilenceWatch(0, 100.0, first)
+    watch = SilenceWatch(100.0, first)
     now = ThreadSample("R", "0", 5.0 + cpu_used)
     watch.look(now)
     assert watch.late_not_hung(now, 100.0 + window) == expect
@@ -85,7 +85,7 @@ def test_a_runnable_thread_is_late_only_without_cpu(cpu_used, window, expect):
 
 def test_a_process_that_is_gone_is_hung():
     proc = subprocess.Popen([sys.executable, "-c", "pass"])
-    watch = SilenceWatch(0, time.monotonic() - 1.0, sample_main_thread(proc.pid))
+    watch = SilenceWatch(time.monotonic() - 1.0, sample_main_thread(proc.pid))
     proc.wait()
     assert sample_main_thread(proc.pid) is None
     assert watch.late_not_hung(None, time.monotonic()) is None
