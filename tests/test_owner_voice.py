@@ -78,10 +78,12 @@ async def test_inbox_and_script_play_one_line_after_another(tmp_path):
                 break
             await asyncio.sleep(0.05)
         script = asyncio.create_task(voice.run_script([SpokenLine(say="check the hazards", at=2.0, distance=3.0)]))
-        for _ in range(200):
+        # bounded in wall time: the line's synthesis runs in a thread, and 200 steps of the unpaced
+        # world took less than that synthesis on a loaded machine (CI saw the script's line missing)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + 60.0
+        while not (script.done() and not list(voice.inbox.iterdir())) and loop.time() < deadline:
             await world.sleep(0.1)
-            if script.done() and not list(voice.inbox.iterdir()):
-                break
         server.cancel()
         assert [s["say"] for s in voice.spoken] == ["hello robot", "check the hazards"]
         first, second = voice.spoken
