@@ -1,0 +1,203 @@
+"""The speech path's recognisers alone, without agents: the same house, voices, distances and TV as
+bench/speech.py, each recording cut by the Core's voice activity detector, then decided as the Core
+and the Platform decide (KeywordSpotter for s4a; speech_recognition with the Store's phrases, then the
+language model, then interpret_command for s4b). Minutes instead of the agent bench's six, and many
+more recordings per cell, so a change to a recogniser is judged on more than 10 commands a cell.
+
+    python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong]
+
+Recordings are cached in /tmp (keyed by the conditions and the synthesiser's output) so a second run
+decodes only. Not part of `python -m bench`: it measures recognisers, not the system."""
+from __future__ import annotations
+
+import argparse
+import base64
+import hashlib
+import itertools
+import os
+import pickle
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from .speech import NOISE, ROBOT_AT, TV_AT, VOCABULARY
+
+VOICES = ("en-us", "en-us+f3", "en-us+m3", "en", "en+f2")
+SPEEDS = (130, 160, 190)
+DISTANCES = (0.5, 1.0, 2.0, 3.0)
+# sentences the owner may say that are no command, and "" (nobody speaks for 20 s: only the room's
+# sound): never a RApp
+OTHER = ("open the window please", "what time is it", "thank you very much", "turn on the radio",
+         "where are my glasses", "hello there", "good morning robot", "")
+CACHE = Path("/tmp/rapp-speech-offline")
+MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/receptors.py AudioInput)
+
+
+def items(path: str) -> list[tuple[str, str | None]]:
+    """(text, expected RApp) of one path; the other sentences for both."""
+    said = [(w, rapp) for rapp, (ws, ps) in VOCABULARY.items() for w in (ws if path == "keyword" else ps)]
+    return said + [(t, None) for t in OTHER]
+
+
+def conditions(path: str, quick: bool) -> list[tuple]:
+    """(text, rapp, voice, speed, distance, noise): every sentence in every noise, voices, speeds and
+    distances cycled so that each sentence meets several."""
+    per = 2 if quick else 6
+    out = []
+    for k, ((text, rapp), noise) in enumerate(itertools.product(items(path), NOISE)):
+        for i in range(per):
+            j = k * per + i
+            out.append((text, rapp, VOICES[j % len(VOICES)], SPEEDS[(j // 2) % len(SPEEDS)],
+                        DISTANCES[(j * 3 + k) % len(DISTANCES)], noise))
+    return out
+
+
+def _record(cond: tuple) -> list:
+    """The utterances the Core's voice activity detector cuts from the owner saying `text` (cached)."""
+    from robots import tts
+    from robots.floorplan import load_plan
+    from robots.receptors import VoiceActivity
+    from robots.sound import HouseSound, NoiseSource, talker_at
+    from robots.world import HOUSES
+
+    text, _, voice, speed, dist, noise = cond
+    key = hashlib.sha1(repr((cond[0],) + cond[2:]).encode()).hexdigest()[:16]
+    f = CACHE / f"{key}.pkl"
+    if f.exists():
+        return pickle.loads(f.read_bytes())
+    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5))
+    if NOISE[noise]:
+        house.add(NoiseSource("tv", TV_AT, kind="tv", level_db=NOISE[noise], seed=5, start=0.0))
+    pcm = tts.synthesize(text, voice, speed) if text else np.zeros(20 * 16000, np.int16)
+    at = 4.0  # the detector learns the room first, as the Core's does
+    mic = (*ROBOT_AT, MIC_Z)
+    if text:
+        house.play("owner", talker_at(ROBOT_AT, dist, MIC_Z), pcm, at=at, level_db=60)
+    heard = house.receive(mic, 0.0, at + len(pcm) / 16000 + 1.5, mic="nao")
+    vad = VoiceActivity(max_seconds=5.0)
+    out = []
+    for s in range(0, len(heard), 1600):
+        out += vad.feed(heard[s:s + 1600])
+    utts = [(u.pcm, u.speech_seconds, u.too_long) for u in out]
+    CACHE.mkdir(exist_ok=True)
+    f.write_bytes(pickle.dumps(utts))
+    return utts
+
+
+def _rapps():
+    from ontology.services.interpretation import RAppDescription
+    return [RAppDescription(name=n, keywords=ws, phrases=ps, robot_types=["nao"]) for n, (ws, ps) in VOCABULARY.items()]
+
+
+def _vocabulary() -> dict[str, str]:
+    return {w.lower(): n for n, (ws, _) in VOCABULARY.items() for w in ws}
+
+
+_SPOTTER = None
+
+
+def decide_keyword(utts: list) -> str | None:
+    """s4a as the Core runs it, then s4b for an utterance not spotted: the first RApp decided."""
+    global _SPOTTER
+    from robots.receptors import HeardUtterance, KeywordSpotter
+    vocab = _vocabulary()
+    if _SPOTTER is None:
+        _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab)
+    for pcm, speech, too_long in utts:
+        word = _SPOTTER.spot(HeardUtterance(pcm, speech, too_long))
+        rapp = vocab.get(word.lower()) if word else _platform(pcm)
+        if rapp:
+            return rapp
+    return None
+
+
+def decide_platform(utts: list) -> str | None:
+    """s4b as the Core and Platform run it: each utterance in turn (the Core sends each), the first
+    RApp interpreted."""
+    for pcm, _, _ in utts:
+        rapp = _platform(pcm)
+        if rapp:
+            return rapp
+    return None
+
+
+def _platform(pcm: np.ndarray) -> str | None:
+    from agents.services import ServiceError, run_service
+    from agents.services.context import ServiceContext, ServiceState
+    from agents.services.interpretation import interpret
+    from ontology.services.speech import SpeechRecognition
+    from robots.sound import encode_wav
+
+    ctx = ServiceContext(user="bench", state=ServiceState(work_dir=Path("/tmp")))
+    wav = base64.b64encode(encode_wav(pcm)).decode()
+    sentences = sorted({p for _, ps in VOCABULARY.values() for p in ps} | set(_vocabulary()))
+    text = ""
+    for allowed in (sentences, []):
+        try:
+            text = run_service("speech_recognition", SpeechRecognition(audio_b64=wav, sentences=allowed), ctx).text
+        except ServiceError:
+            return None
+        if text.strip():
+            break
+    if not text.strip():
+        return None
+    try:
+        return interpret(text, "nao", _rapps()).rapp
+    except ServiceError:
+        return None
+
+
+def _one(args: tuple) -> dict:
+    path, cond = args
+    t0 = time.perf_counter()
+    utts = _record(cond)
+    t1 = time.perf_counter()
+    got = (decide_keyword if path == "keyword" else decide_platform)(utts)
+    return dict(path=path, text=cond[0], expected=cond[1], voice=cond[2], speed=cond[3], distance=cond[4],
+                noise=cond[5], got=got, utterances=len(utts), decode_ms=(time.perf_counter() - t1) * 1e3,
+                record_ms=(t1 - t0) * 1e3)
+
+
+def report(rows: list[dict], show_wrong: bool) -> None:
+    for path in ("keyword", "platform"):
+        mine = [r for r in rows if r["path"] == path]
+        if not mine:
+            continue
+        print(f"{path}: right commands / commands (wrong RApps), other sentences taken as a command")
+        for noise in NOISE:
+            cmd = [r for r in mine if r["noise"] == noise and r["expected"]]
+            other = [r for r in mine if r["noise"] == noise and not r["expected"]]
+            right = sum(r["got"] == r["expected"] for r in cmd)
+            wrong = sum(bool(r["got"]) and r["got"] != r["expected"] for r in cmd)
+            print(f"  {noise:6s} {right:3d}/{len(cmd)} = {100 * right / max(len(cmd), 1):5.1f} % ({wrong} wrong)"
+                  f"   other taken {sum(bool(r['got']) for r in other)}/{len(other)}")
+        ms = sorted(r["decode_ms"] for r in mine)
+        print(f"  decode median {ms[len(ms) // 2]:.0f} ms, max {ms[-1]:.0f} ms")
+        if show_wrong:
+            for r in mine:
+                if r["got"] != r["expected"]:
+                    print(f"    {r['noise']:6s} {r['text']!r} {r['voice']} {r['speed']} {r['distance']} m"
+                          f" -> {r['got']} ({r['utterances']} utterances)")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.speech_offline", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="2 recordings per sentence and noise instead of 6")
+    ap.add_argument("--only", choices=("keyword", "platform"))
+    ap.add_argument("--show-wrong", action="store_true")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
+    a = ap.parse_args(argv)
+    jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(a.workers) as pool:
+        rows = list(pool.map(_one, jobs, chunksize=4))
+    report(rows, a.show_wrong)
+    print(f"{len(rows)} recordings in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
