@@ -503,9 +503,13 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if session.state in ("Finished", "Error"):
             self._end(session, session.detail)
             return
-        lines = [ln for ln in session.process.stderr_tail(4000).splitlines() if ln.strip()]
-        why = next((ln for ln in reversed(lines) if "Error" in ln or "rapp sandbox" in ln), lines[-1] if lines else "")
-        self._end(session, f"process exited with code {code}" + (f": {why.strip()[:300]}" if why else ""))
+        words = session.process.last_words(4000)
+        lines = [ln.strip() for ln in words.splitlines() if ln.strip()]
+        if words.startswith("Fatal Python error"):  # a crash: what, and the innermost frame (listed first)
+            why = " ".join([lines[0], *[ln for ln in lines if ln.startswith("File ")][:1]])
+        else:
+            why = next((ln for ln in reversed(lines) if "Error" in ln or "rapp sandbox" in ln), lines[-1] if lines else "")
+        self._end(session, f"process exited with code {code}" + (f": {why[:300]}" if why else ""))
 
     def _end(self, session: DynamicSession, reason: str) -> None:
         if not session.ended.is_set():

@@ -284,6 +284,15 @@ class AgentProcess:
         except OSError:
             return ""
 
+    def last_words(self, n: int = 1500) -> str:
+        """What the process wrote last: from its fault handler's "Fatal Python error" on (the
+        Python stack of a crash, without the list of extension modules after it), else the tail."""
+        text = self.stderr_tail(200_000)
+        at = text.rfind("Fatal Python error")
+        if at < 0:
+            return text[-n:]
+        return text[at:].split("\nExtension modules:")[0][:n]
+
 
 class InProcessAgent:
     """The AgentProcess interface for an agent run as a task of this process: the same package
@@ -338,6 +347,9 @@ class InProcessAgent:
     def stderr_tail(self, n: int = 2000) -> str:
         exc = self.task.exception() if self.task is not None and self.task.done() and not self.task.cancelled() else None
         return f"{type(exc).__name__}: {exc}" if exc else ""
+
+    def last_words(self, n: int = 1500) -> str:
+        return self.stderr_tail(n)
 
 
 SPAWN_MODES = ("process", "inprocess")

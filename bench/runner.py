@@ -27,7 +27,7 @@ from .common import ROOT, log, metric, table
 
 BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf", "recovery", "speech", "estop",
               "platform_load"]
-FULL_TIMEOUT_S = {"fleet": 1800, "platform_load": 1500}  # 21 hazard-detection runs in two rounds; a run + 4 replays
+FULL_TIMEOUT_S = {"fleet": 1800, "platform_load": 1500}  # 23 hazard-detection runs in four rounds; a run + 4 replays
 ALIASES = {"recovery_killed_told": "recovery", "recovery_hung_back": "recovery",
            "recovery_reconnect": "recovery", "recovery_command_answered": "recovery", "robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
            "fleet_service_p95": "fleet", "sim": "sim_rtf", "platform_load_threads": "platform_load",

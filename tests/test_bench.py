@@ -60,7 +60,7 @@ def test_runner_tiny_fleet(tmp_path):
     fleet = next(m for m in metrics if m["name"] == "fleet")
     assert (fleet["value"], fleet["rapp"], fleet["all_correct_at_n"]) == (1, "hazard-detection", 1)
     assert fleet["floor"] == 1 and fleet["goal_met"] is True
-    assert list(fleet["heartbeats_late_by_round"]) == ["1"]  # counted per round (0 expected when quiet)
+    assert [n for n, _ in fleet["heartbeats_late_by_round"]] == [1]  # counted per round (0 expected when quiet)
     assert next(m for m in metrics if m["name"] == "fleet_service_p95")["n"] > 0
 
 
@@ -118,3 +118,24 @@ def test_a_failed_fleet_rounds_trace_is_kept(tmp_path):
     trace.unlink()
     assert kept.parent == tmp_path and kept.name.startswith("bench-fleet-failed-")
     assert kept.read_text() == '{"t": 1.0, "kind": "message"}\n'
+
+
+def test_a_call_failed_by_its_cloud_agents_crash_is_not_lost():
+    """The fleet's check: a request without an answer is lost, unless its Dynamic Agent was told
+    afterwards that the Cloud Agent it called had died (its calls in flight fail, said so)."""
+    from bench.fleet import request_latencies
+
+    dyn, cloud, platform = "dyn-nao1-x@localhost", "cloud-x@localhost", "platform@localhost"
+
+    def msg(t, direction, conv, performative, receiver, action="observe"):
+        return {"t": t, "kind": "message", "agent": dyn, "dir": direction, "performative": performative,
+                "conversation_id": conv, "receiver": receiver, "action": action, "ontology": "cloud"}
+
+    trace = [msg(1.0, "send", "a", "request", platform, "home_get_info"),
+             msg(1.1, "recv", "a", "inform", dyn, "home_get_info"),
+             msg(2.0, "send", "b", "request", cloud),  # in flight when the Cloud Agent died
+             {"t": 2.5, "kind": "structure", "event": "cloud-down", "agent": dyn, "cloud": cloud},
+             msg(3.0, "send", "c", "request", cloud)]  # after it: nobody will ever say why
+    lat, missing = request_latencies(trace, 0.0, platform)
+    assert lat["failed_by_crash"] == ["dyn-nao1-x:observe"]
+    assert missing == ["dyn-nao1-x:observe"] and len(lat["platform"]) == 1

@@ -1,4 +1,4 @@
-"""Dynamic Agent faults: exception, hang, busy loop, SIGKILL, no end (time limit). In every case
+"""Dynamic Agent faults: exception, hang, busy loop, SIGKILL, a crash (SIGSEGV), no end (time limit). In every case
 the Core notices within 2 s, stops the robot, destroys the Dynamic Agent, tells the user and
 resumes supervision; the next command works."""
 from __future__ import annotations
@@ -20,6 +20,7 @@ FAULTS = {  # keyword -> (params, time limit)
     "hangecho": ({"behaviour": "hang"}, 60),
     "busyecho": ({"behaviour": "busy"}, 60),
     "killecho": ({"behaviour": "exit"}, 60),
+    "crashecho": ({"behaviour": "crash"}, 60),
     "silentecho": ({"behaviour": "silent"}, 3),
     "lateecho": ({"behaviour": "linger", "seconds": 5}, 60),  # not a fault: its beats are held up
 }
@@ -53,12 +54,16 @@ def _records(system, rapp, kind, event=None):
     ("hangecho", "no heartbeat"),
     ("busyecho", "no heartbeat"),
     ("killecho", "exited with code -9"),
+    # the fault handler's words: what happened and where (the task's frame, innermost first)
+    ("crashecho", "exited with code -11: Fatal Python error: Segmentation fault File "),
     ("silentecho", "time limit of 3s exceeded"),
 ])
 async def test_fault_is_noticed_cleaned_up_and_reported(system, keyword, expect):
     rapp = keyword.replace("echo", "-echo")
     reply = await run_command(system, keyword, f"{rapp} ended with a problem", timeout=30)
     assert expect in reply
+    if keyword == "crashecho":
+        assert 'echo_app/task.py", line' in reply and "misbehave" in reply, reply
     core = system.handle.core
     await wait_until(lambda: core.active_behaviours() == SUPERVISING and state(core) == "s3_listen")
     # noticed within 2 s of the fault (for the time limit: of the limit running out)
