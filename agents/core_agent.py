@@ -505,8 +505,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             return
         words = session.process.last_words(4000)
         lines = [ln.strip() for ln in words.splitlines() if ln.strip()]
-        if words.startswith("Fatal Python error"):  # a crash: what, and the innermost frame (listed first)
-            why = " ".join([lines[0], *[ln for ln in lines if ln.startswith("File ")][:1]])
+        if words.startswith("Fatal Python error"):  # a crash: what, and the crashing thread's innermost frame
+            current = next((i for i, ln in enumerate(lines) if ln.startswith("Current thread")), 0)
+            why = " ".join([lines[0], *[ln for ln in lines[current:] if ln.startswith("File ")][:1]])
         else:
             why = next((ln for ln in reversed(lines) if "Error" in ln or "rapp sandbox" in ln), lines[-1] if lines else "")
         self._end(session, f"process exited with code {code}" + (f": {why[:300]}" if why else ""))
