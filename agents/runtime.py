@@ -80,6 +80,9 @@ async def run_spec(spec: SpawnSpec) -> int:
     import signal
 
     agent = build_agent(spec)
+    if spec.kind == "cloud":
+        from .cloud_agent import CLOUD_NICE
+        agent.nice_when_serving = CLOUD_NICE  # its own process: nobody else's priority changes
     loop = asyncio.get_running_loop()
     main_task = asyncio.current_task()
     # SIGTERM from the Core/Platform: log out cleanly (presence unavailable), then exit

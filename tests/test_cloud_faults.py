@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+from agents.cloud_agent import CLOUD_NICE
 from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
@@ -38,6 +39,10 @@ async def _kill_cloud_of(system, keyword: str, rapp: str, sig=signal.SIGKILL) ->
     await user.say(system.handle.core.address, keyword)
     await user.wait_for(lambda t: t.startswith("watching cloud"), timeout=30, start=start)
     session = next(c for c in system.platform.clouds.values() if c.rapp == rapp)
+    # serving, it runs CLOUD_NICE below the Platform (its own process only: the Platform's is untouched)
+    own = os.getpriority(os.PRIO_PROCESS, 0)
+    await wait_until(lambda: os.getpriority(os.PRIO_PROCESS, session.process.pid) >= own + CLOUD_NICE, 5)
+    assert os.getpriority(os.PRIO_PROCESS, 0) == own
     killed = time.time()  # the trace's clock
     os.kill(session.process.pid, sig)
     return killed, start
