@@ -49,7 +49,7 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
     sends, answers, down = {}, {}, {}
     for r in trace:
         if r["kind"] == RecordKind.STRUCTURE and r.get("event") == "cloud-down" and r["t"] >= since:
-            down.setdefault((r["agent"], r["cloud"]), r["t"])  # told its Cloud Agent died: calls in flight failed
+            down.setdefault((r["agent"], r["cloud"]), []).append(r["t"])  # told its Cloud Agent died: calls in flight failed
         if r["kind"] != RecordKind.MESSAGE or r["t"] < since or not r["agent"].startswith("dyn-"):
             continue
         if r["dir"] == "send" and r["performative"] == "request":
@@ -60,7 +60,7 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
     missing, lost_status = [], []
     for conv, s in sends.items():
         a = answers.get(conv)
-        if a is None and down.get((s["agent"], s["receiver"]), 0.0) >= s["t"]:
+        if a is None and any(t >= s["t"] for t in down.get((s["agent"], s["receiver"]), ())):
             lat["failed_by_crash"].append(f"{s['agent'].split('@')[0]}:{s['action']}")  # not lost: failed, and said so
             continue
         if a is None:

@@ -135,7 +135,9 @@ def test_a_call_failed_by_its_cloud_agents_crash_is_not_lost():
              msg(1.1, "recv", "a", "inform", dyn, "home_get_info"),
              msg(2.0, "send", "b", "request", cloud),  # in flight when the Cloud Agent died
              {"t": 2.5, "kind": "structure", "event": "cloud-down", "agent": dyn, "cloud": cloud},
-             msg(3.0, "send", "c", "request", cloud)]  # after it: nobody will ever say why
+             msg(3.0, "send", "c", "request", cloud),  # to the restarted one, which died too
+             {"t": 3.5, "kind": "structure", "event": "cloud-down", "agent": dyn, "cloud": cloud},
+             msg(4.0, "send", "e", "request", cloud, "solve_pose")]  # after both: nobody ever said why
     lat, missing = request_latencies(trace, 0.0, platform)
-    assert lat["failed_by_crash"] == ["dyn-nao1-x:observe"]
-    assert missing == ["dyn-nao1-x:observe"] and len(lat["platform"]) == 1
+    assert lat["failed_by_crash"] == ["dyn-nao1-x:observe"] * 2  # b and c
+    assert missing == ["dyn-nao1-x:solve_pose"] and len(lat["platform"]) == 1
