@@ -66,7 +66,8 @@ from .locks import ResourceLocks
 from .messages import bare
 from .identity import EphemeralAccounts, Identity
 from .liveness import GRACE_S, MARK_AFTER_S, SilenceWatch, sample_main_thread
-from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
+from .process import (AgentProcess, InProcessAgent, Limits, check_spawn_mode, crash_summary, spawn_agent,
+                      sweep_run_dirs)
 from .sandbox import Sandbox
 from .responder import Responder
 from .warm_pool import WarmPool
@@ -503,13 +504,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if session.state in ("Finished", "Error"):
             self._end(session, session.detail)
             return
-        words = session.process.last_words(4000)
+        words = await asyncio.to_thread(session.process.last_words, 4000)
         lines = [ln.strip() for ln in words.splitlines() if ln.strip()]
-        if words.startswith("Fatal Python error"):  # a crash: what, and the crashing thread's innermost frame
-            current = next((i for i, ln in enumerate(lines) if ln.startswith("Current thread")), 0)
-            why = " ".join([lines[0], *[ln for ln in lines[current:] if ln.startswith("File ")][:1]])
-        else:
-            why = next((ln for ln in reversed(lines) if "Error" in ln or "rapp sandbox" in ln), lines[-1] if lines else "")
+        why = crash_summary(words) or next((ln for ln in reversed(lines) if "Error" in ln or "rapp sandbox" in ln),
+                                           lines[-1] if lines else "")
         self._end(session, f"process exited with code {code}" + (f": {why[:300]}" if why else ""))
 
     def _end(self, session: DynamicSession, reason: str) -> None:

@@ -450,7 +450,7 @@ class PlatformAgent(RappAgent):
             restart = session.restartable and not session.restarted
             reason = f"Cloud Agent {session.jid} of {session.rapp} exited with code {code}"
             self.record_structure("cloud-lost", cloud=session.jid, rapp=session.rapp, exit_code=code,
-                                  restart=restart, stderr=session.process.last_words())
+                                  restart=restart, stderr=await asyncio.to_thread(session.process.last_words))
             if restart:
                 restart = await self._restart_cloud(session, spec, workdir)
             await self.notify(session.owner, P.CloudAgentDown(jid=session.jid, reason=reason, restarted=restart),

@@ -279,19 +279,36 @@ class AgentProcess:
                     pass
 
     def stderr_tail(self, n: int = 2000) -> str:
+        """The last ~n characters of its stderr.log: only those are read (a RApp may log megabytes)."""
         try:
-            return (self.workdir / "stderr.log").read_text(errors="replace")[-n:]
+            with open(self.workdir / "stderr.log", "rb") as f:
+                f.seek(max(0, f.seek(0, os.SEEK_END) - 4 * n))  # up to 4 bytes a character
+                return f.read().decode(errors="replace")[-n:]
         except OSError:
             return ""
 
     def last_words(self, n: int = 1500) -> str:
         """What the process wrote last: from its fault handler's "Fatal Python error" on (the
         Python stack of a crash, without the list of extension modules after it), else the tail."""
-        text = self.stderr_tail(200_000)
-        at = text.rfind("Fatal Python error")
+        text = self.stderr_tail(20_000)  # the dump lists every thread; the module list after it is long
+        at = text.rfind(FATAL)
         if at < 0:
             return text[-n:]
         return text[at:].split("\nExtension modules:")[0][:n]
+
+
+FATAL = "Fatal Python error"  # how faulthandler's dump of a crash begins (agents/runtime.py enables it)
+
+
+def crash_summary(words: str) -> str | None:
+    """One line of a crash's dump (last_words): what happened and the crashing thread's innermost
+    frame (the dump lists every thread, most recent call first, the crashing one marked "Current");
+    None when the words are no crash dump."""
+    if not words.startswith(FATAL):
+        return None
+    lines = [ln.strip() for ln in words.splitlines() if ln.strip()]
+    current = next((i for i, ln in enumerate(lines) if ln.startswith("Current thread")), 0)
+    return " ".join([lines[0], *[ln for ln in lines[current:] if ln.startswith("File ")][:1]])
 
 
 class InProcessAgent:

@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
               "spec on the descriptor named by RAPP_SPEC_FD)", file=sys.stderr)
         return 2
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    # a crash in native code (OpenCV's QR decoder, 2026-11-26) leaves its Python stack in stderr.log,
+    # a crash in native code (a Cloud Agent's OpenCV work, 2026-11-26) leaves its Python stack in stderr.log,
     # which the Core or Platform quotes in its record of the loss
     faulthandler.enable()
     trace_fd = os.environ.pop("RAPP_TRACE_FD", None)

@@ -253,7 +253,7 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     # silences of live Dynamic Agents the Core waited out instead of ending them (agents/liveness.py)
     late = [r for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("event") == "heartbeat-late"]
     # Cloud Agents whose process died (a crash in native code): what the Platform recorded of it
-    crashes = [f"{r['cloud'].split('@')[0]} code {r['exit_code']}: {(r.get('stderr') or '').splitlines()[:1]}"
+    crashes = [f"{r['cloud'].split('@')[0]} code {r['exit_code']}: {next(iter((r.get('stderr') or '').splitlines()), '')}"
                for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("event") == "cloud-lost"]
     res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "misclassified": wrong,
            "heartbeats_late": len(late), "longest_late_silence_s": max((r["silence"] for r in late), default=None),

@@ -23,11 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .speech import NOISE, ROBOT_AT, TV_AT, VOCABULARY
+from .speech import DISTANCES, NOISE, ROBOT_AT, SPEEDS, TV_AT, VOCABULARY, VOICES
 
-VOICES = ("en-us", "en-us+f3", "en-us+m3", "en", "en+f2")
-SPEEDS = (130, 160, 190)
-DISTANCES = (0.5, 1.0, 2.0, 3.0)
 # sentences the owner may say that are no command, and "" (nobody speaks for 20 s: only the room's
 # sound): never a RApp
 OTHER = ("open the window please", "what time is it", "thank you very much", "turn on the radio",

@@ -63,7 +63,7 @@ async def test_killed_cloud_agent_is_reported_to_its_dynamic_agent_within_2s(sys
 
 
 async def test_restartable_cloud_agent_is_started_once_more(system):
-    # SIGSEGV as a crash in native code delivers it (OpenCV's QR decoder did so in a fleet run)
+    # SIGSEGV as a crash in native code delivers it (a Cloud Agent's OpenCV work did so in a fleet run)
     _, start = await _kill_cloud_of(system, "cloudagain", "cloud-again", signal.SIGSEGV)
     user = system.handle.user
     await user.wait_for(lambda t: t.startswith("cloud-again finished"), timeout=30, start=start)
