@@ -23,16 +23,30 @@ CLOUD_NICE = 5
 
 
 class CloudAgent(RappAgent):
-    def __init__(self, name: str, *, manifest: Manifest, package_dir: str | Path, owner: str,
-                 token: str = "", settings=None, password: str | None = None):
+    """Built with its run (`manifest`, `package_dir`, `owner`), or without one by a warm Cloud worker
+    that logs in while idle (agents/runtime.py); `begin()` then gives it its run."""
+
+    def __init__(self, name: str, *, manifest: Manifest | None = None, package_dir: str | Path | None = None,
+                 owner: str = "", token: str = "", settings=None, password: str | None = None):
         super().__init__(name, settings, password)
-        self.manifest, self.package_dir = manifest, Path(package_dir)
+        self.manifest, self.package_dir = manifest, Path(package_dir) if package_dir else None
         self.owner, self.token = owner, token
         self.service = None
         self.nice_when_serving = 0  # added to its process's nice value once it serves (CLOUD_NICE)
         self._stopped = asyncio.Event()
 
     async def setup(self) -> None:
+        if self.manifest is not None:
+            self._serve()
+
+    def begin(self, manifest: Manifest, package_dir: str | Path, owner: str, token: str = "") -> None:
+        """The run of a Cloud Agent already logged in: its RApp code imported and serving now."""
+        if self.service is not None:
+            raise RuntimeError(f"{self.address} already serves {self.manifest.name}")
+        self.manifest, self.package_dir, self.owner, self.token = manifest, Path(package_dir), owner, token
+        self._serve()
+
+    def _serve(self) -> None:
         cls = load_entry_point(self.package_dir, self.manifest.cloud_entry_point)
         self.service = cls(self)
         responder = Responder(self.service.ontology, self.service.handlers(), check=self._only_owner)
@@ -45,7 +59,8 @@ class CloudAgent(RappAgent):
     async def run_to_end(self, platform: str) -> int:
         from ontology.platform import CloudReady
 
-        await self.start()
+        if not self.is_alive():
+            await self.start()
         await self.request(platform, CloudReady(jid=self.address), timeout=10.0)
         if self.nice_when_serving:
             set_priority(os.getpid(), os.getpriority(os.PRIO_PROCESS, 0) + self.nice_when_serving)

@@ -100,8 +100,10 @@ class PlatformAgent(RappAgent):
         self.limits = limits
         # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
         # Cloud parts compute: numpy, cv2, scipy imported ahead (`warm_imports`, and what the builder adds)
+        # each logged in as a Cloud Agent of its own while idle (its account made first): a start costs no login
         self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
-                                  preload=warm_imports)
+                                  preload=warm_imports, login=lambda: self.accounts.create("cloud"),
+                                  forget=lambda ident: self.accounts.delete(ident.name, ident.password))
         self._pool_started = False
         self.served = 0
         self._serial = itertools.count(1)
@@ -389,25 +391,31 @@ class PlatformAgent(RappAgent):
         workdir = self.workdir / f"{n:04d}-{info.name}"
         await asyncio.to_thread(unpack_package, data, workdir / "package")
         prefix = f"cloud-{info.name}".replace("_", "-")
+        worker = self._cloud_worker()
         try:
-            ident = await self.accounts.take(prefix)
-        except LoginError as e:
-            raise Failure(f"cannot create the Cloud Agent's account: {e}", ErrorCode.CLOUD_START) from None
-        jid = self.settings.jid(ident.name)
-        scope = ctx.token
-        # the Cloud Agent is RApp code: never more than its manifest declares
-        services = frozenset(info.manifest.get("services") or ()) & (scope.services or frozenset(
-            info.manifest.get("services") or ()))
-        token, _ = await self._issue(ctx.user, max(60.0, scope.expires_at - time.time()), holder=jid,
-                                     rapp=info.name, services=services, issuer=ctx.sender,
-                                     not_after=scope.expires_at)
-        spec = SpawnSpec(kind="cloud", name=ident.name, password=ident.password, package_dir="",
-                         owner=owner, platform=self.address, token=token)
-        proc = self._spawn(spec, workdir)
-        session = CloudSession(jid=jid, rapp=info.name, version=info.version, owner=owner, user=ctx.user,
-                               process=proc, account=ident, supervisor=scope.issuer, token=token)
-        self.clouds[session.jid] = session
-        await proc.start()
+            try:
+                ident = worker.login if worker is not None else await self.accounts.take(prefix)
+            except LoginError as e:
+                raise Failure(f"cannot create the Cloud Agent's account: {e}", ErrorCode.CLOUD_START) from None
+            jid = self.settings.jid(ident.name)
+            scope = ctx.token
+            # the Cloud Agent is RApp code: never more than its manifest declares
+            services = frozenset(info.manifest.get("services") or ()) & (scope.services or frozenset(
+                info.manifest.get("services") or ()))
+            token, _ = await self._issue(ctx.user, max(60.0, scope.expires_at - time.time()), holder=jid,
+                                         rapp=info.name, services=services, issuer=ctx.sender,
+                                         not_after=scope.expires_at)
+            spec = SpawnSpec(kind="cloud", name=ident.name, password=ident.password, package_dir="",
+                             owner=owner, platform=self.address, token=token)
+            proc = self._spawn(spec, workdir)
+            session = CloudSession(jid=jid, rapp=info.name, version=info.version, owner=owner, user=ctx.user,
+                                   process=proc, account=ident, supervisor=scope.issuer, token=token)
+            self.clouds[session.jid] = session
+        except BaseException:
+            if worker is not None:  # not handed its run: let go, its account removed
+                await self.warm_pool.discard(worker)
+            raise
+        await proc.start(worker=worker)
         self.record_structure("cloud-spawn", cloud=session.jid, rapp=info.name, owner=owner, pid=proc.pid,
                               sandbox=proc.uid is not None, warm=getattr(proc, "warm", False))
         waiter = asyncio.create_task(session.ready.wait())
@@ -420,8 +428,8 @@ class PlatformAgent(RappAgent):
             await self._kill_cloud(session, "did not start")
             raise Failure(f"Cloud Agent of {req.rapp} did not start: {proc.stderr_tail(500)}", ErrorCode.CLOUD_START)
         exited.cancel()
-        # the next starts of this RApp only log in: accounts made one by one behind this start, not during it
-        self.accounts.prepare(prefix, max(1, self.warm_pool.size))
+        if worker is None:  # cold: the next cold starts of this RApp only log in (accounts made behind this start)
+            self.accounts.prepare(prefix, max(1, self.warm_pool.size))
         session.restartable = bool(info.manifest.get("cloud_restartable"))
         session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)
@@ -435,10 +443,17 @@ class PlatformAgent(RappAgent):
             self._pool_started = True
             self.warm_pool.start()
 
-    def _spawn(self, spec: SpawnSpec, workdir: Path):
+    def _cloud_worker(self):
+        """An idle warm worker, logged in under an account of its own (which the run takes), or None."""
+        if self.cloud_mode != "process":
+            return None
         self.start_cloud_workers()
+        return self.warm_pool.take()
+
+    def _spawn(self, spec: SpawnSpec, workdir: Path):
+        # no pool: a warm worker comes only from _cloud_worker, with the account the spec names
         return spawn_agent(spec, workdir, self.settings, mode=self.cloud_mode, limits=self.limits,
-                           sandbox=self.sandbox, pool=self.warm_pool)
+                           sandbox=self.sandbox)
 
     async def _watch_cloud(self, session: CloudSession, spec: SpawnSpec, workdir: Path) -> None:
         """A Cloud Agent whose process ends unasked: its Dynamic Agent is told at once (the SDK

@@ -19,7 +19,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from ontology.spawn import SpawnSpec
+from ontology.spawn import SpawnSpec, WarmLogin
 
 from .sandbox import APP_DIR, Sandbox
 
@@ -94,8 +94,12 @@ class AgentProcess:
     down the worker's pipe; without one idle it starts a process as before (a cold start)."""
 
     def __init__(self, name: str, spec: SpawnSpec | None, workdir: Path, settings, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None, pool=None, preload: tuple[str, ...] = (), nice: int = 0):
+                 sandbox: Sandbox | None = None, pool=None, preload: tuple[str, ...] = (), nice: int = 0,
+                 login=None):
         self.name = name
+        # a warm Cloud worker's own account (agents/identity.py Identity), logged in while idle; its
+        # run's spec names the same account
+        self.login = login
         self.preload = check_module_names(preload)  # a warm worker imports these too (agents/runtime.py)
         self.nice = nice  # a warm worker's priority while idle (raised back at its hand-off)
         self.workdir = Path(workdir)
@@ -118,11 +122,16 @@ class AgentProcess:
         package = f"{APP_DIR}/package" if self.uid is not None else str(self.workdir.resolve() / "package")
         return spec.model_copy(update={"package_dir": package})
 
-    async def start(self) -> None:
-        if self.pool is not None and self.spec is not None and _fresh(self.workdir):
-            worker = self.pool.take()
+    async def start(self, worker: "AgentProcess | None" = None) -> None:
+        """`worker`: an idle warm worker the caller took from its pool (a logged-in Cloud worker,
+        whose account the spec names); else one is taken from `pool`, if any."""
+        if self.spec is not None and _fresh(self.workdir):
+            if worker is None and self.pool is not None:
+                worker = self.pool.take()
             if worker is not None and await self._become(worker):
                 return
+        elif worker is not None:
+            await worker.stop(grace=0.0)  # not for this run: never left idle outside its pool
         # Popen + a pidfd, not asyncio subprocesses: SPADE installs uvloop's loop policy,
         # whose child watcher the standard loop cannot use.
         self.proc = await asyncio.to_thread(self._popen)
@@ -133,7 +142,7 @@ class AgentProcess:
     async def _become(self, worker: "AgentProcess") -> bool:
         """This run goes to the idle warm `worker`: same process, uid, sandbox and exit future.
         False when the worker died after the pool checked it: reaped, and the run starts cold."""
-        self.uid, self.proc, self._waiter = worker.uid, worker.proc, worker._waiter
+        self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
         spec_w, worker._spec_w = worker._spec_w, None
         worker._forget_ready()
         self.spec, self.warm = self._placed(self._given), True
@@ -143,7 +152,7 @@ class AgentProcess:
         except BrokenPipeError:
             await self.stop(grace=0.0)
             self.proc = self._waiter = self.returncode = None
-            self.uid, self.warm = self.sandbox.new_uid(), False  # a fresh uid for the cold start
+            self.uid, self.warm, self.login = self.sandbox.new_uid(), False, None  # a fresh uid for the cold start
             self.spec = self._placed(self._given)
             return False
         except BaseException:
@@ -187,6 +196,10 @@ class AgentProcess:
                 finally:
                     os.close(spec_w)
             else:  # a warm worker: the spec comes at the hand-off; "imports done" comes back
+                if self.login is not None:  # its account first: it logs in while idle
+                    os.write(spec_w, WarmLogin(name=self.login.name, password=self.login.password)
+                             .model_dump_json().encode() + b"\n")
+                    extra["RAPP_WARM_LOGIN"] = "1"
                 keep.append(spec_w)
                 ready_r, ready_w = os.pipe()
                 keep.append(ready_r)
@@ -325,7 +338,7 @@ class InProcessAgent:
         self.agent = None
         self.returncode: int | None = None
 
-    async def start(self) -> None:
+    async def start(self, worker=None) -> None:  # no warm workers in-process
         from .runtime import build_agent, run_agent
 
         self.agent = build_agent(self.spec, self.settings)

@@ -18,7 +18,7 @@ import logging
 import sys
 from pathlib import Path
 
-from ontology.spawn import SpawnSpec
+from ontology.spawn import SpawnSpec, WarmLogin
 from ontology.manifest import load_manifest
 
 
@@ -76,29 +76,102 @@ async def run_agent(agent, spec: SpawnSpec) -> int:
     return await agent.run_to_end()
 
 
-async def run_spec(spec: SpawnSpec) -> int:
+async def run_spec(spec: SpawnSpec | None, login: WarmLogin | None = None, pipe: tuple[int, bytes] = (-1, b"")) -> int:
+    """Run `spec`'s agent to its end. A warm Cloud worker with a `login` logs in first, says it is
+    ready, and only then reads its spec from `pipe` (descriptor, bytes already read; the hand-off):
+    the run's Cloud Agent is the agent already logged in, its RApp code imported only now."""
     import signal
 
-    agent = build_agent(spec)
-    if spec.kind == "cloud":
-        from .cloud_agent import CLOUD_NICE
-        agent.nice_when_serving = CLOUD_NICE  # its own process: nobody else's priority changes
     loop = asyncio.get_running_loop()
     main_task = asyncio.current_task()
     # SIGTERM from the Core/Platform: log out cleanly (presence unavailable), then exit
     loop.add_signal_handler(signal.SIGTERM, main_task.cancel)
+    agent = None
     try:
+        if login is not None:
+            agent, spec = await _logged_in_first(login, pipe)
+            if agent is None:
+                return 0  # discarded idle: no run came
+        else:
+            agent = build_agent(spec)
+        if spec.kind == "cloud":
+            from .cloud_agent import CLOUD_NICE
+            agent.nice_when_serving = CLOUD_NICE  # its own process: nobody else's priority changes
         return await run_agent(agent, spec)
     except asyncio.CancelledError:
-        await asyncio.wait_for(agent.stop(), 2.0)
+        if agent is not None:
+            await asyncio.wait_for(agent.stop(), 2.0)
         return 143
 
 
+async def _logged_in_first(login: WarmLogin, pipe: tuple[int, bytes]):
+    """(the logged-in Cloud Agent, its run's spec), or (None, None) when the pool let it go idle."""
+    from xmpp_server.settings import XmppSettings
+
+    from .cloud_agent import CloudAgent
+
+    agent = CloudAgent(login.name, settings=XmppSettings.from_env(), password=login.password)
+    await agent.start()
+    say_ready()
+    data = await _read_to_end(*pipe)
+    if not data.strip():
+        await agent.stop()
+        return None, None
+    spec = SpawnSpec.model_validate_json(data)
+    if spec.kind != "cloud" or spec.name != login.name:
+        raise SystemExit(f"a warm Cloud worker logged in as {login.name} was handed {spec.kind} run {spec.name}")
+    agent.begin(load_manifest(Path(spec.package_dir) / "manifest.yaml"), spec.package_dir, spec.owner, spec.token)
+    return agent, spec
+
+
+async def _read_to_end(fd: int, first: bytes) -> bytes:
+    """The rest of the spec pipe, read by the loop (a thread blocked in read() would hold up the
+    exit of a worker told to stop while idle); the descriptor is closed."""
+    loop = asyncio.get_running_loop()
+    chunks, done = [first], loop.create_future()
+
+    def readable() -> None:
+        try:
+            chunk = os.read(fd, 65536)
+        except BlockingIOError:
+            return
+        if chunk:
+            chunks.append(chunk)
+        elif not done.done():
+            done.set_result(None)
+
+    os.set_blocking(fd, False)
+    loop.add_reader(fd, readable)
+    try:
+        await done
+    finally:
+        loop.remove_reader(fd)
+        os.close(fd)
+    return b"".join(chunks)
+
+
+def read_login() -> tuple[WarmLogin, tuple[int, bytes]]:
+    """A warm Cloud worker's account: the spec pipe's first line (the spec follows at the hand-off);
+    with the descriptor and what was read past the line."""
+    fd, data = spec_fd(), b""
+    while b"\n" not in data:
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            break
+        data += chunk
+    line, _, rest = data.partition(b"\n")
+    return WarmLogin.model_validate_json(line), (fd, rest)
+
+
+def spec_fd() -> int:
+    """The pipe the parent left open (RAPP_SPEC_FD); the variable is forgotten, so RApp code does
+    not find the descriptor's number there."""
+    return int(os.environ.pop("RAPP_SPEC_FD"))
+
+
 def read_spec() -> SpawnSpec:
-    """The spec from the pipe the parent left open (RAPP_SPEC_FD), read once; the descriptor is
-    closed and its number forgotten, so RApp code finds neither."""
-    fd = int(os.environ.pop("RAPP_SPEC_FD"))
-    with os.fdopen(fd, "rb") as f:
+    """The spec from the spec pipe, read once; the descriptor is closed."""
+    with os.fdopen(spec_fd(), "rb") as f:
         return SpawnSpec.model_validate_json(f.read())
 
 
@@ -169,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     # a warm worker of a pool that names them (PlatformAgent/CoreAgent warm_imports): RApps' usual imports
     extra = os.environ.pop("RAPP_PRELOAD", "")
     preload(tuple(n for n in extra.split(",") if n) if "RAPP_READY_FD" in os.environ else ())
+    if os.environ.pop("RAPP_WARM_LOGIN", None):  # a warm Cloud worker with an account: ready once logged in
+        return asyncio.run(run_spec(None, *read_login()))
     say_ready()
     return asyncio.run(run_spec(read_spec()))
 

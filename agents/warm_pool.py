@@ -12,6 +12,12 @@ The pool refills in the background shortly after each hand-off, each new worker 
 lower priority until its own hand-off gives it its parent's (REFILL_NICE). A worker that died while idle is
 reaped and replaced (after a back-off, should workers keep dying), never handed a RApp. `close()`
 kills and reaps the idle workers and removes their directories.
+
+With `login=` (the Platform's Cloud workers) each worker also gets an account of its own before it
+starts (`await login()`, an agents/identity.py Identity) and logs in while idle: the run it is
+handed (`AgentProcess.start(worker=...)`, its spec naming that account) costs no login. In a fleet's
+burst of 20 Cloud Agent starts the logins were most of a start (18-181 ms of CPU-starved XMPP
+round trips, bench/RESULTS.md). A worker let go idle has its account removed (`forget`).
 """
 from __future__ import annotations
 
@@ -40,12 +46,14 @@ REFILL_NICE = 10
 
 class WarmPool:
     def __init__(self, workdir: str | Path, settings, *, size: int = 1, limits: Limits = Limits(),
-                 sandbox: Sandbox | None = None, preload: tuple[str, ...] = (), refill_nice: int = REFILL_NICE):
+                 sandbox: Sandbox | None = None, preload: tuple[str, ...] = (), refill_nice: int = REFILL_NICE,
+                 login=None, forget=None):
         if not isinstance(size, int) or size < 0:
             raise ValueError(f"warm_workers must be a whole number >= 0, not {size!r}")
         self.workdir, self.settings, self.size = Path(workdir), settings, size
         self.limits, self.sandbox = limits, sandbox or Sandbox()
         self.preload = check_module_names(preload)  # modules workers import too, ahead of time (agents/runtime.py)
+        self.login, self.forget = login, forget  # async: a new worker's account / remove an idle one's
         # only where the hand-off can raise it back (root, as the sandbox needs, or RLIMIT_NICE)
         self.refill_nice = refill_nice if refill_nice and may_raise_priority() else 0
         self._idle: deque[AgentProcess] = deque()
@@ -76,6 +84,10 @@ class WarmPool:
             self._lost(worker, idle=False)
         self._refill()
         return None
+
+    async def discard(self, worker: AgentProcess) -> None:
+        """A worker taken and not handed a run after all: stopped, its account removed."""
+        await self._discard(worker)
 
     async def close(self) -> None:
         """Kill and reap the idle workers, remove their directories; no more refills."""
@@ -113,15 +125,19 @@ class WarmPool:
             if self._failures and await self._backed_off():
                 return
             refill = self.started >= self.size
-            worker = AgentProcess("warm", None, self.workdir / f"{next(self._serial):04d}-.warm", self.settings,
-                                  self.limits, self.sandbox, preload=self.preload,
-                                  nice=self.refill_nice if refill else 0)
+            worker = None
             try:
+                login = await self.login() if self.login is not None else None
+                worker = AgentProcess("warm", None, self.workdir / f"{next(self._serial):04d}-.warm", self.settings,
+                                      self.limits, self.sandbox, preload=self.preload,
+                                      nice=self.refill_nice if refill else 0, login=login)
                 await worker.start()
             except Exception as e:  # noqa: BLE001 - logged; hand-offs start cold meanwhile
                 self._failures += 1
                 log.warning("cannot start a warm worker: %s: %s", type(e).__name__, e)
-                await asyncio.to_thread(shutil.rmtree, worker.workdir, ignore_errors=True)
+                if worker is not None:
+                    await self._forget(worker)
+                    await asyncio.to_thread(shutil.rmtree, worker.workdir, ignore_errors=True)
                 continue
             self.started += 1
             if self._closing.is_set():
@@ -158,4 +174,12 @@ class WarmPool:
 
     async def _discard(self, worker: AgentProcess) -> None:
         await worker.stop(grace=0.2)
+        await self._forget(worker)
         await asyncio.to_thread(shutil.rmtree, worker.workdir, ignore_errors=True)
+
+    async def _forget(self, worker: AgentProcess) -> None:
+        if worker.login is not None and self.forget is not None:
+            try:
+                await self.forget(worker.login)
+            except Exception as e:  # noqa: BLE001 - the owner's ledger still lists it for its next sweep
+                log.warning("cannot remove warm worker %s's account: %s", worker.pid, e)

@@ -61,14 +61,15 @@ def _record(cond: tuple) -> list:
     from robots.world import HOUSES
 
     text, _, voice, speed, dist, noise = cond
-    key = hashlib.sha1(repr((cond[0],) + cond[2:]).encode()).hexdigest()[:16]
+    pcm = tts.synthesize(text, voice, speed) if text else np.zeros(20 * 16000, np.int16)
+    # keyed by the speech too: a change to the synthesiser makes new recordings
+    key = hashlib.sha1(repr((cond[0],) + cond[2:]).encode() + pcm.tobytes()).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
     house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5))
     if NOISE[noise]:
         house.add(NoiseSource("tv", TV_AT, kind="tv", level_db=NOISE[noise], seed=5, start=0.0))
-    pcm = tts.synthesize(text, voice, speed) if text else np.zeros(20 * 16000, np.int16)
     at = 4.0  # the detector learns the room first, as the Core's does
     mic = (*ROBOT_AT, MIC_Z)
     if text:

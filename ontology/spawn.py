@@ -30,3 +30,12 @@ class SpawnSpec(BaseModel):
     token: str = Field(default="", repr=False)  # the run's scoped Platform token
     params: dict[str, Any] = {}
     robot: RobotInfo | None = None
+
+
+class WarmLogin(BaseModel):
+    """What a warm Cloud worker gets ahead of its run (agents/warm_pool.py, `login=`): an account of
+    its own to log in with while idle, so a hand-off costs no login. The run's SpawnSpec follows on
+    the same pipe at the hand-off, naming the same account."""
+
+    name: str
+    password: str = Field(default="", repr=False)

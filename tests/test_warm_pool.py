@@ -152,6 +152,73 @@ async def test_a_worker_that_died_idle_is_replaced_never_handed_a_rapp(settings,
         await pool.close()
 
 
+async def test_a_cloud_worker_logs_in_while_idle_and_its_account_goes_with_it(settings, tmp_path, unique):
+    """The Platform's pool (login=): each worker logs in under an account of its own before any run;
+    its run (a spec naming that account) is served by the agent already logged in, its RApp code
+    imported only then; an idle worker let go takes its account along."""
+    from agents.identity import EphemeralAccounts
+    from xmpp_server.probe import LoginError, probe_login
+
+    settings = settings.model_copy(update={"credentials_dir": tmp_path / "credentials"})
+    accounts = EphemeralAccounts(settings, owner=unique("pool"))
+    pool = WarmPool(tmp_path / "runs", settings, size=1, login=lambda: accounts.create(unique("cloud")),
+                    forget=lambda ident: accounts.delete(ident.name, ident.password))
+    pool.start()
+    try:
+        await pool.wait_ready(60)  # ready = logged in
+        worker = pool.take()
+        ident = worker.login
+        spec = cloud_spec(settings, unique).model_copy(update={"name": ident.name, "password": ident.password})
+        assert (await logged_in(settings, spec))["pid"] == worker.pid  # before any run
+        handed = time.time()
+        run = run_dir(tmp_path / "runs", 1)
+        agent = spawn_agent(spec, run, settings)
+        await agent.start(worker=worker)
+        assert agent.warm and agent.pid == worker.pid and agent.login is ident
+        jid = settings.jid(ident.name)
+        deadline = time.monotonic() + 30
+        while not [r for r in read_trace(settings.trace_file) if r["kind"] == "behaviour" and r["agent"] == jid
+                   and r["behaviour"] == "cloud-service" and r["event"] == "activated"]:
+            assert time.monotonic() < deadline, "the logged-in worker never served its run"
+            await asyncio.sleep(0.05)
+        starts = [r for r in read_trace(settings.trace_file) if r["kind"] == "agent" and r["event"] == "started"
+                  and r["agent"] == jid]
+        assert len(starts) == 1 and starts[0]["t"] < handed  # no second login for the run
+        await pool.wait_ready(60)
+        [fresh] = pool.idle
+        assert fresh.login.name != ident.name
+        await agent.stop(grace=0.5)
+    finally:
+        await pool.close()
+    assert gone(fresh.pid)
+    with pytest.raises(LoginError, match="authentication failed"):  # the idle one's account is no more
+        await probe_login(settings.host, settings.port, settings.domain, user=fresh.login.name,
+                          password=fresh.login.password, register=False)
+    await probe_login(settings.host, settings.port, settings.domain, user=ident.name, password=ident.password,
+                      register=False)  # the run's account is its owner's to remove (the Platform's clean-up)
+    await accounts.delete(ident.name, ident.password)
+
+
+async def test_a_logged_in_worker_handed_another_accounts_run_refuses_it(settings, tmp_path, unique):
+    from agents.identity import EphemeralAccounts
+
+    settings = settings.model_copy(update={"credentials_dir": tmp_path / "credentials"})
+    accounts = EphemeralAccounts(settings, owner=unique("pool"))
+    pool = WarmPool(tmp_path / "runs", settings, size=1, login=lambda: accounts.create(unique("cloud")),
+                    forget=lambda ident: accounts.delete(ident.name, ident.password))
+    pool.start()
+    try:
+        await pool.wait_ready(60)
+        worker = pool.take()
+        agent = spawn_agent(cloud_spec(settings, unique), run_dir(tmp_path / "runs", 1), settings)
+        await agent.start(worker=worker)
+        assert await asyncio.wait_for(agent.wait(), 30) != 0
+        assert f"logged in as {worker.login.name} was handed cloud run" in agent.stderr_tail()
+    finally:
+        await pool.close()
+        await accounts.sweep()
+
+
 async def test_pool_size_and_crash_leftovers(settings, tmp_path):
     with pytest.raises(ValueError, match="warm_workers"):
         WarmPool(tmp_path, settings, size=-1)
