@@ -100,9 +100,10 @@ class PlatformAgent(RappAgent):
         self.limits = limits
         # Cloud Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
         # Cloud parts compute: numpy, cv2, scipy imported ahead (`warm_imports`, and what the builder adds)
-        # each logged in as a Cloud Agent of its own while idle (its account made first): a start costs no login
+        # each logged in as a Cloud Agent of its own while idle (an account it registers itself): a
+        # start costs no login
         self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
-                                  preload=warm_imports, login=lambda: self.accounts.create("cloud"),
+                                  preload=warm_imports, login=self._worker_account,
                                   forget=lambda ident: self.accounts.delete(ident.name, ident.password))
         self._pool_started = False
         self.served = 0
@@ -443,6 +444,9 @@ class PlatformAgent(RappAgent):
             self._pool_started = True
             self.warm_pool.start()
 
+    async def _worker_account(self):
+        return self.accounts.reserve("cloud")
+
     def _cloud_worker(self):
         """An idle warm worker, logged in under an account of its own (which the run takes), or None."""
         if self.cloud_mode != "process":
@@ -522,10 +526,10 @@ class PlatformAgent(RappAgent):
             return
         if session.watcher is not None and session.watcher is not asyncio.current_task():
             session.watcher.cancel()
-        code = await session.process.stop(grace=1.0)
+        # its token dies while the process ends (both before the answer, neither waiting for the other)
+        code, _ = await asyncio.gather(session.process.stop(grace=1.0), self.revoke_token(session.token))
         self.record_structure("cloud-destroy", cloud=session.jid, rapp=session.rapp, reason=reason,
                               exit_code=code)
-        await self.revoke_token(session.token)
         # the process is gone and its token dead: the account (a login of its own) and the run
         # directory go after the reply (a fleet's 20 stops at once waited ~250 ms for them)
         cleanup = asyncio.create_task(self._clean_up_after(session))

@@ -71,6 +71,12 @@ class UserDirectory:
             os.chmod(self.path, 0o600)  # also an older file made with a looser mode
         self._db = sqlite3.connect(str(self.path or ":memory:"), check_same_thread=False, timeout=10)
         self._lock = threading.Lock()
+        if self.path is not None:
+            # a commit per token issued or revoked (each Cloud Agent start and stop): the write-ahead
+            # log without an fsync per commit keeps the file consistent after a crash and lets a
+            # power cut lose only the last tokens (1.1 ms -> 0.05 ms an issue and revoke, more under IO load)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
         with self._lock, self._db:
             self._db.executescript(_SCHEMA)
         if self.path is not None:  # SQLite gives its journals the database's mode; make sure

@@ -6,7 +6,9 @@ package and run it as an agent with its own XMPP identity, in this process.
 The spec (ontology/spawn.py SpawnSpec, with the run's one-time password) arrives on an inherited
 pipe, read after the imports every run needs (a warm worker has done them before its hand-off);
 where to connect comes from the allow-listed environment (agents/sandbox.py). The RApp's code is
-imported only after the agent has logged in.
+imported only after the agent has logged in. A warm Cloud worker of the Platform (RAPP_WARM_LOGIN)
+first reads its own account (WarmLogin, one line) and logs in while idle; its run's spec, naming
+that account, follows at the hand-off.
 """
 from __future__ import annotations
 
@@ -101,7 +103,9 @@ async def run_spec(spec: SpawnSpec | None, login: WarmLogin | None = None, pipe:
     except asyncio.CancelledError:
         if agent is not None:
             await asyncio.wait_for(agent.stop(), 2.0)
-        return 143
+        # logged out: end here, not after asyncio.run's teardown of slixmpp's and SPADE's tasks and
+        # executor threads (the Platform answers a stop once the process has exited)
+        exit_now(143)
 
 
 async def _logged_in_first(login: WarmLogin, pipe: tuple[int, bytes]):
@@ -111,7 +115,7 @@ async def _logged_in_first(login: WarmLogin, pipe: tuple[int, bytes]):
     from .cloud_agent import CloudAgent
 
     agent = CloudAgent(login.name, settings=XmppSettings.from_env(), password=login.password)
-    await agent.start()
+    await agent.start(auto_register=True)  # the account may be only reserved (agents/identity.py reserve)
     say_ready()
     data = await _read_to_end(*pipe)
     if not data.strip():

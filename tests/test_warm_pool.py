@@ -161,7 +161,10 @@ async def test_a_cloud_worker_logs_in_while_idle_and_its_account_goes_with_it(se
 
     settings = settings.model_copy(update={"credentials_dir": tmp_path / "credentials"})
     accounts = EphemeralAccounts(settings, owner=unique("pool"))
-    pool = WarmPool(tmp_path / "runs", settings, size=1, login=lambda: accounts.create(unique("cloud")),
+    async def reserve():  # as the Platform does: the worker registers the account at its login
+        return accounts.reserve(unique("cloud"))
+
+    pool = WarmPool(tmp_path / "runs", settings, size=1, login=reserve,
                     forget=lambda ident: accounts.delete(ident.name, ident.password))
     pool.start()
     try:
@@ -196,7 +199,7 @@ async def test_a_cloud_worker_logs_in_while_idle_and_its_account_goes_with_it(se
                           password=fresh.login.password, register=False)
     await probe_login(settings.host, settings.port, settings.domain, user=ident.name, password=ident.password,
                       register=False)  # the run's account is its owner's to remove (the Platform's clean-up)
-    await accounts.delete(ident.name, ident.password)
+    assert await accounts.delete(ident.name, ident.password) and accounts.pending() == {}
 
 
 async def test_a_logged_in_worker_handed_another_accounts_run_refuses_it(settings, tmp_path, unique):
@@ -205,7 +208,7 @@ async def test_a_logged_in_worker_handed_another_accounts_run_refuses_it(setting
     settings = settings.model_copy(update={"credentials_dir": tmp_path / "credentials"})
     accounts = EphemeralAccounts(settings, owner=unique("pool"))
     pool = WarmPool(tmp_path / "runs", settings, size=1, login=lambda: accounts.create(unique("cloud")),
-                    forget=lambda ident: accounts.delete(ident.name, ident.password))
+                    forget=lambda ident: accounts.delete(ident.name, ident.password))  # made ahead: works too
     pool.start()
     try:
         await pool.wait_ready(60)
