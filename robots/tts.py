@@ -36,6 +36,11 @@ _CHARS_UTF8 = 1
 _RATE, _PITCH = 1, 3  # espeak_PARAMETER
 _CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctypes.c_int, ctypes.c_void_p)
 _lock = threading.Lock()
+RAND_SEED = 1
+
+
+def _libc() -> ctypes.CDLL:
+    return ctypes.CDLL(None)  # this process's C library (already loaded: no new handle)
 _chunks: list[np.ndarray] = []
 
 
@@ -73,6 +78,11 @@ def _fresh_engine():
             if rate <= 0:
                 raise UnsupportedOperation(f"eSpeak NG failed to initialise (code {rate})")
             lib.espeak_SetSynthCallback(_collect)
+            # a voice's breath noise (the "+f2" variants) draws on eSpeak's own generator and libc's
+            # rand(), seeded from the clock: both fixed, so the noise is the same at every call
+            lib.espeak_ng_SetRandSeed.argtypes = [ctypes.c_long]
+            lib.espeak_ng_SetRandSeed(RAND_SEED)
+            _libc().srand(RAND_SEED)
             try:
                 yield lib, rate
             finally:
