@@ -103,9 +103,7 @@ async def run_spec(spec: SpawnSpec | None, login: WarmLogin | None = None, pipe:
     except asyncio.CancelledError:
         if agent is not None:
             await asyncio.wait_for(agent.stop(), 2.0)
-        # logged out: end here, not after asyncio.run's teardown of slixmpp's and SPADE's tasks and
-        # executor threads (the Platform answers a stop once the process has exited)
-        exit_now(143)
+        return 143
 
 
 async def _logged_in_first(login: WarmLogin, pipe: tuple[int, bytes]):
