@@ -46,3 +46,32 @@ async def test_server_restart_mid_task(tmp_path):
     assert all(r["agent"] in stopped_waiting for r in lost), lost[:3]
     world.close()
 
+
+
+async def test_a_warm_cloud_worker_idle_through_a_server_restart_still_serves(tmp_path):
+    """The Platform's warm Cloud workers hold an XMPP session while idle (agents/warm_pool.py
+    login=): one that waited through a restart of the server reconnects, and the next Cloud Agent
+    start handed to it serves as if nothing happened."""
+    world = World.from_file("small", seed=7)
+    async with RappSystem(tmp_path, trace_file=tmp_path / "trace.jsonl") as system:
+        await system.publish(variant(tmp_path, "cloud-echo", "cloudecho", use_cloud=True))
+        h = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
+        await wait_until(lambda: h.core.vocabulary and state(h.core) == "s3_listen")
+        await h.user.say(h.core.address, "cloudecho")  # the first Cloud Agent starts cold, the pool fills
+        await h.user.wait_for(lambda t: "cloud-echo finished" in t, timeout=60)
+        await wait_until(lambda: state(h.core) == "s3_listen")
+        pool = system.platform.warm_pool
+        await pool.wait_ready(60)
+        [worker] = pool.idle
+        await asyncio.to_thread(system.server.stop)
+        await asyncio.sleep(0.5)
+        await system.server.astart()
+        jid = system.settings.jid(worker.login.name)
+        await wait_until(lambda: any(r["kind"] == "agent" and r["event"] == "reconnected" and r["agent"] == jid
+                                     for r in read_trace(tmp_path / "trace.jsonl")), 30)
+        start = len(h.user.received)
+        await h.user.say(h.core.address, "cloudecho")
+        await h.user.wait_for(lambda t: "cloud-echo finished" in t, timeout=60, start=start)
+    spawns = [r for r in read_trace(tmp_path / "trace.jsonl") if r["kind"] == "structure" and r["event"] == "cloud-spawn"]
+    assert [r.get("warm") for r in spawns] == [False, True] and spawns[1]["cloud"] == jid
+    world.close()
