@@ -60,7 +60,7 @@ class CloudAgent(RappAgent):
         from ontology.platform import CloudReady
 
         if not self.is_alive():
-            await self.start()
+            await self.start(auto_register=True)  # its account is only reserved (agents/identity.py reserve)
         await self.request(platform, CloudReady(jid=self.address), timeout=10.0)
         if self.nice_when_serving:
             set_priority(os.getpid(), os.getpriority(os.PRIO_PROCESS, 0) + self.nice_when_serving)

@@ -75,8 +75,9 @@ class EphemeralAccounts:
     def reserve(self, prefix: str) -> Identity:
         """A new account `<prefix>-<random>` in the ledger only: its holder registers it at its first
         login (in-band, as `create` does) and the ledger's `delete`/`sweep` remove it either way. The
-        Platform's warm Cloud workers: `create` costs the Platform's loop a whole XMPP session (TLS,
-        SCRAM, registration), which a fleet's burst of refills paid in the middle of its starts."""
+        Platform's Cloud Agents (warm workers and cold starts): `create` costs the Platform's loop a
+        whole XMPP session (TLS, SCRAM, registration), which a fleet's burst of refills paid in the
+        middle of its starts."""
         ident = Identity(f"{prefix}-{secrets.token_hex(5)}", generate_password())
         self._write({**self._read(), ident.name: ident.password})
         return ident

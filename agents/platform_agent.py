@@ -27,7 +27,6 @@ from pathlib import Path
 
 import ontology.services  # noqa: F401 - registers the service models
 from ontology.spawn import SpawnSpec
-from xmpp_server.probe import LoginError
 from ontology import platform as P
 from ontology.registry import Done, actions
 from ontology.errors import ErrorCode
@@ -394,10 +393,9 @@ class PlatformAgent(RappAgent):
         prefix = f"cloud-{info.name}".replace("_", "-")
         worker = self._cloud_worker()
         try:
-            try:
-                ident = worker.login if worker is not None else await self.accounts.take(prefix)
-            except LoginError as e:
-                raise Failure(f"cannot create the Cloud Agent's account: {e}", ErrorCode.CLOUD_START) from None
+            # a warm worker's account, or one reserved for a cold start: either registers itself at its
+            # login (CloudAgent), so no XMPP session of the Platform's own runs in the middle of a start
+            ident = worker.login if worker is not None else self.accounts.reserve(prefix)
             jid = self.settings.jid(ident.name)
             scope = ctx.token
             # the Cloud Agent is RApp code: never more than its manifest declares
@@ -429,8 +427,6 @@ class PlatformAgent(RappAgent):
             await self._kill_cloud(session, "did not start")
             raise Failure(f"Cloud Agent of {req.rapp} did not start: {proc.stderr_tail(500)}", ErrorCode.CLOUD_START)
         exited.cancel()
-        if worker is None:  # cold: the next cold starts of this RApp only log in (accounts made behind this start)
-            self.accounts.prepare(prefix, max(1, self.warm_pool.size))
         session.restartable = bool(info.manifest.get("cloud_restartable"))
         session.watcher = asyncio.create_task(self._watch_cloud(session, spec, workdir))
         return P.CloudAgentReply(jid=session.jid, rapp=info.name, version=info.version)
@@ -445,7 +441,7 @@ class PlatformAgent(RappAgent):
             self.warm_pool.start()
 
     async def _worker_account(self):
-        return self.accounts.reserve("cloud")
+        return self.accounts.reserve("cloud")  # registered by the worker at its login
 
     def _cloud_worker(self):
         """An idle warm worker, logged in under an account of its own (which the run takes), or None."""

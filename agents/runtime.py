@@ -113,7 +113,7 @@ async def _logged_in_first(login: WarmLogin, pipe: tuple[int, bytes]):
     from .cloud_agent import CloudAgent
 
     agent = CloudAgent(login.name, settings=XmppSettings.from_env(), password=login.password)
-    await agent.start(auto_register=True)  # the account may be only reserved (agents/identity.py reserve)
+    await agent.start(auto_register=True)  # its account is only reserved (agents/identity.py reserve)
     say_ready()
     data = await _read_to_end(*pipe)
     if not data.strip():
