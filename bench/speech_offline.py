@@ -52,34 +52,39 @@ def conditions(path: str, quick: bool) -> list[tuple]:
     return out
 
 
-def _record(cond: tuple) -> list:
-    """The utterances the Core's voice activity detector cuts from the owner saying `text` (cached)."""
-    from robots import tts
+def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
+    """What the Core's voice activity detector cuts (HeardUtterance) from the owner saying `pcm` (None:
+    nobody speaks for 20 s) `distance` m from the NAO in the small house, a TV at `noise_db` or off."""
     from robots.floorplan import load_plan
     from robots.receptors import VoiceActivity
     from robots.sound import HouseSound, NoiseSource, talker_at
     from robots.world import HOUSES
 
+    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5))
+    if noise_db:
+        house.add(NoiseSource("tv", TV_AT, kind="tv", level_db=noise_db, seed=5, start=0.0))
+    at = 4.0  # the detector learns the room first, as the Core's does
+    if pcm is None:
+        pcm = np.zeros(20 * 16000, np.int16)
+    else:
+        house.play("owner", talker_at(ROBOT_AT, distance, MIC_Z), pcm, at=at, level_db=60)
+    heard = house.receive((*ROBOT_AT, MIC_Z), 0.0, at + len(pcm) / 16000 + 1.5, mic="nao")
+    vad = VoiceActivity(max_seconds=5.0)
+    return [u for s in range(0, len(heard), 1600) for u in vad.feed(heard[s:s + 1600])]
+
+
+def _record(cond: tuple) -> list:
+    """heard_utterances of one condition, as (pcm, speech seconds, too long), cached."""
+    from robots import tts
+
     text, _, voice, speed, dist, noise = cond
-    pcm = tts.synthesize(text, voice, speed) if text else np.zeros(20 * 16000, np.int16)
+    pcm = tts.synthesize(text, voice, speed) if text else None
     # keyed by the speech too: a change to the synthesiser makes new recordings
-    key = hashlib.sha1(repr((cond[0],) + cond[2:]).encode() + pcm.tobytes()).hexdigest()[:16]
+    key = hashlib.sha1(repr((cond[0],) + cond[2:]).encode() + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
-    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5))
-    if NOISE[noise]:
-        house.add(NoiseSource("tv", TV_AT, kind="tv", level_db=NOISE[noise], seed=5, start=0.0))
-    at = 4.0  # the detector learns the room first, as the Core's does
-    mic = (*ROBOT_AT, MIC_Z)
-    if text:
-        house.play("owner", talker_at(ROBOT_AT, dist, MIC_Z), pcm, at=at, level_db=60)
-    heard = house.receive(mic, 0.0, at + len(pcm) / 16000 + 1.5, mic="nao")
-    vad = VoiceActivity(max_seconds=5.0)
-    out = []
-    for s in range(0, len(heard), 1600):
-        out += vad.feed(heard[s:s + 1600])
-    utts = [(u.pcm, u.speech_seconds, u.too_long) for u in out]
+    utts = [(u.pcm, u.speech_seconds, u.too_long) for u in heard_utterances(pcm, dist, NOISE[noise])]
     CACHE.mkdir(exist_ok=True)
     f.write_bytes(pickle.dumps(utts))
     return utts

@@ -39,8 +39,7 @@ _lock = threading.Lock()
 RAND_SEED = 1
 
 
-def _libc() -> ctypes.CDLL:
-    return ctypes.CDLL(None)  # this process's C library (already loaded: no new handle)
+_LIBC = ctypes.CDLL(None)  # this process's own symbols, the C library's srand among them
 _chunks: list[np.ndarray] = []
 
 
@@ -82,7 +81,7 @@ def _fresh_engine():
             # rand(), seeded from the clock: both fixed, so the noise is the same at every call
             lib.espeak_ng_SetRandSeed.argtypes = [ctypes.c_long]
             lib.espeak_ng_SetRandSeed(RAND_SEED)
-            _libc().srand(RAND_SEED)
+            _LIBC.srand(RAND_SEED)
             try:
                 yield lib, rate
             finally:
