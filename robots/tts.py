@@ -36,9 +36,7 @@ _CHARS_UTF8 = 1
 _RATE, _PITCH = 1, 3  # espeak_PARAMETER
 _CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctypes.c_int, ctypes.c_void_p)
 _lock = threading.Lock()
-RAND_SEED = 1
-
-
+RAND_SEED = 1  # eSpeak's and libc's random generators, at every synthesis (breath noise)
 _LIBC = ctypes.CDLL(None)  # this process's own symbols, the C library's srand among them
 _chunks: list[np.ndarray] = []
 
