@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import math
 import threading
+from collections import OrderedDict
 
 import numpy as np
 from scipy.signal import istft, stft
@@ -17,7 +18,7 @@ from ontology.services.speech import (NoiseProfile, Recognition, RecognizedWord,
                                       SpeechRecognition, TextToSpeech)
 from robots import tts
 from robots.errors import RobotError
-from robots.receptors import PhraseDecoder, grammar, normalize, speech_segments, sphinx_config
+from robots.receptors import PhraseDecoder, fresh_front_end, grammar, normalize, speech_segments, sphinx_config
 from robots.sound import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
 
 from .context import ServiceContext
@@ -79,22 +80,22 @@ def subtract_noise(pcm: np.ndarray, noise_power: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------ recognition
-_lm_lock = threading.Lock()
-_lm_decoders: dict[int, object] = {}  # one general-LM decoder per worker thread (loading takes ~1 s)
+# decoders are kept per worker thread (pocketsphinx is not thread-safe; making one takes 75 ms, the
+# general language model's ~1 s) and start each utterance from a fresh front end (fresh_front_end),
+# so an answer never depends on other requests' audio
+_kept = threading.local()
+KEPT_GRAMMARS = 2  # phrase decoders kept per thread (~28 MB each: the acoustic model), least recent dropped
 
 
 def _language_model_decode(pcm: np.ndarray) -> tuple[str, float, list]:
-    from pocketsphinx import Decoder
-    key = threading.get_ident()
-    with _lm_lock:
-        dec = _lm_decoders.get(key)
+    dec = getattr(_kept, "lm", None)
     if dec is None:
-        from pocketsphinx import get_model_path
+        from pocketsphinx import Decoder, get_model_path
         dec = Decoder(sphinx_config())
         dec.add_lm_file("lm", get_model_path("en-us/en-us.lm.bin"))
         dec.activate_search("lm")
-        with _lm_lock:
-            _lm_decoders[key] = dec
+        _kept.lm = dec
+    fresh_front_end(dec)
     dec.start_utt()
     dec.process_raw(pcm.tobytes(), False, True)
     dec.end_utt()
@@ -152,9 +153,18 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
 
 
 def _phrase_decoder(key: tuple) -> PhraseDecoder:
-    """A fresh PhraseDecoder per request (~90 ms): a kept one's scores depend slightly on the
-    utterances it decoded before, and a service's answer must not depend on other users' audio."""
-    return PhraseDecoder(jsgf=key[1]) if key[0] == "jsgf" else PhraseDecoder(list(key[1:]))
+    """This thread's decoder of `key`'s grammar, made on first use (the Core sends the same Store
+    phrases with every command, so most requests find theirs)."""
+    kept: OrderedDict | None = getattr(_kept, "phrases", None)
+    if kept is None:
+        kept = _kept.phrases = OrderedDict()
+    dec = kept.pop(key, None)
+    if dec is None:
+        dec = PhraseDecoder(jsgf=key[1]) if key[0] == "jsgf" else PhraseDecoder(list(key[1:]))
+    kept[key] = dec
+    while len(kept) > KEPT_GRAMMARS:
+        kept.popitem(last=False)
+    return dec
 
 
 # how far a sentence's path must score above the free phone loop (log-score per second) to be taken:

@@ -78,6 +78,19 @@ def test_the_general_language_model(ctx):
     assert r.search == "language_model" and "email" in r.text.split()
 
 
+def test_an_answer_does_not_depend_on_the_audio_decoded_before(ctx):
+    # the Platform keeps its decoders (per thread); each utterance starts from a fresh front end
+    _, pcm = _heard("tell me the news", voice="en+f2", noise_db=55)
+    first = [_recognise(ctx, pcm, sentences=PHRASES), _recognise(ctx, pcm)]
+    for text, noise_db in (("check the hazards", 60), ("open the window please", None), ("stop", 50)):
+        _, other = _heard(text, distance=2.5, voice="en-us+m3", noise_db=noise_db)
+        _recognise(ctx, other, sentences=PHRASES)
+        _recognise(ctx, other)
+    again = [_recognise(ctx, pcm, sentences=PHRASES), _recognise(ctx, pcm)]
+    assert first[0].text == "tell me the news"
+    assert [r.model_dump() for r in again] == [r.model_dump() for r in first]
+
+
 def test_text_to_speech_returns_a_wav(ctx):
     reply = run_service("text_to_speech", TextToSpeech(text="hello robot", voice="en+f2", speed=120), ctx)
     pcm, rate = decode_wav(base64.b64decode(reply.audio_b64))
