@@ -39,6 +39,7 @@ from ontology.trace import RecordKind
 from .errors import (AgentStartError, NotUnderstood, RequestFailed, RequestRefused,
                      RequestTimeout)
 from .messages import AclInfo, bare, copy_message, is_feedback, make_message, reply_to
+from .recent import RecentSet
 from .stanza import message_xml, read_message, uses_form
 from .tracing import CONTENT_CAP, cap, tracer_for
 
@@ -47,6 +48,7 @@ _ANSWER_VALUES = frozenset(p.value for p in acl.ANSWERS)
 _OPENING_VALUES = frozenset(p.value for p in acl.OPENING)
 RESEND_EVERY_S, RESEND_FOR_S = 1.0, 30.0  # pending requests after a reconnect (see _resend_pending)
 FIRST_CONTACT_RESEND_S, FIRST_CONTACT_RESENDS = 1.0, 5  # a peer never heard from (_first_contact)
+PEERS_KEPT = 4096  # peers remembered (_heard_from, _form_peers): a fleet's live agents, many times over
 MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing legitimate is larger
 REPORT_CAP = MAX_BODY  # a RApp's report to its Core is traced whole: it is the run's result
 
@@ -76,8 +78,10 @@ class RappAgent(Agent):
         self._pending: dict[str, asyncio.Queue] = {}
         self._pending_peer: dict[str, str] = {}  # conversation -> bare JID asked
         self._outbox: dict[str, Message] = {}  # conversation -> the request, until answered
-        self._form_peers: set[str] = set()  # bare JIDs that send SPADE's metadata form (agents/stanza.py)
-        self._heard_from: set[str] = set()  # bare JIDs that sent us anything (see _first_contact)
+        # bare JIDs that send SPADE's metadata form (agents/stanza.py) / sent us anything (see
+        # _first_contact); bounded, most recent kept: every RApp run brings JIDs of its own
+        self._form_peers = RecentSet(PEERS_KEPT)
+        self._heard_from = RecentSet(PEERS_KEPT)
         self._named: dict[str, Any] = {}
         self.unhandled: list[Message] = []  # kept, not dropped, for inspection
         self.web_url: str | None = None  # SPADE's agent page when settings.web is on

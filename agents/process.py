@@ -9,6 +9,7 @@ at all, for tests and for measuring what the process costs.
 from __future__ import annotations
 
 import asyncio
+import functools
 import os
 import resource
 import shutil
@@ -24,11 +25,13 @@ from ontology.spawn import SpawnSpec, WarmLogin
 from .sandbox import APP_DIR, Sandbox
 
 
-def exit_future(proc: subprocess.Popen) -> asyncio.Future:
+def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
     """Resolves with the process's return code when it exits. The loop watches a pidfd; a thread
     blocked in `proc.wait()` would hold one of the loop's default executor's few workers for the
     process's whole life (20 running Dynamic Agents starved every `to_thread` call of the Platform
-    in the same process). Without pidfds (not Linux), a daemon thread of its own waits."""
+    in the same process). Without pidfds (not Linux), a daemon thread of its own waits.
+    `before_reap()` runs once the process has exited and before it is reaped: while its pid cannot
+    yet be another process's (AgentProcess kills what is left of its process group then)."""
     loop = asyncio.get_running_loop()
     fut = loop.create_future()
 
@@ -36,20 +39,47 @@ def exit_future(proc: subprocess.Popen) -> asyncio.Future:
         if not fut.done():
             fut.set_result(code)
 
+    def reap() -> int:
+        if before_reap is not None and proc.returncode is None:
+            before_reap()
+        return proc.wait()
+
     try:
         fd = os.pidfd_open(proc.pid)
     except (AttributeError, OSError):
-        threading.Thread(target=lambda: loop.call_soon_threadsafe(resolve, proc.wait()),
-                         name=f"wait-{proc.pid}", daemon=True).start()
+        def wait_then_reap() -> None:
+            try:
+                os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOWAIT)  # exited, not reaped
+            except ChildProcessError:
+                pass
+            loop.call_soon_threadsafe(resolve, reap())
+        threading.Thread(target=wait_then_reap, name=f"wait-{proc.pid}", daemon=True).start()
         return fut
 
     def exited() -> None:
         loop.remove_reader(fd)
         os.close(fd)
-        resolve(proc.wait())  # already exited: reaps at once
+        resolve(reap())  # already exited: reaps at once
 
     loop.add_reader(fd, exited)
     return fut
+
+
+def _kill_group(pgid: int, sig: int = signal.SIGKILL) -> None:
+    try:
+        os.killpg(pgid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _running(proc: subprocess.Popen) -> bool:
+    """Not exited yet, without reaping it (Popen.poll would: exit_future reaps, after before_reap)."""
+    if proc.returncode is not None:
+        return False
+    try:
+        return os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is None
+    except ChildProcessError:  # reaped by someone else
+        return False
 
 
 @dataclass(frozen=True)
@@ -137,7 +167,8 @@ class AgentProcess:
         # Popen + a pidfd, not asyncio subprocesses: SPADE installs uvloop's loop policy,
         # whose child watcher the standard loop cannot use.
         self.proc = await asyncio.to_thread(self._popen)
-        self._waiter = exit_future(self.proc)
+        # what is left of its process group (a RApp's children) dies with it, whoever ends it
+        self._waiter = exit_future(self.proc, before_reap=functools.partial(_kill_group, self.proc.pid))
         if self._ready_r is not None:
             asyncio.get_running_loop().add_reader(self._ready_r, self._ready_said)
 
@@ -252,7 +283,7 @@ class AgentProcess:
         return self.proc.pid if self.proc else None
 
     def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
+        return self.proc is not None and _running(self.proc)
 
     async def wait(self) -> int:
         assert self._waiter is not None
@@ -262,14 +293,14 @@ class AgentProcess:
     async def stop(self, grace: float = 1.0) -> int | None:
         if self.proc is None:
             return None
-        if self.proc.poll() is None:
+        if self.alive():
             self._at_parents_priority()
             self._signal(signal.SIGTERM)
             try:
                 await asyncio.wait_for(self.wait(), grace)
             except asyncio.TimeoutError:
                 self._signal(signal.SIGKILL)
-        self._signal(signal.SIGKILL)  # leftovers in the group (grandchildren)
+        # leftovers in its process group died before it was reaped (exit_future's before_reap)
         if self.uid is not None:
             self._kill_uid()
         self._forget_ready()
@@ -291,10 +322,9 @@ class AgentProcess:
             pass
 
     def _signal(self, sig: int) -> None:
-        try:
-            os.killpg(self.proc.pid, sig)
-        except (ProcessLookupError, PermissionError):
-            pass
+        if self._waiter is not None and self._waiter.done():
+            return  # reaped: its pid may be another process's by now
+        _kill_group(self.proc.pid, sig)
 
     def _kill_uid(self) -> None:
         """Processes of this run's uid that left the process group (setsid) die too."""

@@ -1,5 +1,6 @@
 """Waiting for agent processes takes no worker of the loop's default executor: with more running
-children than it has workers, `to_thread` calls (the Platform's services) still run at once."""
+children than it has workers, `to_thread` calls (the Platform's services) still run at once. An agent
+process's leftover children die with it, before it is reaped."""
 from __future__ import annotations
 
 import asyncio
@@ -8,7 +9,10 @@ import subprocess
 import sys
 import time
 
-from agents.process import exit_future
+from pathlib import Path
+
+from agents.process import AgentProcess, exit_future
+from xmpp_server.settings import XmppSettings
 
 
 async def test_running_children_do_not_starve_to_thread():
@@ -30,3 +34,31 @@ async def test_running_children_do_not_starve_to_thread():
 async def test_exit_code_is_reported():
     p = subprocess.Popen([sys.executable, "-c", "raise SystemExit(7)"])
     assert await asyncio.wait_for(exit_future(p), 10) == 7
+
+
+LEAVES_A_CHILD = ("import subprocess, sys; child = subprocess.Popen(['sleep', '60']); print(child.pid, flush=True); "
+                  "sys.exit(3)")
+
+
+async def test_an_agent_process_that_exits_takes_its_children_along(tmp_path):
+    # nobody stops it: it exits by itself, leaving a child in its process group
+    run = AgentProcess("leaves-a-child", None, tmp_path / "0001-child", XmppSettings())
+    (tmp_path / "0001-child").mkdir()
+    run.argv = [sys.executable, "-c", LEAVES_A_CHILD]
+    await run.start()
+    assert await asyncio.wait_for(run.wait(), 20) == 3
+    child = int((Path(run.workdir) / "stdout.log").read_text().split()[0])
+    deadline = time.monotonic() + 5
+    while _exists(child) and time.monotonic() < deadline:  # SIGKILLed: gone once its parent's init reaps it
+        await asyncio.sleep(0.05)
+    assert not _exists(child)
+    assert not run.alive() and await run.stop() == 3  # stopping an ended run signals nothing
+
+
+def _exists(pid: int) -> bool:
+    """Alive, a zombie not counted (a killed orphan waits for init to reap it)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
