@@ -582,18 +582,17 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.end_subscriptions()
         await self._stop_robot()
         self.locks.free_all(session.jid)
+        code = None
         if session.process is not None:
             if session.state in ("Finished", "Error"):  # it is logging out by itself: let it
-                try:
-                    await asyncio.wait_for(session.process.wait(), 2.0)
-                except asyncio.TimeoutError:
-                    pass
-            await session.process.stop(grace=0.05 if session.hung else 1.0)
+                await session.process.logged_out(2.0)
+            # resumed once it has logged out and been killed, not once the kernel has torn down its
+            # process (exit code None meanwhile; a leftover run directory is swept at the next start)
+            code = await session.process.end(grace=0.05 if session.hung else 1.0)
         outputs = session.workdir / "outputs"  # the RApp's files (Task.outputs), kept until the Core stops
         self.record_structure("destroy", dynamic=session.jid, rapp=session.rapp, state=session.state,
                               outputs=str(outputs) if outputs.is_dir() else None,
-                              reason=session.end_reason, exit_code=session.process.returncode
-                              if session.process else None)
+                              reason=session.end_reason, exit_code=code)
         self._resume_if_needed()  # supervising again at once; the rest is clean-up
         try:
             await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),

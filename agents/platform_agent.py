@@ -522,17 +522,19 @@ class PlatformAgent(RappAgent):
             return
         if session.watcher is not None and session.watcher is not asyncio.current_task():
             session.watcher.cancel()
-        # its token dies while the process ends (both before the answer, neither waiting for the other)
-        code, _ = await asyncio.gather(session.process.stop(grace=1.0), self.revoke_token(session.token))
+        # its token dies while it logs out and is killed (both before the answer, neither waiting
+        # for the other); its exit code is None while the kernel still tears the process down
+        code, _ = await asyncio.gather(session.process.end(grace=1.0), self.revoke_token(session.token))
         self.record_structure("cloud-destroy", cloud=session.jid, rapp=session.rapp, reason=reason,
                               exit_code=code)
-        # the process is gone and its token dead: the account (a login of its own) and the run
-        # directory go after the reply (a fleet's 20 stops at once waited ~250 ms for them)
+        # it can no longer act and its token is dead: its reaping, account (a login of its own) and
+        # run directory go after the reply (a fleet's 20 stops at once waited ~250 ms for them)
         cleanup = asyncio.create_task(self._clean_up_after(session))
         self._cleanups.add(cleanup)
         cleanup.add_done_callback(self._cleanups.discard)
 
     async def _clean_up_after(self, session: CloudSession) -> None:
+        code = await session.process.wait()
         gone = await self.accounts.delete(session.account.name, session.account.password)
-        self.record_structure("account-deleted" if gone else "account-kept", account=session.jid)
+        self.record_structure("account-deleted" if gone else "account-kept", account=session.jid, exit_code=code)
         await asyncio.to_thread(shutil.rmtree, session.process.workdir, ignore_errors=True)

@@ -65,6 +65,21 @@ def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
     return fut
 
 
+def _on_byte(fd: int, event: asyncio.Event) -> None:
+    """Set `event` when `fd` (a pipe's read end, closed then) gives a byte or its end."""
+    loop = asyncio.get_running_loop()
+
+    def readable() -> None:
+        loop.remove_reader(fd)
+        try:
+            os.read(fd, 1)
+        except OSError:
+            pass
+        os.close(fd)
+        event.set()
+    loop.add_reader(fd, readable)
+
+
 def _kill_group(pgid: int, sig: int = signal.SIGKILL) -> None:
     try:
         os.killpg(pgid, sig)
@@ -147,6 +162,8 @@ class AgentProcess:
         self._spec_w: int | None = None  # a warm worker's end of its spec pipe, until the hand-off
         self._ready_r: int | None = None  # a warm worker's "imports done" pipe, until it says so
         self.ready = False  # a warm worker that has imported the runtime
+        self._logged_out = asyncio.Event()  # said on its "gone" pipe (agents/runtime.py), or exited
+        self._gone_r: int | None = None  # that pipe's read end, until start() watches it
         self.warm = False  # this run went to a warm worker (no interpreter start on the hand-off)
         self.returncode: int | None = None
 
@@ -169,6 +186,9 @@ class AgentProcess:
         self.proc = await asyncio.to_thread(self._popen)
         # what is left of its process group (a RApp's children) dies with it, whoever ends it
         self._waiter = exit_future(self.proc, before_reap=functools.partial(_kill_group, self.proc.pid))
+        self._waiter.add_done_callback(lambda _: self._logged_out.set())
+        _on_byte(self._gone_r, self._logged_out)
+        self._gone_r = None
         if self._ready_r is not None:
             asyncio.get_running_loop().add_reader(self._ready_r, self._ready_said)
 
@@ -176,6 +196,7 @@ class AgentProcess:
         """This run goes to the idle warm `worker`: same process, uid, sandbox and exit future.
         False when the worker died after the pool checked it: reaped, and the run starts cold."""
         self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
+        self._logged_out = worker._logged_out
         spec_w, worker._spec_w = worker._spec_w, None
         worker._forget_ready()
         self.spec, self.warm = self._placed(self._given), True
@@ -185,6 +206,7 @@ class AgentProcess:
         except BrokenPipeError:
             await self.stop(grace=0.0)
             self.proc = self._waiter = self.returncode = None
+            self._logged_out = asyncio.Event()
             self.uid, self.warm, self.login = self.sandbox.new_uid(), False, None  # a fresh uid for the cold start
             self.spec = self._placed(self._given)
             return False
@@ -220,9 +242,10 @@ class AgentProcess:
     def _popen(self) -> subprocess.Popen:
         self.sandbox.prepare(self.workdir, self.uid)
         spec_r, spec_w = os.pipe()
-        fds, keep = [spec_r], []
+        gone_r, gone_w = os.pipe()  # "logged out" (agents/runtime.py say_logged_out)
+        fds, keep = [spec_r, gone_w], []
         try:
-            extra = {"RAPP_SPEC_FD": str(spec_r)}
+            extra = {"RAPP_SPEC_FD": str(spec_r), "RAPP_GONE_FD": str(gone_w)}
             if self.spec is not None:
                 try:
                     os.write(spec_w, self._spec_bytes())
@@ -250,7 +273,7 @@ class AgentProcess:
                     stderr=err, stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=fds,
                     preexec_fn=_niced(self.sandbox.preexec(self.workdir, self.uid, self.limits), self.nice))
         except BaseException:
-            for fd in keep:
+            for fd in [*keep, gone_r]:
                 os.close(fd)
             raise
         finally:
@@ -258,6 +281,7 @@ class AgentProcess:
                 os.close(fd)
         if keep:
             self._spec_w, self._ready_r = keep
+        self._gone_r = gone_r
         return proc
 
     def _ready_said(self) -> None:
@@ -290,30 +314,46 @@ class AgentProcess:
         self.returncode = await asyncio.shield(self._waiter)
         return self.returncode
 
-    async def stop(self, grace: float = 1.0) -> int | None:
+    async def logged_out(self, timeout: float) -> bool:
+        """Whether the agent has logged out (or the process exited) within `timeout` s."""
+        try:
+            await asyncio.wait_for(self._logged_out.wait(), timeout)
+        except asyncio.TimeoutError:
+            pass
+        return self._logged_out.is_set()
+
+    async def end(self, grace: float = 1.0) -> int | None:
+        """End the run as far as anyone else can tell: SIGTERM (the agent logs out cleanly), then,
+        once it has logged out or after `grace` s, SIGKILL to it and its process group. Returns its
+        exit code, or None while it is still exiting: the kernel's teardown of a process with SPADE,
+        numpy and cv2 loaded takes 7-14 ms of CPU alone and took up to 200 ms under a fleet's load,
+        and a logged-out process killed can no longer act. `wait()` gives the code once reaped."""
         if self.proc is None:
             return None
-        if self.alive():
+        if self.alive() and not self._logged_out.is_set():
             self._at_parents_priority()
             self._signal(signal.SIGTERM)
-            try:
-                await asyncio.wait_for(self.wait(), grace)
-            except asyncio.TimeoutError:
-                self._signal(signal.SIGKILL)
-        # leftovers in its process group died before it was reaped (exit_future's before_reap)
+            await self.logged_out(grace)
+        self._signal(signal.SIGKILL)  # leftovers in its group die before it is reaped (exit_future)
         if self.uid is not None:
             self._kill_uid()
         self._forget_ready()
         if self._spec_w is not None:  # an idle warm worker: its spec never comes
             os.close(self._spec_w)
             self._spec_w = None
+        return self._waiter.result() if self._waiter.done() else None
+
+    async def stop(self, grace: float = 1.0) -> int | None:
+        """end(), then wait until the process has been reaped: its exit code."""
+        if self.proc is None:
+            return None
+        await self.end(grace)
         return await self.wait()
 
     def _at_parents_priority(self) -> None:
-        """A run that lowered its priority (a Cloud Agent once serving, CLOUD_NICE) exits at its
-        parent's where that is allowed: the kernel's teardown of a process with SPADE, numpy and cv2
-        loaded takes 7-14 ms of its CPU, and the stop is answered only once it has exited (a fleet's
-        stops at nice +5 took 90-135 ms under load)."""
+        """A run that lowered its priority (a Cloud Agent once serving, CLOUD_NICE) logs out and
+        exits at its parent's where that is allowed (a fleet's stops at nice +5 took 90-135 ms
+        under load, when they waited for the exit)."""
         try:
             own = os.getpriority(os.PRIO_PROCESS, 0)
             if os.getpriority(os.PRIO_PROCESS, self.proc.pid) > own:
@@ -404,6 +444,14 @@ class InProcessAgent:
         except Exception:  # noqa: BLE001 - a crashed in-process agent ends like a crashed process
             self.returncode = 1
         return self.returncode
+
+    async def logged_out(self, timeout: float) -> bool:
+        if self.task is not None:
+            await asyncio.wait({self.task}, timeout=timeout)
+        return self.task is None or self.task.done()
+
+    async def end(self, grace: float = 1.0) -> int | None:
+        return await self.stop(grace)  # nothing to tear down after the agent has stopped
 
     async def stop(self, grace: float = 1.0) -> int | None:
         if self.task is None:

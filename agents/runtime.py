@@ -93,16 +93,20 @@ async def run_spec(spec: SpawnSpec | None, login: WarmLogin | None = None, pipe:
         if login is not None:
             agent, spec = await _logged_in_first(login, pipe)
             if agent is None:
+                say_logged_out()
                 return 0  # discarded idle: no run came
         else:
             agent = build_agent(spec)
         if spec.kind == "cloud":
             from .cloud_agent import CLOUD_NICE
             agent.nice_when_serving = CLOUD_NICE  # its own process: nobody else's priority changes
-        return await run_agent(agent, spec)
+        code = await run_agent(agent, spec)
+        say_logged_out()
+        return code
     except asyncio.CancelledError:
         if agent is not None:
             await asyncio.wait_for(agent.stop(), 2.0)
+        say_logged_out()
         return 143
 
 
@@ -227,6 +231,28 @@ def say_ready() -> None:
         os.close(int(fd))
 
 
+_logged_out_fd: int | None = None  # RAPP_GONE_FD, taken out of the environment at start
+
+
+def say_logged_out() -> None:
+    """Tell the Core/Platform the agent has logged out, its output flushed: what is left is the
+    process's exit, which they need not wait for (AgentProcess.end). Said once."""
+    global _logged_out_fd
+    fd, _logged_out_fd = _logged_out_fd, None
+    if fd is None:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    try:
+        os.write(fd, b"1")
+    except OSError:
+        pass
+    os.close(fd)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv or "RAPP_SPEC_FD" not in os.environ:
@@ -237,6 +263,9 @@ def main(argv: list[str] | None = None) -> int:
     # a crash in native code (a Cloud Agent's OpenCV work, 2026-11-26) leaves its Python stack in stderr.log,
     # which the Core or Platform quotes in its record of the loss
     faulthandler.enable()
+    global _logged_out_fd
+    gone_fd = os.environ.pop("RAPP_GONE_FD", None)
+    _logged_out_fd = int(gone_fd) if gone_fd else None
     trace_fd = os.environ.pop("RAPP_TRACE_FD", None)
     if trace_fd:
         from .tracing import inherit_trace_fd

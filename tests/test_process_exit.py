@@ -1,6 +1,7 @@
 """Waiting for agent processes takes no worker of the loop's default executor: with more running
 children than it has workers, `to_thread` calls (the Platform's services) still run at once. An agent
-process's leftover children die with it, before it is reaped."""
+process's leftover children die with it, before it is reaped. A run ends (AgentProcess.end) once its
+agent has logged out and it has been killed, not once the kernel has torn its process down."""
 from __future__ import annotations
 
 import asyncio
@@ -62,3 +63,39 @@ def _exists(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+async def test_a_run_ends_once_its_agent_has_logged_out_and_is_reaped_after(settings, tmp_path, unique):
+    from agents.process import spawn_agent
+    from agents.tracing import read_trace
+
+    from .test_warm_pool import cloud_spec, logged_in, run_dir
+
+    spec = cloud_spec(settings, unique)
+    run = spawn_agent(spec, run_dir(tmp_path, 1), settings)
+    await run.start()
+    await logged_in(settings, spec)
+    code = await asyncio.wait_for(run.end(grace=5.0), 10)
+    jid = settings.jid(spec.name)
+    # by the time end() returns the agent has logged out (its own record) and cannot act again
+    assert [r for r in read_trace(settings.trace_file) if r["kind"] == "agent" and r["event"] == "stopped"
+            and r["agent"] == jid]
+    assert code in (None, 143, -9)  # None: still being torn down, killed
+    assert await asyncio.wait_for(run.wait(), 10) in (143, -9) and not run.alive()
+
+
+IGNORES_SIGTERM = "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); time.sleep(60)"
+
+
+async def test_a_run_that_never_logs_out_is_killed_at_the_end_of_its_grace(tmp_path):
+    run = AgentProcess("stubborn", None, tmp_path / "0001-stubborn", XmppSettings())
+    (tmp_path / "0001-stubborn").mkdir()
+    run.argv = [sys.executable, "-c", IGNORES_SIGTERM]
+    await run.start()
+    deadline = time.monotonic() + 10
+    while "up" not in (Path(run.workdir) / "stdout.log").read_text() and time.monotonic() < deadline:
+        await asyncio.sleep(0.05)
+    t0 = time.monotonic()
+    await run.end(grace=0.5)
+    assert 0.45 < time.monotonic() - t0 < 2.0
+    assert await asyncio.wait_for(run.wait(), 10) == -9
