@@ -410,7 +410,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         workdir = self.workdir / f"{n:04d}-{m.name}"
         await asyncio.to_thread(unpack_package, data, workdir / "package", trusted_keys=self.trusted_keys,
                                 require_signature=self.require_signature)
-        ident = await self.accounts.take(self._dynamic_prefix(m.name))
+        ident = self.accounts.take(self._dynamic_prefix(m.name))  # made ahead, or registered at its login
         name = ident.name
         session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
                                  manifest=m, workdir=workdir, account=ident)

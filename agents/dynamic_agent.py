@@ -131,7 +131,7 @@ class DynamicAgent(RappAgent):
 
     async def run_to_end(self) -> int:
         """Start, run the task to its end, report, stop. Returns the process exit code."""
-        await self.start()
+        await self.start(auto_register=True)  # its account may be only reserved (EphemeralAccounts.take)
         # import and build before Init: a slow import must not look like a hang to the Core
         behaviour, failure = self._build_task()
         self.activate("heartbeat", _Heartbeat(period=HEARTBEAT_S))

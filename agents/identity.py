@@ -40,7 +40,6 @@ class EphemeralAccounts:
         self._wanted: dict[str, int] = {}  # prefix -> how many accounts to keep made ahead
         self._made: dict[str, list[Identity]] = {}
         self._fillers: dict[str, asyncio.Task] = {}
-        self._making: dict[str, asyncio.Task] = {}  # prefix -> the account being made now
 
     # -- ledger ---------------------------------------------------------------------------
     def _read(self) -> dict[str, str]:
@@ -75,17 +74,17 @@ class EphemeralAccounts:
     def reserve(self, prefix: str) -> Identity:
         """A new account `<prefix>-<random>` in the ledger only: its holder registers it at its first
         login (in-band, as `create` does) and the ledger's `delete`/`sweep` remove it either way. The
-        Platform's Cloud Agents (warm workers and cold starts): `create` costs the Platform's loop a
-        whole XMPP session (TLS, SCRAM, registration), which a fleet's burst of refills paid in the
-        middle of its starts."""
+        Platform's Cloud Agents (warm workers and cold starts) and a Core's Dynamic Agents with no
+        account made ahead (`take`): `create` costs the caller's loop a whole XMPP session (TLS,
+        SCRAM, registration), which a fleet's burst of starts paid in its middle."""
         ident = Identity(f"{prefix}-{secrets.token_hex(5)}", generate_password())
         self._write({**self._read(), ident.name: ident.password})
         return ident
 
     def prepare(self, prefix: str, count: int = 1) -> None:
         """Keep `count` accounts for `prefix` made ahead, made one after another in the background
-        (a hand-off then only logs in; the Platform keeps one per warm Cloud worker for a fleet's
-        burst of starts, and made all at once they slowed the start that asked for them)."""
+        while the robot is busy (a Core's next run of the same RApp then only logs in; made all at
+        once they slowed the start that asked for them)."""
         self._wanted[prefix] = max(count, self._wanted.get(prefix, 0))
         filler = self._fillers.get(prefix)
         if filler is None or filler.done():
@@ -94,7 +93,7 @@ class EphemeralAccounts:
     async def _fill(self, prefix: str) -> None:
         made = self._made.setdefault(prefix, [])
         while len(made) < self._wanted.get(prefix, 0):
-            self._making[prefix] = making = asyncio.create_task(self._make_one(prefix, made))
+            making = asyncio.create_task(self._make_one(prefix, made))
             try:
                 await asyncio.shield(making)
             except LoginError as e:
@@ -104,14 +103,13 @@ class EphemeralAccounts:
     async def _make_one(self, prefix: str, made: list[Identity]) -> None:
         made.append(await self.create(prefix))
 
-    async def take(self, prefix: str) -> Identity:
-        """An account made ahead for `prefix`; with none made, the one being made (its
-        registration is under way: cheaper than another), else a new one."""
-        making = self._making.get(prefix)
-        if not self._made.get(prefix) and making is not None and not making.done():
-            await asyncio.wait([making])  # a failure is the filler's to log
+    def take(self, prefix: str) -> Identity:
+        """An account made ahead for `prefix`, else one reserved (`reserve`): its holder must log
+        in with in-band registration on (an account that exists answers "conflict" and the login
+        goes on). Making one here cost a burst of first runs (a fleet's 20 robots told at once) a
+        whole XMPP session each on their Cores' loops, on top of their agents' own logins."""
         made = self._made.get(prefix)
-        return made.pop(0) if made else await self.create(prefix)
+        return made.pop(0) if made else self.reserve(prefix)
 
     async def delete(self, name: str, password: str | None = None) -> bool:
         """Delete the account; True when gone (also when it no longer existed)."""
@@ -160,6 +158,5 @@ class EphemeralAccounts:
         await asyncio.gather(*self._fillers.values(), return_exceptions=True)
         spare = [ident for made in self._made.values() for ident in made]
         self._fillers.clear()
-        self._making.clear()
         self._made.clear()
         await asyncio.gather(*(self.delete(i.name, i.password) for i in spare))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import os
 import stat
+import time
 
 import pytest
 
@@ -78,7 +79,7 @@ async def test_prepared_accounts_are_taken_once_each_and_the_unused_deleted(xmpp
     await asyncio.sleep(0.3)
     made = accounts.pending()
     assert len(made) == 3
-    taken = [await accounts.take("cloud-app") for _ in range(2)]
+    taken = [accounts.take("cloud-app") for _ in range(2)]
     assert len({i.name for i in taken}) == 2 and {i.name for i in taken} <= set(made)  # made ahead, not now
     for ident in taken:
         await probe_login(s.host, s.port, s.domain, user=ident.name, password=ident.password, register=False)
@@ -90,6 +91,14 @@ async def test_prepared_accounts_are_taken_once_each_and_the_unused_deleted(xmpp
     for ident in taken:
         assert await accounts.delete(ident.name)
     assert accounts.pending() == {}
+    # none made ahead: one reserved, in the ledger at once, on the server only once its holder registers it
+    t0 = time.monotonic()
+    reserved = accounts.take("cloud-app")
+    assert time.monotonic() - t0 < 0.05 and reserved.name in accounts.pending()
+    with pytest.raises(LoginError):
+        await probe_login(s.host, s.port, s.domain, user=reserved.name, password=reserved.password, register=False)
+    await probe_login(s.host, s.port, s.domain, user=reserved.name, password=reserved.password, register=True)
+    assert await accounts.delete(reserved.name) and accounts.pending() == {}
 
 
 async def test_embedded_server_removes_only_the_logged_in_account(xmpp_server):
