@@ -33,6 +33,7 @@ class CloudAgent(RappAgent):
         self.owner, self.token = owner, token
         self.service = None
         self.nice_when_serving = 0  # added to its process's nice value once it serves (CLOUD_NICE)
+        self.crash_box = None  # agents/crash_box.py CrashBox: in a process of its own (the runtime sets it)
         self._stopped = asyncio.Event()
 
     async def setup(self) -> None:
@@ -49,12 +50,15 @@ class CloudAgent(RappAgent):
     def _serve(self) -> None:
         cls = load_entry_point(self.package_dir, self.manifest.cloud_entry_point)
         self.service = cls(self)
-        responder = Responder(self.service.ontology, self.service.handlers(), check=self._only_owner)
+        responder = Responder(self.service.ontology, self.service.handlers(), check=self._taken)
         self.activate("cloud-service", responder, responder.make_template())
 
-    def _only_owner(self, req, ctx) -> None:
+    def _taken(self, req, ctx) -> None:
+        """Its owner's requests only; each kept in the crash box (if any) before it is worked on."""
         if self.owner and ctx.sender != self.owner:
             raise Refusal(f"this Cloud Agent serves {self.owner} only", ErrorCode.FORBIDDEN)
+        if self.crash_box is not None:
+            self.crash_box.hold(ctx.info.action, ctx.message.body or "")
 
     async def run_to_end(self, platform: str) -> int:
         from ontology.platform import CloudReady

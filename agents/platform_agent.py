@@ -33,6 +33,7 @@ from ontology.errors import ErrorCode
 
 from . import platform_directory as D
 from .base import RappAgent
+from .crash_box import BOX_NAME, keep_crash_input
 from .errors import Failure, Refusal, RequestError, RequestRefused
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .runtime import WARM_EXTRA_IMPORTS
@@ -464,8 +465,13 @@ class PlatformAgent(RappAgent):
                 return  # stopped on purpose
             restart = session.restartable and not session.restarted
             reason = f"Cloud Agent {session.jid} of {session.rapp} exited with code {code}"
+            # the request it had taken last, out of its run directory before a restart reuses it
+            kept = await asyncio.to_thread(
+                keep_crash_input, Path(session.process.workdir) / BOX_NAME,
+                self._crash_dir() / f"{session.jid.split('@')[0]}-{time.time():.0f}.json")
             self.record_structure("cloud-lost", cloud=session.jid, rapp=session.rapp, exit_code=code,
-                                  restart=restart, stderr=await asyncio.to_thread(session.process.last_words))
+                                  restart=restart, stderr=await asyncio.to_thread(session.process.last_words),
+                                  input=str(kept) if kept else None)
             if restart:
                 restart = await self._restart_cloud(session, spec, workdir)
             await self.notify(session.owner, P.CloudAgentDown(jid=session.jid, reason=reason, restarted=restart),
@@ -473,6 +479,11 @@ class PlatformAgent(RappAgent):
             if not restart:
                 await self._kill_cloud(session, "process exited")
                 return
+
+    def _crash_dir(self) -> Path:
+        """Next to the trace that records the losses (a temporary work directory goes at stop)."""
+        trace = self.settings.trace_file
+        return (Path(trace).parent if trace else self.workdir) / "crashes"
 
     async def _restart_cloud(self, session: CloudSession, spec: SpawnSpec, workdir: Path) -> bool:
         """Start the Cloud Agent again under its JID; True once it serves (calls sent meanwhile
