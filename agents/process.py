@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ontology.spawn import SpawnSpec, WarmLogin
 
-from .sandbox import APP_DIR, Sandbox
+from .sandbox import APP_DIR, CONFINE_ENV, Sandbox
 
 
 def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
@@ -105,7 +105,7 @@ class Limits:
     processes: int | None = 128  # tasks (threads count); only under a sandbox uid of its own
     file_size_bytes: int | None = 256 * 1024**2
 
-    def apply(self, own_uid: bool = True) -> None:  # runs in the child between fork and exec
+    def apply(self, own_uid: bool = True) -> None:  # by the RApp process itself (agents/sandbox.py confine)
         limits = [(resource.RLIMIT_CPU, self.cpu_seconds, 5), (resource.RLIMIT_AS, self.memory_bytes, 0),
                   (resource.RLIMIT_NOFILE, self.open_files, 0),
                   (resource.RLIMIT_FSIZE, self.file_size_bytes, 0)]
@@ -156,7 +156,9 @@ class AgentProcess:
         self.uid = self.sandbox.new_uid()
         self._given = spec
         self.spec = self._placed(spec) if spec is not None else None
-        self.argv = [sys.executable, "-m", "agents.runtime"]
+        # -P: the run directory (its cwd, which a restarted run's last process could write into) is
+        # not on sys.path: the runtime imports as root until it has confined itself
+        self.argv = [sys.executable, "-P", "-m", "agents.runtime"]
         self.proc: subprocess.Popen | None = None
         self._waiter: asyncio.Future | None = None
         self._spec_w: int | None = None  # a warm worker's end of its spec pipe, until the hand-off
@@ -268,10 +270,11 @@ class AgentProcess:
                 fds.append(trace_fd)
                 extra["RAPP_TRACE_FD"] = str(trace_fd)
             with open(self.workdir / "stdout.log", "ab") as out, open(self.workdir / "stderr.log", "ab") as err:
+                # no preexec_fn: the runtime confines itself first thing (agents/sandbox.py confine)
+                extra[CONFINE_ENV] = self.sandbox.confinement(self.uid, self.limits, self.nice)
                 proc = subprocess.Popen(
                     self.argv, cwd=self.workdir, env=self.sandbox.env(self.settings, extra), stdout=out,
-                    stderr=err, stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=fds,
-                    preexec_fn=_niced(self.sandbox.preexec(self.workdir, self.uid, self.limits), self.nice))
+                    stderr=err, stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=fds)
         except BaseException:
             for fd in [*keep, gone_r]:
                 os.close(fd)
@@ -501,17 +504,6 @@ def check_module_names(names) -> tuple[str, ...]:
     if bad:
         raise ValueError(f"not module names: {bad}")
     return names
-
-
-def _niced(preexec, nice: int):
-    if not nice:
-        return preexec
-
-    def run() -> None:
-        preexec()
-        os.nice(nice)  # lowering needs no privilege; after the uid change, so it is the run's own
-
-    return run
 
 
 def each_thread(pid: int, call) -> None:

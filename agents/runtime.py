@@ -261,6 +261,8 @@ def main(argv: list[str] | None = None) -> int:
         print("usage: python -m agents.runtime   (started by a Core or the Platform, which pass the "
               "spec on the descriptor named by RAPP_SPEC_FD)", file=sys.stderr)
         return 2
+    from .sandbox import confine
+    confine()  # first: rlimits, mounts, uid, as the Core or Platform asked (it never forks with a preexec_fn)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # a crash in native code (a Cloud Agent's OpenCV work, 2026-11-26) leaves its Python stack in stderr.log,
     # which the Core or Platform quotes in its record of the loss

@@ -1,6 +1,8 @@
 """The sandbox a RApp process (Dynamic or Cloud Agent) runs in: defence in depth around untrusted code.
 
-Layers, each applied between fork and exec (`Sandbox.preexec`), in this order:
+Layers, each applied by the runtime to its own process first thing, before it reads its spec or
+imports anything of a RApp (`confine`, from what `Sandbox.confinement` put in its environment), in
+this order:
 1. rlimits (agents/process.py `Limits`): CPU, address space, processes, open files, file size;
 2. a private mount namespace whose root is a fresh tmpfs holding only read-only binds of the
    system (/usr, /etc, the shared-library symlinks), the Python installation and virtualenv, the
@@ -20,7 +22,9 @@ network; a deployment restricts the sandbox uids to the XMPP server with a firew
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
+import json
 import os
 import secrets
 import signal
@@ -121,39 +125,60 @@ class Sandbox:
         (workdir / ".root").mkdir(exist_ok=True)  # mount point of the sandbox's root
         os.chown(workdir / ".root", 0, 0)
 
-    def preexec(self, workdir: Path, uid: int | None, limits):
-        """The function Popen runs in the child between fork and exec (as root)."""
-        binds = self._binds(workdir) if uid is not None else []
-        lib, parent = libc(), os.getpid()
+    def confinement(self, uid: int | None, limits, nice: int = 0) -> str:
+        """What a RApp process applies to itself at its start (`confine`), for its environment
+        (CONFINE_ENV). Not a `preexec_fn`: with one, CPython cannot vfork, and the fork of a large
+        Core or Platform (50 ms for a Platform's 220 MB) holds the GIL, and the logging modules'
+        at-fork locks, all along: the parent's event loop stood still for each spawn."""
+        return json.dumps({"uid": uid, "tmpfs_mb": self.tmpfs_mb, "nice": nice,
+                           "binds": self._binds() if uid is not None else [],
+                           "limits": dataclasses.asdict(limits), "parent": os.getpid()})
 
-        def run() -> None:
-            try:
-                limits.apply(own_uid=uid is not None)
-                if uid is not None:
-                    _enter(lib, Path(workdir) / ".root", binds, self.tmpfs_mb)
-                    os.setgroups([])
-                    os.setresgid(uid, uid, uid)
-                    os.setresuid(uid, uid, uid)
-                    _check(lib.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")
-                if lib is not None:  # after the uid change, which clears it: dies with its Core/Platform
-                    _check(lib.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0), "parent-death signal")
-                    if os.getppid() != parent:
-                        os._exit(125)  # the parent died before the signal was armed
-            except BaseException as e:  # noqa: BLE001 - say why in stderr.log, never exec unconfined
-                os.write(2, f"rapp sandbox: {type(e).__name__}: {e}\n".encode())
-                os._exit(126)
-
-        return run
-
-    def _binds(self, workdir: Path) -> list[tuple[str, str, bool]]:
+    def _binds(self) -> list[tuple[str, str, bool]]:
         """(source, target inside the sandbox, writable) for every bind of the sandbox's root."""
         root = _project_root()
         out = [(p, p, False) for p in SYSTEM if os.path.isdir(p)]
         out += [(p, p, False) for p in _python_dirs() if not any(p.startswith(s + "/") for s in SYSTEM)]
         out += [(str(root / pkg), str(root / pkg), False) for pkg in PROJECT_PACKAGES if (root / pkg).is_dir()]
         out += [(f"/dev/{d}", f"/dev/{d}", True) for d in DEVICES if os.path.exists(f"/dev/{d}")]
-        out.append((str(Path(workdir).resolve()), APP_DIR, True))
-        return out
+        return out  # and the run's directory as /app: the process's cwd (`confine`)
+
+
+CONFINE_ENV = "RAPP_CONFINE"
+
+
+def confine() -> None:
+    """Confine this process as its Core or Platform asked (CONFINE_ENV; nothing asked, nothing
+    done): rlimits, then (a sandbox uid) the mount namespace and its root, the uid, no_new_privs;
+    then the parent-death signal (the uid change clears it) and the priority. As root, before any
+    RApp code: the runtime calls it first thing. Any failure ends the process (126), with the reason
+    in its stderr.log: it never goes on unconfined."""
+    raw = os.environ.pop(CONFINE_ENV, None)
+    if raw is None:
+        return
+    try:
+        from .process import Limits
+
+        asked = json.loads(raw)
+        uid, lib = asked["uid"], libc()
+        Limits(**asked["limits"]).apply(own_uid=uid is not None)
+        if uid is not None:
+            # the run's directory as the cwd Popen gave (relative paths), not by its name: a warm
+            # worker's directory is renamed at its hand-off, which may come before it got this far
+            _enter(lib, Path(".root"), [*asked["binds"], (".", APP_DIR, True)], asked["tmpfs_mb"])
+            os.setgroups([])
+            os.setresgid(uid, uid, uid)
+            os.setresuid(uid, uid, uid)
+            _check(lib.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")
+        if lib is not None:  # after the uid change, which clears it: dies with its Core/Platform
+            _check(lib.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0), "parent-death signal")
+            if os.getppid() != asked["parent"]:
+                os._exit(125)  # the parent died before the signal was armed
+        if asked["nice"]:
+            os.nice(asked["nice"])  # lowering needs no privilege; after the uid change: the run's own
+    except BaseException as e:  # noqa: BLE001 - say why in stderr.log, never go on unconfined
+        os.write(2, f"rapp sandbox: {type(e).__name__}: {e}\n".encode())
+        os._exit(126)
 
 
 def _enter(libc, new_root: Path, binds, tmpfs_mb: int) -> None:

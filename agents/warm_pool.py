@@ -3,8 +3,8 @@
 Starting `python -m agents.runtime` and importing SPADE takes most of a second; a Dynamic or
 Cloud Agent started that way makes its user wait for it. A Core or the Platform keeps `size` such
 processes idle instead: each started exactly like a cold one (agents/process.py `AgentProcess`: its
-own fresh uid, run directory `NNNN-.warm`, rlimits, new session, parent-death signal, the sandbox's
-preexec), with the runtime imported, blocked reading its spec. A hand-off takes one
+own fresh uid, run directory `NNNN-.warm`, rlimits, new session, parent-death signal, the sandbox
+it applies to itself), with the runtime imported, blocked reading its spec. A hand-off takes one
 (`AgentProcess.start` with `pool=`), moves the package into its directory and sends the spec: the
 worker becomes that Dynamic/Cloud Agent and is never used again (one process per RApp run).
 
@@ -33,9 +33,9 @@ from .sandbox import Sandbox
 
 log = logging.getLogger("rapp.warm")
 MAX_BACKOFF_S = 30.0
-# a refill waits this long after a hand-off: the fork of the Core's large process (Popen with a
-# preexec function forks holding the GIL) and the new worker's imports would otherwise slow the
-# hand-off it follows (bench/handoff.py: download -> spawn 23 ms without the wait, 10 ms with it)
+# a refill waits this long after a hand-off: the new worker's start and imports would otherwise slow
+# the hand-off it follows (measured when spawns still forked the Core's whole process with a
+# preexec_fn, holding the GIL) (bench/handoff.py: download -> spawn 23 ms without the wait, 10 ms with it)
 REFILL_AFTER_S = 0.5
 # a refill's worker imports at this lower priority (nice increment) until its own hand-off: after a
 # burst of hand-offs the pool refills many at once (~1 s of CPU each with the Platform's imports),

@@ -251,3 +251,21 @@ def test_the_runtime_imports_the_extra_modules_it_is_given_and_skips_missing_one
     root = Path(__file__).resolve().parents[1]
     done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=60)
     assert done.stdout.split() == ["True", "False"], done.stderr[-1500:]  # a missing one is skipped
+
+
+async def test_a_module_left_in_a_run_directory_is_not_imported_before_the_sandbox(settings, tmp_path, unique):
+    # a restarted Cloud Agent starts in its old directory, which its last process could write into;
+    # the runtime imports as root until it confines itself: the directory must not be on its path
+    run = run_dir(tmp_path, 1)
+    marker = tmp_path / "imported-from-the-run-directory"
+    (run / "yaml.py").write_text(f"open({str(marker)!r}, 'w').close()\nfrom yaml_real_is_gone import x\n")
+    spec = cloud_spec(settings, unique)
+    agent = spawn_agent(spec, run, settings)
+    await agent.start()
+    try:
+        started = await logged_in(settings, spec, timeout=20)  # it started, with the real yaml
+    except AssertionError:
+        started = None
+    finally:
+        await agent.stop(grace=0.5)
+    assert not marker.exists() and started
