@@ -122,8 +122,11 @@ class Sandbox:
         for p in [workdir, *workdir.rglob("*")]:
             os.lchown(p, uid, uid)
         os.chmod(workdir, 0o700)
-        (workdir / ".root").mkdir(exist_ok=True)  # mount point of the sandbox's root
-        os.chown(workdir / ".root", 0, 0)
+        root = workdir / ".root"  # mount point of the sandbox's root
+        if root.is_symlink() or (root.exists() and not root.is_dir()):
+            root.unlink()  # left by the run's last process (a Cloud Agent restarts in its directory)
+        root.mkdir(exist_ok=True)
+        os.lchown(root, 0, 0)
 
     def confinement(self, uid: int | None, limits, nice: int = 0) -> str:
         """What a RApp process applies to itself at its start (`confine`), for its environment

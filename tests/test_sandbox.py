@@ -184,3 +184,19 @@ async def test_g_cannot_stop_another_rapps_cloud_agent(system):
     events = structure(read_trace(system.settings.trace_file), system.platform.address)
     assert any(r["event"] == "refused" and r["cloud"] == target for r in events)
     await user.wait_for(lambda t: t.startswith("cloud-linger finished"), timeout=40, start=start)
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="the sandbox's directory set-up changes owners: needs root")
+def test_a_restart_does_not_follow_a_link_its_last_process_left(tmp_path):
+    # a Cloud Agent restarts in its run directory, which its last process (the run's uid) could fill
+    from agents.sandbox import Sandbox
+
+    run, victim = tmp_path / "0001-app", tmp_path / "victim"
+    run.mkdir()
+    victim.mkdir()  # a directory: made "again" by mkdir(exist_ok=True), chowned through the link
+    os.chown(victim, 4242, 4242)
+    (run / ".root").symlink_to(victim)
+    (run / "dir-link").symlink_to(tmp_path)
+    Sandbox(enabled=True).prepare(run, 0x5AF0_0001)
+    assert (run / ".root").is_dir() and not (run / ".root").is_symlink() and (run / ".root").stat().st_uid == 0
+    assert victim.stat().st_uid == 4242 and tmp_path.stat().st_uid == 0  # neither link was followed
