@@ -9,8 +9,9 @@ import os
 import subprocess
 import sys
 import time
-
 from pathlib import Path
+
+import pytest
 
 from agents.process import AgentProcess, exit_future
 from xmpp_server.settings import XmppSettings
@@ -99,3 +100,18 @@ async def test_a_run_that_never_logs_out_is_killed_at_the_end_of_its_grace(tmp_p
     await run.end(grace=0.5)
     assert 0.45 < time.monotonic() - t0 < 2.0
     assert await asyncio.wait_for(run.wait(), 10) == -9
+
+
+def test_a_run_directorys_log_that_is_a_link_or_a_fifo_is_neither_followed_nor_waited_for(tmp_path):
+    # a Cloud Agent restarts in its directory, which its last process (the run's uid) could change
+    run = AgentProcess("left-links", None, tmp_path / "0001-app", XmppSettings())
+    (tmp_path / "0001-app").mkdir()
+    secret = tmp_path / "root-only"
+    secret.write_text("a line of root's file\n")
+    (run.workdir / "stderr.log").symlink_to(secret)
+    os.mkfifo(run.workdir / "stdout.log")
+    assert run.stderr_tail() == "" and run.last_words() == ""  # not quoted into a record
+    t0 = time.monotonic()
+    with pytest.raises(OSError):
+        run._popen()  # refused at once, nothing appended to the link's target
+    assert time.monotonic() - t0 < 5 and secret.read_text() == "a line of root's file\n"
