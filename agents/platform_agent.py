@@ -490,6 +490,7 @@ class PlatformAgent(RappAgent):
         are failed by its Dynamic Agent when told, so none waits for a timeout)."""
         session.restarted = True
         session.ready.clear()
+        await session.process.end(grace=0.0)  # whatever of its uid left its group dies before the directory is reused
         session.process = self._spawn(spec, workdir)
         await session.process.start()
         self.record_structure("cloud-spawn", cloud=session.jid, rapp=session.rapp, owner=session.owner,

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ontology.spawn import SpawnSpec, WarmLogin
 
-from .sandbox import APP_DIR, CONFINE_ENV, Sandbox
+from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree
 
 
 def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
@@ -242,8 +242,7 @@ class AgentProcess:
                     pass
             os.replace(self.workdir / "package", warm_dir / "package")
             if self.uid is not None:
-                for p in [warm_dir / "package", *(warm_dir / "package").rglob("*")]:
-                    os.lchown(p, self.uid, self.uid)
+                give_tree(warm_dir / "package", self.uid)
             os.replace(warm_dir, self.workdir)  # onto the now empty NNNN-<rapp> directory
             os.write(spec_w, self._spec_bytes())
         finally:

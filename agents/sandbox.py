@@ -119,8 +119,7 @@ class Sandbox:
         (workdir / "tmp").mkdir(exist_ok=True)
         if uid is None:
             return
-        for p in [workdir, *workdir.rglob("*")]:
-            os.lchown(p, uid, uid)
+        give_tree(workdir, uid)
         os.chmod(workdir, 0o700)
         root = workdir / ".root"  # mount point of the sandbox's root
         if root.is_symlink() or (root.exists() and not root.is_dir()):
@@ -145,6 +144,16 @@ class Sandbox:
         out += [(str(root / pkg), str(root / pkg), False) for pkg in PROJECT_PACKAGES if (root / pkg).is_dir()]
         out += [(f"/dev/{d}", f"/dev/{d}", True) for d in DEVICES if os.path.exists(f"/dev/{d}")]
         return out  # and the run's directory as /app: the process's cwd (`confine`)
+
+
+def give_tree(top: Path, uid: int) -> None:
+    """Everything under `top` (itself included) to `uid`, walking by directory descriptors with no
+    link followed: a run directory reused (a Cloud Agent's restart) is its last uid's, and a path
+    walked by name could be redirected through a directory swapped for a link meanwhile."""
+    os.chown(top, uid, uid, follow_symlinks=False)
+    for _, dirs, files, dirfd in os.fwalk(top):
+        for name in dirs + files:
+            os.chown(name, uid, uid, dir_fd=dirfd, follow_symlinks=False)
 
 
 CONFINE_ENV = "RAPP_CONFINE"
