@@ -21,6 +21,8 @@ from robots import RobotAPI, World
 from scenarios.system import RappSystem, wait_until
 from xmpp_server import XmppSettings
 
+from .test_warm_pool import gone
+
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
 SUPERVISING = {"supervisor", "core-service", "core-events", "user-listener", "microphone-listener", "audio-listener"}
 SERVING = {"supervisor", "core-service", "core-events", "command-server", "busy-chat", "heartbeats", "safety"}
@@ -38,15 +40,6 @@ class SpyAPI:
     async def handle(self, req):
         self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
         return await self.api.handle(req)
-
-
-def reaped(pid: int) -> bool:
-    """No such process any more (not even a zombie)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    return False
 
 
 def variant(tmp_path: Path, name: str, keyword: str, **params) -> Path:
@@ -123,7 +116,7 @@ async def check_full_lifecycle(system) -> list[dict]:
     assert core.active_behaviours() == SUPERVISING and core.dynamic is None
     trace = read_trace(system.settings.trace_file)
     spawn = [r for r in structure(trace) if r["event"] == "spawn"][-1]
-    await wait_until(lambda: reaped(spawn["pid"]), 5)  # killed before the Core resumed, reaped just after
+    await wait_until(lambda: gone(spawn["pid"]), 5)  # killed before the Core resumed, reaped just after
     stopped = [r for r in trace if r["kind"] == "agent" and r["event"] == "stopped"
                and r["agent"] == spawn["dynamic"]]
     assert stopped, "the Dynamic Agent logged out"
@@ -162,7 +155,7 @@ async def test_cloud_agent_lives_and_dies_with_dynamic_agent(system):
     assert events == [("spawn", "echo-cloud"), ("cloud-spawn", "echo-cloud"),
                       ("cloud-destroy", "echo-cloud"), ("destroy", "echo-cloud")]
     cloud = next(r for r in structure(trace) if r["event"] == "cloud-spawn" and r["rapp"] == "echo-cloud")
-    await wait_until(lambda: reaped(cloud["pid"]), 5)
+    await wait_until(lambda: gone(cloud["pid"]), 5)
     assert not system.platform.clouds
 
 

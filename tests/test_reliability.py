@@ -13,7 +13,8 @@ from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
-from .test_lifecycle import FIXTURE, SUPERVISING, reaped, run_command, state, variant, wait_until
+from .test_lifecycle import FIXTURE, SUPERVISING, run_command, state, variant, wait_until
+from .test_warm_pool import gone
 
 FAULTS = {  # keyword -> (params, time limit)
     "raiseecho": ({"behaviour": "raise"}, 60),
@@ -78,7 +79,7 @@ async def test_fault_is_noticed_cleaned_up_and_reported(system, keyword, expect)
         assert ended["t"] - fault["t"] < 2.0, ended["t"] - fault["t"]
     # the process is gone, the robot was stopped, the next command works
     spawn = _records(system, rapp, "structure", "spawn")[-1]
-    await wait_until(lambda: reaped(spawn["pid"]), 5)
+    await wait_until(lambda: gone(spawn["pid"]), 5)
     await run_command(system, "echo", "echo-app finished")
 
 
