@@ -462,8 +462,11 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         task.add_done_callback(self._background.discard)
 
     async def _delete_account(self, session: DynamicSession) -> None:
+        # after the reaping, which its destroy did not wait for: this record carries its exit code
+        started = session.process is not None and session.process.pid is not None
+        code = await session.process.wait() if started else None
         gone = await self.accounts.delete(session.account.name, session.account.password)
-        self.record_structure("account-deleted" if gone else "account-kept", account=session.jid)
+        self.record_structure("account-deleted" if gone else "account-kept", account=session.jid, exit_code=code)
 
     def _handoff(self) -> None:
         self.deactivate("user-listener")

@@ -14,9 +14,10 @@ from __future__ import annotations
 import json
 import mmap
 import os
-import stat
 import struct
 from pathlib import Path
+
+from .sandbox import open_run_file
 
 BOX_NAME = "request-in-progress.box"
 _HEADER = struct.Struct("<Q")
@@ -55,14 +56,8 @@ class CrashBox:
 
 def read_box(path: str | Path) -> tuple[str, str] | None:
     """(action, body) of the request a box holds, or None (no box, or no complete request)."""
-    try:  # the RApp's own directory: no link followed, a regular file only
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
-    except OSError:
-        return None
     try:
-        with os.fdopen(fd, "rb") as f:
-            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
-                return None
+        with open_run_file(Path(path), "rb") as f:  # the RApp's own directory
             head = f.read(_HEADER.size)
             if len(head) < _HEADER.size:
                 return None

@@ -14,7 +14,6 @@ import os
 import resource
 import shutil
 import signal
-import stat
 import subprocess
 import sys
 import threading
@@ -23,7 +22,7 @@ from pathlib import Path
 
 from ontology.spawn import SpawnSpec, WarmLogin
 
-from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree
+from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree, open_run_file
 
 
 def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
@@ -79,19 +78,6 @@ def _on_byte(fd: int, event: asyncio.Event) -> None:
         os.close(fd)
         event.set()
     loop.add_reader(fd, readable)
-
-
-def _run_file(path: Path, mode: str):
-    """A log file of a run directory, opened by this (root) process: a regular file, no link
-    followed. The directory is the run's uid's, and a Cloud Agent restarts in it: its last process
-    could have left stderr.log as a link to a file of root's (appended to, or quoted in a record)."""
-    # O_NONBLOCK: a FIFO left in its place fails or is refused at once instead of blocking the open
-    flags = os.O_NOFOLLOW | os.O_NONBLOCK | (os.O_WRONLY | os.O_APPEND | os.O_CREAT if "a" in mode else os.O_RDONLY)
-    fd = os.open(path, flags, 0o644)
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise OSError(f"{path} is not a regular file")
-    return os.fdopen(fd, mode)
 
 
 def _kill_group(pgid: int, sig: int = signal.SIGKILL) -> None:
@@ -282,7 +268,7 @@ class AgentProcess:
                 trace_fd = os.open(self.settings.trace_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
                 fds.append(trace_fd)
                 extra["RAPP_TRACE_FD"] = str(trace_fd)
-            with _run_file(self.workdir / "stdout.log", "ab") as out, _run_file(self.workdir / "stderr.log", "ab") as err:
+            with open_run_file(self.workdir / "stdout.log", "ab") as out, open_run_file(self.workdir / "stderr.log", "ab") as err:
                 # no preexec_fn: the runtime confines itself first thing (agents/sandbox.py confine)
                 extra[CONFINE_ENV] = self.sandbox.confinement(self.uid, self.limits, self.nice)
                 proc = subprocess.Popen(
@@ -395,7 +381,7 @@ class AgentProcess:
     def stderr_tail(self, n: int = 2000) -> str:
         """The last ~n characters of its stderr.log: only those are read (a RApp may log megabytes)."""
         try:
-            with _run_file(self.workdir / "stderr.log", "rb") as f:
+            with open_run_file(self.workdir / "stderr.log", "rb") as f:
                 f.seek(max(0, f.seek(0, os.SEEK_END) - 4 * n))  # up to 4 bytes a character
                 return f.read().decode(errors="replace")[-n:]
         except OSError:

@@ -28,6 +28,7 @@ import json
 import os
 import secrets
 import signal
+import stat
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -144,6 +145,19 @@ class Sandbox:
         out += [(str(root / pkg), str(root / pkg), False) for pkg in PROJECT_PACKAGES if (root / pkg).is_dir()]
         out += [(f"/dev/{d}", f"/dev/{d}", True) for d in DEVICES if os.path.exists(f"/dev/{d}")]
         return out  # and the run's directory as /app: the process's cwd (`confine`)
+
+
+def open_run_file(path: Path, mode: str):
+    """A file of a run directory, opened by the Core or Platform (root): a regular file, no link
+    followed. The directory is the run's uid's, and a Cloud Agent restarts in it: its last process
+    could have left a log as a link to a file of root's (appended to, or quoted in a record), or a
+    FIFO (O_NONBLOCK: refused at once instead of blocking the open). `mode`: "rb" or "ab"."""
+    flags = os.O_NOFOLLOW | os.O_NONBLOCK | (os.O_WRONLY | os.O_APPEND | os.O_CREAT if "a" in mode else os.O_RDONLY)
+    fd = os.open(path, flags, 0o644)
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise OSError(f"{path} is not a regular file")
+    return os.fdopen(fd, mode)
 
 
 def give_tree(top: Path, uid: int) -> None:

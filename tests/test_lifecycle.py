@@ -117,6 +117,12 @@ async def check_full_lifecycle(system) -> list[dict]:
     trace = read_trace(system.settings.trace_file)
     spawn = [r for r in structure(trace) if r["event"] == "spawn"][-1]
     await wait_until(lambda: gone(spawn["pid"]), 5)  # killed before the Core resumed, reaped just after
+
+    def deleted() -> list:
+        return [r for r in structure(read_trace(system.settings.trace_file))
+                if r["event"] == "account-deleted" and r["account"] == spawn["dynamic"]]
+    await wait_until(deleted, 10)  # after the reaping: its exit code is recorded there
+    assert deleted()[0]["exit_code"] in (0, 143, -9), deleted()
     stopped = [r for r in trace if r["kind"] == "agent" and r["event"] == "stopped"
                and r["agent"] == spawn["dynamic"]]
     assert stopped, "the Dynamic Agent logged out"
