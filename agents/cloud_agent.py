@@ -3,7 +3,6 @@ only (paper 000 sec. 5.4). It lives until the Platform stops it."""
 from __future__ import annotations
 
 import asyncio
-import os
 from pathlib import Path
 
 from ontology.manifest import Manifest
@@ -11,15 +10,9 @@ from ontology.errors import ErrorCode
 
 from .base import RappAgent
 from .errors import Refusal
-from .process import set_priority
 from .responder import Responder
 from .runtime import load_entry_point
 
-# once serving, a Cloud Agent in a process of its own (RApp code, its OpenCV work included) yields
-# the CPU to the Platform's services and to Cloud Agents still starting: the fleet bench's 20-robot
-# service p95 was 120-132 ms in three runs at +5 against 139-184 ms in three at 0, the tasks no
-# slower (bench/RESULTS.md). agents/runtime.py sets it; an in-process one leaves its host alone.
-CLOUD_NICE = 5
 
 
 class CloudAgent(RappAgent):
@@ -32,7 +25,6 @@ class CloudAgent(RappAgent):
         self.manifest, self.package_dir = manifest, Path(package_dir) if package_dir else None
         self.owner, self.token = owner, token
         self.service = None
-        self.nice_when_serving = 0  # added to its process's nice value once it serves (CLOUD_NICE)
         self.crash_box = None  # agents/crash_box.py CrashBox: in a process of its own (the runtime sets it)
         self._stopped = asyncio.Event()
 
@@ -66,8 +58,6 @@ class CloudAgent(RappAgent):
         if not self.is_alive():
             await self.start(auto_register=True)  # its account is only reserved (agents/identity.py reserve)
         await self.request(platform, CloudReady(jid=self.address), timeout=10.0)
-        if self.nice_when_serving:
-            set_priority(os.getpid(), os.getpriority(os.PRIO_PROCESS, 0) + self.nice_when_serving)
         await self._stopped.wait()
         await self.stop()
         return 0

@@ -47,6 +47,11 @@ from .warm_pool import WarmPool
 
 log = logging.getLogger("rapp.platform")
 # what every RApp token may call besides the services its manifest declares
+# once serving, a Cloud Agent in a process of its own (RApp code, its OpenCV work included) yields
+# the CPU to the Platform's services and to Cloud Agents still starting; the Platform sets it, as
+# root, for the process's threads and its session's group (agents/priority.py: the threads' nice
+# alone changed nothing across sessions). An in-process one leaves its host alone.
+CLOUD_NICE = 5
 ALWAYS_ALLOWED = {"start_cloud_agent", "stop_cloud_agent", "ping", "list_services"}
 
 
@@ -506,6 +511,7 @@ class PlatformAgent(RappAgent):
         if session is None:
             raise Refusal(f"{ctx.sender} is not a Cloud Agent of this Platform", ErrorCode.UNKNOWN_CLOUD)
         session.ready.set()
+        session.process.yield_cpu(CLOUD_NICE)
         return Done()
 
     def _may_stop(self, session: CloudSession, sender: str) -> bool:

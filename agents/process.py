@@ -17,11 +17,13 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from ontology.spawn import SpawnSpec, WarmLogin
 
+from .priority import set_priority
 from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree, open_run_file
 
 
@@ -223,7 +225,10 @@ class AgentProcess:
         try:
             if worker_nice:  # the run at its parent's priority (the pool lowers it only where it may)
                 try:
-                    set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0))
+                    for _ in range(5):  # an unprivileged parent's group writes are rate-limited
+                        if set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0)):
+                            break
+                        time.sleep(0.11)
                 except PermissionError:
                     pass
             os.replace(self.workdir / "package", warm_dir / "package")
@@ -352,6 +357,16 @@ class AgentProcess:
         await self.end(grace)
         return await self.wait()
 
+    def yield_cpu(self, by: int) -> None:
+        """The run `by` nice steps below its parent, threads and session group alike; best effort
+        (a group write refused for its rate limit leaves the group as it was)."""
+        if self.proc is None or not self.alive():
+            return
+        try:
+            set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0) + by)
+        except OSError:  # gone meanwhile
+            pass
+
     def _at_parents_priority(self) -> None:
         """A run that lowered its priority (a Cloud Agent once serving, CLOUD_NICE) logs out and
         exits at its parent's where that is allowed (a fleet's stops at nice +5 took 90-135 ms
@@ -424,6 +439,9 @@ class InProcessAgent:
         self.task: asyncio.Task | None = None
         self.agent = None
         self.returncode: int | None = None
+
+    def yield_cpu(self, by: int) -> None:  # its host's priority is not the RApp's to change
+        pass
 
     async def start(self, worker=None) -> None:  # no warm workers in-process
         from .runtime import build_agent, run_agent
@@ -503,35 +521,6 @@ def check_module_names(names) -> tuple[str, ...]:
     if bad:
         raise ValueError(f"not module names: {bad}")
     return names
-
-
-def each_thread(pid: int, call) -> None:
-    """`call(tid)` for every thread of `pid`: Linux keeps a priority and a scheduling policy per
-    thread (a warm worker's BLAS threads started at its low priority). A thread that ends meanwhile
-    is skipped."""
-    try:
-        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-    except OSError:
-        tids = [pid]
-    for tid in tids:
-        try:
-            call(tid)
-        except ProcessLookupError:
-            pass
-
-
-def set_priority(pid: int, nice: int) -> None:
-    """Every thread of `pid` to `nice`; PermissionError where raising it needs a privilege we lack."""
-    each_thread(pid, lambda tid: os.setpriority(os.PRIO_PROCESS, tid, nice))
-
-
-def may_raise_priority() -> bool:
-    """Whether this process can give a child it lowered its own priority back (root, or an
-    RLIMIT_NICE that allows it)."""
-    if os.geteuid() == 0:
-        return True
-    own = os.getpriority(os.PRIO_PROCESS, 0)
-    return 20 - resource.getrlimit(resource.RLIMIT_NICE)[0] <= own
 
 
 def _fresh(workdir: Path) -> bool:

@@ -98,9 +98,7 @@ async def run_spec(spec: SpawnSpec | None, login: WarmLogin | None = None, pipe:
         else:
             agent = build_agent(spec)
         if spec.kind == "cloud":
-            from .cloud_agent import CLOUD_NICE
             from .crash_box import BOX_NAME, CrashBox
-            agent.nice_when_serving = CLOUD_NICE  # its own process: nobody else's priority changes
             agent.crash_box = CrashBox(Path.cwd() / BOX_NAME)  # in its run directory (cwd)
         code = await run_agent(agent, spec)
         say_logged_out()

@@ -184,9 +184,12 @@ def confine() -> None:
         return
     try:
         from .process import Limits
+        from .priority import set_group_nice
 
         asked = json.loads(raw)
         uid, lib = asked["uid"], libc()
+        if asked["nice"]:  # its session's group, while root (no rate limit); its threads' below
+            set_group_nice(os.getpid(), os.getpriority(os.PRIO_PROCESS, 0) + asked["nice"])
         Limits(**asked["limits"]).apply(own_uid=uid is not None)
         if uid is not None:
             # the run's directory as the cwd Popen gave (relative paths), not by its name: a warm

@@ -28,7 +28,8 @@ import shutil
 from collections import deque
 from pathlib import Path
 
-from .process import AgentProcess, Limits, check_module_names, may_raise_priority
+from .priority import may_raise_priority
+from .process import AgentProcess, Limits, check_module_names
 from .sandbox import Sandbox
 
 log = logging.getLogger("rapp.warm")

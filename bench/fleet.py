@@ -91,7 +91,7 @@ def keep_trace(trace: Path, directory: Path | None = None) -> Path:
 
 def run_when_idle(pid: int) -> None:
     """Every thread of `pid` under SCHED_IDLE (no privilege needed to lower one's own children)."""
-    from agents.process import each_thread
+    from agents.priority import each_thread
 
     each_thread(pid, lambda tid: os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0)))
 

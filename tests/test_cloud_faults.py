@@ -13,12 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from agents.cloud_agent import CLOUD_NICE
+from agents.platform_agent import CLOUD_NICE
 from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
 from .test_lifecycle import FIXTURE, state, variant, wait_until
+from .test_warm_pool import thread_priorities
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +45,7 @@ async def _kill_cloud_of(system, keyword: str, rapp: str, sig=signal.SIGKILL) ->
     session = next(c for c in system.platform.clouds.values() if c.rapp == rapp)
     # serving, it runs CLOUD_NICE below the Platform (its own process only: the Platform's is untouched)
     own = os.getpriority(os.PRIO_PROCESS, 0)
-    await wait_until(lambda: os.getpriority(os.PRIO_PROCESS, session.process.pid) >= own + CLOUD_NICE, 5)
+    await wait_until(lambda: thread_priorities(session.process.pid) == {own + CLOUD_NICE}, 5)  # and its group
     assert os.getpriority(os.PRIO_PROCESS, 0) == own
     killed = time.time()  # the trace's clock
     os.kill(session.process.pid, sig)

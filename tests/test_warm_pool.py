@@ -47,8 +47,13 @@ async def logged_in(settings, spec: SpawnSpec, timeout: float = 30.0) -> dict:
 
 
 def thread_priorities(pid: int) -> set[int]:
-    """The nice values of every thread of `pid` (Linux keeps one per thread)."""
-    return {os.getpriority(os.PRIO_PROCESS, int(t)) for t in os.listdir(f"/proc/{pid}/task")}
+    """The nice values of every thread of `pid` (Linux keeps one per thread), and of its session's
+    autogroup where the kernel has them (agents/priority.py: across sessions only that one counts)."""
+    found = {os.getpriority(os.PRIO_PROCESS, int(t)) for t in os.listdir(f"/proc/{pid}/task")}
+    group = Path(f"/proc/{pid}/autogroup")
+    if group.exists():
+        found.add(int(group.read_text().split()[-1]))
+    return found
 
 
 def gone(pid: int) -> bool:
