@@ -48,10 +48,13 @@ from .warm_pool import WarmPool
 log = logging.getLogger("rapp.platform")
 # what every RApp token may call besides the services its manifest declares
 # once serving, a Cloud Agent in a process of its own (RApp code, its OpenCV work included) yields
-# the CPU to the Platform's services and to Cloud Agents still starting; the Platform sets it, as
-# root, for the process's threads and its session's group (agents/priority.py: the threads' nice
-# alone changed nothing across sessions). An in-process one leaves its host alone.
-CLOUD_NICE = 5
+# the CPU to the Platform's services and to Cloud Agents still starting: the Platform is shared by
+# every robot, a Cloud Agent is one owner's RApp. The Platform sets it, as root, for the process's
+# threads and its session's group (agents/priority.py: the threads' nice alone changed nothing across
+# sessions). Each Cloud Agent is a group of its own, so their weights add up: 20 at +5 outweighed the
+# Platform 6.5 to 1, at +10 2 to 1 (bench/RESULTS.md: the 20-robot service p95 53-68 ms at +10
+# against 76-108 ms at +5, the rounds no slower). An in-process one leaves its host alone.
+CLOUD_NICE = 10
 ALWAYS_ALLOWED = {"start_cloud_agent", "stop_cloud_agent", "ping", "list_services"}
 
 

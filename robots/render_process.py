@@ -184,7 +184,7 @@ class _Worker:
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
 
-    def start(self, plan_msg: tuple) -> None:
+    def start(self, plan_msg: tuple, own_session: bool = False) -> None:
         pkg = Path(__file__).resolve().parent
         to_child_r, to_child_w = os.pipe()
         from_child_r, from_child_w = os.pipe()
@@ -193,7 +193,7 @@ class _Worker:
                 [sys.executable, "-c", _BOOT.format(root=str(pkg.parent), pkg=str(pkg)),
                  str(to_child_r), str(from_child_w)],
                 pass_fds=(to_child_r, from_child_w), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                close_fds=True)
+                close_fds=True, start_new_session=own_session)
         except BaseException:
             for fd in (to_child_r, to_child_w, from_child_r, from_child_w):
                 os.close(fd)
@@ -302,6 +302,9 @@ class RenderPool:
         self._exec = ThreadPoolExecutor(self.size, thread_name_prefix=f"render-{name}")
         self._finalizer = weakref.finalize(self, _kill_all, self._workers)
         self.restarts = 0
+        # processes in sessions of their own: Linux's autogroup schedules each session as one group,
+        # so only then can their priority be set apart from their World's process (bench/fleet.py)
+        self.own_session = False
 
     # ---- worker selection
     def _acquire(self) -> _Worker:
@@ -330,7 +333,7 @@ class RenderPool:
                 try:
                     if not w.alive:
                         w.close_conns()
-                        w.start(self._plan_msg)
+                        w.start(self._plan_msg, self.own_session)
                     return w.render(state, width=width, height=height, view=list(view), proj=list(proj),
                                     params=params)
                 except RenderError:
@@ -368,7 +371,7 @@ class RenderPool:
             for w in ws:
                 if not w.alive:
                     w.close_conns()
-                    w.start(self._plan_msg)
+                    w.start(self._plan_msg, self.own_session)
         finally:
             for w in ws:
                 self._release(w)

@@ -377,9 +377,11 @@ class World(Scene):
             return self.run_sync(cam.capture, width, height)
         return self._renderer.render(*self.run_sync(self._render_request, cam, width, height))
 
-    def start_renderer(self, processes: int | None = None) -> None:
-        """Start the render processes now (blocking, ~0.5 s each) rather than at the first captures."""
+    def start_renderer(self, processes: int | None = None, own_session: bool = False) -> None:
+        """Start the render processes now (blocking, ~0.5 s each) rather than at the first captures;
+        `own_session`: each in a session of its own, whose scheduling group can be set apart."""
         if self._renderer is not None:
+            self._renderer.own_session = own_session
             self._renderer.warm_up(processes)
 
     def render_pids(self) -> list[int]:

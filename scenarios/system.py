@@ -27,9 +27,10 @@ from xmpp_server.credentials import generate_password
 
 from .user import ChatUser
 
-# what warm workers import ahead besides the runtime: the SDK every RApp imports (~9 ms of a hand-off),
-# and for Cloud parts its vision helpers too (~7 ms more) beside numpy, cv2, scipy
-DYNAMIC_WARM_IMPORTS = ("rapps.sdk",)
+# what warm workers import ahead besides the runtime: the SDK every RApp imports (~9 ms of a hand-off)
+# with its pose filter (numpy: 85 ms and 134 ms of CPU at a hazard-detection hand-off, 20 of them
+# in a fleet's burst), and for Cloud parts its vision helpers too (~7 ms more) beside numpy, cv2, scipy
+DYNAMIC_WARM_IMPORTS = ("rapps.sdk", "rapps.sdk.ekf")
 CLOUD_WARM_IMPORTS = (*WARM_EXTRA_IMPORTS, "rapps.sdk", "rapps.sdk.vision")
 
 DEVELOPER = ("developer", "developer-secret")

@@ -118,20 +118,24 @@ async def test_render_process_restarts_after_a_crash_and_close_reaps_it(make_wor
     assert all(_gone(p) for p in pids + [pid2])
 
 
-def test_render_processes_exit_with_their_parent(tmp_path):
-    script = textwrap.dedent("""
+@pytest.mark.parametrize("own_session", [False, True])
+def test_render_processes_exit_with_their_parent(tmp_path, own_session):
+    script = textwrap.dedent(f"""
         import os, sys
         from robots import World
         w = World.from_file("small", seed=1)
         r = w.add_robot("nao", pose=(0.5, 0.0, 1.57))
-        w.start_renderer()
+        w.start_renderer(own_session={own_session})
         w.capture_sync(r.cameras["top"], 64, 48)
-        print(*w.render_pids(), flush=True)
+        print(*[f"{{p}}:{{os.getsid(p)}}" for p in w.render_pids()], flush=True)
         os._exit(0)   # no close(), no atexit: the render processes see EOF and exit
     """)
     out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    pids = [int(x) for x in out.stdout.split()]
+    found = [tuple(int(n) for n in x.split(":")) for x in out.stdout.split()]
+    pids = [p for p, _ in found]
     assert pids, out.stderr
+    # in a session of its own, a process's scheduling group can be set apart (bench/fleet.py)
+    assert all((sid == p) == own_session for p, sid in found)
     deadline = time.time() + 10
     while not all(_gone(p) for p in pids) and time.time() < deadline:
         time.sleep(0.1)
