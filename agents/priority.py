@@ -8,7 +8,9 @@ against the Platform or another RApp: measured, a busy loop at nice 10 in its ow
 half of a core from one at nice 0, as at nice 0; with its group at nice 10 too, a tenth.
 
 Writing a group's nice (/proc/PID/autogroup) needs no privilege for values >= 0, but unprivileged
-writes are limited to one every 100 ms for the whole machine (EAGAIN); root's are not.
+writes are limited to one every 100 ms for the whole machine (EAGAIN); root's are not. A process in
+a CPU cgroup other than the root one (a systemd service, a container) is not scheduled by autogroup:
+there the threads' nice values, set too, are what counts.
 """
 from __future__ import annotations
 
