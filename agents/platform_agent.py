@@ -82,9 +82,13 @@ class PlatformAgent(RappAgent):
                  limits: Limits = Limits(), services: dict | None = None, services_state=None,
                  data_dir: str | Path | None = None, sandbox: Sandbox | None = None,
                  cloud_mode: str = "process", warm_workers: int = 1, service_workers: int | None = None,
-                 primary: str | None = None, replicas=(), warm_imports: tuple[str, ...] = WARM_EXTRA_IMPORTS):
+                 primary: str | None = None, replicas=(), warm_imports: tuple[str, ...] = WARM_EXTRA_IMPORTS,
+                 cloud_nice: int = CLOUD_NICE):
         super().__init__(name, settings)
         self.cloud_mode = check_spawn_mode(cloud_mode, "cloud_mode")
+        if not isinstance(cloud_nice, int) or not 0 <= cloud_nice <= 19:
+            raise ValueError(f"cloud_nice must be a whole number 0..19, not {cloud_nice!r}")
+        self.cloud_nice = cloud_nice  # nice steps a serving Cloud Agent runs below this Platform
         from agents.services.context import ServiceState
 
         if services is None:
@@ -515,7 +519,8 @@ class PlatformAgent(RappAgent):
         if session is None:
             raise Refusal(f"{ctx.sender} is not a Cloud Agent of this Platform", ErrorCode.UNKNOWN_CLOUD)
         session.ready.set()
-        session.process.yield_cpu(CLOUD_NICE)
+        if self.cloud_nice:
+            session.process.yield_cpu(self.cloud_nice)
         return Done()
 
     def _may_stop(self, session: CloudSession, sender: str) -> bool:

@@ -26,7 +26,8 @@ from .test_warm_pool import thread_priorities
 async def system(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("cloud-faults")
     world = World.from_file("small", seed=7)
-    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
+    # the Platform's own default (a Platform beside simulated robots leaves its Cloud Agents at 0)
+    async with RappSystem(workdir, trace_file=workdir / "trace.jsonl", platform_kw={"cloud_nice": CLOUD_NICE}) as system:
         await system.publish(FIXTURE)
         await system.publish(variant(workdir, "cloud-lost", "cloudlost", use_cloud=True, behaviour="cloudwatch"))
         src = variant(workdir, "cloud-again", "cloudagain", use_cloud=True, behaviour="cloudwatch", seconds=4)
