@@ -120,7 +120,7 @@ class HazardFleet:
         # process the Platform also shared their interpreter lock. (All of the robots' side at
         # nice 10 starved the Dynamic Agents: missed heartbeats ended tasks.)
         self.apart = apart
-        self.processes: list = []
+        self.processes = None  # scenarios/launch.py LoggedProcesses: the Store and Platform apart
         self.trace_file = self.workdir / "trace.jsonl"
         self.system = self.state = self.home = None
         self.worlds, self.robots = [], []
@@ -149,34 +149,22 @@ class HazardFleet:
     async def _start_apart(self) -> None:
         """`rapp agent store` and `rapp agent platform` as a deployment runs them, on this run's
         server and credentials; returns when both run and the Cloud workers asked for are ready."""
-        import subprocess
         import sys
 
-        from xmpp_server.process import dies_with_parent
+        from scenarios.launch import LoggedProcesses
 
         env = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_")}
         env.update(self.system.settings.to_env(), XDG_DATA_HOME=str(self.workdir / "data"),
                    PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+        self.processes = LoggedProcesses(self.workdir, env, [sys.executable, "-m", "cli.main", "agent"],
+                                         die_with_parent=True)
         warm = self.platform_kw.get("warm_workers")
-        roles = {"store": ["store"], "platform": ["platform"] + (["--warm-workers", str(warm)] if warm else [])}
-        for name, args in roles.items():
-            with open(self.workdir / f"{name}.log", "ab") as log_file:  # the child keeps its own copy
-                self.processes.append((name, subprocess.Popen(
-                    [sys.executable, "-m", "cli.main", "agent", *args], env=env, stdout=log_file,
-                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
-                    preexec_fn=dies_with_parent())))
-        await self._wait_log("store", "running", 60)
-        await self._wait_log("platform", "running", 60)
+        self.processes.start("store", "store")
+        self.processes.start("platform", "platform", *(["--warm-workers", str(warm)] if warm else []))
+        await self.processes.wait_log("store", "running", 60)
+        await self.processes.wait_log("platform", "running", 60)
         if warm:
-            await self._wait_log("platform", "cloud workers", 60 + 10 * warm)
-
-    async def _wait_log(self, name: str, text: str, timeout: float) -> None:
-        path, proc = self.workdir / f"{name}.log", dict(self.processes)[name]
-        deadline = time.monotonic() + timeout
-        while text not in path.read_text(errors="replace"):
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"{name}: no {text!r}: {path.read_text(errors='replace')[-1500:]}")
-            await asyncio.sleep(0.2)
+            await self.processes.wait_log("platform", "cloud workers", 60 + 10 * warm)
 
     async def add_robots(self, count: int) -> None:
         from robots import OdometryNoise, RobotAPI, World
@@ -238,10 +226,8 @@ class HazardFleet:
             await asyncio.to_thread(self._stop_apart)
 
     def _stop_apart(self) -> None:
-        from xmpp_server.process import terminate
-
-        for _, proc in reversed(self.processes):  # the Platform first, then the Store
-            terminate(proc, 20.0)
+        if self.processes is not None:
+            self.processes.stop_all(20.0)  # the Platform first, then the Store
 
 
 async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:

@@ -20,6 +20,8 @@ from slixmpp.exceptions import IqError, IqTimeout
 from agents.sandbox import available
 from xmpp_server.ports import free_port
 
+from scenarios.launch import LoggedProcesses
+
 from .test_cli import RAPP
 from .test_lifecycle import variant
 
@@ -76,49 +78,21 @@ class Owner(slixmpp.ClientXMPP):
         return self.texts[start:]
 
 
-class Deployment:
+class Deployment(LoggedProcesses):
     def __init__(self, tmp: Path):
         self.tmp, self.port = tmp, free_port("127.0.0.1")
         (tmp / "tmp").mkdir()
-        self.env = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_")}
-        self.env.update(RAPP_XMPP_HOST="127.0.0.1", RAPP_XMPP_PORT=str(self.port), RAPP_XMPP_DOMAIN="localhost",
-                        XDG_DATA_HOME=str(tmp / "data"), RAPP_CREDENTIALS_DIR=str(tmp / "credentials"),
-                        TMPDIR=str(tmp / "tmp"), RAPP_TRACE_FILE=str(tmp / "trace.jsonl"))
-        self.procs: dict[str, subprocess.Popen] = {}
-
-    def start(self, name: str, *args: str) -> subprocess.Popen:
-        log = open(self.tmp / f"{name}.log", "ab")
-        proc = subprocess.Popen([*RAPP, *args], cwd=self.tmp, env=self.env, stdout=log, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, start_new_session=True)
-        self.procs[name] = proc
-        return proc
-
-    async def wait_log(self, name: str, text: str, timeout: float = 60.0) -> None:
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + timeout
-        path = self.tmp / f"{name}.log"
-        while text not in path.read_text(errors="replace"):
-            if self.procs[name].poll() is not None or loop.time() > deadline:
-                raise AssertionError(f"{name}: no {text!r}: {path.read_text(errors='replace')[-2000:]}")
-            await asyncio.sleep(0.1)
+        env = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_")}
+        env.update(RAPP_XMPP_HOST="127.0.0.1", RAPP_XMPP_PORT=str(self.port), RAPP_XMPP_DOMAIN="localhost",
+                   XDG_DATA_HOME=str(tmp / "data"), RAPP_CREDENTIALS_DIR=str(tmp / "credentials"),
+                   TMPDIR=str(tmp / "tmp"), RAPP_TRACE_FILE=str(tmp / "trace.jsonl"))
+        super().__init__(tmp, env, RAPP)
 
     def run(self, *args: str) -> str:
         res = subprocess.run([*RAPP, *args], cwd=self.tmp, env=self.env, capture_output=True, text=True,
                              timeout=120, stdin=subprocess.DEVNULL)
         assert res.returncode == 0, (args, res.stdout, res.stderr)
         return res.stdout
-
-    def stop_all(self) -> None:
-        for proc in reversed(list(self.procs.values())):
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGTERM)
-        for proc in self.procs.values():
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-
 
     async def up(self, robot: str = "nao", *extra: str) -> tuple[list[str], Path, "Owner"]:
         """Server, Store, Platform and a Core (in the small house), a signing key the Core trusts,
