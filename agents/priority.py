@@ -17,6 +17,9 @@ from __future__ import annotations
 import errno
 import os
 import resource
+import time
+
+RATE_LIMIT_S = 0.11  # an unprivileged writer's wait between group writes (the kernel's 100 ms)
 
 
 def each_thread(pid: int, call) -> None:
@@ -34,10 +37,20 @@ def each_thread(pid: int, call) -> None:
             pass
 
 
-def set_group_nice(pid: int, nice: int) -> bool:
+def set_group_nice(pid: int, nice: int, retry_s: float = 0.0) -> bool:
     """The nice value of `pid`'s autogroup, where `pid` leads its session (a process that does not
     would change its parent's group). False only when the write was refused for the rate limit
-    (try again later); True when done, not needed, or not possible here (no autogroup)."""
+    for `retry_s` seconds (blocking: off the event loop only); True when done, not needed, or not
+    possible here (no autogroup)."""
+    deadline = time.monotonic() + retry_s
+    while not _write_group_nice(pid, nice):
+        if time.monotonic() + RATE_LIMIT_S > deadline:
+            return False
+        time.sleep(RATE_LIMIT_S)
+    return True
+
+
+def _write_group_nice(pid: int, nice: int) -> bool:
     nice = max(0, min(19, nice))  # below 0 needs a privilege the callers do not rely on
     path = f"/proc/{pid}/autogroup"
     try:
@@ -55,11 +68,11 @@ def set_group_nice(pid: int, nice: int) -> bool:
         return True
 
 
-def set_priority(pid: int, nice: int) -> bool:
+def set_priority(pid: int, nice: int, retry_s: float = 0.0) -> bool:
     """Every thread of `pid` to `nice`, and its session's group (set_group_nice, whose result it
     returns); PermissionError where raising the threads' needs a privilege we lack."""
     each_thread(pid, lambda tid: os.setpriority(os.PRIO_PROCESS, tid, nice))
-    return set_group_nice(pid, nice)
+    return set_group_nice(pid, nice, retry_s)
 
 
 def may_raise_priority() -> bool:

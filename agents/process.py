@@ -17,7 +17,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -224,11 +223,8 @@ class AgentProcess:
         not its name); then the spec, which the worker has been blocked reading."""
         try:
             if worker_nice:  # the run at its parent's priority (the pool lowers it only where it may)
-                try:
-                    for _ in range(5):  # an unprivileged parent's group writes are rate-limited
-                        if set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0)):
-                            break
-                        time.sleep(0.11)
+                try:  # in a thread: it may wait out an unprivileged parent's rate limit
+                    set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0), retry_s=0.5)
                 except PermissionError:
                     pass
             os.replace(self.workdir / "package", warm_dir / "package")
@@ -372,10 +368,9 @@ class AgentProcess:
         exits at its parent's where that is allowed (a fleet's stops at nice +5 took 90-135 ms
         under load, when they waited for the exit)."""
         try:
-            own = os.getpriority(os.PRIO_PROCESS, 0)
-            if os.getpriority(os.PRIO_PROCESS, self.proc.pid) > own:
-                set_priority(self.proc.pid, own)
-        except OSError:  # not allowed (no privilege), or gone already
+            if os.getpriority(os.PRIO_PROCESS, self.proc.pid) > os.getpriority(os.PRIO_PROCESS, 0):
+                self.yield_cpu(0)
+        except OSError:  # gone already
             pass
 
     def _signal(self, sig: int) -> None:

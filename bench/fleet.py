@@ -100,10 +100,7 @@ def run_when_idle(pid: int) -> None:
     from agents.priority import each_thread, set_group_nice
 
     each_thread(pid, lambda tid: os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0)))
-    for _ in range(5):  # refused only for an unprivileged writer's rate limit
-        if set_group_nice(pid, IDLE_GROUP_NICE):
-            break
-        time.sleep(0.11)
+    set_group_nice(pid, IDLE_GROUP_NICE, retry_s=0.5)  # in a thread: an unprivileged writer waits its turn
 
 
 class HazardFleet:

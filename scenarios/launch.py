@@ -4,12 +4,11 @@ them all. Used by the fleet benchmark (its Store and Platform) and the deploymen
 from __future__ import annotations
 
 import asyncio
-import os
 import signal
 import subprocess
 from pathlib import Path
 
-from xmpp_server.process import dies_with_parent, terminate
+from xmpp_server.process import dies_with_parent, signal_group, terminate
 
 
 class LoggedProcesses:
@@ -44,9 +43,6 @@ class LoggedProcesses:
         after `timeout` s (and whatever is left of its group); never a zombie."""
         for proc in reversed(list(self.procs.values())):
             if proc.poll() is None:
-                try:
-                    os.killpg(proc.pid, signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
+                signal_group(proc, signal.SIGTERM)
         for proc in reversed(list(self.procs.values())):
             terminate(proc, timeout)

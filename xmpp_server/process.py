@@ -65,17 +65,18 @@ def terminate(proc: subprocess.Popen, timeout: float) -> int:
     a worker pool that inherits the listening socket: left alone, a killed server's worker kept
     the port and lived on as an orphan); always waits (no zombie)."""
     if proc.poll() is None:
-        _signal_group(proc, signal.SIGTERM)
+        signal_group(proc, signal.SIGTERM)
         try:
             proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            _signal_group(proc, signal.SIGKILL)
+            signal_group(proc, signal.SIGKILL)
             proc.wait()
-    _signal_group(proc, signal.SIGKILL)  # workers of a server that died first
+    signal_group(proc, signal.SIGKILL)  # workers of a server that died first
     return proc.returncode
 
 
-def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+def signal_group(proc: subprocess.Popen, sig: int) -> None:
+    """`sig` to the process group `proc` leads (started with start_new_session); none left: nothing."""
     try:
         os.killpg(proc.pid, sig)
     except (ProcessLookupError, PermissionError):
