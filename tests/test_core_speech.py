@@ -176,10 +176,12 @@ async def test_apologies_for_heard_sound_are_said_aloud_twice_in_a_row_then_chat
     core, user = system.handle.core, system.handle.user
     await wait_until(lambda: listening(core), 30)
     shout = np.clip(tts.synthesize("check the hazards").astype(np.int32) * 20, -32768, 32767).astype(np.int16)
-    told, spoken = len(core.told), len(system.nao.loudspeaker.spoken)
+    told, spoken, chatted = len(core.told), len(system.nao.loudspeaker.spoken), len(user.texts())
     for n in range(1, 4):
         await core.commands.put(HeardUtterance(shout, 1.2))  # refused by the Platform: clipped
         await wait_until(lambda n=n: sum(t.startswith("Sorry") for t in core.told[told:]) == n and listening(core), 30)
+    # told is sent: the chat arrives over the server a moment later (CI once asserted before the third)
+    await wait_until(lambda: len(user.texts()) >= chatted + 3, 10)
     assert [t for t in user.texts()[-3:] if "clipped" in t] == user.texts()[-3:]  # all three reach the chat
     assert sum(t.startswith("Sorry") for _, t in system.nao.loudspeaker.spoken[spoken:]) == 2
 
