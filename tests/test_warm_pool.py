@@ -51,8 +51,9 @@ def thread_priorities(pid: int) -> set[int]:
     autogroup where the kernel has them (agents/priority.py: across sessions only that one counts)."""
     found = {os.getpriority(os.PRIO_PROCESS, int(t)) for t in os.listdir(f"/proc/{pid}/task")}
     group = Path(f"/proc/{pid}/autogroup")
-    if group.exists():
-        found.add(int(group.read_text().split()[-1]))
+    words = group.read_text().split() if group.exists() else []  # empty: the root group
+    if words:
+        found.add(int(words[-1]))
     return found
 
 
