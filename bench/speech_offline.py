@@ -30,6 +30,7 @@ from .speech import DISTANCES, NOISE, ROBOT_AT, SPEEDS, TV_AT, VOCABULARY, VOICE
 OTHER = ("open the window please", "what time is it", "thank you very much", "turn on the radio",
          "where are my glasses", "hello there", "good morning robot", "")
 CACHE = Path("/tmp/rapp-speech-offline")
+VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
 MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/receptors.py AudioInput)
 
 
@@ -69,7 +70,7 @@ def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
     else:
         house.play("owner", talker_at(ROBOT_AT, distance, MIC_Z), pcm, at=at, level_db=60)
     heard = house.receive((*ROBOT_AT, MIC_Z), 0.0, at + len(pcm) / 16000 + 1.5, mic="nao")
-    vad = VoiceActivity(max_seconds=5.0)
+    vad = VoiceActivity(max_seconds=5.0, **VAD)
     return [u for s in range(0, len(heard), 1600) for u in vad.feed(heard[s:s + 1600])]
 
 
@@ -80,7 +81,9 @@ def _record(cond: tuple) -> list:
     text, _, voice, speed, dist, noise = cond
     pcm = tts.synthesize(text, voice, speed) if text else None
     # keyed by the speech too: a change to the synthesiser makes new recordings
-    key = hashlib.sha1(repr((cond[0],) + cond[2:]).encode() + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
+    # (and by the detector's options under test, if any)
+    said = repr((cond[0],) + cond[2:] + ((tuple(sorted(VAD.items())),) if VAD else ())).encode()
+    key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
@@ -191,8 +194,11 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="2 recordings per sentence and noise instead of 6")
     ap.add_argument("--only", choices=("keyword", "platform"))
     ap.add_argument("--show-wrong", action="store_true")
+    ap.add_argument("--vad", action="append", default=[], metavar="NAME=VALUE",
+                    help="a VoiceActivity option under test (recorded apart in the cache)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
+    VAD.update((k, float(v)) for k, v in (o.split("=", 1) for o in a.vad))  # the workers fork after this
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:
