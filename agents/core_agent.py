@@ -374,8 +374,16 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         wav = await asyncio.to_thread(lambda: base64.b64encode(encode_wav(utterance.pcm)).decode())
         sentences = sorted({ph for p in self.catalogue for ph in p.phrases} | set(self.vocabulary))
         for allowed in (sentences, []):
-            reply = await self.request(self.platform, SpeechRecognition(
-                token=await self.fresh_token(), audio_b64=wav, sentences=allowed), timeout=15.0)
+            try:
+                reply = await self.request(self.platform, SpeechRecognition(
+                    token=await self.fresh_token(), audio_b64=wav, sentences=allowed), timeout=15.0)
+            except RequestError as e:
+                if not allowed or e.code != ErrorCode.UNSUPPORTED:
+                    raise  # the recording itself was refused (silent, clipped): the model would refuse it too
+                # no phrase it can pronounce (a Platform without eSpeak NG): the general model may still hear it
+                log.warning("speech recognition refused the Store's phrases: %s", e.reason)
+                self.record_structure("speech-recognition", text="", search="sentences", error=e.reason)
+                continue
             self.record_structure("speech-recognition", text=reply.text, search=reply.search,
                                   confidence=reply.confidence)
             if reply.text.strip():

@@ -435,12 +435,16 @@ class PhraseDecoder:
     owner said one of the phrases, not something else). Not thread-safe: one per thread or call.
     Each `decode` starts from a fresh front end, so its answer depends on that audio alone."""
 
-    def __init__(self, phrases: list[str] | None = None, jsgf: str | None = None, trust_search: bool = False):
+    def __init__(self, phrases: list[str] | None = None, jsgf: str | None = None, trust_search: bool = False,
+                 words: list[str] = ()):
         from pocketsphinx import Decoder, get_model_path
         self.decoder = Decoder(sphinx_config())
         # trust_search: the search's own best path, when a complete phrase, is the answer (see decode)
         self.trust_search = trust_search
         self.unknown: list[str] = []
+        # words of the phrases (or of `words`, for a grammar's) missing from the dictionary, pronounced
+        # by robots/pronounce.py; those it cannot pronounce are listed in `unpronounced`
+        self.added, self.unpronounced = self._pronounce(list(phrases or []) + list(words))
         if jsgf is None:
             known = [p for p in dict.fromkeys(normalize(p) for p in phrases or []) if p and self.known(p)]
             self.unknown = [p for p in phrases or [] if normalize(p) not in known]
@@ -460,6 +464,23 @@ class PhraseDecoder:
 
     def known(self, phrase: str) -> bool:
         return all(self.decoder.lookup_word(w) for w in phrase.split())
+
+    MAX_ADDED = 500  # words pronounced for one decoder (~1 ms each: eSpeak NG loaded per word)
+
+    def _pronounce(self, phrases: list[str]) -> tuple[list[str], list[str]]:
+        """Give the dictionary the phrases' words it lacks: (added, without a pronunciation)."""
+        from .pronounce import pronunciation
+        missing = [w for w in dict.fromkeys(w for p in phrases for w in normalize(p).split())
+                   if not self.decoder.lookup_word(w)]
+        added, failed = [], []
+        for w in missing:
+            phones = pronunciation(w) if len(added) < self.MAX_ADDED else None
+            if phones is None:
+                failed.append(w)
+                continue
+            self.decoder.add_word(w, phones, False)
+            added.append(w)
+        return added, failed
 
     def _run(self, search: str, pcm: np.ndarray):
         d = self.decoder

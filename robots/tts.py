@@ -90,6 +90,27 @@ def _fresh_engine():
             _ctypes.dlclose(handle)  # the last reference: the next load starts from the file's state
 
 
+_IPA, _SEPARATOR = 0x02, ord("_") << 8  # espeak_TextToPhonemes: IPA, phonemes joined by "_"
+
+
+def phonemes(text: str, voice: str = DEFAULT_VOICE) -> list[str]:
+    """How eSpeak NG would say `text` in `voice`: its phonemes in IPA, one string per word group, the
+    phonemes separated by "_" and carrying stress marks (e.g. "greeter" -> ["ɡ_ɹ_ˈiː_ɾ_ɚ"])."""
+    if not text.strip() or len(text) > MAX_TEXT:
+        raise InvalidArgument(f"no phonemes for a text of {len(text)} characters")
+    with _fresh_engine() as (lib, _):
+        if lib.espeak_SetVoiceByName(voice.encode()) != 0:
+            raise InvalidArgument(f"unknown voice {voice!r} (e.g. {', '.join(VOICES)})")
+        lib.espeak_TextToPhonemes.restype = ctypes.c_char_p
+        lib.espeak_TextToPhonemes.argtypes = [ctypes.POINTER(ctypes.c_char_p), ctypes.c_int, ctypes.c_int]
+        rest = ctypes.c_char_p(text.encode())  # the call moves it on, clause by clause, to NULL
+        out = []
+        while rest.value:
+            got = lib.espeak_TextToPhonemes(ctypes.byref(rest), _CHARS_UTF8, _IPA | _SEPARATOR)
+            out.extend((got or b"").decode(errors="replace").split())
+        return out
+
+
 def data_path() -> Path:
     import espeakng_loader
     return Path(espeakng_loader.get_data_path())

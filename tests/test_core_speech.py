@@ -170,6 +170,23 @@ async def test_the_cognitive_game_is_answered_by_voice(system):
     assert any(t.startswith("Question 1:") for t in spoken) and "Correct!" in spoken
 
 
+async def test_a_rapp_named_outside_the_dictionary_is_heard_by_both_paths(system, tmp_path):
+    # `rapp new greeter` makes the keyword "greeter" and the phrase "run greeter"; pocketsphinx's
+    # dictionary has no "greeter", and neither path heard it until robots/pronounce.py
+    from rapps.scaffold import create
+
+    core, user = system.handle.core, system.handle.user
+    await system.publish(create("greeter", tmp_path / "greeter"))
+    await wait_until(lambda: "greeter" in core.vocabulary and listening(core), 30)
+    for said, step, answer in (("greeter", "spot_keyword", "greeter"), ("run greeter", "recognise", "run greeter")):
+        await wait_until(lambda: listening(core), 30)
+        start = len(user.received)
+        with spying(core, step) as answers:
+            speak(system, said, distance=1.5)
+            await user.wait_for(lambda t: "greeter finished" in t, timeout=45, start=start)
+        assert answers[-1] == answer, (said, answers)
+
+
 async def test_apologies_for_heard_sound_are_said_aloud_twice_in_a_row_then_chatted(system):
     # the microphone hears other robots too: two idle Cores answered each other's apologies without end.
     # Last in the module: the count starts again only at an understood command (s5)
@@ -196,3 +213,36 @@ async def test_sound_is_a_command_only_while_the_core_listens(fsm_state, queued)
     await CoreAgent._speech_heard(core, HeardUtterance(np.zeros(16000, np.int16), 0.8))
     assert core.commands.qsize() == queued
     assert ("dropped" in records[0]) == (queued == 0)
+
+
+async def test_phrases_the_platform_cannot_pronounce_fall_back_to_the_general_model():
+    """A Platform without eSpeak NG refuses a Store of made-up words (UNSUPPORTED): the Core asks
+    again with the general model instead of apologising with the Platform's reason; a recording the
+    Platform refused as such (INVALID) is not sent twice."""
+    from agents.errors import RequestFailed
+    from ontology.errors import ErrorCode
+    from ontology.services.speech import Recognition
+
+    asked, records = [], []
+
+    async def request(to, req, timeout):
+        asked.append(list(req.sentences))
+        if req.sentences:
+            raise RequestFailed("no sentence has only words the recogniser can pronounce", code=code)
+        return Recognition(text="run greeter", search="language_model")
+
+    async def token():
+        return "t"
+
+    core = SimpleNamespace(catalogue=[SimpleNamespace(phrases=["run greeter"])], vocabulary={"greeter": "greeter"},
+                           platform="platform@localhost", request=request, fresh_token=token,
+                           record_structure=lambda event, **kw: records.append(kw))
+    code = ErrorCode.UNSUPPORTED
+    utterance = HeardUtterance(np.zeros(16000, np.int16), 0.8)
+    assert await CoreAgent.recognise(core, utterance) == "run greeter"
+    assert asked == [["greeter", "run greeter"], []] and "error" in records[0]
+    code, asked[:] = ErrorCode.INVALID, []
+    with pytest.raises(RequestFailed):
+        await CoreAgent.recognise(core, utterance)
+    assert asked == [["greeter", "run greeter"]]
+

@@ -138,12 +138,14 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
         elif req.sentences:
             dec, search = _phrase_decoder(("sentences", *req.sentences)), "sentences"
         else:
-            phrases = [normalize(w) for w in req.words]
-            dec, search = _phrase_decoder(("jsgf", grammar([p for p in phrases if p], repeat=True))), "words"
+            phrases = [p for p in (normalize(w) for w in req.words) if p]
+            dec, search = _phrase_decoder(("jsgf", grammar(phrases, repeat=True)), phrases), "words"
     except RobotError as e:
         raise ServiceError(e.message, ErrorCode.INVALID) from None
     if search == "sentences" and not dec.phrases:
-        raise ServiceError(f"no sentence has only dictionary words: {req.sentences[:3]}", ErrorCode.INVALID)
+        raise ServiceError(f"no sentence has only words the recogniser can pronounce: {req.sentences[:3]} "
+                           f"(without a pronunciation: {', '.join(dec.unpronounced[:5])}; words outside its "
+                           "dictionary are pronounced by eSpeak NG: the speech extra)", ErrorCode.UNSUPPORTED)
     heard, margin = dec.decode(pcm, accept=SENTENCES_ACCEPT if search == "sentences" else 0.0)
     if heard is None:
         return Recognition(text="", search=search, confidence=_confidence(margin))
@@ -152,15 +154,16 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
                        search=search)
 
 
-def _phrase_decoder(key: tuple) -> PhraseDecoder:
+def _phrase_decoder(key: tuple, words: list[str] = ()) -> PhraseDecoder:
     """This thread's decoder of `key`'s grammar, made on first use (the Core sends the same Store
-    phrases with every command, so most requests find theirs)."""
+    phrases with every command, so most requests find theirs). `words`: a grammar's words, so those
+    outside the dictionary are pronounced first."""
     kept: OrderedDict | None = getattr(_kept, "phrases", None)
     if kept is None:
         kept = _kept.phrases = OrderedDict()
     dec = kept.pop(key, None)
     if dec is None:
-        dec = PhraseDecoder(jsgf=key[1]) if key[0] == "jsgf" else PhraseDecoder(list(key[1:]))
+        dec = PhraseDecoder(jsgf=key[1], words=words) if key[0] == "jsgf" else PhraseDecoder(list(key[1:]))
     kept[key] = dec
     while len(kept) > KEPT_GRAMMARS:
         kept.popitem(last=False)

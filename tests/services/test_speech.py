@@ -72,6 +72,28 @@ def test_words_and_a_jsgf_grammar(ctx):
     assert e.value.code == ErrorCode.INVALID
 
 
+def test_words_outside_the_dictionary_are_pronounced(ctx):
+    # "greeter" (the keyword `rapp new greeter` writes) is not in pocketsphinx's dictionary
+    _, pcm = _heard("run greeter")
+    assert _recognise(ctx, pcm, sentences=PHRASES + ["run greeter"]).text == "run greeter"
+    _, pcm = _heard("greeter", voice="en-us+f3")
+    assert _recognise(ctx, pcm, words=["greeter", "stop", "news"]).text == "greeter"
+
+
+def test_sentences_it_cannot_pronounce_get_a_clear_error(ctx, monkeypatch):
+    from robots import tts
+    from robots.errors import UnsupportedOperation
+
+    def no_espeak(*a, **kw):  # as on a Platform installed without the speech extra
+        raise UnsupportedOperation("text to speech needs the espeakng-loader package")
+
+    monkeypatch.setattr(tts, "phonemes", no_espeak)
+    _, pcm = _heard("summon the zorblax")
+    with pytest.raises(ServiceError) as e:
+        _recognise(ctx, pcm, sentences=["summon the zorblax"])
+    assert e.value.code == ErrorCode.UNSUPPORTED and "without a pronunciation: zorblax" in e.value.reason
+
+
 def test_the_general_language_model(ctx):
     _, pcm = _heard("read my email", voice="en-us+klatt")
     r = _recognise(ctx, pcm)
