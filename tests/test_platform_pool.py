@@ -125,3 +125,33 @@ def test_bad_images_are_service_errors_in_a_worker_too():
             await asyncio.to_thread(pool.close)
 
     asyncio.run(run())
+
+
+def test_a_pooled_speech_recognition_fills_a_slot_with_the_callers_rooms():
+    """The rooms live in the Platform's state, the decoder in a worker: the call takes them along."""
+    from agents.services.context import ServiceContext, ServiceState
+    from agents.services.pool import ServicePool
+    from agents.services.speech import SpeechRecognition
+    from ontology.services.home import HomeInfo, RoomSpec, UploadHomeInfo
+    from agents.services import run_service
+    from robots.sound import encode_wav
+
+    from .services.test_speech import _heard
+
+    pytest.importorskip("espeakng_loader")
+    wav = base64.b64encode(encode_wav(_heard("check the lamps in the kitchen")[1])).decode()
+    req = SpeechRecognition(audio_b64=wav, sentences=["check the hazards", "check the lamps in the {room}"])
+
+    async def run():
+        pool = ServicePool(1, name="test")
+        pool.start()
+        try:
+            ctx = ServiceContext("ann", ServiceState())
+            run_service("home_upload_info", UploadHomeInfo(info=HomeInfo(
+                home_id="home", map_id="m", rooms=[RoomSpec(name="kitchen", rect=[0, 0, 1, 1])])), ctx)
+            return (await pool.run("speech_recognition", req, ctx)).text
+        finally:
+            await asyncio.to_thread(pool.close)
+
+    assert asyncio.run(run()) == "check the lamps in the kitchen"
+

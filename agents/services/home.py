@@ -25,6 +25,20 @@ class HomeStore:
         with self._lock:
             return self._homes.get((user, home_id))
 
+    def of_user(self, user: str) -> dict[tuple[str, str], HomeInfo]:
+        with self._lock:
+            return {k: v for k, v in self._homes.items() if k[0] == user}
+
+    @classmethod
+    def holding(cls, entries: dict[tuple[str, str], HomeInfo]) -> "HomeStore":
+        store = cls()
+        store._homes = dict(entries)
+        return store
+
+    def rooms(self, user: str) -> list[str]:
+        """The names of the rooms of all `user`'s homes."""
+        return sorted({r.name for info in self.of_user(user).values() for r in info.rooms})
+
 
 def homes(state: ServiceState) -> HomeStore:
     return state.store("homes", HomeStore)

@@ -175,6 +175,10 @@ def _rebuild(stores: dict[str, Any]) -> dict[str, Any]:
         models = ObjectModels()
         models.models = out["objects"]
         out["objects"] = models
+    if "homes" in out:
+        from .home import HomeStore
+
+        out["homes"] = HomeStore.holding(out["homes"])
     return out
 
 
@@ -190,10 +194,16 @@ def _taken(service: str, req, ctx) -> dict[str, Any]:
         store = models(ctx)
         with store.lock:
             return {"objects": {ctx.user: dict(store.models.get(ctx.user, {}))}}
-    if service == "speech_recognition" and req.noise_profile:
-        profiles = ctx.state.store("speech_noise_profiles", dict)
-        key = (ctx.user, req.noise_profile)
-        return {"speech_noise_profiles": {key: profiles[key]} if key in profiles else {}}
+    if service == "speech_recognition":
+        out: dict[str, Any] = {}
+        if req.noise_profile:
+            profiles = ctx.state.store("speech_noise_profiles", dict)
+            key = (ctx.user, req.noise_profile)
+            out["speech_noise_profiles"] = {key: profiles[key]} if key in profiles else {}
+        if any("{" in s for s in req.sentences):  # the rooms of the caller's homes fill {room}
+            from .home import homes
+            out["homes"] = homes(ctx.state).of_user(ctx.user)
+        return out
     if service == "speech_noise_profile":
         return {"speech_noise_profiles": {}}
     return {}

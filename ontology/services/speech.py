@@ -30,7 +30,10 @@ class Recognition(Content):
 class SpeechRecognition(ServiceRequest):
     """Recognise `audio_b64`: against `grammar` (JSGF), else one of `sentences`, else any sequence of
     `words`, else the general US English language model. `noise_profile` names a profile stored by
-    speech_noise_profile to subtract first."""
+    speech_noise_profile to subtract first. A sentence may hold slots, as a RApp's phrases do
+    ("check the lamps in the {room}"): `slots` gives the values each may take, and {room} defaults
+    to the rooms of the caller's homes on the Platform; a sentence with a slot of no known value is
+    left out (the general model may still hear it)."""
 
     audio_b64: str = Field(min_length=1, max_length=MAX_WAV_B64)
     language: str = "en"
@@ -38,6 +41,7 @@ class SpeechRecognition(ServiceRequest):
     sentences: list[str] = Field(default_factory=list, max_length=500)
     grammar: str = Field(default="", max_length=20_000)
     noise_profile: str = ""
+    slots: dict[str, list[str]] = Field(default_factory=dict, max_length=20)
 
 
 class NoiseProfile(Content):

@@ -94,6 +94,36 @@ def test_sentences_it_cannot_pronounce_get_a_clear_error(ctx, monkeypatch):
     assert e.value.code == ErrorCode.UNSUPPORTED and "without a pronunciation: zorblax" in e.value.reason
 
 
+def _home(ctx, *rooms):
+    from ontology.services.home import HomeInfo, RoomSpec, UploadHomeInfo
+    info = HomeInfo(home_id="home", map_id="m", rooms=[RoomSpec(name=r, rect=[i, 0, i + 1, 1]) for i, r in enumerate(rooms)])
+    run_service("home_upload_info", UploadHomeInfo(info=info), ctx)
+
+
+LAMPS = "check the lamps in the {room}"  # lamp-patrol's phrase with a slot
+
+
+def test_a_slot_takes_the_rooms_of_the_callers_homes(ctx):
+    _, kitchen = _heard("check the lamps in the kitchen")
+    # no home uploaded: no value for {room}, nothing to search (the Core asks the general model next)
+    assert _recognise(ctx, kitchen, sentences=[LAMPS]).text == ""
+    _home(ctx, "kitchen", "bedroom", "hall")
+    assert _recognise(ctx, kitchen, sentences=PHRASES + [LAMPS]).text == "check the lamps in the kitchen"
+    _, bedroom = _heard("check the lamps in the bedroom", voice="en-us+f3")
+    assert _recognise(ctx, bedroom, sentences=PHRASES + [LAMPS]).text == "check the lamps in the bedroom"
+    # values given with the request replace the homes' rooms
+    assert _recognise(ctx, bedroom, sentences=[LAMPS], slots={"room": ["kitchen", "bedroom"]}).text.endswith("bedroom")
+    assert "bedroom" not in _recognise(ctx, bedroom, sentences=[LAMPS], slots={"room": ["office", "hall"]}).text
+
+
+def test_slots_that_make_too_many_sentences_are_refused(ctx):
+    _, pcm = _heard("check the lamps in the kitchen")
+    many = {"a": [f"w{i}" for i in range(60)], "b": [f"v{i}" for i in range(60)]}
+    with pytest.raises(ServiceError) as e:
+        _recognise(ctx, pcm, sentences=["{a} and {b}"], slots=many)
+    assert e.value.code == ErrorCode.INVALID and "2000" in e.value.reason
+
+
 def test_the_general_language_model(ctx):
     _, pcm = _heard("read my email", voice="en-us+klatt")
     r = _recognise(ctx, pcm)
