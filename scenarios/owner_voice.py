@@ -154,7 +154,7 @@ class OwnerVoice:
         mouth = talker_at(mic[:2], line.distance, mic[2])
         house_sound(self.world).play(f"owner-{at:.3f}", mouth, pcm, at=at, level_db=line.level_db)
         self.spoken.append({"t": round(at, 3), "say": line.say, "distance": line.distance})
-        self.log(f"[owner] says aloud at t={at:.1f} s, {line.distance:.1f} m away: {line.say!r}")
+        self.log(f"[owner] says aloud at simulated t={at:.1f} s, {line.distance:.1f} m away: {line.say!r}")
         self.busy_until = at + len(pcm) / SAMPLE_RATE
         return self.busy_until + line.distance / 343.0
 
