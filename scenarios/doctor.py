@@ -12,7 +12,7 @@ def _check(name: str, fn) -> bool:
         detail = fn()
         print(f"  ok    {name}{': ' + detail if detail else ''}")
         return True
-    except NoServer as e:
+    except Note as e:
         print(f"  note  {name}: {e}")
         return True
     except Exception as e:  # noqa: BLE001 - every failure is reported, none stops the others
@@ -64,8 +64,34 @@ def _ompl() -> str:
     return "python bindings load"
 
 
-class NoServer(Exception):
+class Note(Exception):
+    """Not a fault: something optional is absent, and what that means."""
+
+
+class NoServer(Note):
     """Nothing listens where the settings point: normal on a machine that only runs `rapp run`."""
+
+
+def _recognition() -> str:
+    from importlib.metadata import version
+
+    from robots.receptors import PhraseDecoder
+    dec = PhraseDecoder(["check the hazards"])
+    if not dec.phrases:
+        raise RuntimeError("pocketsphinx's US English dictionary lacks common words: reinstall pocketsphinx")
+    return f"pocketsphinx {version('pocketsphinx')} loads its US English model"
+
+
+def _synthesis() -> str:
+    from robots import tts
+    from robots.errors import UnsupportedOperation
+    try:
+        pcm = tts.synthesize("hello")
+    except UnsupportedOperation:
+        raise Note("eSpeak NG is not installed (the speech extra: pip install -e '.[speech]'). The NAO's "
+                   "`say` refuses, `rapp run --speak` cannot speak for the owner, and keywords outside "
+                   "pocketsphinx's dictionary cannot be heard") from None
+    return f"eSpeak NG says 'hello' in {len(pcm) / 16000:.2f} s of audio"
 
 
 def _server(settings: XmppSettings) -> str:
@@ -90,6 +116,7 @@ def run_checks() -> int:
     print(f"python {sys.version.split()[0]}")
     results = [_check("pinned versions", _versions), _check("PyBullet", _pybullet),
                _check("OpenCV", _opencv), _check("OMPL", _ompl),
+               _check("speech recognition", _recognition), _check("text to speech", _synthesis),
                _check("configured XMPP server accepts logins", lambda: _server(settings))]
     print("all good" if all(results) else f"{results.count(False)} problem(s) found")
     return 0 if all(results) else 1

@@ -197,4 +197,21 @@ def test_doctor_explains_when_nothing_listens():
     assert "configured XMPP server" in note and f"127.0.0.1:{port}" in note
     assert "rapp run" in note and "rapp server" in note and "RAPP_XMPP_HOST" in note  # the hint
     assert "ok    pinned versions: spade 4.1.4" in res.stdout
+    assert "ok    speech recognition: pocketsphinx" in res.stdout
+    assert "ok    text to speech: eSpeak NG says 'hello'" in res.stdout  # the test extra includes it
     assert "Traceback" not in res.stdout + res.stderr
+
+
+def test_doctor_notes_a_missing_speech_extra(monkeypatch, capsys):
+    """Without eSpeak NG the install works, minus speech: a note that says what is lost, not a FAIL."""
+    from robots import tts
+    from robots.errors import UnsupportedOperation
+    from scenarios import doctor
+
+    def missing(*a, **kw):
+        raise UnsupportedOperation("text to speech needs the espeakng-loader package")
+
+    monkeypatch.setattr(tts, "synthesize", missing)
+    assert doctor._check("text to speech", doctor._synthesis)
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("note  text to speech: eSpeak NG is not installed") and "'.[speech]'" in line
