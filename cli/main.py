@@ -30,19 +30,21 @@ class CliError(Exception):
 def cmd_server(a) -> int:
     from xmpp_server.__main__ import main as server_main
 
-    argv = ["--host", a.host, "--port", str(a.port), "--domain", a.domain]
-    if not a.memory:
-        db = a.db or str(Path(_tmpdir("rapp-xmpp-")) / "server.db")
-        argv += ["--db", db]
-    print(f"embedded XMPP server on {a.host}:{a.port}, domain {a.domain} "
-          f"({'in-memory database' if a.memory else 'database ' + argv[-1]}); Ctrl-C stops it",
-          file=sys.stderr, flush=True)
-    return server_main(argv + (["--verbose"] if a.verbose else []))
-
-
-def _tmpdir(prefix: str) -> str:
+    import contextlib
     import tempfile
-    return tempfile.mkdtemp(prefix=prefix)
+
+    argv = ["--host", a.host, "--port", str(a.port), "--domain", a.domain]
+    # without --db, a database of this run only: a new start never read the last one's, so it goes
+    # when the server stops (each start used to leave its directory in /tmp)
+    with contextlib.ExitStack() as stack:
+        if not a.memory:
+            db = a.db or str(Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="rapp-xmpp-"))) / "server.db")
+            argv += ["--db", db]
+        kind = ("in-memory database" if a.memory else f"database {argv[-1]}"
+                + ("" if a.db else ", removed when it stops (--db FILE keeps one)"))
+        print(f"embedded XMPP server on {a.host}:{a.port}, domain {a.domain} ({kind}); Ctrl-C stops it",
+              file=sys.stderr, flush=True)
+        return server_main(argv + (["--verbose"] if a.verbose else []))
 
 
 # -- run --------------------------------------------------------------------------------------

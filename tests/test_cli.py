@@ -215,3 +215,21 @@ def test_doctor_notes_a_missing_speech_extra(monkeypatch, capsys):
     assert doctor._check("text to speech", doctor._synthesis)
     line = capsys.readouterr().out.strip()
     assert line.startswith("note  text to speech: eSpeak NG is not installed") and "'.[speech]'" in line
+
+
+def test_a_server_without_db_removes_its_temporary_database_when_it_stops(tmp_path):
+    """Each `rapp server` start without --db used to leave a database directory in /tmp."""
+    port = free_port()
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "TMPDIR": str(tmp_path)}
+    proc = subprocess.Popen([*RAPP, "server", "--port", str(port)], env=env, cwd=ROOT, text=True,
+                            stderr=subprocess.PIPE, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
+    try:
+        banner = next(line for line in proc.stderr if line.startswith("embedded XMPP server"))
+        assert "removed when it stops" in banner, banner
+        db = Path(banner.split("database ")[1].split(",")[0])
+        assert proc.stdout.readline().startswith("READY")  # listening: its database is in use
+        assert db.exists() and db.parent.parent == tmp_path
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0 and not db.parent.exists(), err
