@@ -270,6 +270,7 @@ def cmd_say(a) -> int:
     from scenarios.owner_voice import ScriptError, SpokenLine, post_line
     try:
         line = SpokenLine(say=a.text, voice=a.voice, speed=a.speed, distance=a.distance, level_db=a.level)
+        _check_voice(line.voice)
         path = post_line(line, a.run)
     except ValidationError as exc:
         first = exc.errors()[0]
@@ -278,6 +279,18 @@ def cmd_say(a) -> int:
         raise CliError(f"rapp say: {exc}") from None
     print(f"said into {path.parent.parent}: {a.text!r}")
     return 0
+
+
+def _check_voice(voice: str) -> None:
+    """An unknown voice is refused here, not only in the run's own output (where the line is dropped)."""
+    from robots import tts
+    from robots.errors import InvalidArgument, UnsupportedOperation
+    try:
+        tts.synthesize("a", voice)
+    except InvalidArgument as e:
+        raise CliError(f"rapp say: {e}") from None
+    except UnsupportedOperation:
+        pass  # no eSpeak NG here: the run says whether it can speak
 
 
 # -- doctor -----------------------------------------------------------------------------------

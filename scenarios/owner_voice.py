@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from robots.scenario_file import read_section
 
 INBOX = "inbox"
+RUN_PID = ".pid"  # in the inbox: the process serving it (a finished run's folder keeps its inbox)
 POLL_S = 0.2  # how often the run looks into its inbox (wall clock)
 DEFAULT_VOICE = "en-us"
 
@@ -97,6 +98,12 @@ def running_inbox(run: str | Path | None = None) -> Path:
         inbox = Path(run) / INBOX
         if not inbox.is_dir():
             raise ScriptError(f"{run} is not a running `rapp run` folder (no {INBOX}/ in it)")
+        try:
+            pid = int((inbox / RUN_PID).read_text())
+        except (OSError, ValueError):
+            pid = None  # a run from before the pid was kept: trusted
+        if pid is not None and not _alive(pid):
+            raise ScriptError(f"the run in {run} (pid {pid}) has ended; start a new one")
         return inbox
     pointer = current_run_file()
     try:
@@ -129,6 +136,7 @@ class OwnerVoice:
         self.world, self.api, self.log = world, api, log
         self.inbox = Path(out) / INBOX
         self.inbox.mkdir(parents=True, exist_ok=True)
+        (self.inbox / RUN_PID).write_text(str(os.getpid()))
         self.spoken: list[dict] = []
         self.busy_until = 0.0  # one owner, one mouth: a line starts after the last one ended
 

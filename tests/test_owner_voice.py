@@ -63,6 +63,21 @@ def test_rapp_say_finds_the_running_run(tmp_path, capsys):
     assert not (tmp_path / "runtime" / "rapp" / "current-run.json").exists()
 
 
+def test_rapp_say_refuses_a_finished_run_and_an_unknown_voice(tmp_path, capsys):
+    # a finished run's folder keeps its inbox: a line dropped there was never said, and the user was
+    # told "said into"
+    pytest.importorskip("espeakng_loader")
+    out = tmp_path / "run"
+    OwnerVoice(None, None, out)  # what a run does when it starts serving its inbox
+    assert cli(["say", "hello", "--run", str(out)]) == 0  # this process is alive: it serves
+    (out / "inbox" / ".pid").write_text(str(2 ** 22 + 1))  # above pid_max: no such process
+    assert cli(["say", "hello", "--run", str(out)]) == 1 and "has ended" in capsys.readouterr().err
+    (out / "inbox" / ".pid").write_text(str(os.getpid()))
+    assert cli(["say", "hello", "--voice", "xx-nobody", "--run", str(out)]) == 1
+    assert "unknown voice 'xx-nobody'" in capsys.readouterr().err
+    assert len(list((out / "inbox").glob("*.json"))) == 1  # only the first line was posted
+
+
 async def test_inbox_and_script_play_one_line_after_another(tmp_path):
     world = World.from_file("small", seed=3)
     try:
