@@ -465,7 +465,7 @@ class PhraseDecoder:
     def known(self, phrase: str) -> bool:
         return all(self.decoder.lookup_word(w) for w in phrase.split())
 
-    MAX_ADDED = 500  # words pronounced for one decoder (~1 ms each: eSpeak NG loaded per word)
+    MAX_ADDED = 500  # words pronounced for one decoder (~2 ms each: eSpeak NG is loaded per word)
 
     def _pronounce(self, phrases: list[str]) -> tuple[list[str], list[str]]:
         """Give the dictionary the phrases' words it lacks: (added, without a pronunciation)."""

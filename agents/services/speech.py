@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import base64
 import math
-import re
 import threading
 from collections import OrderedDict
 
@@ -24,6 +23,7 @@ from robots.sound import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
 
 from .context import ServiceContext
 from .errors import ServiceError
+from .interpretation import SLOT  # the slots interpret_command fills from the text heard
 
 MAX_SECONDS = 30.0
 SILENT_DBFS = -70.0  # peak: below a microphone's own noise, nothing was recorded at all
@@ -158,7 +158,6 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
                        search=search)
 
 
-SLOT = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
 MAX_FILLED = 2000  # sentences after the slots are filled (a grammar of them builds in ~0.1 s)
 
 
