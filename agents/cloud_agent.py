@@ -42,15 +42,26 @@ class CloudAgent(RappAgent):
     def _serve(self) -> None:
         cls = load_entry_point(self.package_dir, self.manifest.cloud_entry_point)
         self.service = cls(self)
-        responder = Responder(self.service.ontology, self.service.handlers(), check=self._taken)
+        handlers = {action: self._boxed(h) for action, h in self.service.handlers().items()}
+        responder = Responder(self.service.ontology, handlers, check=self._taken)
         self.activate("cloud-service", responder, responder.make_template())
 
     def _taken(self, req, ctx) -> None:
-        """Its owner's requests only; each kept in the crash box (if any) before it is worked on."""
+        """Its owner's requests only."""
         if self.owner and ctx.sender != self.owner:
             raise Refusal(f"this Cloud Agent serves {self.owner} only", ErrorCode.FORBIDDEN)
-        if self.crash_box is not None:
-            self.crash_box.hold(ctx.info.action, ctx.message.body or "")
+
+    def _boxed(self, handler):
+        """`handler`, with its request in the crash box (if any) while it is worked on."""
+        async def run(req, ctx):
+            if self.crash_box is None:
+                return await handler(req, ctx)
+            ticket = self.crash_box.hold(ctx.info.action, ctx.message.body or "")
+            try:
+                return await handler(req, ctx)
+            finally:
+                self.crash_box.release(ticket)
+        return run
 
     async def run_to_end(self, platform: str) -> int:
         from ontology.platform import CloudReady
