@@ -28,23 +28,28 @@ class CliError(Exception):
 
 # -- server -----------------------------------------------------------------------------------
 def cmd_server(a) -> int:
+    import contextlib
+
     from xmpp_server.__main__ import main as server_main
 
-    import contextlib
-    import tempfile
-
     argv = ["--host", a.host, "--port", str(a.port), "--domain", a.domain]
-    # without --db, a database of this run only: a new start never read the last one's, so it goes
-    # when the server stops (each start used to leave its directory in /tmp)
     with contextlib.ExitStack() as stack:
-        if not a.memory:
-            db = a.db or str(Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="rapp-xmpp-"))) / "server.db")
+        if a.memory:
+            kind = "in-memory database"
+        else:
+            db = a.db or _scratch_db(stack)
             argv += ["--db", db]
-        kind = ("in-memory database" if a.memory else f"database {argv[-1]}"
-                + ("" if a.db else ", removed when it stops (--db FILE keeps one)"))
+            kind = f"database {db}" + ("" if a.db else ", removed when it stops (--db FILE keeps one)")
         print(f"embedded XMPP server on {a.host}:{a.port}, domain {a.domain} ({kind}); Ctrl-C stops it",
               file=sys.stderr, flush=True)
         return server_main(argv + (["--verbose"] if a.verbose else []))
+
+
+def _scratch_db(stack) -> str:
+    """A database of this run only, removed when the server stops: a new start never read the last
+    one's (each start used to leave its directory in /tmp)."""
+    import tempfile
+    return str(Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="rapp-xmpp-"))) / "server.db")
 
 
 # -- run --------------------------------------------------------------------------------------
@@ -286,7 +291,7 @@ def _check_voice(voice: str) -> None:
     from robots import tts
     from robots.errors import InvalidArgument, UnsupportedOperation
     try:
-        tts.synthesize("a", voice)
+        tts.check_voice(voice)
     except InvalidArgument as e:
         raise CliError(f"rapp say: {e}") from None
     except UnsupportedOperation:

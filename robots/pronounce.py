@@ -12,6 +12,7 @@ matches what the microphone hears exactly; a person may say it otherwise (stress
 from __future__ import annotations
 
 import functools
+import re
 
 from .errors import RobotError
 
@@ -27,27 +28,21 @@ _PHONES = {
     "l": "L", "ɫ": "L", "ɹ": "R", "r": "R", "w": "W", "j": "Y", "x": "K",
     "ɾ": "T", "ʔ": "T",  # a flap and a glottal stop stand for a "t" (or "d") in American English
 }
-_LONGEST = max(map(len, _PHONES))
+# one eSpeak phoneme, longest first; a length mark a vowel did not take is skipped; any other
+# character is a sound without a phone
+_TOKEN = re.compile("|".join(map(re.escape, sorted(_PHONES, key=len, reverse=True))) + "|(ː)|(.)")
 _MARKS = str.maketrans("", "", "ˈˌ-")  # stress and eSpeak's own separators carry no phone
 
 
 def ipa_to_phones(units: list[str]) -> str | None:
     """ARPAbet phones of eSpeak NG phoneme strings ("_"-separated), or None at a sound without one."""
     out: list[str] = []
-    for unit in units:
-        for ph in unit.translate(_MARKS).split("_"):
-            i = 0
-            while i < len(ph):
-                for n in range(min(_LONGEST, len(ph) - i), 0, -1):
-                    if ph[i:i + n] in _PHONES:
-                        out.append(_PHONES[ph[i:i + n]])
-                        i += n
-                        break
-                else:
-                    if ph[i] == "ː":  # a length mark the vowel before it did not take
-                        i += 1
-                        continue
-                    return None
+    for phoneme in "_".join(units).translate(_MARKS).split("_"):  # matched within one phoneme only
+        for m in _TOKEN.finditer(phoneme):
+            if m.group(2) is not None:
+                return None
+            if m.group(1) is None:
+                out.append(_PHONES[m.group(0)])
     return " ".join(out) or None
 
 

@@ -90,6 +90,17 @@ def _fresh_engine():
             _ctypes.dlclose(handle)  # the last reference: the next load starts from the file's state
 
 
+def _set_voice(lib, voice: str) -> None:
+    if lib.espeak_SetVoiceByName(voice.encode()) != 0:
+        raise InvalidArgument(f"unknown voice {voice!r} (e.g. {', '.join(VOICES)})")
+
+
+def check_voice(voice: str) -> None:
+    """InvalidArgument where eSpeak NG has no such voice (UnsupportedOperation: no eSpeak NG)."""
+    with _fresh_engine() as (lib, _):
+        _set_voice(lib, voice)
+
+
 _IPA, _SEPARATOR = 0x02, ord("_") << 8  # espeak_TextToPhonemes: IPA, phonemes joined by "_"
 
 
@@ -99,8 +110,7 @@ def phonemes(text: str, voice: str = DEFAULT_VOICE) -> list[str]:
     if not text.strip() or len(text) > MAX_TEXT:
         raise InvalidArgument(f"no phonemes for a text of {len(text)} characters")
     with _fresh_engine() as (lib, _):
-        if lib.espeak_SetVoiceByName(voice.encode()) != 0:
-            raise InvalidArgument(f"unknown voice {voice!r} (e.g. {', '.join(VOICES)})")
+        _set_voice(lib, voice)
         lib.espeak_TextToPhonemes.restype = ctypes.c_char_p
         lib.espeak_TextToPhonemes.argtypes = [ctypes.POINTER(ctypes.c_char_p), ctypes.c_int, ctypes.c_int]
         rest = ctypes.c_char_p(text.encode())  # the call moves it on, clause by clause, to NULL
@@ -138,8 +148,7 @@ def synthesize(text: str, voice: str = DEFAULT_VOICE, rate: int = DEFAULT_RATE, 
         raise InvalidArgument(f"pitch {pitch} out of range 0..99")
     data = text.encode() + b"\0"
     with _fresh_engine() as (lib, native):
-        if lib.espeak_SetVoiceByName(voice.encode()) != 0:
-            raise InvalidArgument(f"unknown voice {voice!r} (e.g. {', '.join(VOICES)})")
+        _set_voice(lib, voice)
         lib.espeak_SetParameter(_RATE, int(rate), 0)
         lib.espeak_SetParameter(_PITCH, int(pitch), 0)
         _chunks.clear()
