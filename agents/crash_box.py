@@ -12,8 +12,8 @@ record of the loss (`cloud-lost`, `input`).
 
 Layout: 8 bytes of length (little-endian), then one record per request, oldest first: 4 bytes of
 length, 1 byte (1: in progress, 0: done), `action`, a newline, the body (UTF-8). The length is
-written last, so a crash in the middle of a copy leaves an empty box, never half a request. The file is the RApp's to write too: it is
-read as untrusted (bounded, decoded with replacement)."""
+written last, so a crash in the middle of a copy leaves an empty box, never half a request. The
+file is the RApp's to write too: it is read as untrusted (bounded, decoded with replacement)."""
 from __future__ import annotations
 
 import itertools
@@ -37,8 +37,7 @@ class CrashBox:
         self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600)
         self._map: mmap.mmap | None = None
         self._held: dict[int, bytes] = {}  # ticket -> request in progress, in the order taken
-        self._last: int | None = None  # the ticket of the last request taken
-        self._last_data = b""
+        self._last: tuple[int, bytes] | None = None  # the last request taken: (ticket, request)
         self._tickets = itertools.count(1)
         self._grow(size)
 
@@ -51,8 +50,8 @@ class CrashBox:
     def hold(self, action: str, body: str) -> int:
         """Keep this request with the others in progress; the ticket releases it."""
         ticket = next(self._tickets)
-        self._held[ticket] = self._last_data = action.encode() + b"\n" + body.encode()
-        self._last = ticket
+        self._held[ticket] = action.encode() + b"\n" + body.encode()
+        self._last = (ticket, self._held[ticket])
         self._write()
         return ticket
 
@@ -63,8 +62,8 @@ class CrashBox:
 
     def _write(self) -> None:
         records = [(1, d) for d in self._held.values()]
-        if self._last is not None and self._last not in self._held:
-            records.append((0, self._last_data))
+        if self._last is not None and self._last[0] not in self._held:
+            records.append((0, self._last[1]))
         need = _HEADER.size + sum(_RECORD.size + len(d) for _, d in records)
         if need > len(self._map):
             self._grow(max(need, 2 * len(self._map)))

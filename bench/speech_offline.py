@@ -198,7 +198,8 @@ def main(argv=None) -> int:
                     help="a VoiceActivity option under test (recorded apart in the cache)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
-    VAD.update((k, float(v)) for k, v in (o.split("=", 1) for o in a.vad))  # the workers fork after this
+    # the workers fork after this; counts (start_frames) stay whole numbers
+    VAD.update((k, int(v) if v.lstrip("-").isdigit() else float(v)) for k, v in (o.split("=", 1) for o in a.vad))
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

@@ -200,9 +200,11 @@ def _taken(service: str, req, ctx) -> dict[str, Any]:
             profiles = ctx.state.store("speech_noise_profiles", dict)
             key = (ctx.user, req.noise_profile)
             out["speech_noise_profiles"] = {key: profiles[key]} if key in profiles else {}
-        if any("{" in s for s in req.sentences):  # the rooms of the caller's homes fill {room}
+        from .speech import needs_rooms
+        if needs_rooms(req):  # the rooms of the caller's homes, and nothing else of them
             from .home import homes
-            out["homes"] = homes(ctx.state).of_user(ctx.user)
+            out["homes"] = {key: info.model_copy(update={"hazards": [], "landmarks": {}, "doors": []})
+                            for key, info in homes(ctx.state).of_user(ctx.user).items()}
         return out
     if service == "speech_noise_profile":
         return {"speech_noise_profiles": {}}

@@ -161,9 +161,15 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
 MAX_FILLED = 2000  # sentences after the slots are filled (a grammar of them builds in ~0.1 s)
 
 
+def needs_rooms(req: SpeechRecognition) -> bool:
+    """Whether a sentence holds a {room} the request gives no values for: the caller's homes fill it
+    (agents/services/pool.py takes them along to a worker)."""
+    return "room" not in req.slots and any("room" in SLOT.findall(s) for s in req.sentences)
+
+
 def _slot_values(req: SpeechRecognition, ctx: ServiceContext) -> dict[str, list[str]]:
     values = {k: [v for v in vs if normalize(v)] for k, vs in req.slots.items()}
-    if "room" not in values:
+    if needs_rooms(req):
         from .home import homes
         values["room"] = homes(ctx.state).rooms(ctx.user)
     return values
