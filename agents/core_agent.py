@@ -102,6 +102,7 @@ class DynamicSession:
     detail: str = ""
     last_beat: float = field(default_factory=time.monotonic)
     silence: SilenceWatch | None = None  # the looks at its process during the current silence
+    forgiven_s: float = 0.0  # silence not held against it: the Core's own loop stalls and link outages
     ended: asyncio.Event = field(default_factory=asyncio.Event)
     hung: bool = False  # ended for missing heartbeats: killed without a grace period
     ready: asyncio.Event = field(default_factory=asyncio.Event)
@@ -526,8 +527,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             session.end_reason = reason
             session.ended.set()
             session.ready.set()
+            # forgiven_s: silence not counted (the Core's own stalls, its link down): a hang's noticing took that longer
             self.record_structure("ended", dynamic=session.jid, rapp=session.rapp, state=session.state,
-                                  reason=reason)
+                                  reason=reason, forgiven_s=round(session.forgiven_s, 2))
 
     # -- s8: serve until the Dynamic Agent ends --------------------------------------------
     async def serve_until_done(self) -> str:
@@ -545,7 +547,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             prev = now
             if stall > 0.2:  # our own loop was stalled (GIL, CPU): the Dynamic Agent is not to blame
                 session.last_beat += stall
+                session.forgiven_s += stall
             if getattr(self, "_reconnecting", False) or now - getattr(self, "_reconnected_at", 0) < 2.0:
+                session.forgiven_s += max(0.0, now - session.last_beat)
                 session.last_beat = now  # our own link was down: silence proves nothing
             silence = now - session.last_beat
             late = self._late_not_hung(session, now, silence)  # looks from the second missed beat on

@@ -9,6 +9,7 @@ import signal
 
 import pytest
 
+from agents.liveness import GRACE_S
 from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
@@ -76,7 +77,11 @@ async def test_fault_is_noticed_cleaned_up_and_reported(system, keyword, expect)
     else:
         fault = [r for r in read_trace(system.settings.trace_file) if r["kind"] == "state"
                  and r["state"] == "misbehave" and rapp in r["agent"]][-1]
-        assert ended["t"] - fault["t"] < 2.0, ended["t"] - fault["t"]
+        # on a loaded machine the Core may not count its own stalls, or give a process that waits
+        # for a CPU the grace of agents/liveness.py: both are recorded, and only they extend the 2 s
+        late = [r for r in _records(system, rapp, "structure", "heartbeat-late") if r["t"] > fault["t"]]
+        bound = (GRACE_S + 0.5 if late else 2.0) + ended["forgiven_s"]
+        assert ended["t"] - fault["t"] < bound, (ended["t"] - fault["t"], ended, late)
     # the process is gone, the robot was stopped, the next command works
     spawn = _records(system, rapp, "structure", "spawn")[-1]
     await wait_until(lambda: gone(spawn["pid"]), 5)
