@@ -114,4 +114,18 @@ def interpret(text: str, robot_type: str, rapps) -> Interpretation:
 
 
 def interpret_command(req: InterpretCommand, ctx: ServiceContext) -> Interpretation:
-    return interpret(req.text, req.robot_type, req.rapps)
+    out = interpret(req.text, req.robot_type, req.rapps)
+    room = out.parameters.get("room")
+    if room:  # as the caller's home names it: said "living room", it is the home's "living_room"
+        from .home import homes
+        named = room_named(room, homes(ctx.state).rooms(ctx.user))
+        if named is not None:
+            out = out.model_copy(update={"parameters": {**out.parameters, "room": named}})
+    return out
+
+
+def room_named(value: str, rooms: list[str]) -> str | None:
+    """The room of `rooms` that is said (or typed) as `value`: names compare as words, so
+    "Living Room", "living_room" and "living-room" are all said "living room"."""
+    said = normalize(value)
+    return next((r for r in rooms if normalize(r) == said), None)

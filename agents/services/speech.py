@@ -24,6 +24,7 @@ from robots.sound import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
 from .context import ServiceContext
 from .errors import ServiceError
 from .interpretation import SLOT  # the slots interpret_command fills from the text heard
+from .interpretation import normalize as said_as  # how a slot value (a room name) is said
 
 MAX_SECONDS = 30.0
 SILENT_DBFS = -70.0  # peak: below a microphone's own noise, nothing was recorded at all
@@ -168,11 +169,12 @@ def needs_rooms(req: SpeechRecognition) -> bool:
 
 
 def _slot_values(req: SpeechRecognition, ctx: ServiceContext) -> dict[str, list[str]]:
-    values = {k: [v for v in vs if normalize(v)] for k, vs in req.slots.items()}
+    values = dict(req.slots)
     if needs_rooms(req):
         from .home import homes
         values["room"] = homes(ctx.state).rooms(ctx.user)
-    return values
+    # as they are said: a home's "living_room" is heard "living room" (interpret_command maps it back)
+    return {k: list(dict.fromkeys(said_as(v) for v in vs if said_as(v))) for k, vs in values.items()}
 
 
 def with_slots_filled(sentences: list[str], values: dict[str, list[str]]) -> list[str]:

@@ -56,6 +56,18 @@ def test_phrase_slots_fill_parameters(ctx, text, params):
     assert out.rapp == "lamp-patrol" and out.parameters == params
 
 
+def test_a_room_slot_takes_the_name_the_callers_home_gives_it(ctx):
+    """Said or typed, "living room" is the room a home names "Living_Room"; a RApp compares names."""
+    from ontology.services.home import HomeInfo, RoomSpec, UploadHomeInfo
+    from agents.services import run_service
+    rooms = [RoomSpec(name=n, rect=[i, 0, i + 1, 1]) for i, n in enumerate(["Living_Room", "kids-room", "hall"])]
+    run_service("home_upload_info", UploadHomeInfo(info=HomeInfo(home_id="h", map_id="m", rooms=rooms)), ctx)
+    for text, room in (("check the lamp in the living room", "Living_Room"), ("check the lamp in the kids room",
+                       "kids-room"), ("check the lamp in the Hall", "hall"), ("check the lamp in the garage", "garage")):
+        out = interpret_command(InterpretCommand(text=text, robot_type="nao", rapps=SLOTTED), ctx)
+        assert out.parameters == {"room": room}, text
+
+
 def test_a_slotted_phrase_scores_like_a_phrase(ctx):
     out = interpret_command(InterpretCommand(text="check the lamp in the hall", robot_type="nao", rapps=SLOTTED), ctx)
     assert out.score == 4 and "check the lamp in the {room}" in out.matched

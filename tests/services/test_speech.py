@@ -116,6 +116,12 @@ def test_a_slot_takes_the_rooms_of_the_callers_homes(ctx):
     assert "bedroom" not in _recognise(ctx, bedroom, sentences=[LAMPS], slots={"room": ["office", "hall"]}).text
 
 
+def test_a_room_named_with_an_underscore_is_heard_as_it_is_said(ctx):
+    _home(ctx, "living_room", "kitchen")
+    _, pcm = _heard("check the lamps in the living room")
+    assert _recognise(ctx, pcm, sentences=PHRASES + [LAMPS]).text == "check the lamps in the living room"
+
+
 def test_slots_that_make_too_many_sentences_are_refused(ctx):
     _, pcm = _heard("check the lamps in the kitchen")
     many = {"a": [f"w{i}" for i in range(60)], "b": [f"v{i}" for i in range(60)]}
