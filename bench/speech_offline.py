@@ -180,6 +180,10 @@ def report(rows: list[dict], show_wrong: bool) -> None:
             wrong = sum(bool(r["got"]) and r["got"] != r["expected"] for r in cmd)
             print(f"  {noise:6s} {right:3d}/{len(cmd)} = {100 * right / max(len(cmd), 1):5.1f} % ({wrong} wrong)"
                   f"   other taken {sum(bool(r['got']) for r in other)}/{len(other)}")
+            # by distance: the TV is 2.6 m from the robot, so the owner's distance sets the SNR
+            print("         " + "  ".join(
+                f"{d:g} m {sum(r['got'] == r['expected'] for r in at)}/{len(at)}"
+                for d in DISTANCES for at in [[r for r in cmd if r["distance"] == d]]))
         ms = sorted(r["decode_ms"] for r in mine)
         print(f"  decode median {ms[len(ms) // 2]:.0f} ms, max {ms[-1]:.0f} ms")
         if show_wrong:
