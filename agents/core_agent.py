@@ -58,6 +58,7 @@ from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
                               UserChat, heartbeat_template)
 from .core_commands import RobotCommands
+from .core_hearing import Continuation
 from .core_events import CoreEvents
 from .core_strategies import Strategies
 from .core_fsm import build_core_fsm
@@ -149,6 +150,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._voice_supervision: asyncio.Task | None = None  # listening for them while a RApp runs
         # the voice detectors of s3 and of a task's supervision words: kept across tasks, they know the room
         self._voices = VoiceActivity(max_seconds=5.0), VoiceActivity(max_seconds=5.0)
+        self.continuation = Continuation(self._voices[0])  # a sentence the owner pauses in (s4b)
         self.dynamic: DynamicSession | None = None
         self.told: list[str] = []  # everything said to the user, in order
         self.supervisor: BehaviourHost | None = None
@@ -254,6 +256,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # queued and taken as a command when the task ended (in a two-robot house, the other robot's
         # spoken report, 18 s old, started hazard-detection a second time)
         listening = self.supervisor is not None and self.supervisor.behaviour.current == "s3_listen"
+        if not listening and self.continuation.offer(utterance):  # the rest of the sentence s4b recognises
+            self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
+                                  speech_s=round(utterance.speech_seconds, 2), continues=True)
+            return
         self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
                               speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long,
                               **({} if listening else {"dropped": "not listening"}))
@@ -368,6 +374,28 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         word = await asyncio.get_running_loop().run_in_executor(None, spotter.spot, utterance)
         self.record_structure("keyword-spotting", word=word)
         return self.vocabulary.get(word.lower()) if word else None
+
+    async def recognise_sentence(self, utterance: HeardUtterance) -> str:
+        """s4b for speech: `recognise`, and when the owner goes on after a pause (agents/core_hearing.py),
+        the two parts recognised as one (the first part's answer if the whole is not understood)."""
+        first = asyncio.ensure_future(self.recognise(utterance))
+        first.add_done_callback(lambda f: f.cancelled() or f.exception())  # its failure may go unused
+        try:
+            more = await self.continuation.after()
+        except BaseException:
+            first.cancel()
+            raise
+        if more is None:
+            return await first
+        self.record_structure("speech-joined", seconds=round(utterance.seconds + more.seconds, 2))
+        try:
+            whole = await self.recognise(utterance.then(more))
+        except RequestError:
+            whole = ""
+        if whole:
+            first.cancel()
+            return whole
+        return await first
 
     async def recognise(self, utterance: HeardUtterance) -> str:
         """s4b for speech: the Platform's speech_recognition, first against the Store's command phrases

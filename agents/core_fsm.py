@@ -90,7 +90,7 @@ class Interpret(CoreState):  # s4b: anything else -> the Platform (speech recogn
         heard = isinstance(text, HeardUtterance)
         if heard:
             try:
-                text = await self.core.recognise(text)
+                text = await self.core.recognise_sentence(text)
             except RequestError as e:
                 await self.core.tell_user(f"Sorry, I did not understand: {e.reason}", speak=self.core.apology_aloud())
                 raise

@@ -54,8 +54,9 @@ def conditions(path: str, quick: bool) -> list[tuple]:
 
 
 def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
-    """What the Core's voice activity detector cuts (HeardUtterance) from the owner saying `pcm` (None:
-    nobody speaks for 20 s) `distance` m from the NAO in the small house, a TV at `noise_db` or off."""
+    """What the Core's voice activity detector cuts from the owner saying `pcm` (None: nobody speaks
+    for 20 s) `distance` m from the NAO in the small house, a TV at `noise_db` or off: (HeardUtterance,
+    the detector's time it started, its time it was cut)."""
     from robots.floorplan import load_plan
     from robots.receptors import VoiceActivity
     from robots.sound import HouseSound, NoiseSource, talker_at
@@ -71,23 +72,26 @@ def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
         house.play("owner", talker_at(ROBOT_AT, distance, MIC_Z), pcm, at=at, level_db=60)
     heard = house.receive((*ROBOT_AT, MIC_Z), 0.0, at + len(pcm) / 16000 + 1.5, mic="nao")
     vad = VoiceActivity(max_seconds=5.0, **VAD)
-    return [u for s in range(0, len(heard), 1600) for u in vad.feed(heard[s:s + 1600])]
+    out = []
+    for s in range(0, len(heard), 1600):
+        out += [(u, vad.started_s, vad.cut_s) for u in vad.feed(heard[s:s + 1600])]
+    return out
 
 
 def _record(cond: tuple) -> list:
-    """heard_utterances of one condition, as (pcm, speech seconds, too long), cached."""
+    """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut), cached."""
     from robots import tts
 
     text, _, voice, speed, dist, noise = cond
     pcm = tts.synthesize(text, voice, speed) if text else None
     # keyed by the speech too: a change to the synthesiser makes new recordings
     # (and by the detector's options under test, if any)
-    said = repr((cond[0],) + cond[2:] + ((tuple(sorted(VAD.items())),) if VAD else ())).encode()
+    said = b"v2" + repr((cond[0],) + cond[2:] + ((tuple(sorted(VAD.items())),) if VAD else ())).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
-    utts = [(u.pcm, u.speech_seconds, u.too_long) for u in heard_utterances(pcm, dist, NOISE[noise])]
+    utts = [(u.pcm, u.speech_seconds, u.too_long, t0, t1) for u, t0, t1 in heard_utterances(pcm, dist, NOISE[noise])]
     CACHE.mkdir(exist_ok=True)
     f.write_bytes(pickle.dumps(utts))
     return utts
@@ -112,9 +116,9 @@ def decide_keyword(utts: list) -> str | None:
     vocab = _vocabulary()
     if _SPOTTER is None:
         _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab)
-    for pcm, speech, too_long in utts:
+    for k, (pcm, speech, too_long, _, _) in enumerate(utts):
         word = _SPOTTER.spot(HeardUtterance(pcm, speech, too_long))
-        rapp = vocab.get(word.lower()) if word else _platform(pcm)
+        rapp = vocab.get(word.lower()) if word else _sentence(utts, k)
         if rapp:
             return rapp
     return None
@@ -123,11 +127,23 @@ def decide_keyword(utts: list) -> str | None:
 def decide_platform(utts: list) -> str | None:
     """s4b as the Core and Platform run it: each utterance in turn (the Core sends each), the first
     RApp interpreted."""
-    for pcm, _, _ in utts:
-        rapp = _platform(pcm)
+    for k in range(len(utts)):
+        rapp = _sentence(utts, k)
         if rapp:
             return rapp
     return None
+
+
+def _sentence(utts: list, k: int) -> str | None:
+    """s4b on utterance k, joined with the next when the owner went on within the Core's pause
+    (agents/core_hearing.py), the first part alone if the whole is not understood."""
+    from agents.core_hearing import CONTINUE_WITHIN_S
+    pcm, _, _, _, cut = utts[k]
+    if k + 1 < len(utts) and not utts[k + 1][2] and utts[k + 1][3] - cut < CONTINUE_WITHIN_S:
+        rapp = _platform(np.concatenate([pcm, utts[k + 1][0]]))
+        if rapp:
+            return rapp
+    return _platform(pcm)
 
 
 def _platform(pcm: np.ndarray) -> str | None:

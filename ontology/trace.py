@@ -75,6 +75,7 @@ class StructureEvent(StrEnum):
     SPEECH_HEARD = "speech-heard"  # an utterance cut from the microphone by voice activity detection
     KEYWORD_SPOTTING = "keyword-spotting"  # s4a: the keyword spotter's answer on the robot
     SPEECH_RECOGNITION = "speech-recognition"  # s4b: the Platform's recognition of a longer utterance
+    SPEECH_JOINED = "speech-joined"  # s4b: the owner went on after a pause: two utterances recognised as one
     ESTOP = "estop"  # emergency stop
     ESTOP_RELEASED = "estop-released"
     MOTION_HELD = "motion-held"  # a motion of the task waits for the emergency stop's release

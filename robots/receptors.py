@@ -666,6 +666,9 @@ class VoiceActivity:
         self.loud_run = self.quiet_run = self.speech_frames = 0
         self.skipping = False  # the rest of an over-long sound
         self._rest = np.zeros(0, np.int16)
+        self.heard_s = 0.0  # sound fed so far (s)
+        self.cut_s: float | None = None  # heard_s when the last utterance was cut (its end of silence)
+        self.started_s: float | None = None  # heard_s when the current (or last) utterance was taken to start
 
     @property
     def active(self) -> bool:
@@ -707,6 +710,8 @@ class VoiceActivity:
 
     def feed(self, pcm: np.ndarray) -> list["HeardUtterance"]:
         x = np.concatenate([self._rest, np.asarray(pcm, np.int16)])
+        heard_before = self.heard_s - len(self._rest) / self.rate
+        self.heard_s += len(pcm) / self.rate
         n = len(x) // self.hop
         self._rest = x[n * self.hop:]
         out: list[HeardUtterance] = []
@@ -734,13 +739,17 @@ class VoiceActivity:
                 self._learn([noise])
             else:
                 self._held.append(noise)
+            was_active = self.active
             got = self._step(frame, loud)
+            if self.frames and not was_active:
+                self.started_s = heard_before + (i + 1) * self.hop / self.rate
             if not self.frames:
                 if got is not None and got.too_long:  # a TV switched on, not a command: it is the room now
                     self._learn(self._held)
                 self._held = []
             if got is not None:
                 out.append(got)
+                self.cut_s = heard_before + (i + 1) * self.hop / self.rate
         return out
 
     def _step(self, frame: np.ndarray, loud: bool) -> "HeardUtterance | None":
@@ -785,6 +794,12 @@ class HeardUtterance:
     @property
     def seconds(self) -> float:
         return len(self.pcm) / 16000
+
+    def then(self, more: "HeardUtterance") -> "HeardUtterance":
+        """This utterance and the next as one: a sentence the detector cut where the speaker paused
+        (each keeps its padding, so the pause stays about as long as it was)."""
+        return HeardUtterance(np.concatenate([self.pcm, more.pcm]), self.speech_seconds + more.speech_seconds,
+                              self.too_long or more.too_long)
 
 
 class KeywordSpotter:

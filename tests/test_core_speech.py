@@ -15,8 +15,10 @@ import numpy as np
 import pytest
 
 from agents.core_agent import CoreAgent
+from agents.core_hearing import Continuation
+from agents.tracing import read_trace
 from robots import RobotAPI, World, tts
-from robots.receptors import HeardUtterance
+from robots.receptors import HeardUtterance, VoiceActivity
 from robots.sound import NoiseSource, house_sound, talker_at
 from scenarios.system import RappSystem
 
@@ -98,6 +100,21 @@ async def test_a_spoken_sentence_goes_through_the_platform(system):
         speak(system, "check my inbox", distance=1.0)
         await user.wait_for(lambda t: "email_reader finished" in t, timeout=45, start=start)
     assert heard == ["check my inbox"]
+
+
+async def test_a_sentence_said_with_a_pause_is_recognised_whole(system):
+    """The detector cuts at 0.3 s of silence (the keyword path's budget); the owner's breath of 0.6 s
+    mid-sentence made two utterances, and the city was lost with the second (agents/core_hearing.py)."""
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start = len(user.received)
+    with spying(core, "recognise_sentence") as heard:
+        ends = speak(system, "what's the weather", distance=1.0)
+        speak(system, "in warsaw", distance=1.0, delay=ends - system.world.time + 0.6)
+        await user.wait_for(lambda t: "weather_reporter finished" in t, timeout=45, start=start)
+    assert heard == ["what's the weather in warsaw"]
+    joined = [r for r in read_trace(system.settings.trace_file) if r.get("event") == "speech-joined"]
+    assert joined and joined[-1]["seconds"] > 1.5
 
 
 async def test_a_failed_recognition_is_answered_and_the_core_listens_again(system):
@@ -209,7 +226,8 @@ async def test_sound_is_a_command_only_while_the_core_listens(fsm_state, queued)
     house the other robot's spoken report, heard then, was taken as a command when the task ended."""
     records = []
     core = SimpleNamespace(supervisor=SimpleNamespace(behaviour=SimpleNamespace(current=fsm_state)),
-                           commands=asyncio.Queue(), record_structure=lambda event, **kw: records.append(kw))
+                           commands=asyncio.Queue(), record_structure=lambda event, **kw: records.append(kw),
+                           continuation=Continuation(VoiceActivity()))  # none awaited
     await CoreAgent._speech_heard(core, HeardUtterance(np.zeros(16000, np.int16), 0.8))
     assert core.commands.qsize() == queued
     assert ("dropped" in records[0]) == (queued == 0)

@@ -1,0 +1,78 @@
+"""A sentence the owner pauses in (agents/core_hearing.py): the voice detector cuts it at the pause,
+and the Core takes the next part as its continuation only when speech starts again soon enough."""
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from agents import core_hearing
+from agents.core_hearing import CONTINUE_WITHIN_S, Continuation
+from robots import tts
+from robots.receptors import VoiceActivity
+
+RATE = 16000
+
+
+def _said(*parts, pause_s: float) -> np.ndarray:
+    """The room's sound (1 s first, for the detector to learn it), the parts said `pause_s` apart."""
+    rng = np.random.default_rng(1)
+    gap = np.zeros(int(pause_s * RATE))
+    speech = [tts.synthesize(p, "en-us").astype(np.float64) for p in parts]
+    body = np.concatenate([np.zeros(RATE)] + [x for s in speech for x in (s, gap)] + [np.zeros(RATE)])
+    return np.clip(body + rng.normal(0, 30, len(body)), -32768, 32767).astype(np.int16)
+
+
+async def _listen(pcm, vad, continuation, first: list, chunk_s=0.1, stop_at=None):
+    """Feed the detector as the Core's listener does: the first utterance is the command (s4a/s4b),
+    any later one is offered as its continuation."""
+    step = int(chunk_s * RATE)
+    for i in range(0, len(pcm) if stop_at is None else int(stop_at * RATE), step):
+        for u in vad.feed(pcm[i:i + step]):
+            if not first:
+                first.append(u)
+            else:
+                continuation.offer(u)
+        await asyncio.sleep(0.005)
+
+
+async def _continued(pcm, **kw):
+    vad = VoiceActivity(max_seconds=5.0)
+    continuation, first = Continuation(vad), []
+    feeding = asyncio.create_task(_listen(pcm, vad, continuation, first, **kw))
+    while not first and not feeding.done():
+        await asyncio.sleep(0.001)
+    assert first, "the detector heard nothing"
+    t0 = asyncio.get_running_loop().time()
+    more = await continuation.after()
+    _continued.waited = asyncio.get_running_loop().time() - t0
+    await feeding
+    return vad, first[0], more
+
+
+async def test_speech_again_within_the_pause_continues_the_sentence():
+    vad, first, more = await _continued(_said("what's the weather", "in warsaw", pause_s=0.6))
+    assert more is not None and 0.2 < more.speech_seconds < 1.0
+    whole = first.then(more)
+    assert whole.seconds == pytest.approx(first.seconds + more.seconds)
+    assert whole.speech_seconds == pytest.approx(first.speech_seconds + more.speech_seconds)
+
+
+async def test_a_longer_pause_is_two_utterances():
+    _, _, more = await _continued(_said("what's the weather", "in warsaw", pause_s=0.3 + CONTINUE_WITHIN_S + 0.4))
+    assert more is None
+
+
+async def test_nobody_goes_on():
+    vad, _, more = await _continued(_said("check my inbox", pause_s=0.0))
+    assert more is None and vad.heard_s - vad.cut_s >= CONTINUE_WITHIN_S
+
+
+async def test_a_listener_that_stops_feeding_is_not_waited_for(monkeypatch):
+    monkeypatch.setattr(core_hearing, "STALL_S", 0.3)
+    pcm = _said("check my inbox", pause_s=0.0)
+    # the sound stops about 0.2 s after the cut (the detector cuts after 0.3 s of silence)
+    vad, _, more = await _continued(pcm, stop_at=1.0 + len(tts.synthesize("check my inbox", "en-us")) / RATE + 0.5)
+    assert more is None and vad.heard_s - vad.cut_s < CONTINUE_WITHIN_S  # given up for the stall, not the pause
+    assert 0.3 <= _continued.waited < 0.8
