@@ -376,30 +376,39 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         return self.vocabulary.get(word.lower()) if word else None
 
     async def recognise_sentence(self, utterance: HeardUtterance) -> str:
-        """s4b for speech: `recognise`, and when the owner goes on after a pause (agents/core_hearing.py),
-        the two parts recognised as one (the first part's answer if the whole is not understood)."""
-        first = asyncio.ensure_future(self.recognise(utterance))
+        """s4b for speech: `recognition`, and when the owner goes on after a pause (agents/core_hearing.py),
+        the two parts recognised as one (the first part's answer if the whole is not understood). A
+        Store phrase recognised whole, with nothing said since, is taken without waiting for more."""
+        first = asyncio.ensure_future(self.recognition(utterance))
         first.add_done_callback(lambda f: f.cancelled() or f.exception())  # its failure may go unused
+        going_on = asyncio.ensure_future(self.continuation.after())
         try:
-            more = await self.continuation.after()
+            await asyncio.wait({first, going_on}, return_when=asyncio.FIRST_COMPLETED)
+            if first.done() and first.exception() is None and first.result()[1] == "sentences" \
+                    and not self.continuation.vad.active:
+                going_on.cancel()
+                return first.result()[0]
+            more = await going_on
         except BaseException:
             first.cancel()
+            going_on.cancel()
             raise
         if more is None:
-            return await first
+            return (await first)[0]
         self.record_structure("speech-joined", seconds=round(utterance.seconds + more.seconds, 2))
         try:
-            whole = await self.recognise(utterance.then(more))
+            whole, _ = await self.recognition(utterance.then(more))
         except RequestError:
             whole = ""
         if whole:
             first.cancel()
             return whole
-        return await first
+        return (await first)[0]
 
-    async def recognise(self, utterance: HeardUtterance) -> str:
-        """s4b for speech: the Platform's speech_recognition, first against the Store's command phrases
-        and keywords, then with the general language model; "" when neither heard anything."""
+    async def recognition(self, utterance: HeardUtterance) -> tuple[str, str]:
+        """The Platform's speech_recognition of one utterance, first against the Store's command phrases
+        and keywords, then with the general language model: (text, the search that heard it); "" when
+        neither heard anything."""
         wav = await asyncio.to_thread(lambda: base64.b64encode(encode_wav(utterance.pcm)).decode())
         sentences = sorted({ph for p in self.catalogue for ph in p.phrases} | set(self.vocabulary))
         for allowed in (sentences, []):
@@ -416,8 +425,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             self.record_structure("speech-recognition", text=reply.text, search=reply.search,
                                   confidence=reply.confidence)
             if reply.text.strip():
-                return reply.text.strip()
-        return ""
+                return reply.text.strip(), reply.search
+        return "", ""
 
     # -- s5 ------------------------------------------------------------------------------
     def apology_aloud(self) -> bool:

@@ -96,7 +96,7 @@ async def test_a_spoken_sentence_goes_through_the_platform(system):
     core, user = system.handle.core, system.handle.user
     await wait_until(lambda: listening(core), 30)
     start = len(user.received)
-    with spying(core, "recognise") as heard:
+    with spying(core, "recognise_sentence") as heard:
         speak(system, "check my inbox", distance=1.0)
         await user.wait_for(lambda t: "email_reader finished" in t, timeout=45, start=start)
     assert heard == ["check my inbox"]
@@ -195,7 +195,7 @@ async def test_a_rapp_named_outside_the_dictionary_is_heard_by_both_paths(system
     core, user = system.handle.core, system.handle.user
     await system.publish(create("greeter", tmp_path / "greeter"))
     await wait_until(lambda: "greeter" in core.vocabulary and listening(core), 30)
-    for said, step, answer in (("greeter", "spot_keyword", "greeter"), ("run greeter", "recognise", "run greeter")):
+    for said, step, answer in (("greeter", "spot_keyword", "greeter"), ("run greeter", "recognise_sentence", "run greeter")):
         await wait_until(lambda: listening(core), 30)
         start = len(user.received)
         with spying(core, step) as answers:
@@ -257,10 +257,10 @@ async def test_phrases_the_platform_cannot_pronounce_fall_back_to_the_general_mo
                            record_structure=lambda event, **kw: records.append(kw))
     code = ErrorCode.UNSUPPORTED
     utterance = HeardUtterance(np.zeros(16000, np.int16), 0.8)
-    assert await CoreAgent.recognise(core, utterance) == "run greeter"
+    assert await CoreAgent.recognition(core, utterance) == ("run greeter", "language_model")
     assert asked == [["greeter", "run greeter"], []] and "error" in records[0]
     code, asked[:] = ErrorCode.INVALID, []
     with pytest.raises(RequestFailed):
-        await CoreAgent.recognise(core, utterance)
+        await CoreAgent.recognition(core, utterance)
     assert asked == [["greeter", "run greeter"]]
 
