@@ -564,7 +564,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             session.end_reason = reason
             session.ended.set()
             session.ready.set()
-            # forgiven_s: silence not counted (the Core's own stalls, its link down): a hang's noticing took that longer
+            # forgiven_s: silence not counted (its own stalls, its link down): noticing a hang took that longer
             self.record_structure("ended", dynamic=session.jid, rapp=session.rapp, state=session.state,
                                   reason=reason, forgiven_s=round(session.forgiven_s, 2))
 

@@ -501,8 +501,8 @@ class PhraseDecoder:
         complete phrase, it is the answer: aligned alone, a longer phrase can outscore the short one
         said (the cognitive game's "six", in a grammar of the numbers 0-300, lost to "thirty five" in 2
         of 8 recordings); the runner-up then only sets the lead. (The Core's keywords keep the best
-        aligned phrase: measured on the speech benchmark that way.) The answer's aligned score is compared with the free phone loop: the owner said the phrase, not
-        something else."""
+        aligned phrase: measured on the speech benchmark that way.) The answer's aligned score is
+        compared with the free phone loop: the owner said the phrase, not something else."""
         self.segments: list[tuple[str, int, int]] = []
         self.lead, self.runner_up = math.inf, None
         if not self.has_grammar:

@@ -195,7 +195,8 @@ async def test_a_rapp_named_outside_the_dictionary_is_heard_by_both_paths(system
     core, user = system.handle.core, system.handle.user
     await system.publish(create("greeter", tmp_path / "greeter"))
     await wait_until(lambda: "greeter" in core.vocabulary and listening(core), 30)
-    for said, step, answer in (("greeter", "spot_keyword", "greeter"), ("run greeter", "recognise_sentence", "run greeter")):
+    for said, step, answer in (("greeter", "spot_keyword", "greeter"),
+                               ("run greeter", "recognise_sentence", "run greeter")):
         await wait_until(lambda: listening(core), 30)
         start = len(user.received)
         with spying(core, step) as answers:
