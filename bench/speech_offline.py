@@ -54,9 +54,13 @@ def conditions(path: str, quick: bool) -> list[tuple]:
 
 
 def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
-    """What the Core's voice activity detector cuts from the owner saying `pcm` (None: nobody speaks
-    for 20 s) `distance` m from the NAO in the small house, a TV at `noise_db` or off: (HeardUtterance,
-    the detector's time it started, its time it was cut)."""
+    """What the Core's voice activity detector cuts (HeardUtterance) from the owner saying `pcm` (None:
+    nobody speaks for 20 s) `distance` m from the NAO in the small house, a TV at `noise_db` or off."""
+    return [u for u, _, _ in timed_utterances(pcm, distance, noise_db)]
+
+
+def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
+    """heard_utterances, each as (HeardUtterance, the detector's time it started, its time it was cut)."""
     from robots.floorplan import load_plan
     from robots.receptors import VoiceActivity
     from robots.sound import HouseSound, NoiseSource, talker_at
@@ -91,7 +95,7 @@ def _record(cond: tuple) -> list:
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
-    utts = [(u.pcm, u.speech_seconds, u.too_long, t0, t1) for u, t0, t1 in heard_utterances(pcm, dist, NOISE[noise])]
+    utts = [(u.pcm, u.speech_seconds, u.too_long, t0, t1) for u, t0, t1 in timed_utterances(pcm, dist, NOISE[noise])]
     CACHE.mkdir(exist_ok=True)
     f.write_bytes(pickle.dumps(utts))
     return utts
