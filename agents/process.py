@@ -9,6 +9,7 @@ at all, for tests and for measuring what the process costs.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import os
 import resource
@@ -201,7 +202,10 @@ class AgentProcess:
         self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
         self._logged_out = worker._logged_out
         spec_w, worker._spec_w = worker._spec_w, None
-        worker._forget_ready()
+        if worker.nice and not worker.ready and worker._ready_r is not None:
+            self._raise_once_ready(worker)
+        else:
+            worker._forget_ready()
         self.spec, self.warm = self._placed(self._given), True
         try:
             await asyncio.to_thread(self._hand_over, worker.workdir, spec_w, worker.nice)
@@ -223,10 +227,7 @@ class AgentProcess:
         not its name); then the spec, which the worker has been blocked reading."""
         try:
             if worker_nice:  # the run at its parent's priority (the pool lowers it only where it may)
-                try:  # in a thread: it may wait out an unprivileged parent's rate limit
-                    set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0), retry_s=0.5)
-                except PermissionError:
-                    pass
+                self._at_parents_priority()
             os.replace(self.workdir / "package", warm_dir / "package")
             if self.uid is not None:
                 give_tree(warm_dir / "package", self.uid)
@@ -234,6 +235,30 @@ class AgentProcess:
             os.write(spec_w, self._spec_bytes())
         finally:
             os.close(spec_w)
+
+    def _at_parents_priority(self) -> None:
+        try:  # in a thread: it may wait out an unprivileged parent's rate limit
+            set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0), retry_s=0.5)
+        except (PermissionError, ProcessLookupError):
+            pass
+
+    def _raise_once_ready(self, worker: "AgentProcess") -> None:
+        """A refill handed this run before it confined itself lowers its own priority after the
+        hand-off raised it (agents/sandbox.py confine, first thing in the worker), and then ran the
+        whole RApp at nice 19. Its "ready" comes after that: raise it back again then."""
+        fd, worker._ready_r = worker._ready_r, None
+        loop = asyncio.get_running_loop()
+        loop.remove_reader(fd)
+
+        def said() -> None:
+            loop.remove_reader(fd)
+            with contextlib.suppress(OSError):
+                os.read(fd, 1)
+            os.close(fd)
+            if self.alive():  # (not Popen.poll: its exit future reaps it)
+                loop.run_in_executor(None, self._at_parents_priority)
+
+        loop.add_reader(fd, said)
 
     def _spec_bytes(self) -> bytes:
         data = self.spec.model_dump_json().encode()

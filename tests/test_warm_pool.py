@@ -130,6 +130,36 @@ async def test_a_refill_waits_at_a_lower_priority_and_its_run_gets_the_parents(s
         await pool.close()
 
 
+async def test_a_refill_handed_a_run_before_it_lowered_itself_still_runs_at_the_parents(settings, tmp_path, unique):
+    """A worker lowers its own priority first thing (agents/sandbox.py confine). Handed a run before
+    it got that far, it used to lower itself after the hand-off had raised it, and ran the whole
+    RApp at nice 19: a silent-echo took 27 s to start on a loaded machine."""
+    pool = WarmPool(tmp_path, settings, size=1)
+    if not pool.refill_nice:
+        pytest.skip("this process may not raise a child's priority back (not root, RLIMIT_NICE)")
+    base, runs = os.getpriority(os.PRIO_PROCESS, 0), []
+    pool.start()
+    try:
+        await pool.wait_ready(60)
+        runs.append(spawn_agent(cloud_spec(settings, unique), run_dir(tmp_path, 1), settings, pool=pool))
+        await runs[-1].start()
+        while not pool.idle:  # the refill, REFILL_AFTER_S later: taken the moment it is started
+            await asyncio.sleep(0.001)
+        [refill] = pool.idle
+        assert not refill.ready
+        spec = cloud_spec(settings, unique)
+        runs.append(spawn_agent(spec, run_dir(tmp_path, 2), settings, pool=pool))
+        await runs[-1].start()
+        assert runs[-1].warm and runs[-1].pid == refill.pid
+        await logged_in(settings, spec)
+        await asyncio.sleep(0.2)
+        assert thread_priorities(refill.pid) == {base}
+    finally:
+        for run in runs:
+            await run.stop(grace=0.5)
+        await pool.close()
+
+
 async def test_a_worker_that_died_idle_is_replaced_never_handed_a_rapp(settings, tmp_path, unique):
     pool = WarmPool(tmp_path, settings, size=1)
     pool.start()
