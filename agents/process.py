@@ -26,6 +26,10 @@ from ontology.spawn import SpawnSpec, WarmLogin
 from .priority import set_priority
 from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree, open_run_file
 
+# a refill handed a run waits this long at most for the worker to confine itself (it does within ~0.1 s
+# of its start, at its parent's priority, before lowering it)
+CONFINED_WITHIN_S = 5.0
+
 
 def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
     """Resolves with the process's return code when it exits. The loop watches a pidfd; a thread
@@ -166,6 +170,7 @@ class AgentProcess:
         self._spec_w: int | None = None  # a warm worker's end of its spec pipe, until the hand-off
         self._ready_r: int | None = None  # a warm worker's "imports done" pipe, until it says so
         self.ready = False  # a warm worker that has imported the runtime
+        self.confined = asyncio.Event()  # a warm worker that has confined itself (or died)
         self._logged_out = asyncio.Event()  # said on its "gone" pipe (agents/runtime.py), or exited
         self._gone_r: int | None = None  # that pipe's read end, until start() watches it
         self.warm = False  # this run went to a warm worker (no interpreter start on the hand-off)
@@ -199,13 +204,15 @@ class AgentProcess:
     async def _become(self, worker: "AgentProcess") -> bool:
         """This run goes to the idle warm `worker`: same process, uid, sandbox and exit future.
         False when the worker died after the pool checked it: reaped, and the run starts cold."""
+        if worker.nice and not worker.confined.is_set():
+            # a refill just started lowers its own priority first thing (agents/sandbox.py confine):
+            # raised before that, it ran the whole RApp at nice 19 (27 s to start on a loaded machine)
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(worker.confined.wait(), CONFINED_WITHIN_S)
         self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
         self._logged_out = worker._logged_out
         spec_w, worker._spec_w = worker._spec_w, None
-        if worker.nice and not worker.ready and worker._ready_r is not None:
-            self._raise_once_ready(worker)
-        else:
-            worker._forget_ready()
+        worker._forget_ready()
         self.spec, self.warm = self._placed(self._given), True
         try:
             await asyncio.to_thread(self._hand_over, worker.workdir, spec_w, worker.nice)
@@ -241,24 +248,6 @@ class AgentProcess:
             set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0), retry_s=0.5)
         except (PermissionError, ProcessLookupError):
             pass
-
-    def _raise_once_ready(self, worker: "AgentProcess") -> None:
-        """A refill handed this run before it confined itself lowers its own priority after the
-        hand-off raised it (agents/sandbox.py confine, first thing in the worker), and then ran the
-        whole RApp at nice 19. Its "ready" comes after that: raise it back again then."""
-        fd, worker._ready_r = worker._ready_r, None
-        loop = asyncio.get_running_loop()
-        loop.remove_reader(fd)
-
-        def said() -> None:
-            loop.remove_reader(fd)
-            with contextlib.suppress(OSError):
-                os.read(fd, 1)
-            os.close(fd)
-            if self.alive():  # (not Popen.poll: its exit future reaps it)
-                loop.run_in_executor(None, self._at_parents_priority)
-
-        loop.add_reader(fd, said)
 
     def _spec_bytes(self) -> bytes:
         data = self.spec.model_dump_json().encode()
@@ -314,9 +303,13 @@ class AgentProcess:
 
     def _ready_said(self) -> None:
         try:
-            self.ready = os.read(self._ready_r, 1) == b"1"  # b"": it died first
+            said = os.read(self._ready_r, 1)
         except OSError:
-            pass
+            said = b""
+        self.confined.set()  # b"c" comes first (agents/runtime.py say_confined); b"": it died
+        if said == b"c":
+            return
+        self.ready = said == b"1"
         self._forget_ready()
 
     def _forget_ready(self) -> None:

@@ -219,6 +219,17 @@ def preload(extra: tuple[str, ...] = ()) -> None:
         os.environ.update(env)
 
 
+def say_confined() -> None:
+    """A warm worker tells its Core/Platform it has confined itself, and so set its own (idle) priority:
+    a hand-off that raises it waits for this, lest the worker lower itself after (agents/process.py)."""
+    fd = os.environ.get("RAPP_READY_FD")
+    if fd is not None:
+        try:
+            os.write(int(fd), b"c")
+        except BrokenPipeError:
+            pass
+
+
 def say_ready() -> None:
     """A warm worker tells its Core/Platform it has imported everything (RAPP_READY_FD), then
     forgets the descriptor."""
@@ -261,6 +272,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from .sandbox import confine
     confine()  # first: rlimits, mounts, uid, as the Core or Platform asked (it never forks with a preexec_fn)
+    say_confined()
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # a crash in native code (a Cloud Agent's OpenCV work, 2026-11-26) leaves its Python stack in stderr.log,
     # which the Core or Platform quotes in its record of the loss
