@@ -44,7 +44,8 @@ REFILL_AFTER_S = 0.5
 # start_cloud_agent). The lowest: each refill is a group of its own, and 20 groups at nice 10 still
 # outweighed the Platform's 2 to 1 (20 refills took 14 of the 20 CPU-seconds of a fleet's first 10 s);
 # at 19, 0.3 to 1. A worker handed a run before its imports are done finishes them at its parent's
-# priority, no later than a cold start would. The first fill runs at normal priority: nothing is
+# priority, no later than a cold start would (a hand-off waits for a just-started refill to have lowered
+# itself first: agents/process.py CONFINED_WITHIN_S). The first fill runs at normal priority: nothing is
 # waiting for a hand-off yet, and the owner waits for it.
 REFILL_NICE = 19
 

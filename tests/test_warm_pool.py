@@ -5,6 +5,7 @@ worker becomes a Cloud Agent of the echo RApp and logs in with the spec's one-ti
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import secrets
 import shutil
@@ -109,14 +110,26 @@ async def test_a_hand_off_goes_to_the_prestarted_worker_and_the_pool_refills(set
     assert not fresh.workdir.exists()
 
 
-async def test_a_refill_waits_at_a_lower_priority_and_its_run_gets_the_parents(settings, tmp_path, unique):
-    """After a burst of hand-offs the refills must not slow the runs just started."""
+@contextlib.asynccontextmanager
+async def refilling(settings, tmp_path):
+    """A pool of one whose refills wait at a lower priority: (pool, this process's nice, the runs
+    handed out, stopped at the end)."""
     pool = WarmPool(tmp_path, settings, size=1)
     if not pool.refill_nice:
         pytest.skip("this process may not raise a child's priority back (not root, RLIMIT_NICE)")
-    base, runs = os.getpriority(os.PRIO_PROCESS, 0), []
+    runs = []
     pool.start()
     try:
+        yield pool, os.getpriority(os.PRIO_PROCESS, 0), runs
+    finally:
+        for run in runs:
+            await run.stop(grace=0.5)
+        await pool.close()
+
+
+async def test_a_refill_waits_at_a_lower_priority_and_its_run_gets_the_parents(settings, tmp_path, unique):
+    """After a burst of hand-offs the refills must not slow the runs just started."""
+    async with refilling(settings, tmp_path) as (pool, base, runs):
         for n in (1, 2):
             await pool.wait_ready(60)
             [worker] = pool.idle
@@ -124,22 +137,13 @@ async def test_a_refill_waits_at_a_lower_priority_and_its_run_gets_the_parents(s
             runs.append(spawn_agent(cloud_spec(settings, unique), run_dir(tmp_path, n), settings, pool=pool))
             await runs[-1].start()
             assert runs[-1].warm and runs[-1].pid == worker.pid and thread_priorities(worker.pid) == {base}
-    finally:
-        for run in runs:
-            await run.stop(grace=0.5)
-        await pool.close()
 
 
 async def test_a_refill_handed_a_run_before_it_lowered_itself_still_runs_at_the_parents(settings, tmp_path, unique):
     """A worker lowers its own priority first thing (agents/sandbox.py confine). Handed a run before
     it got that far, it used to lower itself after the hand-off had raised it, and ran the whole
     RApp at nice 19: a silent-echo took 27 s to start on a loaded machine."""
-    pool = WarmPool(tmp_path, settings, size=1)
-    if not pool.refill_nice:
-        pytest.skip("this process may not raise a child's priority back (not root, RLIMIT_NICE)")
-    base, runs = os.getpriority(os.PRIO_PROCESS, 0), []
-    pool.start()
-    try:
+    async with refilling(settings, tmp_path) as (pool, base, runs):
         await pool.wait_ready(60)
         runs.append(spawn_agent(cloud_spec(settings, unique), run_dir(tmp_path, 1), settings, pool=pool))
         await runs[-1].start()
@@ -154,10 +158,6 @@ async def test_a_refill_handed_a_run_before_it_lowered_itself_still_runs_at_the_
         await logged_in(settings, spec)
         await asyncio.sleep(0.2)
         assert thread_priorities(refill.pid) == {base}
-    finally:
-        for run in runs:
-            await run.stop(grace=0.5)
-        await pool.close()
 
 
 async def test_a_worker_that_died_idle_is_replaced_never_handed_a_rapp(settings, tmp_path, unique):
