@@ -256,13 +256,11 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # queued and taken as a command when the task ended (in a two-robot house, the other robot's
         # spoken report, 18 s old, started hazard-detection a second time)
         listening = self.supervisor is not None and self.supervisor.behaviour.current == "s3_listen"
-        if not listening and self.continuation.offer(utterance):  # the rest of the sentence s4b recognises
-            self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
-                                  speech_s=round(utterance.speech_seconds, 2), continues=True)
-            return
+        # outside s3 it may be the rest of the sentence s4b recognises (agents/core_hearing.py)
+        fate = {} if listening else {"continues": True} if self.continuation.offer(utterance) \
+            else {"dropped": "not listening"}
         self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
-                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long,
-                              **({} if listening else {"dropped": "not listening"}))
+                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long, **fate)
         if listening:
             await self.commands.put(utterance)
 
@@ -385,7 +383,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         try:
             await asyncio.wait({first, going_on}, return_when=asyncio.FIRST_COMPLETED)
             if first.done() and first.exception() is None and first.result()[1] == "sentences" \
-                    and not self.continuation.vad.active:
+                    and not self.continuation.owner_speaking:
                 going_on.cancel()
                 return first.result()[0]
             more = await going_on

@@ -29,6 +29,11 @@ class Continuation:
         self.vad = vad
         self._awaited: asyncio.Future | None = None
 
+    @property
+    def owner_speaking(self) -> bool:
+        """The owner is saying something now (an utterance the detector has not cut yet)."""
+        return self.vad.active
+
     def offer(self, utterance: HeardUtterance) -> bool:
         """Take `utterance` as the next part awaited, if one is; True when taken."""
         awaited = self._awaited
@@ -45,7 +50,7 @@ class Continuation:
         awaited = self._awaited = asyncio.get_running_loop().create_future()
         try:
             heard, since = vad.heard_s, time.monotonic()
-            while not vad.active and not awaited.done():
+            while not self.owner_speaking and not awaited.done():
                 if vad.heard_s - cut >= CONTINUE_WITHIN_S:
                     return None
                 if vad.heard_s != heard:
