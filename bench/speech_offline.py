@@ -4,7 +4,7 @@ and the Platform decide (KeywordSpotter for s4a; speech_recognition with the Sto
 language model, then interpret_command for s4b). Minutes instead of the agent bench's six, and many
 more recordings per cell, so a change to a recogniser is judged on more than 10 commands a cell.
 
-    python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong]
+    python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong] [--rt60 S]
 
 Recordings are cached in /tmp (keyed by the conditions and the synthesiser's output) so a second run
 decodes only. Not part of `python -m bench`: it measures recognisers, not the system."""
@@ -14,6 +14,7 @@ import argparse
 import base64
 import hashlib
 import itertools
+import math
 import os
 import pickle
 import sys
@@ -31,6 +32,7 @@ OTHER = ("open the window please", "what time is it", "thank you very much", "tu
          "where are my glasses", "hello there", "good morning robot", "")
 CACHE = Path("/tmp/rapp-speech-offline")
 VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
+ACOUSTICS: dict[str, float] = {}  # the house's reverberation under test (--rt60 0.5: rt60_s; --equal-tv: tv_db)
 MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/receptors.py AudioInput)
 
 
@@ -53,6 +55,18 @@ def conditions(path: str, quick: bool) -> list[tuple]:
     return out
 
 
+def reverberant_gain_db(rt60_s: float) -> float:
+    """How much louder the TV is at the robot's microphone with the living room's reverberation."""
+    from robots.floorplan import load_plan
+    from robots.reverb import critical_distance
+    from robots.world import HOUSES
+
+    plan = load_plan(HOUSES / "small.yaml", seed=5)
+    x0, y0, x1, y1 = next(r.rect for r in plan.rooms if r.name == plan.room_at(*ROBOT_AT))
+    r_c = critical_distance((x1 - x0) * (y1 - y0) * plan.wall_height, rt60_s)
+    return 10 * math.log10(1 + (math.dist(TV_AT, (*ROBOT_AT, MIC_Z)) / r_c) ** 2)
+
+
 def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
     """What the Core's voice activity detector cuts (HeardUtterance) from the owner saying `pcm` (None:
     nobody speaks for 20 s) `distance` m from the NAO in the small house, a TV at `noise_db` or off."""
@@ -66,9 +80,10 @@ def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
     from robots.sound import HouseSound, NoiseSource, talker_at
     from robots.world import HOUSES
 
-    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5))
+    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5, overrides={"acoustics": {"rt60_s": ACOUSTICS.get("rt60_s", 0.0)}}))
     if noise_db:
-        house.add(NoiseSource("tv", TV_AT, kind="tv", level_db=noise_db, seed=5, start=0.0))
+        house.add(NoiseSource("tv", TV_AT, kind="tv", level_db=noise_db + ACOUSTICS.get("tv_db", 0.0), seed=5,
+                              start=0.0))
     at = 4.0  # the detector learns the room first, as the Core's does
     if pcm is None:
         pcm = np.zeros(20 * 16000, np.int16)
@@ -89,8 +104,9 @@ def _record(cond: tuple) -> list:
     text, _, voice, speed, dist, noise = cond
     pcm = tts.synthesize(text, voice, speed) if text else None
     # keyed by the speech too: a change to the synthesiser makes new recordings
-    # (and by the detector's options under test, if any)
-    said = b"v2" + repr((cond[0],) + cond[2:] + ((tuple(sorted(VAD.items())),) if VAD else ())).encode()
+    # (and by the detector's options and the room under test, if any)
+    under_test = ((tuple(sorted(VAD.items())),) if VAD else ()) + ((tuple(sorted(ACOUSTICS.items())),) if ACOUSTICS else ())
+    said = b"v2" + repr((cond[0],) + cond[2:] + under_test).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
@@ -220,10 +236,20 @@ def main(argv=None) -> int:
     ap.add_argument("--show-wrong", action="store_true")
     ap.add_argument("--vad", action="append", default=[], metavar="NAME=VALUE",
                     help="a VoiceActivity option under test (recorded apart in the cache)")
+    ap.add_argument("--rt60", type=float, default=0.0, metavar="S",
+                    help="the living room's reverberation time (s); 0: anechoic, as the agent bench")
+    ap.add_argument("--equal-tv", action="store_true",
+                    help="with --rt60: the TV turned down so that it is as loud at the robot as in the anechoic room")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
     # the workers fork after this; counts (start_frames) stay whole numbers
     VAD.update((k, int(v) if v.lstrip("-").isdigit() else float(v)) for k, v in (o.split("=", 1) for o in a.vad))
+    if a.rt60:
+        ACOUSTICS["rt60_s"] = a.rt60
+        if a.equal_tv:
+            ACOUSTICS["tv_db"] = -reverberant_gain_db(a.rt60)
+            print(f"the TV {-ACOUSTICS['tv_db']:.1f} dB down: as loud at the robot as without reverberation",
+                  file=sys.stderr)
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

@@ -14,7 +14,9 @@ YAML keys (metres, angles in degrees):
   hazards:   {doors: {id: front|swing}, lamps: {id: [dx, dy]}, passages: [id]}   optional: what the owner's
              home description lists (doors checked and from which side, lamps and the direction into the
              room, doors left open for the robot); generated houses have it (robots/house_gen.py)
-Overrides (same keys): {"doors": {"d1": 45}, "lamps": {"l1": True}, "robots": {"nao": {"pose": [...]}}}
+  acoustics: {rt60_s: 0.5}   optional: the rooms' reverberation time (robots/reverb.py); 0 or absent = none
+Overrides (same keys): {"doors": {"d1": 45}, "lamps": {"l1": True}, "robots": {"nao": {"pose": [...]}},
+                       "acoustics": {"rt60_s": 0.5}}
 """
 from __future__ import annotations
 
@@ -26,6 +28,8 @@ from typing import Any
 
 import numpy as np
 import yaml
+
+from .reverb import checked_rt60
 
 WALL_COLOR = (0.92, 0.90, 0.82)
 FLOOR_COLOR = (0.36, 0.34, 0.33)
@@ -138,6 +142,7 @@ class Plan:
     rooms: list[Room]
     robots: dict[str, dict[str, Any]] = field(default_factory=dict)
     hazards: dict[str, Any] = field(default_factory=dict)  # the description's `hazards` section
+    rt60_s: float = 0.0  # the rooms' reverberation time: 0 = anechoic (robots/sound.py)
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
@@ -263,4 +268,5 @@ def load_plan(source: str | Path | dict, seed: int = 0, overrides: dict | None =
                                        float(m.get("size", 0.25))))
     plan.rooms = [Room(r["name"], tuple(map(float, r["rect"]))) for r in desc.get("rooms", [])]
     plan.hazards = dict(desc.get("hazards") or {})
+    plan.rt60_s = checked_rt60({**(desc.get("acoustics") or {}), **ov.get("acoustics", {})}.get("rt60_s", 0.0))
     return plan

@@ -3,7 +3,9 @@
 Levels are physical: a source's signal is sound pressure (Pa) at 1 m; it falls off as 1/r (-6 dB per
 doubling of distance), arrives after r / 343 m/s, and loses WALL_LOSS_DB for every wall and
 DOOR_LOSS_DB for every closed door leaf on the straight line between source and microphone (the floor
-plan's boxes; an open doorway lets sound through). A microphone turns pressure into 16 kHz mono int16
+plan's boxes; an open doorway lets sound through). A house described with `acoustics: {rt60_s: ...}`
+adds each source's reverberation in the microphone's room (robots/reverb.py); without it the house is
+anechoic, which makes recognising speech far easier than in a real room. A microphone turns pressure into 16 kHz mono int16
 with FULL_SCALE_DB_SPL at full scale, adds its own noise and clips. Every random signal (noise sources,
 microphone noise) is drawn per one-second block from the house's seed, the source or microphone name
 and the block index, so a recording depends only on the seed and the schedule, not on how it is cut.
@@ -27,11 +29,12 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.signal import resample_poly
+from scipy.signal import fftconvolve, resample_poly
 
 from ontology.errors import ErrorCode
 
 from .errors import RobotError
+from .reverb import tail
 
 if TYPE_CHECKING:
     from .floorplan import Box, Plan
@@ -211,6 +214,7 @@ class HouseSound:
         self.seed = plan.seed if seed is None else seed
         self.sources: dict[str, SoundSource] = {}
         self._lock = threading.Lock()  # sources are added from the event loop, mixed in executors
+        self._tails: dict[tuple[str, str], np.ndarray] = {}  # (source, room) -> reverberant taps
 
     # ---- sources
     def add(self, source: SoundSource) -> SoundSource:
@@ -255,17 +259,33 @@ class HouseSound:
             sources = list(self.sources.values())
         for s in sources:
             end = s.end()
-            if s.start >= t0 + seconds or (end is not None and end <= t0):
+            delay_s = math.dist(s.position, mic_pos) / SPEED_OF_SOUND
+            taps = self._tail(s, mic_pos)
+            lasts = delay_s + len(taps) / SAMPLE_RATE  # after the source's end, the sound still arriving
+            if s.start >= t0 + seconds or (end is not None and end + lasts <= t0):
                 continue
-            g = self.gain(s.position, mic_pos)
-            delay = round(math.dist(s.position, mic_pos) / SPEED_OF_SOUND * SAMPLE_RATE)
-            first = i0 - delay - round(s.start * SAMPLE_RATE)
-            x = s.signal(first, n)
-            if s.stop is not None:  # a source switched off mid-window
-                idx = np.arange(n) + i0 - delay
-                x[idx >= round(s.stop * SAMPLE_RATE)] = 0.0
-            out += g * x
+            delay = round(delay_s * SAMPLE_RATE)
+            out += self.gain(s.position, mic_pos) * _arriving(s, i0 - delay, n)
+            if len(taps):
+                walls, doors = self.walls_between(s.position, mic_pos)
+                loss = 10 ** (-(walls * WALL_LOSS_DB + doors * DOOR_LOSS_DB) / 20)
+                x = _arriving(s, i0 - delay - len(taps) + 1, n + len(taps) - 1)
+                out += (loss * fftconvolve(x, taps, mode="valid")).astype(np.float32)
         return out
+
+    def _tail(self, source: SoundSource, mic_pos) -> np.ndarray:
+        """The reverberant impulse response of the room the microphone is in (none: anechoic, or the
+        microphone in no room), seeded per source and room."""
+        room = self.plan.room_at(mic_pos[0], mic_pos[1]) if self.plan.rt60_s > 0 else None
+        if room is None:
+            return _NO_TAIL
+        key = (source.id, room)
+        taps = self._tails.get(key)
+        if taps is None:
+            x0, y0, x1, y1 = next(r.rect for r in self.plan.rooms if r.name == room)
+            volume = (x1 - x0) * (y1 - y0) * self.plan.wall_height
+            taps = self._tails[key] = tail(self.plan.rt60_s, volume, _rng(self.seed, f"reverb:{source.id}:{room}", 0))
+        return taps
 
     def receive(self, mic_pos, t0: float, seconds: float, mic: str = "mic", rate: int = SAMPLE_RATE,
                 noise_db: float = MIC_NOISE_DB_SPL) -> np.ndarray:
@@ -287,6 +307,18 @@ class HouseSound:
             block = _rng(self.seed, f"mic:{mic}", b).normal(0.0, sigma, BLOCK)
             out[s - i0:e - i0] = block[s - b * BLOCK:e - b * BLOCK]
         return out
+
+
+_NO_TAIL = np.zeros(0, np.float32)
+
+
+def _arriving(s: SoundSource, first: int, n: int) -> np.ndarray:
+    """n samples of what `s` emits from sample `first` of the house's time on (silence before its start
+    and after its stop)."""
+    x = s.signal(first - round(s.start * SAMPLE_RATE), n)
+    if s.stop is not None:  # a source switched off mid-window
+        x[np.arange(n) + first >= round(s.stop * SAMPLE_RATE)] = 0.0
+    return x
 
 
 _HOUSES: "weakref.WeakKeyDictionary[object, HouseSound]" = weakref.WeakKeyDictionary()

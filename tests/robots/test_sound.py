@@ -12,6 +12,7 @@ from robots import InvalidArgument, UnsupportedOperation, tts
 from robots.floorplan import load_plan
 from robots.sound import (WALL_LOSS_DB, DOOR_LOSS_DB, BadAudio, HouseSound, NoiseSource, decode_wav, encode_wav,
                           house_sound, level_dbfs)
+from robots.reverb import critical_distance
 from robots.world import HOUSES
 
 from .conftest import api_at
@@ -71,6 +72,50 @@ def test_speech_arrives_delayed_by_the_distance():
     h.play("click", (0.5, 2.0, 1.0), click, at=0.0, level_db=None)
     got = h.receive((3.43, 2.0, 1.0), 0.0, 0.05, noise_db=-200)  # 2.93 m: 8.54 ms
     assert int(np.argmax(np.abs(got))) == round(2.93 / 343 * 16000)
+
+
+def _reverberant(rt60=0.5, seed=1):
+    return HouseSound(load_plan(HOUSES / "small.yaml", seed=seed, overrides={"acoustics": {"rt60_s": rt60}}))
+
+
+def test_reverberation_is_as_loud_as_sabine_says_and_dies_away_in_rt60():
+    dry, wet = _house(), _reverberant(0.5)
+    living = next(r.rect for r in wet.plan.rooms if r.name == "living")
+    r_c = critical_distance((living[2] - living[0]) * (living[3] - living[1]) * wet.plan.wall_height, 0.5)
+    for h in (dry, wet):
+        h.add(NoiseSource("radio", (0.5, 2.0, 1.0), kind="white", level_db=70, seed=1))
+    # at 2 m the diffuse field is (2 / r_c)^2 times the direct sound (~13 dB added)
+    added = _rms_db(wet, (2.5, 2.0, 1.0), 1.0) - _rms_db(dry, (2.5, 2.0, 1.0), 1.0)
+    assert added == pytest.approx(10 * math.log10(1 + (2.0 / r_c) ** 2), abs=1.0)
+    # a click's tail: 60 dB in RT60, so 30 dB between 50-100 ms and 300-350 ms after it
+    click = np.zeros(160, np.int16)
+    click[0] = 30000
+    wet.sources.clear()
+    wet.play("click", (0.5, 2.0, 1.0), click, at=0.0, level_db=None)
+    got = wet.receive((2.5, 2.0, 1.0), 0.0, 0.5, noise_db=-200).astype(np.float64)
+    energy = [10 * math.log10(np.mean(got[round(a * 16000):round(b * 16000)] ** 2)) for a, b in ((0.05, 0.1), (0.3, 0.35))]
+    assert energy[0] - energy[1] == pytest.approx(30.0, abs=4.0)
+
+
+def test_a_reverberant_recording_rings_on_and_does_not_depend_on_chunking():
+    def record(rt60, chunks):
+        h = _reverberant(rt60)
+        h.play("owner", (2.0, 2.0, 1.6), SPEECH, at=0.3)
+        step = 3.5 / chunks
+        return np.concatenate([h.receive((2.5, 2.5, 0.5), k * step, step, mic="nao", noise_db=-200)
+                               for k in range(chunks)])
+
+    whole, cut = record(0.5, 1), record(0.5, 7)
+    assert np.abs(whole.astype(int) - cut).max() <= 1  # float rounding of the convolution, no more
+    end = round(0.3 * 16000) + len(SPEECH)
+    after = slice(end + 1600, end + 4800)  # 0.1-0.3 s after the owner stopped
+    assert level_dbfs(whole[after])[0] > -85 and level_dbfs(record(0.0, 1)[after])[0] < -110
+
+
+@pytest.mark.parametrize("bad", [-0.1, 5.0, "loud", None])
+def test_a_bad_reverberation_time_is_a_clear_error(bad):
+    with pytest.raises(ValueError, match="rt60_s"):
+        _reverberant(bad)
 
 
 def test_wav_round_trip_and_garbage():
