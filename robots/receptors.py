@@ -805,8 +805,10 @@ class HeardUtterance:
 class KeywordSpotter:
     """Is an utterance one of `keywords`, said alone? A grammar of the keywords and the command phrases
     (so a sentence is recognised as the sentence it is, not squeezed into a keyword), the best complete
-    phrase checked against a free phone loop (PhraseDecoder). Decoders are per thread (pocketsphinx is
-    not thread-safe) and kept (building one takes ~90 ms of the 500 ms budget).
+    phrase checked against a free phone loop (PhraseDecoder), and a keyword taken only when it covers
+    most of the speech the detector heard (`min_cover`: one word of a sentence is not said alone).
+    Decoders are per thread (pocketsphinx is not thread-safe) and kept (building one takes ~90 ms of
+    the 500 ms budget).
     `groups` (keyword -> its RApp) lets a close runner-up that means the same (hazard / hazards) pass;
     a runner-up of another group closer than MIN_LEAD is not understood rather than guessed."""
 
@@ -819,10 +821,16 @@ class KeywordSpotter:
     ACCEPT = -0.04
     STRICT = 0.0
     MIN_LEAD = 0.01  # log-score per second over a runner-up keyword of another group
+    # a keyword said alone is most of the speech heard: the keyword's aligned words cover at least this
+    # share of the detector's speech seconds. On bench/speech_offline.py's recordings (2026-11-26) the
+    # keywords spotted right covered 0.78-1.02 of it; of the sentences and other keywords taken for a
+    # keyword ("thank you very much" -> "email", "quiz" in the TV -> "mail"), all but one covered 0.20-0.69.
+    # A supervision word keeps 0: "stop, stop!" stops the robot (STRICT guards it)
+    MIN_COVER = 0.75
 
     def __init__(self, keywords: list[str], phrases: list[str] = (), groups: dict[str, str] | None = None,
-                 accept: float = ACCEPT):
-        self.accept = accept
+                 accept: float = ACCEPT, min_cover: float = MIN_COVER):
+        self.accept, self.min_cover = accept, min_cover
         self.keywords = {normalize(k): k for k in keywords if normalize(k)}
         self.phrases = [p for p in dict.fromkeys(normalize(p) for p in phrases) if p and p not in self.keywords]
         self.groups = {normalize(k): g for k, g in (groups or {}).items()}
@@ -850,6 +858,9 @@ class KeywordSpotter:
         heard, _ = dec.decode(utterance.pcm, accept=self.accept)
         if heard is None or heard not in self.keywords:
             return None
+        said = sum(last - first + 1 for w, first, last in dec.segments if w[:1] not in "<[") / 100
+        if said < self.min_cover * max(utterance.speech_seconds, 0.01):
+            return None  # one word of something longer: the Platform hears it whole (s4b)
         other = dec.runner_up
         if other is not None and dec.lead < self.MIN_LEAD and self._group(other) != self._group(heard):
             return None  # two different commands fit about equally well: ask again rather than guess
