@@ -158,30 +158,38 @@ def _sentence(utts: list, k: int) -> str | None:
     """s4b on utterance k, joined with the next when the owner went on within the Core's pause
     (agents/core_hearing.py), the first part alone if the whole is not understood."""
     from agents.core_hearing import CONTINUE_WITHIN_S
-    pcm, _, _, _, cut = utts[k]
+    pcm, speech, _, _, cut = utts[k]
     if k + 1 < len(utts) and not utts[k + 1][2] and utts[k + 1][3] - cut < CONTINUE_WITHIN_S:
-        rapp = _platform(np.concatenate([pcm, utts[k + 1][0]]))
+        rapp = _platform(np.concatenate([pcm, utts[k + 1][0]]), speech + utts[k + 1][1])
         if rapp:
             return rapp
-    return _platform(pcm)
+    return _platform(pcm, speech)
 
 
-def _platform(pcm: np.ndarray) -> str | None:
+def _platform(pcm: np.ndarray, speech_seconds: float) -> str | None:
     from agents.services import ServiceError, run_service
     from agents.services.context import ServiceContext, ServiceState
     from agents.services.interpretation import interpret
     from ontology.services.speech import SpeechRecognition
+    from robots.receptors import normalize, said_alone
     from robots.sound import encode_wav
 
     ctx = ServiceContext(user="bench", state=ServiceState(work_dir=Path("/tmp")))
+    keywords = {normalize(k) for k in _vocabulary()}
     wav = base64.b64encode(encode_wav(pcm)).decode()
     sentences = sorted({p for _, ps in VOCABULARY.values() for p in ps} | set(_vocabulary()))
     text = ""
     for allowed in (sentences, []):
         try:
-            text = run_service("speech_recognition", SpeechRecognition(audio_b64=wav, sentences=allowed), ctx).text
+            reply = run_service("speech_recognition", SpeechRecognition(audio_b64=wav, sentences=allowed), ctx)
         except ServiceError:
             return None
+        text = reply.text
+        # a keyword heard in a longer utterance is one word of a sentence: the general model hears it
+        # whole (the Core's CoreAgent._keyword_in_a_sentence)
+        if allowed and normalize(text) in keywords and not said_alone(sum(w.end - w.start for w in reply.words),
+                                                                     speech_seconds):
+            text = ""
         if text.strip():
             break
     if not text.strip():

@@ -859,7 +859,7 @@ class KeywordSpotter:
         if heard is None or heard not in self.keywords:
             return None
         said = sum(last - first + 1 for w, first, last in dec.segments if w[:1] not in "<[") / 100
-        if said < self.min_cover * max(utterance.speech_seconds, 0.01):
+        if not said_alone(said, utterance.speech_seconds, self.min_cover):
             return None  # one word of something longer: the Platform hears it whole (s4b)
         other = dec.runner_up
         if other is not None and dec.lead < self.MIN_LEAD and self._group(other) != self._group(heard):
@@ -868,3 +868,9 @@ class KeywordSpotter:
 
     def _group(self, words: str) -> str:
         return self.groups.get(words, words)
+
+
+def said_alone(word_seconds: float, speech_seconds: float, share: float = KeywordSpotter.MIN_COVER) -> bool:
+    """Whether words recognised over `word_seconds` are what an utterance of `speech_seconds` of speech
+    (the voice detector's) said, and not one word of something longer."""
+    return word_seconds >= share * max(speech_seconds, 0.01)

@@ -131,6 +131,22 @@ async def test_a_failed_recognition_is_answered_and_the_core_listens_again(syste
     await user.wait_for(lambda t: "weather_reporter finished" in t, timeout=45, start=begin)
 
 
+async def test_a_keyword_heard_in_a_sentence_starts_nothing(system):
+    """ "thank you very much" (this voice, 0.5 m) sounds like "email" to both the spotter and the
+    Platform's phrases; the word covers half the speech heard, so it is one word of a sentence, and the
+    general model hears the sentence whole: not understood, no RApp."""
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start, begin = len(system.nao.loudspeaker.spoken), len(user.received)
+    with spying(core, "spot_keyword") as spotted:
+        speak(system, "thank you very much", distance=0.5, voice="en-us+f3")
+        said = await said_after(system, start, r"^Sorry, I did not understand")
+    assert spotted == [None] and said.startswith("Sorry")
+    assert not any(t.startswith("Starting") for t in user.texts()[begin:])
+    records = [r for r in read_trace(system.settings.trace_file) if r.get("event") == "speech-recognition"]
+    assert any(r.get("keyword_alone") is False for r in records)
+
+
 @pytest.mark.slow  # 20 s of real-time listening; the services' garbage-audio tests run by default
 async def test_garbage_sound_is_refused_and_nothing_hangs(system):
     core = system.handle.core
