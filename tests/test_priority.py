@@ -81,3 +81,28 @@ def test_a_process_in_its_parents_session_leaves_the_group_alone(busy):
     finally:
         os.killpg(leader.pid, 9)
         leader.wait()
+
+
+# the kernel lets a writer without CAP_SYS_ADMIN change a group's nice once per 100 ms (system-wide)
+RATE_LIMITED = (
+    "import ctypes, os\n"
+    "from agents.priority import set_group_nice  # first: the interpreter's files may be root's alone\n"
+    "if os.getuid() == 0:  # as the tests' root, no limit applies: drop the privilege\n"
+    "    os.setgid(65534); os.setuid(65534)\n"
+    "    ctypes.CDLL(None).prctl(4, 1, 0, 0, 0)  # PR_SET_DUMPABLE: /proc/self stays this user's\n"
+    "me, refused = os.getpid(), False\n"
+    "for nice in range(1, 6):  # a stall of 100 ms between two lines lets the second through: try again\n"
+    "    assert set_group_nice(me, nice, retry_s=2.0)\n"
+    "    if not set_group_nice(me, nice + 10):\n"
+    "        refused = True\n"
+    "        break\n"
+    "waited = set_group_nice(me, 19, retry_s=2.0)\n"
+    "print(refused, waited, open(f'/proc/{me}/autogroup').read().split()[-1])\n"
+)
+
+
+def test_a_group_write_refused_for_the_rate_limit_is_retried_until_its_deadline(busy):
+    out = subprocess.run([sys.executable, "-c", RATE_LIMITED], start_new_session=True, capture_output=True,
+                         text=True, timeout=30, cwd=Path(__file__).resolve().parent.parent)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "True", "19"]  # refused without a retry; done with one
