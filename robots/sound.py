@@ -4,9 +4,9 @@ Levels are physical: a source's signal is sound pressure (Pa) at 1 m; it falls o
 doubling of distance), arrives after r / 343 m/s, and loses WALL_LOSS_DB for every wall and
 DOOR_LOSS_DB for every closed door leaf on the straight line between source and microphone (the floor
 plan's boxes; an open doorway lets sound through). A house described with `acoustics: {rt60_s: ...}`
-adds each source's reverberation in the microphone's room (robots/reverb.py); without it the house is
-anechoic, which makes recognising speech far easier than in a real room. A microphone turns pressure into 16 kHz mono int16
-with FULL_SCALE_DB_SPL at full scale, adds its own noise and clips. Every random signal (noise sources,
+adds each source's reverberation in the microphone's room (robots/reverb.py). Without it the house is
+anechoic: a TV is far quieter at the robot than in a real room, a distant owner somewhat quieter
+(docs/sound.md). A microphone turns pressure into 16 kHz mono int16 with FULL_SCALE_DB_SPL at full scale, adds its own noise and clips. Every random signal (noise sources,
 microphone noise) is drawn per one-second block from the house's seed, the source or microphone name
 and the block index, so a recording depends only on the seed and the schedule, not on how it is cut.
 
@@ -247,9 +247,12 @@ class HouseSound:
 
     def gain(self, source_pos, mic_pos) -> float:
         """Pressure at the microphone per Pa at 1 m from the source."""
-        r = max(math.dist(source_pos, mic_pos), MIN_DISTANCE)
+        return self._wall_loss(source_pos, mic_pos) / max(math.dist(source_pos, mic_pos), MIN_DISTANCE)
+
+    def _wall_loss(self, source_pos, mic_pos) -> float:
+        """The pressure the walls and closed doors between let through (1: none between)."""
         walls, doors = self.walls_between(source_pos, mic_pos)
-        return (1.0 / r) * 10 ** (-(walls * WALL_LOSS_DB + doors * DOOR_LOSS_DB) / 20)
+        return 10 ** (-(walls * WALL_LOSS_DB + doors * DOOR_LOSS_DB) / 20)
 
     def pressure(self, mic_pos, t0: float, seconds: float) -> np.ndarray:
         """Sound pressure (Pa) at `mic_pos` for [t0, t0 + seconds), every source mixed, no microphone."""
@@ -264,11 +267,9 @@ class HouseSound:
             lasts = delay_s + len(taps) / SAMPLE_RATE  # after the source's end, the sound still arriving
             if s.start >= t0 + seconds or (end is not None and end + lasts <= t0):
                 continue
-            delay = round(delay_s * SAMPLE_RATE)
-            out += self.gain(s.position, mic_pos) * _arriving(s, i0 - delay, n)
-            if len(taps):
-                walls, doors = self.walls_between(s.position, mic_pos)
-                loss = 10 ** (-(walls * WALL_LOSS_DB + doors * DOOR_LOSS_DB) / 20)
+            delay, loss = round(delay_s * SAMPLE_RATE), self._wall_loss(s.position, mic_pos)
+            out += loss / max(delay_s * SPEED_OF_SOUND, MIN_DISTANCE) * _arriving(s, i0 - delay, n)
+            if len(taps):  # the room's echo of it, through the same walls (simply)
                 x = _arriving(s, i0 - delay - len(taps) + 1, n + len(taps) - 1)
                 out += (loss * fftconvolve(x, taps, mode="valid")).astype(np.float32)
         return out
