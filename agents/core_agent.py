@@ -51,14 +51,14 @@ from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
-from robots.receptors import HeardUtterance, KeywordSpotter, VoiceActivity, normalize, said_alone
+from robots.receptors import HeardUtterance, KeywordSpotter, VoiceActivity
 from robots.sound import encode_wav
 
 from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
                               UserChat, heartbeat_template)
 from .core_commands import RobotCommands
-from .core_hearing import Continuation
+from .core_hearing import Continuation, keyword_in_a_sentence
 from .core_events import CoreEvents
 from .core_strategies import Strategies
 from .core_fsm import build_core_fsm
@@ -421,18 +421,14 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                 log.warning("speech recognition refused the Store's phrases: %s", e.reason)
                 self.record_structure("speech-recognition", text="", search="sentences", error=e.reason)
                 continue
-            part = bool(allowed) and self._keyword_in_a_sentence(reply, utterance)
+            # a bare keyword heard in a longer utterance: the general model hears the sentence whole
+            part = bool(allowed) and keyword_in_a_sentence(reply, self.keywords.keywords,
+                                                           utterance.speech_seconds)
             self.record_structure("speech-recognition", text=reply.text, search=reply.search,
                                   confidence=reply.confidence, **({"keyword_alone": False} if part else {}))
             if reply.text.strip() and not part:
                 return reply.text.strip(), reply.search
         return "", ""
-
-    def _keyword_in_a_sentence(self, reply, utterance: HeardUtterance) -> bool:
-        """A keyword the Platform heard in a longer utterance: one word of a sentence, as the keyword
-        spotter judges it (robots/receptors.py said_alone); the general model then hears it whole."""
-        return normalize(reply.text) in {normalize(k) for k in self.vocabulary} and not said_alone(
-            sum(w.end - w.start for w in reply.words), utterance.speech_seconds)
 
     # -- s5 ------------------------------------------------------------------------------
     def apology_aloud(self) -> bool:

@@ -11,13 +11,16 @@ than real time waits as long in its own seconds.
     continuation = Continuation(vad)      # the detector of the Core's listening (s3)
     continuation.offer(utterance)         # each utterance heard outside s3: True when awaited
     more = await continuation.after()     # in s4b: the next part, or None
+
+Also here: whether the Platform's answer is a keyword heard inside a sentence (keyword_in_a_sentence).
 """
 from __future__ import annotations
 
 import asyncio
 import time
 
-from robots.receptors import HeardUtterance, VoiceActivity
+from ontology.services.speech import Recognition
+from robots.receptors import HeardUtterance, VoiceActivity, normalize, said_alone
 
 CONTINUE_WITHIN_S = 0.5  # of sound after the cut: with the detector's 0.3 s, pauses up to 0.8 s
 MAX_WAIT_S = 8.0  # wall clock, for the next part to end (the detector cuts an utterance at 5 s)
@@ -64,3 +67,11 @@ class Continuation:
             return None
         finally:
             self._awaited = None
+
+
+def keyword_in_a_sentence(reply: Recognition, keywords, speech_seconds: float) -> bool:
+    """Whether the Platform's answer is a bare keyword (one of `keywords`, normalized) that covers too
+    little of the utterance's speech to have been said alone (robots/receptors.py said_alone, the
+    keyword spotter's rule): one word of a sentence, which the general model should hear whole."""
+    return normalize(reply.text) in keywords and not said_alone(sum(w.end - w.start for w in reply.words),
+                                                                speech_seconds)

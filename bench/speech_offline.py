@@ -62,8 +62,7 @@ def reverberant_gain_db(rt60_s: float) -> float:
     from robots.world import HOUSES
 
     plan = load_plan(HOUSES / "small.yaml", seed=5)
-    x0, y0, x1, y1 = next(r.rect for r in plan.rooms if r.name == plan.room_at(*ROBOT_AT))
-    r_c = critical_distance((x1 - x0) * (y1 - y0) * plan.wall_height, rt60_s)
+    r_c = critical_distance(plan.room_volume(plan.room_at(*ROBOT_AT)), rt60_s)
     return 10 * math.log10(1 + (math.dist(TV_AT, (*ROBOT_AT, MIC_Z)) / r_c) ** 2)
 
 
@@ -80,7 +79,8 @@ def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
     from robots.sound import HouseSound, NoiseSource, talker_at
     from robots.world import HOUSES
 
-    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5, overrides={"acoustics": {"rt60_s": ACOUSTICS.get("rt60_s", 0.0)}}))
+    room = {"acoustics": {"rt60_s": ACOUSTICS.get("rt60_s", 0.0)}}
+    house = HouseSound(load_plan(HOUSES / "small.yaml", seed=5, overrides=room))
     if noise_db:
         house.add(NoiseSource("tv", TV_AT, kind="tv", level_db=noise_db + ACOUSTICS.get("tv_db", 0.0), seed=5,
                               start=0.0))
@@ -105,7 +105,7 @@ def _record(cond: tuple) -> list:
     pcm = tts.synthesize(text, voice, speed) if text else None
     # keyed by the speech too: a change to the synthesiser makes new recordings
     # (and by the detector's options and the room under test, if any)
-    under_test = ((tuple(sorted(VAD.items())),) if VAD else ()) + ((tuple(sorted(ACOUSTICS.items())),) if ACOUSTICS else ())
+    under_test = tuple(tuple(sorted(opts.items())) for opts in (VAD, ACOUSTICS) if opts)
     said = b"v2" + repr((cond[0],) + cond[2:] + under_test).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
@@ -171,7 +171,8 @@ def _platform(pcm: np.ndarray, speech_seconds: float) -> str | None:
     from agents.services.context import ServiceContext, ServiceState
     from agents.services.interpretation import interpret
     from ontology.services.speech import SpeechRecognition
-    from robots.receptors import normalize, said_alone
+    from agents.core_hearing import keyword_in_a_sentence
+    from robots.receptors import normalize
     from robots.sound import encode_wav
 
     ctx = ServiceContext(user="bench", state=ServiceState(work_dir=Path("/tmp")))
@@ -184,12 +185,8 @@ def _platform(pcm: np.ndarray, speech_seconds: float) -> str | None:
             reply = run_service("speech_recognition", SpeechRecognition(audio_b64=wav, sentences=allowed), ctx)
         except ServiceError:
             return None
-        text = reply.text
-        # a keyword heard in a longer utterance is one word of a sentence: the general model hears it
-        # whole (the Core's CoreAgent._keyword_in_a_sentence)
-        if allowed and normalize(text) in keywords and not said_alone(sum(w.end - w.start for w in reply.words),
-                                                                     speech_seconds):
-            text = ""
+        # a keyword heard in a longer utterance: the general model hears it whole, as the Core has it
+        text = "" if allowed and keyword_in_a_sentence(reply, keywords, speech_seconds) else reply.text
         if text.strip():
             break
     if not text.strip():

@@ -160,6 +160,11 @@ class Plan:
         """Name of the room whose rectangle holds (x, y), or None (walls, doorways, outside)."""
         return next((r.name for r in self.rooms if r.rect[0] <= x <= r.rect[2] and r.rect[1] <= y <= r.rect[3]), None)
 
+    def room_volume(self, name: str) -> float:
+        """m^3 of a room: its rectangle times the walls' height."""
+        x0, y0, x1, y1 = next(r.rect for r in self.rooms if r.name == name)
+        return (x1 - x0) * (y1 - y0) * self.wall_height
+
     def clearance(self, x: float, y: float) -> float:
         return min(b.distance(x, y) for b in self.obstacles())
 
