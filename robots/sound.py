@@ -6,9 +6,10 @@ DOOR_LOSS_DB for every closed door leaf on the straight line between source and 
 plan's boxes; an open doorway lets sound through). A house described with `acoustics: {rt60_s: ...}`
 adds each source's reverberation in the microphone's room (robots/reverb.py). Without it the house is
 anechoic: a TV is far quieter at the robot than in a real room, a distant owner somewhat quieter
-(docs/sound.md). A microphone turns pressure into 16 kHz mono int16 with FULL_SCALE_DB_SPL at full scale, adds its own noise and clips. Every random signal (noise sources,
-microphone noise) is drawn per one-second block from the house's seed, the source or microphone name
-and the block index, so a recording depends only on the seed and the schedule, not on how it is cut.
+(docs/sound.md). A microphone turns pressure into 16 kHz mono int16 with FULL_SCALE_DB_SPL at full
+scale, adds its own noise and clips. Every random signal (noise sources, microphone noise, echoes) is
+drawn from the house's seed, the source or microphone name and the block index (an echo: the source
+and the room), so a recording depends only on the seed and the schedule, not on how it is cut.
 
     house = house_sound(world)                         # one per World
     house.play("owner", (1.0, 2.4, 1.6), speech_int16, at=world.time, level_db=60)
@@ -225,6 +226,11 @@ class HouseSound:
     def remove(self, source_id: str) -> None:
         with self._lock:
             self.sources.pop(source_id, None)
+            self._forget_tails({source_id})
+
+    def _forget_tails(self, source_ids: set[str]) -> None:  # under the lock
+        for key in [k for k in self._tails if k[0] in source_ids]:
+            del self._tails[key]
 
     def play(self, source_id: str, position, pcm: np.ndarray, at: float, level_db: float | None = 60.0,
              full_scale_db: float = 90.0) -> Clip:
@@ -232,10 +238,13 @@ class HouseSound:
         return self.add(clip_from_pcm(source_id, position, pcm, at, level_db, full_scale_db))  # type: ignore[return-value]
 
     def prune(self, before: float) -> None:
-        """Forget sources that fell silent before `before` (simulation seconds)."""
+        """Forget sources that fell silent before `before` (simulation seconds; their echo too: pass a
+        time longer than the room's reverberation ago)."""
         with self._lock:
-            for k in [k for k, s in self.sources.items() if (s.end() or math.inf) < before]:
+            gone = {k for k, s in self.sources.items() if (s.end() or math.inf) < before}
+            for k in gone:
                 del self.sources[k]
+            self._forget_tails(gone)
 
     # ---- propagation
     def walls_between(self, a, b) -> tuple[int, int]:
@@ -283,9 +292,9 @@ class HouseSound:
         key = (source.id, room)
         taps = self._tails.get(key)
         if taps is None:
-            x0, y0, x1, y1 = next(r.rect for r in self.plan.rooms if r.name == room)
-            volume = (x1 - x0) * (y1 - y0) * self.plan.wall_height
-            taps = self._tails[key] = tail(self.plan.rt60_s, volume, _rng(self.seed, f"reverb:{source.id}:{room}", 0))
+            taps = tail(self.plan.rt60_s, self.plan.room_volume(room), _rng(self.seed, f"reverb:{source.id}:{room}", 0))
+            with self._lock:  # mixed in executors; remove and prune forget tails under it
+                self._tails[key] = taps
         return taps
 
     def receive(self, mic_pos, t0: float, seconds: float, mic: str = "mic", rate: int = SAMPLE_RATE,

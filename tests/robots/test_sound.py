@@ -112,6 +112,18 @@ def test_a_reverberant_recording_rings_on_and_does_not_depend_on_chunking():
     assert level_dbfs(whole[after])[0] > -85 and level_dbfs(record(0.0, 1)[after])[0] < -110
 
 
+def test_an_echo_is_forgotten_with_its_source():
+    # every utterance is a source of its own: their echoes must not pile up over a long run
+    h = _reverberant(0.3)
+    h.play("owner-1", (2.0, 2.0, 1.6), SPEECH, at=0.0)
+    h.add(NoiseSource("tv", (1.0, 1.0, 0.8), kind="tv", level_db=50, seed=1))
+    h.receive((2.5, 2.5, 0.5), 0.0, 0.5)
+    assert {source for source, _ in h._tails} == {"owner-1", "tv"}
+    h.prune(before=60.0)
+    h.remove("tv")
+    assert h._tails == {}
+
+
 @pytest.mark.parametrize("bad", [-0.1, 5.0, "loud", None])
 def test_a_bad_reverberation_time_is_a_clear_error(bad):
     with pytest.raises(ValueError, match="rt60_s"):
