@@ -33,6 +33,7 @@ OTHER = ("open the window please", "what time is it", "thank you very much", "tu
 CACHE = Path("/tmp/rapp-speech-offline")
 VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
 ACOUSTICS: dict[str, float] = {}  # the house's reverberation under test (--rt60 0.5: rt60_s; --equal-tv: tv_db)
+ARRAY: dict = {}  # the NAO's four microphones and a beamformer under test (--beam mvdr|das, --loading)
 MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/receptors.py AudioInput)
 
 
@@ -89,12 +90,32 @@ def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
         pcm = np.zeros(20 * 16000, np.int16)
     else:
         house.play("owner", talker_at(ROBOT_AT, distance, MIC_Z), pcm, at=at, level_db=60)
-    heard = house.receive((*ROBOT_AT, MIC_Z), 0.0, at + len(pcm) / 16000 + 1.5, mic="nao")
+    seconds = at + len(pcm) / 16000 + 1.5
+    if ARRAY:
+        heard = _beamformed(house, talker_at(ROBOT_AT, distance, MIC_Z), seconds, quiet_until=at - 0.5)
+    else:
+        heard = house.receive((*ROBOT_AT, MIC_Z), 0.0, seconds, mic="nao")
     vad = VoiceActivity(max_seconds=5.0, **VAD)
     out = []
     for s in range(0, len(heard), 1600):
         out += [(u, vad.started_s, vad.cut_s) for u in vad.feed(heard[s:s + 1600])]
     return out
+
+
+def _beamformed(house, owner, seconds: float, quiet_until: float) -> np.ndarray:
+    """The NAO's four microphones (robots/mic_array.py), facing +x, steered to where the owner's mouth
+    is (known here, as a sound localisation would estimate it), the noise estimated from the room
+    before the owner speaks."""
+    from robots.mic_array import NAO_MICS, arrival_delays, heads_mics, mvdr
+
+    mics = heads_mics(NAO_MICS, 0.0) + np.array([*ROBOT_AT, MIC_Z])[None]
+    channels = house.receive_array(mics, 0.0, seconds, mic="nao").astype(np.float64)
+    delays = arrival_delays(mics, owner)
+    if ARRAY["beam"] == "das":
+        out = mvdr(channels, np.zeros((len(mics), 16000)), delays, loading=1.0)  # white noise: delay and sum
+    else:
+        out = mvdr(channels, channels[:, :round(quiet_until * 16000)], delays, loading=ARRAY["loading"])
+    return np.clip(np.round(out), -32768, 32767).astype(np.int16)
 
 
 def _record(cond: tuple) -> list:
@@ -105,7 +126,7 @@ def _record(cond: tuple) -> list:
     pcm = tts.synthesize(text, voice, speed) if text else None
     # keyed by the speech too: a change to the synthesiser makes new recordings
     # (and by the detector's options and the room under test, if any)
-    under_test = tuple(tuple(sorted(opts.items())) for opts in (VAD, ACOUSTICS) if opts)
+    under_test = tuple(tuple(sorted(opts.items())) for opts in (VAD, ACOUSTICS, ARRAY) if opts)
     said = b"v2" + repr((cond[0],) + cond[2:] + under_test).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
@@ -245,6 +266,9 @@ def main(argv=None) -> int:
                     help="the living room's reverberation time (s); 0: anechoic, as the agent bench")
     ap.add_argument("--equal-tv", action="store_true",
                     help="with --rt60: the TV turned down so that it is as loud at the robot as in the anechoic room")
+    ap.add_argument("--beam", choices=("mvdr", "das"),
+                    help="the NAO's four microphones, beamformed (delay and sum, or MVDR on the room's noise)")
+    ap.add_argument("--loading", type=float, default=1e-2, help="with --beam mvdr: its diagonal loading")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
     # the workers fork after this; counts (start_frames) stay whole numbers
@@ -255,6 +279,8 @@ def main(argv=None) -> int:
             ACOUSTICS["tv_db"] = -reverberant_gain_db(a.rt60)
             print(f"the TV {-ACOUSTICS['tv_db']:.1f} dB down: as loud at the robot as without reverberation",
                   file=sys.stderr)
+    if a.beam:
+        ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

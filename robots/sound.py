@@ -35,6 +35,7 @@ from scipy.signal import fftconvolve, resample_poly
 from ontology.errors import ErrorCode
 
 from .errors import RobotError
+from .mic_array import diffuse
 from .reverb import tail
 
 if TYPE_CHECKING:
@@ -283,6 +284,58 @@ class HouseSound:
                 out += (loss * fftconvolve(x, taps, mode="valid")).astype(np.float32)
         return out
 
+    def pressure_array(self, mics, t0: float, seconds: float) -> np.ndarray:
+        """pressure() at several microphones at once (M, n): each hears the direct sound after its own
+        delay (to a fraction of a sample: robots/mic_array.py steers by these), the room's echo as a
+        diffuse field, coherent between them as close microphones hear it (mic_array.diffuse)."""
+        mics = np.asarray(mics, float)
+        centre = tuple(mics.mean(axis=0))
+        i0, n = round(t0 * SAMPLE_RATE), round(seconds * SAMPLE_RATE)
+        out = np.zeros((len(mics), n), np.float32)
+        with self._lock:
+            sources = list(self.sources.values())
+        for s in sources:
+            end, dists = s.end(), np.linalg.norm(mics - np.asarray(s.position, float)[None], axis=1)
+            taps = self._tails_at(s, mics, centre)
+            lasts = dists.max() / SPEED_OF_SOUND + taps.shape[1] / SAMPLE_RATE
+            if s.start >= t0 + seconds or (end is not None and end + lasts <= t0):
+                continue
+            loss = self._wall_loss(s.position, centre)
+            for k, r in enumerate(dists):
+                out[k] += loss / max(r, MIN_DISTANCE) * _delayed(s, i0, n, r / SPEED_OF_SOUND)
+            if taps.shape[1]:
+                delay = round(math.dist(s.position, centre) / SPEED_OF_SOUND * SAMPLE_RATE)
+                x = _arriving(s, i0 - delay - taps.shape[1] + 1, n + taps.shape[1] - 1)
+                for k in range(len(mics)):
+                    out[k] += (loss * fftconvolve(x, taps[k], mode="valid")).astype(np.float32)
+        return out
+
+    def receive_array(self, mics, t0: float, seconds: float, mic: str = "mic",
+                      noise_db: float = MIC_NOISE_DB_SPL) -> np.ndarray:
+        """receive() at several microphones (M, n) int16, 16 kHz, each with noise of its own."""
+        pa = self.pressure_array(mics, t0, seconds)
+        i0 = round(t0 * SAMPLE_RATE)
+        digits = pa / PA_PER_DIGIT + np.stack([self._mic_noise(f"{mic}:{k}", i0, pa.shape[1], noise_db)
+                                               for k in range(len(pa))])
+        return np.clip(np.round(digits), -32768, 32767).astype(np.int16)
+
+    def _tails_at(self, source: SoundSource, mics: np.ndarray, centre) -> np.ndarray:
+        """_tail for each of several close microphones, coherent as a diffuse field's (M, L)."""
+        room = self.plan.room_at(centre[0], centre[1]) if self.plan.rt60_s > 0 else None
+        if room is None:
+            return np.zeros((len(mics), 0), np.float32)
+        offsets = mics - np.asarray(centre)[None]
+        key = (source.id, room, tuple(np.round(offsets, 4).ravel()))
+        taps = self._tails.get(key)
+        if taps is None:
+            volume = self.plan.room_volume(room)
+            each = np.stack([tail(self.plan.rt60_s, volume, _rng(self.seed, f"reverb:{source.id}:{room}:{k}", 0))
+                             for k in range(len(mics))])
+            taps = diffuse(each, offsets)
+            with self._lock:
+                self._tails[key] = taps
+        return taps
+
     def _tail(self, source: SoundSource, mic_pos) -> np.ndarray:
         """The reverberant impulse response of the room the microphone is in (none: anechoic, or the
         microphone in no room), seeded per source and room."""
@@ -329,6 +382,19 @@ def _arriving(s: SoundSource, first: int, n: int) -> np.ndarray:
     if s.stop is not None:  # a source switched off mid-window
         x[np.arange(n) + first >= round(s.stop * SAMPLE_RATE)] = 0.0
     return x
+
+
+FRACTION_TAPS = 16  # each side of a fractional delay's windowed sinc
+
+
+def _delayed(s: SoundSource, i0: int, n: int, delay_s: float) -> np.ndarray:
+    """n samples of `s` as heard from sample i0 on, `delay_s` after it emitted them (a windowed sinc
+    interpolates between samples)."""
+    whole = math.floor(delay_s * SAMPLE_RATE)
+    frac, k = delay_s * SAMPLE_RATE - whole, np.arange(-FRACTION_TAPS, FRACTION_TAPS + 1)
+    h = np.sinc(k - frac) * (0.5 + 0.5 * np.cos(np.pi * (k - frac) / (FRACTION_TAPS + 1)))
+    x = _arriving(s, i0 - whole - FRACTION_TAPS, n + 2 * FRACTION_TAPS)
+    return np.convolve(x, h, mode="valid").astype(np.float32)
 
 
 _HOUSES: "weakref.WeakKeyDictionary[object, HouseSound]" = weakref.WeakKeyDictionary()

@@ -1,0 +1,89 @@
+"""Several microphones on the NAO's head (robots/mic_array.py, HouseSound.receive_array): each hears a
+source after its own delay, the room's echo is as coherent between them as a diffuse field's, and a
+beamformer gains on a TV what the room allows it, no more."""
+import math
+
+import numpy as np
+import pytest
+from scipy.signal import coherence
+
+from robots import tts
+from robots.floorplan import load_plan
+from robots.mic_array import NAO_MICS, SPEED_OF_SOUND, arrival_delays, diffuse, heads_mics, mvdr
+from robots.sound import HouseSound, NoiseSource, talker_at
+from robots.world import HOUSES
+
+HEAD = np.array([0.6, 0.6, 0.5])
+TV = (3.2, 0.5, 0.8)
+SPEECH = tts.synthesize("check the hazards")
+
+
+def _house(rt60=0.0):
+    return HouseSound(load_plan(HOUSES / "small.yaml", seed=5, overrides={"acoustics": {"rt60_s": rt60}}))
+
+
+def _mics():
+    return heads_mics(NAO_MICS, 0.0) + HEAD[None]
+
+
+def test_each_microphone_hears_a_source_after_its_own_delay_to_a_fraction_of_a_sample():
+    house, mics = _house(), _mics()
+    source = (2.0, 0.9, 0.9)
+    house.play("tone", source, (0.3 * 32767 * np.sin(2 * np.pi * 500 * np.arange(16000) / 16000)).astype(np.int16),
+               at=0.0)
+    x = house.pressure_array(mics, 0.5, 0.25)
+    t = np.arange(x.shape[1]) / 16000
+    phase = [np.angle(np.sum(ch * np.exp(-2j * np.pi * 500 * t))) for ch in x]
+    for k in range(1, 4):
+        expected = -2 * np.pi * 500 * (math.dist(mics[k], source) - math.dist(mics[0], source)) / SPEED_OF_SOUND
+        assert np.angle(np.exp(1j * (phase[k] - phase[0] - expected))) == pytest.approx(0, abs=0.01)  # 3 us
+
+
+def test_one_microphone_of_the_array_hears_what_the_single_microphone_hears():
+    house = _house()
+    house.play("owner", tuple(HEAD + (50 * SPEED_OF_SOUND / 16000, 0.0, 0.0)), SPEECH, at=0.0)  # 50 samples away
+    one = house.pressure(tuple(HEAD), 0.0, 1.0)
+    arrayed = house.pressure_array([HEAD], 0.0, 1.0)[0]
+    assert np.abs(one - arrayed).max() < 1e-4 * np.abs(one).max()
+
+
+def test_the_rooms_echo_is_coherent_between_close_microphones_as_a_diffuse_field():
+    offsets = np.array([(0.0, 0.0, 0.0), (0.06, 0.0, 0.0), (0.0, 0.4, 0.0)])
+    tails = np.random.default_rng(1).normal(size=(3, 160000))
+    mixed = diffuse(tails, offsets)
+    assert np.mean(mixed ** 2, axis=1) == pytest.approx(np.mean(tails ** 2, axis=1), rel=0.02)
+    f, near = coherence(mixed[0], mixed[1], 16000, nperseg=1024)
+    _, far = coherence(mixed[0], mixed[2], 16000, nperseg=1024)
+    band = (f > 300) & (f < 500)
+    expected = np.sinc(2 * f[band] * 0.06 / SPEED_OF_SOUND) ** 2  # magnitude-squared: 0.98-0.99
+    assert np.mean(near[band]) == pytest.approx(np.mean(expected), abs=0.03)
+    assert np.mean(far[band]) < 0.1  # 40 cm apart: nearly independent
+
+
+def _snr_gain(rt60: float) -> float:
+    """How much an MVDR steered to the owner 2 m away raises the owner's level over a TV's (dB)."""
+    mics, owner = _mics(), talker_at(tuple(HEAD[:2]), 2.0, HEAD[2])
+    speech, tv = _house(rt60), _house(rt60)
+    speech.play("owner", owner, SPEECH, at=0.0)
+    tv.add(NoiseSource("tv", TV, kind="tv", level_db=50, seed=5, start=0.0))
+    said, noise = speech.pressure_array(mics, 0.0, 1.5), tv.pressure_array(mics, 0.0, 3.0)
+    heard = tv.pressure_array(mics, 4.0, 1.5)
+    delays = arrival_delays(mics, owner)
+    db = lambda x: 10 * math.log10(np.mean(np.asarray(x, float) ** 2))  # noqa: E731
+    return (db(mvdr(said, noise, delays)) - db(said[0])) - (db(mvdr(heard, noise, delays)) - db(heard[0]))
+
+
+def test_a_beamformer_gains_on_a_tv_in_an_anechoic_house_far_more_than_in_a_room():
+    """The point of the coherent echo: in the anechoic house the TV is a point, which four microphones
+    cancel almost entirely (26 dB: a flattering result); in a 0.3 s room most of the TV comes from
+    everywhere (5.7 dB; 8.1 were the microphones' echoes independent)."""
+    assert _snr_gain(0.0) > 20
+    assert 3 < _snr_gain(0.3) < 7.5
+
+
+def test_receive_array_gives_each_microphone_noise_of_its_own():
+    house = _house()
+    x = house.receive_array(_mics(), 0.0, 0.5, mic="nao")
+    assert x.shape == (4, 8000) and x.dtype == np.int16
+    assert abs(np.corrcoef(x[0].astype(float), x[1].astype(float))[0, 1]) < 0.05
+    assert np.array_equal(x, house.receive_array(_mics(), 0.0, 0.5, mic="nao"))  # deterministic
