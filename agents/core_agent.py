@@ -28,6 +28,7 @@ import asyncio
 import base64
 import itertools
 import logging
+import math
 import re
 import shutil
 import tempfile
@@ -259,8 +260,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # outside s3 it may be the rest of the sentence s4b recognises (agents/core_hearing.py)
         fate = {} if listening else {"continues": True} if self.continuation.offer(utterance) \
             else {"dropped": "not listening"}
+        where = {} if utterance.bearing is None else {"bearing_deg": round(math.degrees(utterance.bearing))}
         self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
-                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long, **fate)
+                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long, **where, **fate)
         if listening:
             await self.commands.put(utterance)
 

@@ -23,7 +23,8 @@ from spade.template import Template
 from ontology import core as C
 from ontology.robot import CaptureAudio
 from robots.errors import UnsupportedOperation
-from robots.receptors import VoiceActivity
+from robots.mic_array import Steering
+from robots.receptors import HeardUtterance, VoiceActivity
 from robots.sound import decode_wav
 
 from .messages import AclInfo, bare
@@ -95,13 +96,16 @@ class MicrophoneStream:
 
     def __init__(self, robot, on_utterance, muted, alive=lambda: True, chunk_s: float = CHUNK_S,
                  vad: VoiceActivity | None = None, observe: bool = False, sentences=lambda: 0,
-                 spoke_during=None):
+                 spoke_during=None, array: bool = True):
         self.robot, self.on_utterance, self.muted, self.alive = robot, on_utterance, muted, alive
         self.sentences, self.spoke_during = sentences, spoke_during
         # observe: record only what others make pass (beside a task: listening must not drive the world;
         # a fast world otherwise ran thousands of simulated seconds while the task waited on the Platform)
         self.observe = observe
         self.chunk_s = chunk_s
+        # every microphone of the robot's array, the detector on the first: an utterance it cuts is
+        # heard again with all of them, steered to where it came from (robots/mic_array.py Steering)
+        self.array, self.steering = array, None
         # a listener's detector may outlive it: what it learnt of the room's noise stays useful
         self.vad = vad if vad is not None else VoiceActivity(max_seconds=5.0)  # 5 s: one speech_recognition request
         self.vad.reset()  # but no half utterance from before
@@ -116,10 +120,10 @@ class MicrophoneStream:
         said, was_muted = self.sentences(), self.muted()
         said_before, muted_before = self._before if self._before is not None else (said, was_muted)
         self._piece = asyncio.ensure_future(self.robot.handle(
-            CaptureAudio(seconds=self.chunk_s, observe=self.observe, since=self._next)))
+            CaptureAudio(seconds=self.chunk_s, observe=self.observe, since=self._next, array=self.array)))
         try:
             audio = await self._piece
-            pcm, _ = decode_wav(base64.b64decode(audio.data_b64))
+            pcm, _ = decode_wav(base64.b64decode(audio.data_b64), channels=audio.channels)
         except UnsupportedOperation:
             self.close()
             return False
@@ -132,7 +136,11 @@ class MicrophoneStream:
             self._piece = None
         if not self.alive():
             return True  # stopped meanwhile: the utterance is no longer ours to act on
-        rate = audio.sample_rate
+        rate, four = audio.sample_rate, None
+        if audio.channels > 1:
+            four, pcm = pcm, pcm[0]
+            if self.steering is None:
+                self.steering = Steering(audio.microphones, rate)
         if self._next is not None and audio.stamp > self._next + 0.5 / rate:
             self.vad.reset()  # older than the device keeps: sound went by unheard, an utterance with a hole is none
         self._next = audio.stamp + len(pcm) / rate
@@ -148,10 +156,23 @@ class MicrophoneStream:
                 self.vad.reset()
                 pcm = pcm[:0]
         if pcm.size:
+            if four is not None:
+                self.steering.feed(four[:, four.shape[1] - len(pcm):])
             for utterance in self.vad.feed(pcm):
-                await self.on_utterance(utterance)
+                await self.on_utterance(await self._steered(utterance))
         await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
         return True
+
+    async def _steered(self, utterance: HeardUtterance) -> HeardUtterance:
+        """The utterance as the whole array hears it, where the robot has one (and still keeps its sound)."""
+        if self.steering is None or utterance.too_long:
+            return utterance
+        # counted as the steering counts (a detector may have heard more before: it outlives listeners)
+        end = self.vad.last_cut_end() - (round(self.vad.heard_s * self.vad.rate) - self.steering.fed)
+        got = await asyncio.get_running_loop().run_in_executor(None, self.steering.steered, len(utterance.pcm), end)
+        if got is None:
+            return utterance
+        return HeardUtterance(got[0], utterance.speech_seconds, bearing=got[1])
 
     def close(self) -> None:
         if self._piece is not None:

@@ -91,6 +91,8 @@ def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
     else:
         house.play("owner", talker_at(ROBOT_AT, distance, MIC_Z), pcm, at=at, level_db=60)
     seconds = at + len(pcm) / 16000 + 1.5
+    if ARRAY.get("beam") == "located":
+        return _located(house, seconds)
     if ARRAY:
         heard = _beamformed(house, talker_at(ROBOT_AT, distance, MIC_Z), seconds, quiet_until=at - 0.5)
     else:
@@ -116,6 +118,26 @@ def _beamformed(house, owner, seconds: float, quiet_until: float) -> np.ndarray:
     else:
         out = mvdr(channels, channels[:, :round(quiet_until * 16000)], delays, loading=ARRAY["loading"])
     return np.clip(np.round(out), -32768, 32767).astype(np.int16)
+
+
+def _located(house, seconds: float) -> list:
+    """timed_utterances as the Core hears them with four microphones (agents/core_behaviours.py
+    MicrophoneStream): the detector on one of them cuts the utterance, which robots/mic_array.py
+    Steering hears again with all four, steered to where it came from."""
+    from robots.mic_array import NAO_MICS, Steering, heads_mics
+    from robots.receptors import HeardUtterance, VoiceActivity
+
+    channels = house.receive_array(heads_mics(NAO_MICS, 0.0) + np.array([*ROBOT_AT, MIC_Z])[None], 0.0, seconds,
+                                   mic="nao")
+    vad, steering = VoiceActivity(max_seconds=5.0, **VAD), Steering(NAO_MICS)
+    out = []
+    for s in range(0, channels.shape[1], 1600):
+        steering.feed(channels[:, s:s + 1600])
+        for u in vad.feed(channels[0, s:s + 1600]):
+            got = None if u.too_long else steering.steered(len(u.pcm), vad.last_cut_end())
+            out.append((u if got is None else HeardUtterance(got[0], u.speech_seconds, bearing=got[1]),
+                        vad.started_s, vad.cut_s))
+    return out
 
 
 def _record(cond: tuple) -> list:
@@ -266,11 +288,13 @@ def main(argv=None) -> int:
                     help="the living room's reverberation time (s); 0: anechoic, as the agent bench")
     ap.add_argument("--equal-tv", action="store_true",
                     help="with --rt60: the TV turned down so that it is as loud at the robot as in the anechoic room")
-    ap.add_argument("--beam", choices=("mvdr", "das"),
-                    help="the NAO's four microphones, beamformed (delay and sum, or MVDR on the room's noise)")
+    ap.add_argument("--beam", choices=("mvdr", "das", "located"),
+                    help="the NAO's four microphones, beamformed towards the owner's known place (delay and sum, or MVDR "
+                         "on the room's noise), or cut on one, located and beamformed (located)")
     ap.add_argument("--loading", type=float, default=1e-2, help="with --beam mvdr: its diagonal loading")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
+    from robots.mic_array import Steering
     # the workers fork after this; counts (start_frames) stay whole numbers
     VAD.update((k, int(v) if v.lstrip("-").isdigit() else float(v)) for k, v in (o.split("=", 1) for o in a.vad))
     if a.rt60:
@@ -281,6 +305,8 @@ def main(argv=None) -> int:
                   file=sys.stderr)
     if a.beam:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
+        if a.beam == "located":  # as the Core does it (its noise: the room before each utterance)
+            ARRAY.update(noise_s=Steering.NOISE_S, gap_s=Steering.GAP_S)
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from .registry import Action, Content, Done, action, actions
 from .robot_actions import ACTION_FACTS
@@ -33,13 +33,18 @@ class WordSpotted(Content):
 
 
 class Audio(Content):
-    """A recording: a mono 16-bit PCM WAV file, base64."""
+    """A recording: a 16-bit PCM WAV file, base64; mono unless each microphone was asked for
+    (CaptureAudio.array), then one channel per microphone, interleaved, in the order of `microphones`."""
 
     encoding: str = "wav"
     sample_rate: int
     seconds: float
     data_b64: str
     stamp: float = 0.0  # simulation time of the first sample
+    channels: int = 1
+    # with array: where each channel's microphone is, in the robot's frame (m: forward, left, up from
+    # the point a mono recording is heard at), so a listener can steer the array
+    microphones: list[tuple[float, float, float]] = Field(default_factory=list)
 
 
 class MicrophoneLevel(Content):
@@ -137,6 +142,7 @@ class WordSpotting(Action):
 
 
 MAX_AUDIO_SECONDS = 5.0  # a 16 kHz recording of this length still fits one message (agents/base.py MAX_BODY)
+MAX_MICROPHONES = 4  # channels of one capture_audio with array (a NAO's head)
 AUDIO_BUFFER_S = 30.0  # the sound a robot's audio device keeps for a capture `since` an earlier time
 MAX_AUDIO_B64 = 4 * (44 + 2 * 16000 * int(MAX_AUDIO_SECONDS)) // 3 + 4
 
@@ -159,6 +165,15 @@ class CaptureAudio(Action):
     sample_rate: Literal[8000, 16000] = 16000
     observe: bool = False
     since: float | None = Field(default=None, ge=0)
+    # each of the robot's microphones as a channel of its own (a NAO's four; one where a robot has one),
+    # 16 kHz only; a reply then holds at most MAX_AUDIO_SECONDS / MAX_MICROPHONES, to fit one message
+    array: bool = False
+
+    @model_validator(mode="after")
+    def _fits_one_message(self):
+        if self.array and (self.seconds > MAX_AUDIO_SECONDS / MAX_MICROPHONES or self.sample_rate != 16000):
+            raise ValueError(f"capture_audio with array: at most {MAX_AUDIO_SECONDS / MAX_MICROPHONES:g} s, at 16000 Hz")
+        return self
 
 
 @robot_action("play_audio", reply=Done)

@@ -16,8 +16,8 @@ import numpy as np
 
 from ontology.errors import ErrorCode
 from ontology.registry import Done
-from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, Audio, CameraInfo, CameraParams, CaptureAudio,
-                            CaptureImage, GetCameraInfo, GetGlobalPose, GetJointAngles, GetLaserScan, GetSonars,
+from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, MAX_MICROPHONES, Audio, CameraInfo, CameraParams,
+                            CaptureAudio, CaptureImage, GetCameraInfo, GetGlobalPose, GetJointAngles, GetLaserScan, GetSonars,
                             GetTransform, Image, JointAngles, LaserScan,
                             LookAtPoint, MicrophoneEnergy, MicrophoneLevel, MoveAlongPath, MoveJoint, MoveStop, MoveTo,
                             MoveVel, PlayAudio, Pose2D, Rest, Say, SetCameraParam, SetCameraParams, SetGlobalPose,
@@ -132,14 +132,23 @@ class RobotAPI:
         await self.world.sleep(speaker.play(pcm, self.world.time))
         return Done()
 
-    async def _record(self, seconds: float, rate: int = 16000, drive: bool = True) -> tuple[float, np.ndarray]:
+    async def _record(self, seconds: float, rate: int = 16000, drive: bool = True, array: bool = False
+                      ) -> tuple[float, np.ndarray]:
         """(start time, int16 samples) of the microphone over the next `seconds` of simulation time."""
         t0, pos = self.world.time, self.audio_in.position()
         await self.world.sleep(seconds, drive=drive)
-        loop = asyncio.get_running_loop()
-        return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, seconds, rate)
+        return t0, await self._heard(pos, t0, seconds, rate, array)
 
-    async def _record_since(self, since: float, seconds: float, rate: int, drive: bool) -> tuple[float, np.ndarray]:
+    async def _heard(self, pos, t0: float, seconds: float, rate: int, array: bool) -> np.ndarray:
+        """The recording (mono, or (channels, n) with array), rendered in an executor."""
+        if array:
+            job = partial(self.audio_in.record_array, pos, self.robot.pose[2], t0, seconds)
+        else:
+            job = partial(self.audio_in.record, pos, t0, seconds, rate)
+        return await asyncio.get_running_loop().run_in_executor(None, job)
+
+    async def _record_since(self, since: float, seconds: float, rate: int, drive: bool, array: bool = False
+                            ) -> tuple[float, np.ndarray]:
         """(start time, int16 samples) of the microphone from `since` (CaptureAudio.since): the sound is a
         function of simulation time, so the device's buffer is the house's sound of that past stretch
         (heard where the microphone is now)."""
@@ -149,22 +158,23 @@ class RobotAPI:
         t0 = max(since, now - AUDIO_BUFFER_S)
         if now < t0 + seconds - 1e-9:
             await self.world.sleep(t0 + seconds - now, drive=drive)
-        t1 = min(max(self.world.time, t0 + seconds), t0 + MAX_AUDIO_SECONDS)
+        t1 = min(max(self.world.time, t0 + seconds), t0 + MAX_AUDIO_SECONDS / (MAX_MICROPHONES if array else 1))
         # whole samples up to the world's time: the next `since` (stamp + samples / rate) is not later
         # than it (a half sample rounded up was: the next request, before the world moved, was refused)
         n = int((t1 - t0) * rate + 1e-6)
-        pos = self.audio_in.position()
-        loop = asyncio.get_running_loop()
-        return t0, await loop.run_in_executor(None, self.audio_in.record, pos, t0, n / rate, rate)
+        return t0, await self._heard(self.audio_in.position(), t0, n / rate, rate, array)
 
     async def capture_audio(self, req: CaptureAudio) -> Audio:
         if req.since is not None:
-            t0, pcm = await self._record_since(req.since, req.seconds, req.sample_rate, drive=not req.observe)
+            t0, pcm = await self._record_since(req.since, req.seconds, req.sample_rate, drive=not req.observe,
+                                               array=req.array)
         else:
-            t0, pcm = await self._record(req.seconds, req.sample_rate, drive=not req.observe)
+            t0, pcm = await self._record(req.seconds, req.sample_rate, drive=not req.observe, array=req.array)
         wav = encode_wav(pcm, req.sample_rate)
-        return Audio(sample_rate=req.sample_rate, seconds=len(pcm) / req.sample_rate,
-                     data_b64=base64.b64encode(wav).decode(), stamp=t0)
+        mics = [tuple(m) for m in self.audio_in.microphones()] if req.array else []
+        return Audio(sample_rate=req.sample_rate, seconds=pcm.shape[-1] / req.sample_rate,
+                     data_b64=base64.b64encode(wav).decode(), stamp=t0, channels=1 if pcm.ndim == 1 else len(pcm),
+                     microphones=mics)
 
     async def microphone_energy(self, req: MicrophoneEnergy) -> MicrophoneLevel:
         t0, pcm = await self._record(req.seconds)

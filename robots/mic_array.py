@@ -1,8 +1,7 @@
-"""Several microphones on one head, and a beamformer over them (measured offline only so far:
-bench/speech_offline.py `--mics`).
+"""Several microphones on one head, and a beamformer over them.
 
-A NAO has four microphones on its head; the Core listens to one (robots/receptors.py AudioInput).
-Here: where the four are (NAO_MICS, approximate: a 8 x 6-10 cm layout on the head's top, not the
+A NAO has four microphones on its head (capture_audio with `array`: robots/receptors.py AudioInput
+record_array). Here: where the four are (NAO_MICS, approximate: a 8 x 6-10 cm layout on the head's top, not the
 maker's drawing), the coherence their reverberant sound has (a diffuse field's: sinc of the spacing,
 so the array cannot cancel it as it would independent noise), and a beamformer (MVDR: the least
 noise power that passes the direction it is steered to unchanged), whose noise is estimated from
@@ -11,9 +10,11 @@ audio where nobody speaks.
     offsets = heads_mics(NAO_MICS, heading)                    # (4, 3) m, from the head's centre
     coherent = diffuse(tails, offsets)                         # (4, n) reverberant tails
     out = mvdr(channels, noise, arrival_delays(offsets, src))  # one channel
+    steering = Steering(offsets)                               # beside a voice detector (the Core's)
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -50,22 +51,113 @@ def arrival_delays(mics: np.ndarray, source) -> np.ndarray:
     return t - t.min()
 
 
+def _spectra(x: np.ndarray, rate: int) -> np.ndarray:
+    return stft(x, rate, nperseg=NFFT, noverlap=NFFT - HOP)[2]  # (M, F, T)
+
+
+def _noise_covariance(noise: np.ndarray, loading: float, rate: int) -> np.ndarray:
+    """Per frequency (F, M, M), with `loading` times the microphones' mean power added to each."""
+    v = _spectra(noise, rate)
+    phi = np.einsum("ift,jft->fij", v, v.conj()) / max(v.shape[2], 1)
+    power = np.real(np.trace(phi, axis1=1, axis2=2)) / len(noise)
+    return phi + (loading * power + 1e-12)[:, None, None] * np.eye(len(noise))
+
+
+def _weights(phi: np.ndarray, steer: np.ndarray) -> np.ndarray:
+    """MVDR weights (..., F, M) for steering vectors (..., F, M) against noise covariances (F, M, M)."""
+    solved = np.linalg.solve(phi, steer[..., None])[..., 0]
+    return solved / np.einsum("...fm,...fm->...f", steer.conj(), solved)[..., None]
+
+
+def _steering(delays: np.ndarray, rate: int) -> np.ndarray:
+    f = np.fft.rfftfreq(NFFT, 1 / rate)
+    return np.exp(-2j * np.pi * f[:, None] * np.asarray(delays)[..., None, :])  # (..., F, M)
+
+
+LOOK_BAND_HZ = (200.0, 4000.0)  # where speech has its power and the array's delays tell directions apart
+
+
+@functools.lru_cache(maxsize=8)
+def _look_directions(offsets: tuple, rate: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(azimuths, elevations, their steering vectors in the look band, the band) locate scans."""
+    az, el = np.meshgrid(np.radians(np.arange(0, 360, 5)), np.radians(np.arange(0, 61, 15)), indexing="ij")
+    az, el = az.ravel(), el.ravel()
+    towards = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
+    delays = -(towards @ np.asarray(offsets).T) / SPEED_OF_SOUND  # (D, M): nearer microphones hear it earlier
+    f = np.fft.rfftfreq(NFFT, 1 / rate)
+    band = (f >= LOOK_BAND_HZ[0]) & (f <= LOOK_BAND_HZ[1])
+    return az, el, _steering(delays, rate)[:, band], band
+
+
+def locate(channels: np.ndarray, noise: np.ndarray, offsets: np.ndarray, loading: float = 1e-2,
+           rate: int = RATE) -> tuple[float, float]:
+    """(azimuth, elevation) in radians, in the house's frame, of the sound in `channels` that is not in
+    `noise`: the direction from which an MVDR against the noise, steered there, passes the most power
+    over the noise's (a scan of whole degrees of azimuth in 5, elevations 0-60 in 15, sources far away)."""
+    az, el, steer, band = _look_directions(tuple(map(tuple, np.round(offsets, 6))), rate)
+    inverse = np.linalg.inv(_noise_covariance(noise, loading, rate)[band])
+    x = _spectra(channels, rate)[:, band]
+    heard = np.einsum("ift,jft->fij", x, x.conj()) / max(x.shape[2], 1)
+    # what the speech adds over the noise in each direction, per frequency: an MVDR against the noise,
+    # steered there, passes (d' N^-1 H N^-1 d) / (d' N^-1 d)^2 of what is heard and 1 / (d' N^-1 d) of
+    # the noise (the TV's own direction passes the TV too: power alone would point there)
+    gain = (np.real(np.einsum("dfi,fij,dfj->df", steer.conj(), inverse @ heard @ inverse, steer))
+            / np.real(np.einsum("dfi,fij,dfj->df", steer.conj(), inverse, steer)))
+    best = int(np.argmax(np.mean(np.log(gain), axis=1)))
+    return float(az[best]), float(el[best])
+
+
+def towards_delays(offsets: np.ndarray, azimuth: float, elevation: float) -> np.ndarray:
+    """arrival_delays of a far source in that direction."""
+    u = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)])
+    t = -(offsets @ u) / SPEED_OF_SOUND
+    return t - t.min()
+
+
 def mvdr(channels: np.ndarray, noise: np.ndarray, delays: np.ndarray, loading: float = 1e-2,
          rate: int = RATE) -> np.ndarray:
     """One channel from (M, n) `channels`: per frequency, the weights of least output power on `noise`
     (M, k: the same microphones where nobody speaks) that pass sound arriving with `delays` (s)
     unchanged. `loading` (share of the noise's mean power added to each microphone's) keeps the
     weights robust to a steering slightly off and to noise the estimate has not seen."""
-    m = channels.shape[0]
-    _, _, x = stft(channels, rate, nperseg=NFFT, noverlap=NFFT - HOP)  # (M, F, T)
-    _, _, v = stft(noise, rate, nperseg=NFFT, noverlap=NFFT - HOP)
-    f = np.fft.rfftfreq(NFFT, 1 / rate)
-    phi = np.einsum("ift,jft->fij", v, v.conj()) / max(v.shape[2], 1)
-    power = np.real(np.trace(phi, axis1=1, axis2=2)) / m
-    phi = phi + (loading * power + 1e-12)[:, None, None] * np.eye(m)
-    steer = np.exp(-2j * np.pi * f[:, None] * np.asarray(delays)[None, :])  # (F, M)
-    solved = np.linalg.solve(phi, steer[:, :, None])[:, :, 0]
-    w = solved / np.einsum("fm,fm->f", steer.conj(), solved)[:, None]
+    x = _spectra(channels, rate)
+    w = _weights(_noise_covariance(noise, loading, rate), _steering(delays, rate))
     y = np.einsum("fm,mft->ft", w.conj(), x)
     _, out = istft(y, rate, nperseg=NFFT, noverlap=NFFT - HOP)
     return out[:channels.shape[1]].astype(np.float32)
+
+
+class Steering:
+    """Beside a one-channel voice detector (robots/receptors.py VoiceActivity, fed `channels[0]`): the
+    same samples of every microphone, kept HISTORY_S, so that an utterance the detector cuts can be heard
+    again with the whole array: its direction found against the room's sound before it, and the array
+    steered there (locate, mvdr). Positions count samples fed, so the detector's cut finds its audio."""
+
+    HISTORY_S = 9.0  # an utterance (5 s at most, padded) and the room's sound before it
+    NOISE_S = 3.0  # of the room before an utterance, its noise estimate
+    GAP_S = 0.3  # between that noise and the utterance's first sample (the owner drawing breath)
+    MIN_NOISE_S = 1.0  # less known of the room: the utterance is left as the one microphone heard it
+
+    def __init__(self, offsets, rate: int = RATE):
+        self.offsets, self.rate = np.asarray(offsets, float), rate
+        self.kept = np.zeros((len(self.offsets), 0), np.int16)
+        self.fed = 0  # samples fed so far
+
+    def feed(self, channels: np.ndarray) -> None:
+        self.kept = np.concatenate([self.kept, channels], axis=1)[:, -round(self.HISTORY_S * self.rate):]
+        self.fed += channels.shape[1]
+
+    def steered(self, samples: int, end: int) -> tuple[np.ndarray, float] | None:
+        """(the beamformed int16 samples, azimuth in the robot's frame, radians) of the `samples` fed
+        before sample `end`, or None where they or the room's sound before them are no longer kept
+        (CPU work: call from an executor)."""
+        first = self.fed - self.kept.shape[1]
+        start, quiet_end = end - samples, end - samples - round(self.GAP_S * self.rate)
+        quiet_start = max(first, quiet_end - round(self.NOISE_S * self.rate))
+        if start < first or end > self.fed or quiet_end - quiet_start < self.MIN_NOISE_S * self.rate:
+            return None
+        four = self.kept[:, start - first:end - first].astype(np.float64)
+        noise = self.kept[:, quiet_start - first:quiet_end - first].astype(np.float64)
+        azimuth, elevation = locate(four, noise, self.offsets, rate=self.rate)
+        out = mvdr(four, noise, towards_delays(self.offsets, azimuth, elevation), rate=self.rate)
+        return np.clip(np.round(out), -32768, 32767).astype(np.int16), azimuth

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from .mic_array import NAO_MICS
 from .spec import CameraSpec, RangeSpec, RobotSpec
 from .urdf import JointDef, UrdfBuilder, box, cylinder, sphere
 
@@ -97,5 +98,5 @@ SPEC = RobotSpec(
     postures=POSTURES, rest_posture="Crouch",
     sonars=[RangeSpec("sonar_left", "SonarLeft", -0.26, 0.26, 5, 0.25, 2.55),
             RangeSpec("sonar_right", "SonarRight", -0.26, 0.26, 5, 0.25, 2.55)],
-    speech=True, lift_joint="BaseLift", lift_height=lift_height, hidden_joints=("BaseLift",),
+    speech=True, microphones=NAO_MICS, lift_joint="BaseLift", lift_height=lift_height, hidden_joints=("BaseLift",),
 )

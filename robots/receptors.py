@@ -386,6 +386,16 @@ class AudioInput:
         """int16 samples heard at `position` over [t0, t0 + seconds) (CPU work: call from an executor)."""
         return self.house.receive(position, t0, seconds, mic=self.name, rate=rate)
 
+    def microphones(self) -> tuple[tuple[float, float, float], ...]:
+        """The array's microphones in the robot's frame (one at the listening point where it has none)."""
+        return self.robot.spec.microphones or ((0.0, 0.0, 0.0),)
+
+    def record_array(self, position, heading: float, t0: float, seconds: float) -> np.ndarray:
+        """record() at each microphone (channels, n), the head at `position` turned `heading` (CPU work)."""
+        from .mic_array import heads_mics
+        mics = heads_mics(self.microphones(), heading) + np.asarray(position, float)[None]
+        return self.house.receive_array(mics, t0, seconds, mic=self.name)
+
 
 def fresh_front_end(decoder) -> None:
     """Forget what the front end learnt of earlier utterances: its noise estimate (the model's
@@ -674,6 +684,11 @@ class VoiceActivity:
     def active(self) -> bool:
         return bool(self.frames) or self.skipping
 
+    def last_cut_end(self) -> int:
+        """Where the last utterance returned ends, in samples fed (its trailing silence beyond the pad
+        is not part of it)."""
+        return round(self.cut_s * self.rate) - (self.end_frames - self.pad_frames) * self.hop
+
     def learn_room_from(self, other: "VoiceActivity") -> None:
         """Take what another detector on the same microphone has learnt of the room's sound (until it has
         heard 30 frames of it, a detector takes nothing for speech: an owner's word then is learnt as noise)."""
@@ -790,6 +805,7 @@ class HeardUtterance:
     pcm: np.ndarray
     speech_seconds: float  # loud frames in it
     too_long: bool = False
+    bearing: float | None = None  # radians, robot's frame: where a microphone array heard it from
 
     @property
     def seconds(self) -> float:

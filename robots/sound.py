@@ -430,24 +430,32 @@ def level_dbfs(pcm: np.ndarray) -> tuple[float, float]:
 
 
 def encode_wav(pcm: np.ndarray, rate: int = SAMPLE_RATE) -> bytes:
+    """A 16-bit PCM WAV of int16 samples: (n,) mono, or (channels, n), interleaved."""
+    pcm = np.asarray(pcm)
+    channels = 1 if pcm.ndim == 1 else pcm.shape[0]
+    if pcm.ndim == 2:
+        pcm = pcm.T.ravel()
     buf = io.BytesIO()
     with wave.open(buf, "wb") as w:
-        w.setnchannels(1)
+        w.setnchannels(channels)
         w.setsampwidth(2)
         w.setframerate(rate)
         w.writeframes(np.asarray(pcm, "<i2").tobytes())
     return buf.getvalue()
 
 
-def decode_wav(data: bytes, rates: tuple[int, ...] = (SAMPLE_RATE,), max_seconds: float = 60.0
-               ) -> tuple[np.ndarray, int]:
-    """(int16 samples, rate) of a mono 16-bit PCM WAV; BadAudio for anything else. The header is
-    checked before any sample is read, so an over-long recording costs nothing."""
+def decode_wav(data: bytes, rates: tuple[int, ...] = (SAMPLE_RATE,), max_seconds: float = 60.0,
+               channels: int = 1) -> tuple[np.ndarray, int]:
+    """(int16 samples, rate) of a mono 16-bit PCM WAV, or with `channels` > 1 one of that many channels
+    ((channels, n) samples); BadAudio for anything else. The header is checked before any sample is
+    read, so an over-long recording costs nothing."""
+    expected = channels
     try:
         with wave.open(io.BytesIO(data), "rb") as w:
             channels, width, rate, frames = w.getnchannels(), w.getsampwidth(), w.getframerate(), w.getnframes()
-            if channels != 1 or width != 2:
-                raise BadAudio(f"need mono 16-bit PCM, got {channels} channel(s) of {8 * width} bit",
+            if channels != expected or width != 2:
+                kind = "mono" if expected == 1 else f"{expected}-channel"
+                raise BadAudio(f"need {kind} 16-bit PCM, got {channels} channel(s) of {8 * width} bit",
                                ErrorCode.UNSUPPORTED)
             if rate not in rates:
                 raise BadAudio(f"sample rate {rate} Hz not supported (use {' or '.join(map(str, rates))})",
@@ -460,4 +468,7 @@ def decode_wav(data: bytes, rates: tuple[int, ...] = (SAMPLE_RATE,), max_seconds
         raise BadAudio(f"not a WAV file: {e}", ErrorCode.MALFORMED) from None
     if len(raw) % 2:
         raw = raw[:-1]
-    return np.frombuffer(raw, "<i2").astype(np.int16), rate
+    pcm = np.frombuffer(raw, "<i2").astype(np.int16)
+    if expected > 1:
+        pcm = pcm[:len(pcm) // expected * expected].reshape(-1, expected).T.copy()
+    return pcm, rate

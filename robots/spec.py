@@ -48,6 +48,8 @@ class RobotSpec:
     sonars: list[RangeSpec] = field(default_factory=list)
     laser: RangeSpec | None = None
     speech: bool = False
+    # microphones of an array, in the robot's frame (forward, left, up from the listening point); () for one
+    microphones: tuple[tuple[float, float, float], ...] = ()
     lift_joint: str | None = None  # virtual prismatic joint keeping the feet on the floor
     lift_height: Callable[[dict[str, float]], float] | None = None
     hidden_joints: tuple[str, ...] = ()

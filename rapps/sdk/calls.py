@@ -25,9 +25,9 @@ from ._call import UNSET, _Calls
 class RobotCalls(_Calls):
     """The robot API: one method per action the Core serves (ontology/robot.py)."""
 
-    async def capture_audio(self, *, seconds: float = 3.0, sample_rate: Literal[8000, 16000] = 16000, observe: bool = False, since: float | None = None, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Audio:
+    async def capture_audio(self, *, seconds: float = 3.0, sample_rate: Literal[8000, 16000] = 16000, observe: bool = False, since: float | None = None, array: bool = False, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Audio:
         """Record the microphone for `seconds` of simulation time."""
-        return await self._call("capture_audio", {"seconds": seconds, "sample_rate": sample_rate, "observe": observe, "since": since}, _timeout, _feedback)
+        return await self._call("capture_audio", {"seconds": seconds, "sample_rate": sample_rate, "observe": observe, "since": since, "array": array}, _timeout, _feedback)
 
     async def capture_image(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Image:
         return await self._call("capture_image", {"camera": camera, "resolution": resolution}, _timeout, _feedback)

@@ -1,17 +1,22 @@
 """Several microphones on the NAO's head (robots/mic_array.py, HouseSound.receive_array): each hears a
 source after its own delay, the room's echo is as coherent between them as a diffuse field's, and a
 beamformer gains on a TV what the room allows it, no more."""
+import base64
 import math
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 from scipy.signal import coherence
 
+from ontology.robot import CaptureAudio
 from robots import tts
 from robots.floorplan import load_plan
 from robots.mic_array import NAO_MICS, SPEED_OF_SOUND, arrival_delays, diffuse, heads_mics, mvdr
-from robots.sound import HouseSound, NoiseSource, talker_at
+from robots.sound import BadAudio, HouseSound, NoiseSource, decode_wav, encode_wav, house_sound, talker_at
 from robots.world import HOUSES
+
+from .conftest import api_at
 
 HEAD = np.array([0.6, 0.6, 0.5])
 TV = (3.2, 0.5, 0.8)
@@ -87,3 +92,29 @@ def test_receive_array_gives_each_microphone_noise_of_its_own():
     assert x.shape == (4, 8000) and x.dtype == np.int16
     assert abs(np.corrcoef(x[0].astype(float), x[1].astype(float))[0, 1]) < 0.05
     assert np.array_equal(x, house.receive_array(_mics(), 0.0, 0.5, mic="nao"))  # deterministic
+
+
+def test_a_wav_of_several_channels_round_trips_and_a_mono_reader_refuses_it():
+    four = (np.arange(4 * 800).reshape(4, 800) % 1000).astype(np.int16)
+    back, rate = decode_wav(encode_wav(four), channels=4)
+    assert rate == 16000 and np.array_equal(back, four)
+    with pytest.raises(BadAudio, match="need mono"):
+        decode_wav(encode_wav(four))
+    with pytest.raises(BadAudio, match="4-channel"):
+        decode_wav(encode_wav(four[0]), channels=4)
+
+
+async def test_capture_audio_with_array_gives_each_microphone_and_where_it_is(small):
+    nao = api_at(small, "nao", (1.0, 2.4, 90))
+    el = api_at(small, "elektron", (2.0, 2.4, 0))
+    house_sound(small).play("owner", (1.0, 3.4, 1.2), SPEECH, at=small.time)  # 1 m to the NAO's front
+    rec = await nao.capture_audio(CaptureAudio(seconds=0.5, array=True))
+    four, _ = decode_wav(base64.b64decode(rec.data_b64), channels=rec.channels)
+    assert rec.channels == 4 and four.shape == (4, 8000) and rec.microphones == [tuple(m) for m in NAO_MICS]
+    # turned 90 degrees, the NAO's front microphones face the owner: they hear each word first
+    lag = np.argmax(np.correlate(four[2].astype(float), four[0][2000:6000].astype(float), "valid")) - 2000
+    assert lag > 0
+    one = await el.capture_audio(CaptureAudio(seconds=0.5, array=True))  # an Elektron has one microphone
+    assert one.channels == 1 and one.microphones == [(0.0, 0.0, 0.0)]
+    with pytest.raises(ValidationError, match="array"):
+        CaptureAudio(seconds=2.0, array=True)  # four channels of it would not fit one message
