@@ -52,6 +52,7 @@ from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
+from robots.mic_array import Steering
 from robots.receptors import HeardUtterance, KeywordSpotter, VoiceActivity
 from robots.sound import encode_wav
 
@@ -151,6 +152,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._voice_supervision: asyncio.Task | None = None  # listening for them while a RApp runs
         # the voice detectors of s3 and of a task's supervision words: kept across tasks, they know the room
         self._voices = VoiceActivity(max_seconds=5.0), VoiceActivity(max_seconds=5.0)
+        self._steerings = Steering(), Steering()  # the array beside each detector, as long-lived
         self.continuation = Continuation(self._voices[0])  # a sentence the owner pauses in (s4b)
         self.dynamic: DynamicSession | None = None
         self.told: list[str] = []  # everything said to the user, in order
@@ -197,7 +199,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if self.hear_audio and "microphone" in self.robot.capabilities():
             self.activate("audio-listener", AudioListener(self.robot, self._speech_heard, self.speaking,
                                                           vad=self._voices[0], sentences=lambda: self.sentences_begun,
-                                                          spoke_during=self._own_voice_times()))
+                                                          spoke_during=self._own_voice_times(),
+                                                          steering=self._steerings[0]))
 
     def _listen_for_supervision_words(self) -> None:
         """While a RApp runs, the microphone is also the Core's for its supervision words (a real NAO
@@ -209,7 +212,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # a few tenths of a second more
         self._voices[1].learn_room_from(self._voices[0])  # s3's detector knows the room: hear a "stop" at once
         stream = MicrophoneStream(self.robot, self._heard_during_task, self._robot_talking, chunk_s=0.3,
-                                  vad=self._voices[1], observe=True, spoke_during=self._own_voice_times())
+                                  vad=self._voices[1], observe=True, spoke_during=self._own_voice_times(),
+                                  steering=self._steerings[1])
         self._voice_supervision = asyncio.create_task(stream.run_forever())
         self._background.add(self._voice_supervision)
         self._voice_supervision.add_done_callback(self._background.discard)

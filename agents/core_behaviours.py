@@ -96,7 +96,7 @@ class MicrophoneStream:
 
     def __init__(self, robot, on_utterance, muted, alive=lambda: True, chunk_s: float = CHUNK_S,
                  vad: VoiceActivity | None = None, observe: bool = False, sentences=lambda: 0,
-                 spoke_during=None, array: bool = True):
+                 spoke_during=None, array: bool = True, steering: Steering | None = None):
         self.robot, self.on_utterance, self.muted, self.alive = robot, on_utterance, muted, alive
         self.sentences, self.spoke_during = sentences, spoke_during
         # observe: record only what others make pass (beside a task: listening must not drive the world;
@@ -104,8 +104,9 @@ class MicrophoneStream:
         self.observe = observe
         self.chunk_s = chunk_s
         # every microphone of the robot's array, the detector on the first: an utterance it cuts is
-        # heard again with all of them, steered to where it came from (robots/mic_array.py Steering)
-        self.array, self.steering = array, None
+        # heard again with all of them, steered to where it came from (robots/mic_array.py Steering,
+        # which may outlive the listener, as its detector does)
+        self.array, self.steering = array, steering if steering is not None else Steering()
         # a listener's detector may outlive it: what it learnt of the room's noise stays useful
         self.vad = vad if vad is not None else VoiceActivity(max_seconds=5.0)  # 5 s: one speech_recognition request
         self.vad.reset()  # but no half utterance from before
@@ -139,8 +140,6 @@ class MicrophoneStream:
         rate, four = audio.sample_rate, None
         if audio.channels > 1:
             four, pcm = pcm, pcm[0]
-            if self.steering is None:
-                self.steering = Steering(audio.microphones, rate)
         if self._next is not None and audio.stamp > self._next + 0.5 / rate:
             self.vad.reset()  # older than the device keeps: sound went by unheard, an utterance with a hole is none
         self._next = audio.stamp + len(pcm) / rate
@@ -156,16 +155,19 @@ class MicrophoneStream:
                 self.vad.reset()
                 pcm = pcm[:0]
         if pcm.size:
+            was_active = self.vad.active
+            utterances = self.vad.feed(pcm)
             if four is not None:
-                self.steering.feed(four[:, four.shape[1] - len(pcm):])
-            for utterance in self.vad.feed(pcm):
-                await self.on_utterance(await self._steered(utterance))
+                self.steering.feed(four[:, four.shape[1] - len(pcm):], offsets=audio.microphones,
+                                   quiet=not (was_active or self.vad.active or utterances))
+            for utterance in utterances:
+                await self.on_utterance(await self._steered(utterance) if four is not None else utterance)
         await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
         return True
 
     async def _steered(self, utterance: HeardUtterance) -> HeardUtterance:
         """The utterance as the whole array hears it, where the robot has one (and still keeps its sound)."""
-        if self.steering is None or utterance.too_long:
+        if utterance.too_long:
             return utterance
         # counted as the steering counts (a detector may have heard more before: it outlives listeners)
         end = self.vad.last_cut_end() - (round(self.vad.heard_s * self.vad.rate) - self.steering.fed)
@@ -194,10 +196,10 @@ class AudioListener(CyclicBehaviour):
     CHUNK_S = MicrophoneStream.CHUNK_S
 
     def __init__(self, robot, on_utterance, muted, vad: VoiceActivity | None = None, sentences=lambda: 0,
-                 spoke_during=None):
+                 spoke_during=None, steering: Steering | None = None):
         super().__init__()
         self.stream = MicrophoneStream(robot, on_utterance, muted, alive=lambda: not self.is_killed(), vad=vad,
-                                       sentences=sentences, spoke_during=spoke_during)
+                                       sentences=sentences, spoke_during=spoke_during, steering=steering)
         self.vad = self.stream.vad
 
     async def run(self) -> None:

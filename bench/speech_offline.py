@@ -132,8 +132,10 @@ def _located(house, seconds: float) -> list:
     vad, steering = VoiceActivity(max_seconds=5.0, **VAD), Steering(NAO_MICS)
     out = []
     for s in range(0, channels.shape[1], 1600):
-        steering.feed(channels[:, s:s + 1600])
-        for u in vad.feed(channels[0, s:s + 1600]):
+        was_active = vad.active
+        heard = vad.feed(channels[0, s:s + 1600])
+        steering.feed(channels[:, s:s + 1600], quiet=not (was_active or vad.active or heard))
+        for u in heard:
             got = None if u.too_long else steering.steered(len(u.pcm), vad.last_cut_end())
             out.append((u if got is None else HeardUtterance(got[0], u.speech_seconds, bearing=got[1]),
                         vad.started_s, vad.cut_s))
@@ -306,7 +308,7 @@ def main(argv=None) -> int:
     if a.beam:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
         if a.beam == "located":  # as the Core does it (its noise: the room before each utterance)
-            ARRAY.update(noise_s=Steering.NOISE_S, gap_s=Steering.GAP_S)
+            ARRAY.update(noise_s=Steering.NOISE_S, noise="outside utterances")
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

@@ -130,34 +130,46 @@ def mvdr(channels: np.ndarray, noise: np.ndarray, delays: np.ndarray, loading: f
 class Steering:
     """Beside a one-channel voice detector (robots/receptors.py VoiceActivity, fed `channels[0]`): the
     same samples of every microphone, kept HISTORY_S, so that an utterance the detector cuts can be heard
-    again with the whole array: its direction found against the room's sound before it, and the array
-    steered there (locate, mvdr). Positions count samples fed, so the detector's cut finds its audio."""
+    again with the whole array: its direction found against the room's sound, and the array steered
+    there (locate, mvdr). The room's sound is the last NOISE_S fed while the detector heard no speech
+    (an earlier command in it would have the owner's own direction suppressed). Positions count samples
+    fed, so the detector's cut finds its audio. It may outlive a listener, as its detector does: the
+    room's sound before a task is still the room's when the owner speaks right after it."""
 
-    HISTORY_S = 9.0  # an utterance (5 s at most, padded) and the room's sound before it
-    NOISE_S = 3.0  # of the room before an utterance, its noise estimate
-    GAP_S = 0.3  # between that noise and the utterance's first sample (the owner drawing breath)
+    HISTORY_S = 6.0  # an utterance (5 s at most, padded)
+    NOISE_S = 3.0  # of the room's sound, the noise estimate
     MIN_NOISE_S = 1.0  # less known of the room: the utterance is left as the one microphone heard it
 
-    def __init__(self, offsets, rate: int = RATE):
-        self.offsets, self.rate = np.asarray(offsets, float), rate
-        self.kept = np.zeros((len(self.offsets), 0), np.int16)
+    def __init__(self, offsets=None, rate: int = RATE):
+        self.rate, self.offsets = rate, None
         self.fed = 0  # samples fed so far
+        if offsets is not None:
+            self._use(offsets)
 
-    def feed(self, channels: np.ndarray) -> None:
+    def _use(self, offsets) -> None:
+        self.offsets = np.asarray(offsets, float)
+        self.kept = np.zeros((len(self.offsets), 0), np.int16)
+        self.noise = np.zeros((len(self.offsets), 0), np.int16)
+
+    def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
+        """The samples whose first channel the detector was fed (`quiet`: it heard no speech in them);
+        `offsets`: the microphones' (a new array forgets the old one's sound)."""
+        if offsets is not None and (self.offsets is None or not np.allclose(self.offsets, offsets)):
+            self._use(offsets)
         self.kept = np.concatenate([self.kept, channels], axis=1)[:, -round(self.HISTORY_S * self.rate):]
+        if quiet:
+            self.noise = np.concatenate([self.noise, channels], axis=1)[:, -round(self.NOISE_S * self.rate):]
         self.fed += channels.shape[1]
 
     def steered(self, samples: int, end: int) -> tuple[np.ndarray, float] | None:
         """(the beamformed int16 samples, azimuth in the robot's frame, radians) of the `samples` fed
-        before sample `end`, or None where they or the room's sound before them are no longer kept
-        (CPU work: call from an executor)."""
-        first = self.fed - self.kept.shape[1]
-        start, quiet_end = end - samples, end - samples - round(self.GAP_S * self.rate)
-        quiet_start = max(first, quiet_end - round(self.NOISE_S * self.rate))
-        if start < first or end > self.fed or quiet_end - quiet_start < self.MIN_NOISE_S * self.rate:
+        before sample `end`, or None where they are no longer kept or too little of the room's sound is
+        known (CPU work: call from an executor)."""
+        first, start = self.fed - self.kept.shape[1], end - samples
+        if self.offsets is None or start < first or end > self.fed or self.noise.shape[1] < self.MIN_NOISE_S * self.rate:
             return None
         four = self.kept[:, start - first:end - first].astype(np.float64)
-        noise = self.kept[:, quiet_start - first:quiet_end - first].astype(np.float64)
+        noise = self.noise.astype(np.float64)
         azimuth, elevation = locate(four, noise, self.offsets, rate=self.rate)
         out = mvdr(four, noise, towards_delays(self.offsets, azimuth, elevation), rate=self.rate)
         return np.clip(np.round(out), -32768, 32767).astype(np.int16), azimuth
