@@ -308,7 +308,7 @@ def main(argv=None) -> int:
     if a.beam:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
         if a.beam == "located":  # as the Core does it (its noise: the room before each utterance)
-            ARRAY.update(noise_s=Steering.NOISE_S, noise="outside utterances")
+            ARRAY.update(noise_s=Steering.NOISE_S, noise="outside utterances, a piece late")
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

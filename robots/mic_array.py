@@ -150,6 +150,7 @@ class Steering:
         self.offsets = np.asarray(offsets, float)
         self.kept = np.zeros((len(self.offsets), 0), np.int16)
         self.noise = np.zeros((len(self.offsets), 0), np.int16)
+        self._pending: np.ndarray | None = None
 
     def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
         """The samples whose first channel the detector was fed (`quiet`: it heard no speech in them);
@@ -157,8 +158,11 @@ class Steering:
         if offsets is not None and (self.offsets is None or not np.allclose(self.offsets, offsets)):
             self._use(offsets)
         self.kept = np.concatenate([self.kept, channels], axis=1)[:, -round(self.HISTORY_S * self.rate):]
-        if quiet:
-            self.noise = np.concatenate([self.noise, channels], axis=1)[:, -round(self.NOISE_S * self.rate):]
+        # a piece counts once the next is quiet too: the one before an utterance begins holds its onset
+        # (the detector starts an utterance only after several loud frames)
+        if quiet and self._pending is not None:
+            self.noise = np.concatenate([self.noise, self._pending], axis=1)[:, -round(self.NOISE_S * self.rate):]
+        self._pending = channels if quiet else None
         self.fed += channels.shape[1]
 
     def steered(self, samples: int, end: int) -> tuple[np.ndarray, float] | None:
