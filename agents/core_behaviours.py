@@ -154,27 +154,24 @@ class MicrophoneStream:
             if muted_before or was_muted or muted_now or self.sentences() != said_before:
                 self.vad.reset()
                 pcm = pcm[:0]
-        if pcm.size:
-            was_active = self.vad.active
-            utterances = self.vad.feed(pcm)
-            if four is not None:
-                self.steering.feed(four[:, four.shape[1] - len(pcm):], offsets=audio.microphones,
-                                   quiet=not (was_active or self.vad.active or utterances))
-            for utterance in utterances:
-                await self.on_utterance(await self._steered(utterance) if four is not None else utterance)
+        if pcm.size and four is not None:
+            for utterance, end in self.steering.listen(self.vad, four[:, four.shape[1] - len(pcm):],
+                                                       offsets=audio.microphones):
+                await self.on_utterance(await self._steered(utterance, end))
+        elif pcm.size:
+            for utterance in self.vad.feed(pcm):
+                await self.on_utterance(utterance)
         await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
         return True
 
-    async def _steered(self, utterance: HeardUtterance) -> HeardUtterance:
-        """The utterance as the whole array hears it, where the robot has one (and still keeps its sound)."""
+    async def _steered(self, utterance: HeardUtterance, end: int) -> HeardUtterance:
+        """The utterance as the whole array hears it (where the array still keeps its sound)."""
         if utterance.too_long:
             return utterance
-        # counted as the steering counts (a detector may have heard more before: it outlives listeners)
-        end = self.vad.last_cut_end() - (round(self.vad.heard_s * self.vad.rate) - self.steering.fed)
         got = await asyncio.get_running_loop().run_in_executor(None, self.steering.steered, len(utterance.pcm), end)
         if got is None:
             return utterance
-        return HeardUtterance(got[0], utterance.speech_seconds, bearing=got[1])
+        return HeardUtterance(got[0], utterance.speech_seconds, bearing=got[1], end_sample=utterance.end_sample)
 
     def close(self) -> None:
         if self._piece is not None:

@@ -132,11 +132,8 @@ def _located(house, seconds: float) -> list:
     vad, steering = VoiceActivity(max_seconds=5.0, **VAD), Steering(NAO_MICS)
     out = []
     for s in range(0, channels.shape[1], 1600):
-        was_active = vad.active
-        heard = vad.feed(channels[0, s:s + 1600])
-        steering.feed(channels[:, s:s + 1600], quiet=not (was_active or vad.active or heard))
-        for u in heard:
-            got = None if u.too_long else steering.steered(len(u.pcm), vad.last_cut_end())
+        for u, end in steering.listen(vad, channels[:, s:s + 1600]):
+            got = None if u.too_long else steering.steered(len(u.pcm), end)
             out.append((u if got is None else HeardUtterance(got[0], u.speech_seconds, bearing=got[1]),
                         vad.started_s, vad.cut_s))
     return out

@@ -94,9 +94,13 @@ def locate(channels: np.ndarray, noise: np.ndarray, offsets: np.ndarray, loading
     """(azimuth, elevation) in radians, in the house's frame, of the sound in `channels` that is not in
     `noise`: the direction from which an MVDR against the noise, steered there, passes the most power
     over the noise's (a scan of whole degrees of azimuth in 5, elevations 0-60 in 15, sources far away)."""
+    return _locate(_spectra(channels, rate), _noise_covariance(noise, loading, rate), offsets, rate)
+
+
+def _locate(x: np.ndarray, phi: np.ndarray, offsets: np.ndarray, rate: int) -> tuple[float, float]:
     az, el, steer, band = _look_directions(tuple(map(tuple, np.round(offsets, 6))), rate)
-    inverse = np.linalg.inv(_noise_covariance(noise, loading, rate)[band])
-    x = _spectra(channels, rate)[:, band]
+    inverse = np.linalg.inv(phi[band])
+    x = x[:, band]
     heard = np.einsum("ift,jft->fij", x, x.conj()) / max(x.shape[2], 1)
     # what the speech adds over the noise in each direction, per frequency: an MVDR against the noise,
     # steered there, passes (d' N^-1 H N^-1 d) / (d' N^-1 d)^2 of what is heard and 1 / (d' N^-1 d) of
@@ -120,11 +124,13 @@ def mvdr(channels: np.ndarray, noise: np.ndarray, delays: np.ndarray, loading: f
     (M, k: the same microphones where nobody speaks) that pass sound arriving with `delays` (s)
     unchanged. `loading` (share of the noise's mean power added to each microphone's) keeps the
     weights robust to a steering slightly off and to noise the estimate has not seen."""
-    x = _spectra(channels, rate)
-    w = _weights(_noise_covariance(noise, loading, rate), _steering(delays, rate))
-    y = np.einsum("fm,mft->ft", w.conj(), x)
+    return _beam(_spectra(channels, rate), _noise_covariance(noise, loading, rate), delays, channels.shape[1], rate)
+
+
+def _beam(x: np.ndarray, phi: np.ndarray, delays: np.ndarray, n: int, rate: int) -> np.ndarray:
+    y = np.einsum("fm,mft->ft", _weights(phi, _steering(delays, rate)).conj(), x)
     _, out = istft(y, rate, nperseg=NFFT, noverlap=NFFT - HOP)
-    return out[:channels.shape[1]].astype(np.float32)
+    return out[:n].astype(np.float32)
 
 
 class Steering:
@@ -172,8 +178,18 @@ class Steering:
         first, start = self.fed - self.kept.shape[1], end - samples
         if self.offsets is None or start < first or end > self.fed or self.noise.shape[1] < self.MIN_NOISE_S * self.rate:
             return None
-        four = self.kept[:, start - first:end - first].astype(np.float64)
-        noise = self.noise.astype(np.float64)
-        azimuth, elevation = locate(four, noise, self.offsets, rate=self.rate)
-        out = mvdr(four, noise, towards_delays(self.offsets, azimuth, elevation), rate=self.rate)
+        x = _spectra(self.kept[:, start - first:end - first].astype(np.float64), self.rate)
+        phi = _noise_covariance(self.noise.astype(np.float64), 1e-2, self.rate)  # one estimate for both
+        azimuth, elevation = _locate(x, phi, self.offsets, self.rate)
+        out = _beam(x, phi, towards_delays(self.offsets, azimuth, elevation), samples, self.rate)
         return np.clip(np.round(out), -32768, 32767).astype(np.int16), azimuth
+
+    def listen(self, vad, channels: np.ndarray, offsets=None) -> list:
+        """Feed the detector the first channel and this every channel (`offsets`: as for feed): the
+        utterances it cut, as (utterance, its end counted in samples fed here), for `steered`."""
+        was_active = vad.active
+        heard = vad.feed(channels[0])
+        self.feed(channels, quiet=not (was_active or vad.active or heard), offsets=offsets)
+        # a detector that outlives listeners may have been fed before this was
+        before = round(vad.heard_s * vad.rate) - self.fed
+        return [(u, u.end_sample - before) for u in heard]

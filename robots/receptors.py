@@ -684,11 +684,6 @@ class VoiceActivity:
     def active(self) -> bool:
         return bool(self.frames) or self.skipping
 
-    def last_cut_end(self) -> int:
-        """Where the last utterance returned ends, in samples fed (its trailing silence beyond the pad
-        is not part of it)."""
-        return round(self.cut_s * self.rate) - (self.end_frames - self.pad_frames) * self.hop
-
     def learn_room_from(self, other: "VoiceActivity") -> None:
         """Take what another detector on the same microphone has learnt of the room's sound (until it has
         heard 30 frames of it, a detector takes nothing for speech: an owner's word then is learnt as noise)."""
@@ -765,6 +760,9 @@ class VoiceActivity:
             if got is not None:
                 out.append(got)
                 self.cut_s = heard_before + (i + 1) * self.hop / self.rate
+                # its trailing silence beyond the pad is not part of it
+                kept_silence = 0 if got.too_long else (self.end_frames - self.pad_frames) * self.hop
+                got.end_sample = round(self.cut_s * self.rate) - kept_silence
         return out
 
     def _step(self, frame: np.ndarray, loud: bool) -> "HeardUtterance | None":
@@ -806,6 +804,7 @@ class HeardUtterance:
     speech_seconds: float  # loud frames in it
     too_long: bool = False
     bearing: float | None = None  # radians, robot's frame: where a microphone array heard it from
+    end_sample: int = 0  # samples fed to its detector up to its last one (where an array finds its sound)
 
     @property
     def seconds(self) -> float:
@@ -815,7 +814,7 @@ class HeardUtterance:
         """This utterance and the next as one: a sentence the detector cut where the speaker paused
         (each keeps its padding, so the pause stays about as long as it was)."""
         return HeardUtterance(np.concatenate([self.pcm, more.pcm]), self.speech_seconds + more.speech_seconds,
-                              self.too_long or more.too_long)
+                              self.too_long or more.too_long, end_sample=more.end_sample)
 
 
 class KeywordSpotter:

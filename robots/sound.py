@@ -449,13 +449,12 @@ def decode_wav(data: bytes, rates: tuple[int, ...] = (SAMPLE_RATE,), max_seconds
     """(int16 samples, rate) of a mono 16-bit PCM WAV, or with `channels` > 1 one of that many channels
     ((channels, n) samples); BadAudio for anything else. The header is checked before any sample is
     read, so an over-long recording costs nothing."""
-    expected = channels
     try:
         with wave.open(io.BytesIO(data), "rb") as w:
-            channels, width, rate, frames = w.getnchannels(), w.getsampwidth(), w.getframerate(), w.getnframes()
-            if channels != expected or width != 2:
-                kind = "mono" if expected == 1 else f"{expected}-channel"
-                raise BadAudio(f"need {kind} 16-bit PCM, got {channels} channel(s) of {8 * width} bit",
+            got, width, rate, frames = w.getnchannels(), w.getsampwidth(), w.getframerate(), w.getnframes()
+            if got != channels or width != 2:
+                kind = "mono" if channels == 1 else f"{channels}-channel"
+                raise BadAudio(f"need {kind} 16-bit PCM, got {got} channel(s) of {8 * width} bit",
                                ErrorCode.UNSUPPORTED)
             if rate not in rates:
                 raise BadAudio(f"sample rate {rate} Hz not supported (use {' or '.join(map(str, rates))})",
@@ -469,6 +468,6 @@ def decode_wav(data: bytes, rates: tuple[int, ...] = (SAMPLE_RATE,), max_seconds
     if len(raw) % 2:
         raw = raw[:-1]
     pcm = np.frombuffer(raw, "<i2").astype(np.int16)
-    if expected > 1:
-        pcm = pcm[:len(pcm) // expected * expected].reshape(-1, expected).T.copy()
+    if channels > 1:
+        pcm = pcm[:len(pcm) // channels * channels].reshape(-1, channels).T.copy()
     return pcm, rate

@@ -78,7 +78,7 @@ async def test_the_array_steers_to_the_owner_and_keeps_the_detectors_cut(heading
         got = heard[0].pcm.astype(float)
         mono = api.audio_in.record(api.audio_in.position(), t_start, world.time - t_start).astype(float)
         lags = range(-40, 41)
-        best = max(lags, key=lambda lag: float(np.dot(got, _cut(mono, stream, len(got), lag))))
+        best = max(lags, key=lambda lag: float(np.dot(got, _cut(mono, heard[0].end_sample, len(got), lag))))
         assert abs(best) <= 3
         # what the array took for the room's sound has none of the owner's words in it
         room = stream.steering.noise.astype(float)
@@ -87,7 +87,6 @@ async def test_the_array_steers_to_the_owner_and_keeps_the_detectors_cut(heading
         world.close()
 
 
-def _cut(mono: np.ndarray, stream, n: int, lag: int) -> np.ndarray:
-    """The n samples the detector's last cut took from the start of listening, shifted by `lag`."""
-    end = stream.vad.last_cut_end() + lag
-    return mono[end - n:end]
+def _cut(mono: np.ndarray, end: int, n: int, lag: int) -> np.ndarray:
+    """The n samples the detector's cut took from the start of listening (ending at `end`), shifted by `lag`."""
+    return mono[end + lag - n:end + lag]
