@@ -428,8 +428,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                 self.record_structure("speech-recognition", text="", search="sentences", error=e.reason)
                 continue
             # a bare keyword heard in a longer utterance: the general model hears the sentence whole
-            part = bool(allowed) and keyword_in_a_sentence(reply, self.keywords.keywords,
-                                                           utterance.speech_seconds)
+            part = bool(allowed) and keyword_in_a_sentence(reply, self.keywords.keywords, utterance)
             self.record_structure("speech-recognition", text=reply.text, search=reply.search,
                                   confidence=reply.confidence, **({"keyword_alone": False} if part else {}))
             if reply.text.strip() and not part:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import dataclasses
 import logging
 import time
 from typing import TYPE_CHECKING
@@ -171,7 +172,7 @@ class MicrophoneStream:
         got = await asyncio.get_running_loop().run_in_executor(None, self.steering.steered, len(utterance.pcm), end)
         if got is None:
             return utterance
-        return HeardUtterance(got[0], utterance.speech_seconds, bearing=got[1], end_sample=utterance.end_sample)
+        return dataclasses.replace(utterance, pcm=got[0], bearing=got[1])
 
     def close(self) -> None:
         if self._piece is not None:

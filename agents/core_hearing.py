@@ -69,9 +69,9 @@ class Continuation:
             self._awaited = None
 
 
-def keyword_in_a_sentence(reply: Recognition, keywords, speech_seconds: float) -> bool:
+def keyword_in_a_sentence(reply: Recognition, keywords, utterance: HeardUtterance) -> bool:
     """Whether the Platform's answer is a bare keyword (one of `keywords`, normalized) that covers too
     little of the utterance's speech to have been said alone (robots/receptors.py said_alone, the
     keyword spotter's rule): one word of a sentence, which the general model should hear whole."""
-    return normalize(reply.text) in keywords and not said_alone(sum(w.end - w.start for w in reply.words),
-                                                                speech_seconds)
+    words = [(round(w.start * 100), round(w.end * 100) - 1) for w in reply.words]  # its 10 ms frames
+    return normalize(reply.text) in keywords and not said_alone(utterance, words)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import dataclasses
 import hashlib
 import itertools
 import math
@@ -125,7 +126,7 @@ def _located(house, seconds: float) -> list:
     MicrophoneStream): the detector on one of them cuts the utterance, which robots/mic_array.py
     Steering hears again with all four, steered to where it came from."""
     from robots.mic_array import NAO_MICS, Steering, heads_mics
-    from robots.receptors import HeardUtterance, VoiceActivity
+    from robots.receptors import VoiceActivity
 
     channels = house.receive_array(heads_mics(NAO_MICS, 0.0) + np.array([*ROBOT_AT, MIC_Z])[None], 0.0, seconds,
                                    mic="nao")
@@ -134,13 +135,13 @@ def _located(house, seconds: float) -> list:
     for s in range(0, channels.shape[1], 1600):
         for u, end in steering.listen(vad, channels[:, s:s + 1600]):
             got = None if u.too_long else steering.steered(len(u.pcm), end)
-            out.append((u if got is None else HeardUtterance(got[0], u.speech_seconds, bearing=got[1]),
+            out.append((u if got is None else dataclasses.replace(u, pcm=got[0], bearing=got[1]),
                         vad.started_s, vad.cut_s))
     return out
 
 
 def _record(cond: tuple) -> list:
-    """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut), cached."""
+    """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut, loud frames), cached."""
     from robots import tts
 
     text, _, voice, speed, dist, noise = cond
@@ -148,12 +149,12 @@ def _record(cond: tuple) -> list:
     # keyed by the speech too: a change to the synthesiser makes new recordings
     # (and by the detector's options and the room under test, if any)
     under_test = tuple(tuple(sorted(opts.items())) for opts in (VAD, ACOUSTICS, ARRAY) if opts)
-    said = b"v2" + repr((cond[0],) + cond[2:] + under_test).encode()
+    said = b"v3" + repr((cond[0],) + cond[2:] + under_test).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
-    utts = [(u.pcm, u.speech_seconds, u.too_long, t0, t1) for u, t0, t1 in timed_utterances(pcm, dist, NOISE[noise])]
+    utts = [(u.pcm, u.speech_seconds, u.too_long, t0, t1, u.loud) for u, t0, t1 in timed_utterances(pcm, dist, NOISE[noise])]
     CACHE.mkdir(exist_ok=True)
     f.write_bytes(pickle.dumps(utts))
     return utts
@@ -178,8 +179,8 @@ def decide_keyword(utts: list) -> str | None:
     vocab = _vocabulary()
     if _SPOTTER is None:
         _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab)
-    for k, (pcm, speech, too_long, _, _) in enumerate(utts):
-        word = _SPOTTER.spot(HeardUtterance(pcm, speech, too_long))
+    for k, (pcm, speech, too_long, _, _, loud) in enumerate(utts):
+        word = _SPOTTER.spot(HeardUtterance(pcm, speech, too_long, loud=loud))
         rapp = vocab.get(word.lower()) if word else _sentence(utts, k)
         if rapp:
             return rapp
@@ -200,15 +201,19 @@ def _sentence(utts: list, k: int) -> str | None:
     """s4b on utterance k, joined with the next when the owner went on within the Core's pause
     (agents/core_hearing.py), the first part alone if the whole is not understood."""
     from agents.core_hearing import CONTINUE_WITHIN_S
-    pcm, speech, _, _, cut = utts[k]
+    from robots.receptors import HeardUtterance
+
+    pcm, speech, too_long, _, cut, loud = utts[k]
+    heard = HeardUtterance(pcm, speech, too_long, loud=loud)
     if k + 1 < len(utts) and not utts[k + 1][2] and utts[k + 1][3] - cut < CONTINUE_WITHIN_S:
-        rapp = _platform(np.concatenate([pcm, utts[k + 1][0]]), speech + utts[k + 1][1])
+        more = utts[k + 1]
+        rapp = _platform(heard.then(HeardUtterance(more[0], more[1], more[2], loud=more[5])))
         if rapp:
             return rapp
-    return _platform(pcm, speech)
+    return _platform(heard)
 
 
-def _platform(pcm: np.ndarray, speech_seconds: float) -> str | None:
+def _platform(heard) -> str | None:
     from agents.services import ServiceError, run_service
     from agents.services.context import ServiceContext, ServiceState
     from agents.services.interpretation import interpret
@@ -219,7 +224,7 @@ def _platform(pcm: np.ndarray, speech_seconds: float) -> str | None:
 
     ctx = ServiceContext(user="bench", state=ServiceState(work_dir=Path("/tmp")))
     keywords = {normalize(k) for k in _vocabulary()}
-    wav = base64.b64encode(encode_wav(pcm)).decode()
+    wav = base64.b64encode(encode_wav(heard.pcm)).decode()
     sentences = sorted({p for _, ps in VOCABULARY.values() for p in ps} | set(_vocabulary()))
     text = ""
     for allowed in (sentences, []):
@@ -228,7 +233,7 @@ def _platform(pcm: np.ndarray, speech_seconds: float) -> str | None:
         except ServiceError:
             return None
         # a keyword heard in a longer utterance: the general model hears it whole, as the Core has it
-        text = "" if allowed and keyword_in_a_sentence(reply, keywords, speech_seconds) else reply.text
+        text = "" if allowed and keyword_in_a_sentence(reply, keywords, heard) else reply.text
         if text.strip():
             break
     if not text.strip():

@@ -57,6 +57,10 @@ async def test_speech_again_within_the_pause_continues_the_sentence():
     whole = first.then(more)
     assert whole.seconds == pytest.approx(first.seconds + more.seconds)
     assert whole.speech_seconds == pytest.approx(first.speech_seconds + more.speech_seconds)
+    # each 10 ms of the audio says whether the detector took it for speech (robots/receptors.py said_alone)
+    for u in (first, more, whole):
+        assert len(u.loud) * 160 == len(u.pcm) and abs(u.loud.sum() / 100 - u.speech_seconds) <= 0.05
+    assert not whole.loud[len(first.loud) - 5:len(first.loud)].any()  # the pause
 
 
 async def test_a_longer_pause_is_two_utterances():
