@@ -155,9 +155,10 @@ class MicrophoneStream:
             if muted_before or was_muted or muted_now or self.sentences() != said_before:
                 self.vad.reset()
                 pcm = pcm[:0]
-        if pcm.size and four is not None:
-            for utterance, end in self.steering.listen(self.vad, four[:, four.shape[1] - len(pcm):],
-                                                       offsets=audio.microphones):
+        if pcm.size and four is not None:  # the array's filter and the detector: a few ms of CPU
+            heard = await asyncio.get_running_loop().run_in_executor(
+                None, self.steering.listen, self.vad, four[:, four.shape[1] - len(pcm):], audio.microphones)
+            for utterance, end in heard:
                 await self.on_utterance(await self._steered(utterance, end))
         elif pcm.size:
             for utterance in self.vad.feed(pcm):

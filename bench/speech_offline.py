@@ -298,7 +298,7 @@ def main(argv=None) -> int:
     ap.add_argument("--loading", type=float, default=1e-2, help="with --beam mvdr: its diagonal loading")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
-    from robots.mic_array import Steering
+    from robots.mic_array import DOMINANT, Steering
     # the workers fork after this; counts (start_frames) stay whole numbers
     VAD.update((k, int(v) if v.lstrip("-").isdigit() else float(v)) for k, v in (o.split("=", 1) for o in a.vad))
     if a.rt60:
@@ -310,7 +310,8 @@ def main(argv=None) -> int:
     if a.beam:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
         if a.beam == "located":  # as the Core does it (its noise: the room before each utterance)
-            ARRAY.update(noise_s=Steering.NOISE_S, noise="outside utterances, a piece late")
+            ARRAY.update(noise_s=Steering.NOISE_S, noise="outside utterances, a piece late",
+                         detector=f"dominant sound nulled over {DOMINANT}, relearnt")
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

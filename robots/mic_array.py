@@ -18,7 +18,7 @@ import functools
 import math
 
 import numpy as np
-from scipy.signal import istft, stft
+from scipy.signal import get_window, istft, oaconvolve, stft
 
 SPEED_OF_SOUND = 343.0
 RATE = 16000
@@ -111,6 +111,28 @@ def _locate(x: np.ndarray, phi: np.ndarray, offsets: np.ndarray, rate: int) -> t
     return float(az[best]), float(el[best])
 
 
+DOMINANT = 2.0  # a frequency's strongest direction in the room's sound this much over the others' mean: one source
+
+
+def nulling_taps(noise: np.ndarray, rate: int = RATE, dominant: float = DOMINANT) -> np.ndarray:
+    """FIR filters (M, NFFT), each centred at NFFT / 2, whose outputs summed over the microphones are the
+    first microphone with the room's one dominant sound taken out: per frequency, what the microphones
+    hear projected off the direction in which `noise` (M, k, where nobody speaks) has most of its power,
+    where that power stands out `dominant` times over the other directions' mean (a TV: a point in an
+    anechoic room, partly one in a furnished one); elsewhere the first microphone as it is. Needs no
+    direction for the owner: a voice from elsewhere passes."""
+    v = _spectra(noise, rate)
+    phi = np.einsum("ift,jft->fij", v, v.conj()) / max(v.shape[2], 1)
+    power, vectors = np.linalg.eigh(phi)  # ascending
+    top = vectors[:, :, -1]  # (F, M)
+    one = power[:, -1] >= dominant * np.mean(power[:, :-1], axis=1)
+    c = np.zeros(top.shape, complex)
+    c[:, 0] = 1.0
+    c[one] -= top[one, :1] * top[one].conj()  # row 0 of I - v v': (x - v v' x) at the first microphone
+    taps = np.fft.irfft(c.T, NFFT, axis=1)
+    return np.roll(taps, NFFT // 2, axis=1) * get_window("hann", NFFT)[None]
+
+
 def towards_delays(offsets: np.ndarray, azimuth: float, elevation: float) -> np.ndarray:
     """arrival_delays of a far source in that direction."""
     u = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)])
@@ -134,17 +156,21 @@ def _beam(x: np.ndarray, phi: np.ndarray, delays: np.ndarray, n: int, rate: int)
 
 
 class Steering:
-    """Beside a one-channel voice detector (robots/receptors.py VoiceActivity, fed `channels[0]`): the
-    same samples of every microphone, kept HISTORY_S, so that an utterance the detector cuts can be heard
-    again with the whole array: its direction found against the room's sound, and the array steered
-    there (locate, mvdr). The room's sound is the last NOISE_S fed while the detector heard no speech
-    (an earlier command in it would have the owner's own direction suppressed). Positions count samples
-    fed, so the detector's cut finds its audio. It may outlive a listener, as its detector does: the
-    room's sound before a task is still the room's when the owner speaks right after it."""
+    """Beside a one-channel voice detector (robots/receptors.py VoiceActivity): every microphone's
+    samples, kept HISTORY_S, so that an utterance the detector cuts can be heard again with the whole
+    array: its direction found against the room's sound, and the array steered there (locate, mvdr).
+    The room's sound is the last NOISE_S fed while the detector heard no speech (an earlier command in
+    it would have the owner's own direction suppressed). The detector hears the first microphone with
+    that sound's dominant source taken out (nulling_taps, renewed each NULL_EVERY_S), NFFT / 2 samples
+    late: a loud TV otherwise hides the owner from it before any direction is known. Positions count
+    samples fed, so the detector's cut finds its audio. It may outlive a listener, as its detector does:
+    the room's sound before a task is still the room's when the owner speaks right after it."""
 
     HISTORY_S = 6.0  # an utterance (5 s at most, padded)
     NOISE_S = 3.0  # of the room's sound, the noise estimate
     MIN_NOISE_S = 1.0  # less known of the room: the utterance is left as the one microphone heard it
+    NULL_EVERY_S = 1.0  # of new room's sound between the detector's filters
+    DELAY = NFFT // 2  # samples the detector's stream lags the microphones
 
     def __init__(self, offsets=None, rate: int = RATE):
         self.rate, self.offsets = rate, None
@@ -157,6 +183,9 @@ class Steering:
         self.kept = np.zeros((len(self.offsets), 0), np.int16)
         self.noise = np.zeros((len(self.offsets), 0), np.int16)
         self._pending: np.ndarray | None = None
+        self.taps: np.ndarray | None = None  # the detector's filter (nulling_taps); None: the first microphone
+        self._noise_new = 0  # samples of room's sound since the filter was made
+        self._tail = np.zeros((len(self.offsets), NFFT - 1))
 
     def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
         """The samples whose first channel the detector was fed (`quiet`: it heard no speech in them);
@@ -168,8 +197,34 @@ class Steering:
         # (the detector starts an utterance only after several loud frames)
         if quiet and self._pending is not None:
             self.noise = np.concatenate([self.noise, self._pending], axis=1)[:, -round(self.NOISE_S * self.rate):]
+            self._noise_new += self._pending.shape[1]
         self._pending = channels if quiet else None
         self.fed += channels.shape[1]
+
+    def _renew_filter(self, vad) -> None:
+        """A new filter for the detector once NULL_EVERY_S more of the room's sound is known, while it
+        hears no utterance; it relearns the room's sound as heard through the new filter."""
+        if len(self.offsets) < 2 or vad.active or self.noise.shape[1] < self.MIN_NOISE_S * self.rate:
+            return
+        if self.taps is None or self._noise_new >= self.NULL_EVERY_S * self.rate:
+            self.taps, self._noise_new = nulling_taps(self.noise.astype(np.float64), self.rate), 0
+            vad.relearn_room(self._filtered(self.noise.astype(np.float64)))
+
+    def _filtered(self, x: np.ndarray) -> np.ndarray:
+        """The detector's filter over (M, n) samples: n - NFFT + 1 of them, int16."""
+        y = sum(oaconvolve(x[m], self.taps[m], "valid") for m in range(len(x)))
+        return np.clip(np.round(y), -32768, 32767).astype(np.int16)
+
+    def for_detector(self, channels: np.ndarray, offsets=None) -> np.ndarray:
+        """What the detector hears of these samples (int16, DELAY samples late): the first microphone,
+        the room's dominant sound taken out once enough of it is known."""
+        if offsets is not None and (self.offsets is None or not np.allclose(self.offsets, offsets)):
+            self._use(offsets)
+        buf = np.concatenate([self._tail, channels.astype(np.float64)], axis=1)
+        self._tail = buf[:, buf.shape[1] - (NFFT - 1):]
+        if self.taps is None:
+            return buf[0, self.DELAY - 1:self.DELAY - 1 + channels.shape[1]].astype(np.int16)
+        return self._filtered(buf)
 
     def steered(self, samples: int, end: int) -> tuple[np.ndarray, float] | None:
         """(the beamformed int16 samples, azimuth in the robot's frame, radians) of the `samples` fed
@@ -185,11 +240,13 @@ class Steering:
         return np.clip(np.round(out), -32768, 32767).astype(np.int16), azimuth
 
     def listen(self, vad, channels: np.ndarray, offsets=None) -> list:
-        """Feed the detector the first channel and this every channel (`offsets`: as for feed): the
-        utterances it cut, as (utterance, its end counted in samples fed here), for `steered`."""
+        """Feed the detector what it hears of these samples (for_detector) and this every channel
+        (`offsets`: as for feed): the utterances it cut, as (utterance, its end counted in samples fed
+        here), for `steered` (CPU work, a few ms: call from an executor)."""
         was_active = vad.active
-        heard = vad.feed(channels[0])
+        heard = vad.feed(self.for_detector(channels, offsets))
         self.feed(channels, quiet=not (was_active or vad.active or heard), offsets=offsets)
-        # a detector that outlives listeners may have been fed before this was
+        self._renew_filter(vad)
+        # a detector that outlives listeners may have been fed before this was; it hears DELAY late
         before = round(vad.heard_s * vad.rate) - self.fed
-        return [(u, u.end_sample - before) for u in heard]
+        return [(u, u.end_sample - before - self.DELAY) for u in heard]

@@ -693,6 +693,23 @@ class VoiceActivity:
             self.band_history = deque(other.band_history, maxlen=self.band_history.maxlen)
             self.shape_history = deque(other.shape_history, maxlen=self.shape_history.maxlen)
 
+    def relearn_room(self, pcm: np.ndarray) -> None:
+        """Forget what was learnt of the room's sound and learn it from `pcm` (nobody speaking in it)
+        instead: what the detector hears has changed (robots/mic_array.py Steering's new filter), and
+        sound judged against the old would differ from it in level and shape as a voice does."""
+        n = len(pcm) // self.hop
+        if n < 30:
+            return
+        frames = np.asarray(pcm[-n * self.hop:], np.int16).reshape(n, self.hop)
+        db = 10 * np.log10(np.mean(frames.astype(np.float64) ** 2, axis=1) + 1.0)
+        bands = BandSpectra().feed_frames(frames)
+        shape = np.median(bands - bands.mean(axis=1, keepdims=True), axis=0)
+        distance = _shape_distance(bands[1:], shape, float(_shape_distance(bands[:1], shape)[0]))
+        self.history = deque(db, maxlen=self.history.maxlen)
+        self.band_history = deque(bands, maxlen=self.band_history.maxlen)
+        self.shape_history = deque(distance, maxlen=self.shape_history.maxlen)
+        self._last_distance = None
+
     def reset(self) -> None:
         """Forget any utterance in progress (the robot itself spoke meanwhile)."""
         self.frames, self.loud, self.skipping = [], [], False
@@ -734,10 +751,7 @@ class VoiceActivity:
         limits = self._thresholds()  # once per chunk: the noise changes slowly
         if limits is not None:
             level, shape, shape_limit = limits
-            rel = bands - bands.mean(axis=1, keepdims=True) - shape
-            distance = np.sqrt(np.mean((rel - rel.mean(axis=1, keepdims=True)) ** 2, axis=1))
-            if self._last_distance is not None:  # two frames averaged: one odd frame is no voice
-                distance = np.convolve(np.concatenate([[self._last_distance], distance]), [0.5, 0.5], "valid")
+            distance = _shape_distance(bands, shape, self._last_distance)
             self._last_distance = float(distance[-1])
         for i, (frame, db) in enumerate(zip(frames, energies)):
             loud = False
@@ -801,6 +815,17 @@ class VoiceActivity:
         return None
 
 
+def _shape_distance(bands: np.ndarray, shape: np.ndarray, before: float | None = None) -> np.ndarray:
+    """How far each frame's band spectrum (level removed) departs from the room's usual `shape` (dB),
+    each averaged with the frame's before (`before`: the distance of the one before the first; None:
+    not averaged): one odd frame is no voice."""
+    rel = bands - bands.mean(axis=1, keepdims=True) - shape
+    distance = np.sqrt(np.mean((rel - rel.mean(axis=1, keepdims=True)) ** 2, axis=1))
+    if before is None:
+        return distance
+    return np.convolve(np.concatenate([[before], distance]), [0.5, 0.5], "valid")
+
+
 @dataclass
 class HeardUtterance:
     """A stretch of speech the microphone heard: int16 samples at 16 kHz."""
@@ -809,7 +834,7 @@ class HeardUtterance:
     speech_seconds: float  # loud frames in it
     too_long: bool = False
     bearing: float | None = None  # radians, robot's frame: where a microphone array heard it from
-    end_sample: int = 0  # samples fed to its detector up to its last one (where an array finds its sound)
+    end_sample: int = 0  # samples fed to its detector up to its last one (a Steering's: DELAY after the microphones')
     loud: np.ndarray | None = None  # per 10 ms of pcm: whether the detector took it for speech
 
     @property
