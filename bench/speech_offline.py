@@ -311,7 +311,7 @@ def main(argv=None) -> int:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
         if a.beam == "located":  # as the Core does it (its noise: the room before each utterance)
             ARRAY.update(noise_s=Steering.NOISE_S, noise="outside utterances, a piece late",
-                         detector=f"dominant sound nulled over {DOMINANT}, relearnt")
+                         detector=f"dominant sound nulled over {DOMINANT}, relearnt when changed, frames kept")
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

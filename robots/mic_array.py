@@ -25,6 +25,10 @@ RATE = 16000
 # (forward, left, up) m from the head's centre, where robots/receptors.py AudioInput puts its one microphone
 NAO_MICS = ((0.040, 0.030, 0.0), (0.040, -0.030, 0.0), (-0.040, 0.050, 0.0), (-0.040, -0.050, 0.0))
 NFFT, HOP = 512, 128
+# the detector's filter: centred this many samples in (its stream's lag), a whole number of the voice
+# detector's 10 ms frames, so that they fall on the sound where they did on the first microphone
+DETECTOR_DELAY = 320
+DETECTOR_TAPS = 2 * DETECTOR_DELAY
 
 
 def heads_mics(offsets, heading: float) -> np.ndarray:
@@ -115,7 +119,7 @@ DOMINANT = 2.0  # a frequency's strongest direction in the room's sound this muc
 
 
 def nulling_taps(noise: np.ndarray, rate: int = RATE, dominant: float = DOMINANT) -> np.ndarray:
-    """FIR filters (M, NFFT), each centred at NFFT / 2, whose outputs summed over the microphones are the
+    """FIR filters (M, DETECTOR_TAPS), each centred at DETECTOR_DELAY, whose outputs summed over the microphones are the
     first microphone with the room's one dominant sound taken out: per frequency, what the microphones
     hear projected off the direction in which `noise` (M, k, where nobody speaks) has most of its power,
     where that power stands out `dominant` times over the other directions' mean (a TV: a point in an
@@ -130,7 +134,16 @@ def nulling_taps(noise: np.ndarray, rate: int = RATE, dominant: float = DOMINANT
     c[:, 0] = 1.0
     c[one] -= top[one, :1] * top[one].conj()  # row 0 of I - v v': (x - v v' x) at the first microphone
     taps = np.fft.irfft(c.T, NFFT, axis=1)
-    return np.roll(taps, NFFT // 2, axis=1) * get_window("hann", NFFT)[None]
+    out = np.zeros((len(taps), DETECTOR_TAPS))
+    out[:, DETECTOR_DELAY - NFFT // 2:DETECTOR_DELAY + NFFT // 2] = np.roll(taps, NFFT // 2, axis=1) * get_window("hann", NFFT)
+    return out
+
+
+def _as_it_is(shape: tuple[int, int]) -> np.ndarray:
+    """nulling_taps where nothing stands out: the first microphone, DETECTOR_DELAY samples late."""
+    taps = np.zeros(shape)
+    taps[0, DETECTOR_DELAY] = 1.0
+    return taps
 
 
 def towards_delays(offsets: np.ndarray, azimuth: float, elevation: float) -> np.ndarray:
@@ -161,7 +174,7 @@ class Steering:
     array: its direction found against the room's sound, and the array steered there (locate, mvdr).
     The room's sound is the last NOISE_S fed while the detector heard no speech (an earlier command in
     it would have the owner's own direction suppressed). The detector hears the first microphone with
-    that sound's dominant source taken out (nulling_taps, renewed each NULL_EVERY_S), NFFT / 2 samples
+    that sound's dominant source taken out (nulling_taps, renewed each NULL_EVERY_S), DELAY samples
     late: a loud TV otherwise hides the owner from it before any direction is known. Positions count
     samples fed, so the detector's cut finds its audio. It may outlive a listener, as its detector does:
     the room's sound before a task is still the room's when the owner speaks right after it."""
@@ -170,7 +183,8 @@ class Steering:
     NOISE_S = 3.0  # of the room's sound, the noise estimate
     MIN_NOISE_S = 1.0  # less known of the room: the utterance is left as the one microphone heard it
     NULL_EVERY_S = 1.0  # of new room's sound between the detector's filters
-    DELAY = NFFT // 2  # samples the detector's stream lags the microphones
+    CHANGED = 0.01  # a new filter this far (its energy's share) from the one in use replaces it
+    DELAY = DETECTOR_DELAY  # samples the detector's stream lags the microphones
 
     def __init__(self, offsets=None, rate: int = RATE):
         self.rate, self.offsets = rate, None
@@ -185,7 +199,7 @@ class Steering:
         self._pending: np.ndarray | None = None
         self.taps: np.ndarray | None = None  # the detector's filter (nulling_taps); None: the first microphone
         self._noise_new = 0  # samples of room's sound since the filter was made
-        self._tail = np.zeros((len(self.offsets), NFFT - 1))
+        self._tail = np.zeros((len(self.offsets), DETECTOR_TAPS - 1))
 
     def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
         """The samples whose first channel the detector was fed (`quiet`: it heard no speech in them);
@@ -207,11 +221,15 @@ class Steering:
         if len(self.offsets) < 2 or vad.active or self.noise.shape[1] < self.MIN_NOISE_S * self.rate:
             return
         if self.taps is None or self._noise_new >= self.NULL_EVERY_S * self.rate:
-            self.taps, self._noise_new = nulling_taps(self.noise.astype(np.float64), self.rate), 0
-            vad.relearn_room(self._filtered(self.noise.astype(np.float64)))
+            taps, self._noise_new = nulling_taps(self.noise.astype(np.float64), self.rate), 0
+            before = self.taps if self.taps is not None else _as_it_is(taps.shape)
+            # relearning costs the detector what it learnt over 5 s, and a steady room needs none
+            if np.sum((taps - before) ** 2) > self.CHANGED * np.sum(taps ** 2):
+                self.taps = taps
+                vad.relearn_room(self._filtered(self.noise.astype(np.float64)))
 
     def _filtered(self, x: np.ndarray) -> np.ndarray:
-        """The detector's filter over (M, n) samples: n - NFFT + 1 of them, int16."""
+        """The detector's filter over (M, n) samples: n - DETECTOR_TAPS + 1 of them, int16."""
         y = sum(oaconvolve(x[m], self.taps[m], "valid") for m in range(len(x)))
         return np.clip(np.round(y), -32768, 32767).astype(np.int16)
 
@@ -221,7 +239,7 @@ class Steering:
         if offsets is not None and (self.offsets is None or not np.allclose(self.offsets, offsets)):
             self._use(offsets)
         buf = np.concatenate([self._tail, channels.astype(np.float64)], axis=1)
-        self._tail = buf[:, buf.shape[1] - (NFFT - 1):]
+        self._tail = buf[:, buf.shape[1] - (DETECTOR_TAPS - 1):]
         if self.taps is None:
             return buf[0, self.DELAY - 1:self.DELAY - 1 + channels.shape[1]].astype(np.int16)
         return self._filtered(buf)
