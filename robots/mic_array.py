@@ -198,7 +198,7 @@ class Steering:
         self.noise = np.zeros((len(self.offsets), 0), np.int16)
         self._pending: np.ndarray | None = None
         self.taps: np.ndarray | None = None  # the detector's filter (nulling_taps); None: the first microphone
-        self._noise_new = 0  # samples of room's sound since the filter was made
+        self._noise_new = round(self.NULL_EVERY_S * self.rate)  # room's sound since the filter was last judged
         self._tail = np.zeros((len(self.offsets), DETECTOR_TAPS - 1))
 
     def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
@@ -220,7 +220,7 @@ class Steering:
         hears no utterance; it relearns the room's sound as heard through the new filter."""
         if len(self.offsets) < 2 or vad.active or self.noise.shape[1] < self.MIN_NOISE_S * self.rate:
             return
-        if self.taps is None or self._noise_new >= self.NULL_EVERY_S * self.rate:
+        if self._noise_new >= self.NULL_EVERY_S * self.rate:
             taps, self._noise_new = nulling_taps(self.noise.astype(np.float64), self.rate), 0
             before = self.taps if self.taps is not None else _as_it_is(taps.shape)
             # relearning costs the detector what it learnt over 5 s, and a steady room needs none
