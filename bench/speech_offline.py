@@ -123,8 +123,9 @@ def _beamformed(house, owner, seconds: float, quiet_until: float) -> np.ndarray:
 
 def _located(house, seconds: float) -> list:
     """timed_utterances as the Core hears them with four microphones (agents/core_behaviours.py
-    MicrophoneStream): the detector on one of them cuts the utterance, which robots/mic_array.py
-    Steering hears again with all four, steered to where it came from."""
+    MicrophoneStream): the detector on the first, the room's dominant sound taken out, cuts the
+    utterance, which robots/mic_array.py Steering hears again with all four, steered to where it came
+    from."""
     from robots.mic_array import NAO_MICS, Steering, heads_mics
     from robots.receptors import VoiceActivity
 
@@ -294,7 +295,8 @@ def main(argv=None) -> int:
                     help="with --rt60: the TV turned down so that it is as loud at the robot as in the anechoic room")
     ap.add_argument("--beam", choices=("mvdr", "das", "located"),
                     help="the NAO's four microphones, beamformed towards the owner's known place (delay and sum, or MVDR "
-                         "on the room's noise), or cut on one, located and beamformed (located)")
+                         "on the room's noise), or as the Core hears them: the detector on the first with the room's dominant "
+                         "sound taken out, each utterance located and beamformed (located)")
     ap.add_argument("--loading", type=float, default=1e-2, help="with --beam mvdr: its diagonal loading")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
