@@ -119,12 +119,13 @@ DOMINANT = 2.0  # a frequency's strongest direction in the room's sound this muc
 
 
 def nulling_taps(noise: np.ndarray, rate: int = RATE, dominant: float = DOMINANT) -> np.ndarray:
-    """FIR filters (M, DETECTOR_TAPS), each centred at DETECTOR_DELAY, whose outputs summed over the microphones are the
-    first microphone with the room's one dominant sound taken out: per frequency, what the microphones
-    hear projected off the direction in which `noise` (M, k, where nobody speaks) has most of its power,
-    where that power stands out `dominant` times over the other directions' mean (a TV: a point in an
-    anechoic room, partly one in a furnished one); elsewhere the first microphone as it is. Needs no
-    direction for the owner: a voice from elsewhere passes."""
+    """FIR filters (M, DETECTOR_TAPS), each centred at DETECTOR_DELAY, whose outputs summed over the
+    microphones are the first microphone with the room's one dominant sound taken out: per frequency,
+    what the microphones hear projected off the direction in which `noise` (M, k, where nobody speaks)
+    has most of its power, where that power stands out `dominant` times over the other directions'
+    mean (a TV: a point in an anechoic room, partly one in a furnished one); elsewhere the first
+    microphone as it is. Needs no direction for the owner: a voice from elsewhere passes, less its
+    lowest frequencies (where four microphones 8 cm apart hear every direction alike)."""
     v = _spectra(noise, rate)
     phi = np.einsum("ift,jft->fij", v, v.conj()) / max(v.shape[2], 1)
     power, vectors = np.linalg.eigh(phi)  # ascending
@@ -135,7 +136,8 @@ def nulling_taps(noise: np.ndarray, rate: int = RATE, dominant: float = DOMINANT
     c[one] -= top[one, :1] * top[one].conj()  # row 0 of I - v v': (x - v v' x) at the first microphone
     taps = np.fft.irfft(c.T, NFFT, axis=1)
     out = np.zeros((len(taps), DETECTOR_TAPS))
-    out[:, DETECTOR_DELAY - NFFT // 2:DETECTOR_DELAY + NFFT // 2] = np.roll(taps, NFFT // 2, axis=1) * get_window("hann", NFFT)
+    centred = np.roll(taps, NFFT // 2, axis=1) * get_window("hann", NFFT)
+    out[:, DETECTOR_DELAY - NFFT // 2:DETECTOR_DELAY + NFFT // 2] = centred
     return out
 
 
