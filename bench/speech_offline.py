@@ -6,8 +6,8 @@ more recordings per cell, so a change to a recogniser is judged on more than 10 
 
     python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong] [--rt60 S]
 
-Recordings are cached in /tmp (keyed by the conditions and the synthesiser's output) so a second run
-decodes only. Not part of `python -m bench`: it measures recognisers, not the system."""
+Recordings are cached in /tmp (keyed by the conditions, the synthesiser's output and the source of
+what renders and cuts them) so a second run decodes only. Not part of `python -m bench`: it measures recognisers, not the system."""
 from __future__ import annotations
 
 import argparse
@@ -141,6 +141,20 @@ def _located(house, seconds: float) -> list:
     return out
 
 
+def _hearing_code() -> bytes:
+    """The source of what renders and cuts a recording: a change to it makes new recordings (the options
+    under test alone missed a change of code with the same options)."""
+    import robots.mic_array
+    import robots.receptors
+    import robots.reverb
+    import robots.sound
+    files = (robots.mic_array, robots.receptors, robots.reverb, robots.sound)
+    return hashlib.sha1(b"".join(Path(m.__file__).read_bytes() for m in files)).digest()
+
+
+_HEARING_CODE = _hearing_code()
+
+
 def _record(cond: tuple) -> list:
     """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut, loud frames), cached."""
     from robots import tts
@@ -150,7 +164,7 @@ def _record(cond: tuple) -> list:
     # keyed by the speech too: a change to the synthesiser makes new recordings
     # (and by the detector's options and the room under test, if any)
     under_test = tuple(tuple(sorted(opts.items())) for opts in (VAD, ACOUSTICS, ARRAY) if opts)
-    said = b"v3" + repr((cond[0],) + cond[2:] + under_test).encode()
+    said = _HEARING_CODE + repr((cond[0],) + cond[2:] + under_test).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
