@@ -7,7 +7,8 @@ more recordings per cell, so a change to a recogniser is judged on more than 10 
     python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong] [--rt60 S]
 
 Recordings are cached in /tmp (keyed by the conditions, the synthesiser's output and the source of
-what renders and cuts them) so a second run decodes only. Not part of `python -m bench`: it measures recognisers, not the system."""
+what renders and cuts them) so a second run decodes only. Not part of `python -m bench`: it measures
+recognisers, not the system."""
 from __future__ import annotations
 
 import argparse
@@ -142,14 +143,14 @@ def _located(house, seconds: float) -> list:
 
 
 def _hearing_code() -> bytes:
-    """The source of what renders and cuts a recording: a change to it makes new recordings (the options
-    under test alone missed a change of code with the same options)."""
+    """The source of what renders and cuts a recording (robots' and this harness's): a change to it makes
+    new recordings (the options under test alone missed a change of code with the same options)."""
     import robots.mic_array
     import robots.receptors
     import robots.reverb
     import robots.sound
-    files = (robots.mic_array, robots.receptors, robots.reverb, robots.sound)
-    return hashlib.sha1(b"".join(Path(m.__file__).read_bytes() for m in files)).digest()
+    files = [Path(m.__file__) for m in (robots.mic_array, robots.receptors, robots.reverb, robots.sound)]
+    return hashlib.sha1(b"".join(f.read_bytes() for f in [*files, Path(__file__)])).digest()  # and this harness
 
 
 _HEARING_CODE = _hearing_code()
@@ -314,7 +315,6 @@ def main(argv=None) -> int:
     ap.add_argument("--loading", type=float, default=1e-2, help="with --beam mvdr: its diagonal loading")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
-    from robots.mic_array import DOMINANT, Steering
     # the workers fork after this; counts (start_frames) stay whole numbers
     VAD.update((k, int(v) if v.lstrip("-").isdigit() else float(v)) for k, v in (o.split("=", 1) for o in a.vad))
     if a.rt60:
@@ -325,9 +325,6 @@ def main(argv=None) -> int:
                   file=sys.stderr)
     if a.beam:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
-        if a.beam == "located":  # as the Core does it (its noise: the room before each utterance)
-            ARRAY.update(noise_s=Steering.NOISE_S, noise="outside utterances, a piece late",
-                         detector=f"dominant sound nulled over {DOMINANT}, relearnt when changed, frames kept")
     jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:

@@ -203,11 +203,15 @@ class Steering:
         self._noise_new = round(self.NULL_EVERY_S * self.rate)  # room's sound since the filter was last judged
         self._tail = np.zeros((len(self.offsets), DETECTOR_TAPS - 1))
 
-    def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
-        """The samples whose first channel the detector was fed (`quiet`: it heard no speech in them);
-        `offsets`: the microphones' (a new array forgets the old one's sound)."""
+    def _follow(self, offsets) -> None:
+        """The microphones' offsets, where given: a new array forgets the old one's sound."""
         if offsets is not None and (self.offsets is None or not np.allclose(self.offsets, offsets)):
             self._use(offsets)
+
+    def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
+        """The samples whose first channel the detector was fed (`quiet`: it heard no speech in them);
+        `offsets`: the microphones' (_follow)."""
+        self._follow(offsets)
         self.kept = np.concatenate([self.kept, channels], axis=1)[:, -round(self.HISTORY_S * self.rate):]
         # a piece counts once the next is quiet too: the one before an utterance begins holds its onset
         # (the detector starts an utterance only after several loud frames)
@@ -220,15 +224,16 @@ class Steering:
     def _renew_filter(self, vad) -> None:
         """A new filter for the detector once NULL_EVERY_S more of the room's sound is known, while it
         hears no utterance; it relearns the room's sound as heard through the new filter."""
-        if len(self.offsets) < 2 or vad.active or self.noise.shape[1] < self.MIN_NOISE_S * self.rate:
+        if (len(self.offsets) < 2 or vad.active or self.noise.shape[1] < self.MIN_NOISE_S * self.rate
+                or self._noise_new < self.NULL_EVERY_S * self.rate):
             return
-        if self._noise_new >= self.NULL_EVERY_S * self.rate:
-            taps, self._noise_new = nulling_taps(self.noise.astype(np.float64), self.rate), 0
-            before = self.taps if self.taps is not None else _as_it_is(taps.shape)
-            # relearning costs the detector what it learnt over 5 s, and a steady room needs none
-            if np.sum((taps - before) ** 2) > self.CHANGED * np.sum(taps ** 2):
-                self.taps = taps
-                vad.relearn_room(self._filtered(self.noise.astype(np.float64)))
+        noise = self.noise.astype(np.float64)
+        taps, self._noise_new = nulling_taps(noise, self.rate), 0
+        before = self.taps if self.taps is not None else _as_it_is(taps.shape)
+        # relearning costs the detector what it learnt over 5 s, and a steady room needs none
+        if np.sum((taps - before) ** 2) > self.CHANGED * np.sum(taps ** 2):
+            self.taps = taps
+            vad.relearn_room(self._filtered(noise))
 
     def _filtered(self, x: np.ndarray) -> np.ndarray:
         """The detector's filter over (M, n) samples: n - DETECTOR_TAPS + 1 of them, int16."""
@@ -238,8 +243,7 @@ class Steering:
     def for_detector(self, channels: np.ndarray, offsets=None) -> np.ndarray:
         """What the detector hears of these samples (int16, DELAY samples late): the first microphone,
         the room's dominant sound taken out once enough of it is known."""
-        if offsets is not None and (self.offsets is None or not np.allclose(self.offsets, offsets)):
-            self._use(offsets)
+        self._follow(offsets)
         buf = np.concatenate([self._tail, channels.astype(np.float64)], axis=1)
         self._tail = buf[:, buf.shape[1] - (DETECTOR_TAPS - 1):]
         if self.taps is None:

@@ -412,6 +412,11 @@ def sphinx_config(**kw):
                   samprate=16000, lm=None, loglevel="FATAL", **kw)
 
 
+def frame_levels(frames: np.ndarray) -> np.ndarray:
+    """Each 10 ms frame's level (n, hop) -> (n,) dB of its mean square (+1: silence is 0 dB)."""
+    return 10 * np.log10(np.mean(np.asarray(frames, np.float64) ** 2, axis=1) + 1.0)
+
+
 def speech_segments(pcm: np.ndarray, rate: int = 16000, margin_db: float = 9.0, min_speech: float = 0.15,
                     max_gap: float = 0.35, pad: float = 0.2) -> list[tuple[int, int]]:
     """Sample ranges where someone speaks: 10 ms frames louder than the recording's own floor (its
@@ -420,8 +425,7 @@ def speech_segments(pcm: np.ndarray, rate: int = 16000, margin_db: float = 9.0, 
     n = len(pcm) // hop
     if n == 0:
         return []
-    frames = pcm[:n * hop].astype(np.float64).reshape(n, hop)
-    db = 10 * np.log10(np.mean(frames ** 2, axis=1) + 1.0)
+    db = frame_levels(pcm[:n * hop].reshape(n, hop))
     loud = db > np.percentile(db, 20) + margin_db
     runs, start, quiet = [], None, 0
     for i, v in enumerate(loud):
@@ -701,7 +705,7 @@ class VoiceActivity:
         if n < 30:
             return
         frames = np.asarray(pcm[-n * self.hop:], np.int16).reshape(n, self.hop)
-        db = 10 * np.log10(np.mean(frames.astype(np.float64) ** 2, axis=1) + 1.0)
+        db = frame_levels(frames)
         bands = BandSpectra().feed_frames(frames)
         shape = np.median(bands - bands.mean(axis=1, keepdims=True), axis=0)
         distance = _shape_distance(bands[1:], shape, float(_shape_distance(bands[:1], shape)[0]))
@@ -746,7 +750,7 @@ class VoiceActivity:
         if n == 0:
             return out
         frames = x[:n * self.hop].reshape(n, self.hop)
-        energies = 10 * np.log10(np.mean(frames.astype(np.float64) ** 2, axis=1) + 1.0)
+        energies = frame_levels(frames)
         bands = self.bands.feed_frames(frames)
         limits = self._thresholds()  # once per chunk: the noise changes slowly
         if limits is not None:
@@ -939,13 +943,10 @@ def said_alone(utterance: HeardUtterance, words: list[tuple[int, int]], share: f
 def echo_seconds(utterance: HeardUtterance, first: int, last: int) -> float:
     """Speech the detector heard after frame `last` ECHO_DB or more below the loudest frame of
     `first`..`last`: the room's echo of those words (0 when the utterance has no loud frames kept)."""
-    if utterance.loud is None or last < first:
+    n = 0 if utterance.loud is None else min(len(utterance.loud), len(utterance.pcm) // 160)
+    if first >= n or last < first:
         return 0.0
-    n = min(len(utterance.loud), len(utterance.pcm) // 160)
-    frames = utterance.pcm[:n * 160].reshape(n, 160).astype(np.float64)
-    level = 10 * np.log10(np.mean(frames ** 2, axis=1) + 1.0)
-    if first >= n:
-        return 0.0
+    level = frame_levels(utterance.pcm[:n * 160].reshape(n, 160))
     loudest = level[first:last + 1].max()
     after = slice(last + 1, n)
     return float(np.count_nonzero(utterance.loud[after] & (level[after] < loudest - ECHO_DB))) / 100
