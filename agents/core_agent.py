@@ -60,7 +60,7 @@ from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
                               UserChat, heartbeat_template)
 from .core_commands import RobotCommands
-from .core_hearing import Continuation, keyword_in_a_sentence
+from .core_hearing import Continuation, LookAhead, keyword_in_a_sentence
 from .core_events import CoreEvents
 from .core_strategies import Strategies
 from .core_fsm import build_core_fsm
@@ -154,6 +154,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._voices = VoiceActivity(max_seconds=5.0), VoiceActivity(max_seconds=5.0)
         self._steerings = Steering(), Steering()  # the array beside each detector, as long-lived
         self.continuation = Continuation(self._voices[0])  # a sentence the owner pauses in (s4b)
+        self.look_ahead = LookAhead()  # s4a's spotting begun before the detector's cut
         self.dynamic: DynamicSession | None = None
         self.told: list[str] = []  # everything said to the user, in order
         self.supervisor: BehaviourHost | None = None
@@ -200,7 +201,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             self.activate("audio-listener", AudioListener(self.robot, self._speech_heard, self.speaking,
                                                           vad=self._voices[0], sentences=lambda: self.sentences_begun,
                                                           spoke_during=self._own_voice_times(),
-                                                          steering=self._steerings[0]))
+                                                          steering=self._steerings[0], on_ending=self._speech_ending))
 
     def _listen_for_supervision_words(self) -> None:
         """While a RApp runs, the microphone is also the Core's for its supervision words (a real NAO
@@ -269,6 +270,11 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                               speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long, **where, **fate)
         if listening:
             await self.commands.put(utterance)
+
+    async def _speech_ending(self, utterance: HeardUtterance) -> None:
+        """The detector is about to cut `utterance` (0.1 s ahead): in s3, s4a's spotting begins now."""
+        if self.supervisor is not None and self.supervisor.behaviour.current == "s3_listen":
+            self.look_ahead.start(self.keywords, utterance)
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
@@ -375,9 +381,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def spot_keyword(self, utterance: HeardUtterance) -> str | None:
         """s4a for speech: the RApp of an isolated keyword (pocketsphinx on this robot), else None."""
-        spotter = self.keywords
-        word = await asyncio.get_running_loop().run_in_executor(None, spotter.spot, utterance)
-        self.record_structure("keyword-spotting", word=word)
+        word, early = await self.look_ahead.spot(self.keywords, utterance)
+        self.record_structure("keyword-spotting", word=word, **({"early": True} if early else {}))
         return self.vocabulary.get(word.lower()) if word else None
 
     async def recognise_sentence(self, utterance: HeardUtterance) -> str:

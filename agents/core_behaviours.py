@@ -97,8 +97,12 @@ class MicrophoneStream:
 
     def __init__(self, robot, on_utterance, muted, alive=lambda: True, chunk_s: float = CHUNK_S,
                  vad: VoiceActivity | None = None, observe: bool = False, sentences=lambda: 0,
-                 spoke_during=None, array: bool = True, steering: Steering | None = None):
+                 spoke_during=None, array: bool = True, steering: Steering | None = None, on_ending=None):
         self.robot, self.on_utterance, self.muted, self.alive = robot, on_utterance, muted, alive
+        # on_ending: told the utterance the detector will cut unless speech comes again, 0.1 s before
+        # the cut (VoiceActivity.ending), steered as the cut will be: a listener may start on it early
+        self.on_ending = on_ending
+        self._early: tuple[tuple[int, int], asyncio.Future] | None = None  # ((end, samples), its steering)
         self.sentences, self.spoke_during = sentences, spoke_during
         # observe: record only what others make pass (beside a task: listening must not drive the world;
         # a fast world otherwise ran thousands of simulated seconds while the task waited on the Platform)
@@ -160,16 +164,48 @@ class MicrophoneStream:
                 None, self.steering.listen, self.vad, four[:, four.shape[1] - len(pcm):], audio.microphones)
             for utterance, end in heard:
                 await self.on_utterance(await self._steered(utterance, end))
+            if self.on_ending is not None:
+                self._look_ahead(self.steering.ending(self.vad))
         elif pcm.size:
             for utterance in self.vad.feed(pcm):
                 await self.on_utterance(utterance)
+            if self.on_ending is not None:
+                ending = self.vad.ending()
+                self._look_ahead(None if ending is None else (ending, None))
         await asyncio.sleep(max(0.0, start + self.chunk_s - time.monotonic()))
         return True
+
+    def _look_ahead(self, ending: tuple[HeardUtterance, int | None] | None) -> None:
+        """Steer the utterance the detector is about to cut and tell on_ending, once per utterance."""
+        if ending is None:
+            return
+        utterance, end = ending
+        key = (utterance.end_sample if end is None else end, len(utterance.pcm))
+        if self._early is not None and self._early[0] == key:
+            return
+        if self._early is not None:
+            self._early[1].cancel()  # the owner went on: that end was not one
+
+        async def early() -> HeardUtterance:
+            steered = utterance if end is None else await self._steer(utterance, end)
+            try:
+                await self.on_ending(steered)
+            except Exception as e:  # noqa: BLE001 - a look ahead that fails costs only its time
+                logging.getLogger("rapp.core").warning("looking ahead at an utterance failed: %r", e)
+            return steered
+        self._early = (key, asyncio.ensure_future(early()))
 
     async def _steered(self, utterance: HeardUtterance, end: int) -> HeardUtterance:
         """The utterance as the whole array hears it (where the array still keeps its sound)."""
         if utterance.too_long:
             return utterance
+        early, self._early = self._early, None
+        if early is not None and early[0] == (end, len(utterance.pcm)):
+            return await early[1]  # the cut is the utterance steered ahead of it (VoiceActivity.ending)
+        return await self._steer(utterance, end)
+
+    async def _steer(self, utterance: HeardUtterance, end: int) -> HeardUtterance:
+        """Steering.steered on the utterance's samples (the one microphone's where that cannot be)."""
         got = await asyncio.get_running_loop().run_in_executor(None, self.steering.steered, len(utterance.pcm), end)
         if got is None:
             return utterance
@@ -178,6 +214,9 @@ class MicrophoneStream:
     def close(self) -> None:
         if self._piece is not None:
             self._piece.cancel()
+        if self._early is not None:
+            self._early[1].cancel()
+            self._early = None
         self._next, self._before = None, None
 
     async def run_forever(self) -> None:
@@ -195,10 +234,11 @@ class AudioListener(CyclicBehaviour):
     CHUNK_S = MicrophoneStream.CHUNK_S
 
     def __init__(self, robot, on_utterance, muted, vad: VoiceActivity | None = None, sentences=lambda: 0,
-                 spoke_during=None, steering: Steering | None = None):
+                 spoke_during=None, steering: Steering | None = None, on_ending=None):
         super().__init__()
         self.stream = MicrophoneStream(robot, on_utterance, muted, alive=lambda: not self.is_killed(), vad=vad,
-                                       sentences=sentences, spoke_during=spoke_during, steering=steering)
+                                       sentences=sentences, spoke_during=spoke_during, steering=steering,
+                                       on_ending=on_ending)
         self.vad = self.stream.vad
 
     async def run(self) -> None:

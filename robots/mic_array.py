@@ -271,6 +271,15 @@ class Steering:
         heard = vad.feed(self.for_detector(channels, offsets))
         self.feed(channels, quiet=not (was_active or vad.active or heard), offsets=offsets)
         self._renew_filter(vad)
+        return [(u, self._end(vad, u)) for u in heard]
+
+    def ending(self, vad) -> tuple | None:
+        """The utterance the detector will cut unless speech comes again (VoiceActivity.ending), as
+        `listen` would give it, or None."""
+        u = vad.ending()
+        return None if u is None else (u, self._end(vad, u))
+
+    def _end(self, vad, u) -> int:
+        """The utterance's end counted in samples fed here."""
         # a detector that outlives listeners may have been fed before this was; it hears DELAY late
-        before = round(vad.heard_s * vad.rate) - self.fed
-        return [(u, u.end_sample - before - self.DELAY) for u in heard]
+        return u.end_sample - (round(vad.heard_s * vad.rate) - self.fed) - self.DELAY

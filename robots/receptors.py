@@ -811,12 +811,28 @@ class VoiceActivity:
             self.frames, self.loud, self.skipping, self.quiet_run = [], [], True, 0
             return got
         if self.quiet_run >= self.end_frames:
-            keep = len(self.frames) - self.quiet_run + self.pad_frames
-            got = HeardUtterance(np.concatenate(self.frames[:keep]), self.speech_frames / 100,
-                                 loud=np.array(self.loud[:keep]))
+            got = self._padded()
             self.reset()
             return got if got.speech_seconds >= self.min_frames / 100 else None
         return None
+
+    def _padded(self) -> "HeardUtterance":
+        """The utterance so far, `pad` s of its silence kept."""
+        keep = len(self.frames) - self.quiet_run + self.pad_frames
+        return HeardUtterance(np.concatenate(self.frames[:keep]), self.speech_frames / 100,
+                              loud=np.array(self.loud[:keep]))
+
+    def ending(self) -> "HeardUtterance | None":
+        """The utterance this detector will cut unless speech comes again, as soon as it is known: after
+        `pad` s of silence its audio is fixed, and the rest of `end_silence` only confirms the end. A
+        listener may start on it meanwhile (the Core spots a keyword in it): the cut, if it comes, is
+        equal to it (pcm, loud, end_sample). None while speech goes on or when it would not count."""
+        if self.skipping or not self.frames or self.quiet_run < self.pad_frames or self.speech_frames < self.min_frames:
+            return None
+        got = self._padded()
+        fed = round(self.heard_s * self.rate) - len(self._rest)  # samples up to the last frame judged
+        got.end_sample = fed - (self.quiet_run - self.pad_frames) * self.hop
+        return got
 
 
 def _shape_distance(bands: np.ndarray, shape: np.ndarray, before: float | None = None) -> np.ndarray:

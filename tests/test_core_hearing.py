@@ -80,3 +80,48 @@ async def test_a_listener_that_stops_feeding_is_not_waited_for(monkeypatch):
     vad, _, more = await _continued(pcm, stop_at=1.0 + len(tts.synthesize("check my inbox", "en-us")) / RATE + 0.5)
     assert more is None and vad.heard_s - vad.cut_s < CONTINUE_WITHIN_S  # given up for the stall, not the pause
     assert 0.3 <= _continued.waited < 0.8
+
+
+def _endings_and_cuts(pcm, chunk_s=0.01):
+    """Feed the detector `pcm`: (heard_s, what `ending` says) each time it changes, and (heard_s, cut)s."""
+    vad, endings, cuts, step = VoiceActivity(max_seconds=5.0), [], [], int(chunk_s * RATE)
+    for i in range(0, len(pcm), step):
+        cuts += [(vad.heard_s + chunk_s, u) for u in vad.feed(pcm[i:i + step])]
+        ending = vad.ending()
+        if ending is not None and (not endings or endings[-1][1].end_sample != ending.end_sample):
+            endings.append((vad.heard_s, ending))
+    return endings, cuts
+
+
+def test_the_utterance_about_to_be_cut_is_the_cut():
+    endings, cuts = _endings_and_cuts(_said("check my inbox", pause_s=0.0))
+    assert len(cuts) == 1 and len(endings) == 1
+    (known_at, early), (cut_at, cut) = endings[0], cuts[0]
+    assert 0.09 <= cut_at - known_at <= 0.11  # 0.1 s ahead: the detector's 0.3 s of silence less its 0.2 s pad
+    assert np.array_equal(early.pcm, cut.pcm) and np.array_equal(early.loud, cut.loud)
+    assert (early.end_sample, early.speech_seconds) == (cut.end_sample, cut.speech_seconds)
+
+
+def test_an_owner_who_goes_on_makes_another_cut():
+    # a pause longer than the pad and shorter than the detector's silence: an end foreseen, then speech again
+    endings, cuts = _endings_and_cuts(_said("what's the", "weather", pause_s=0.25))
+    assert len(cuts) == 1 and len(endings) == 2
+    assert endings[0][1].seconds < cuts[0][1].seconds - 0.4
+    assert np.array_equal(endings[1][1].pcm, cuts[0][1].pcm)
+
+
+@pytest.fixture(scope="module")
+def spotter():
+    from robots.receptors import KeywordSpotter
+    return KeywordSpotter(["inbox", "weather"], ["what's the weather in warsaw"])
+
+
+@pytest.mark.parametrize("said, pause_s, early", [(("inbox",), 0.0, True), (("what's the", "weather"), 0.25, False)])
+async def test_the_keyword_spotted_ahead_is_taken_only_for_the_same_audio(spotter, said, pause_s, early):
+    endings, cuts = _endings_and_cuts(_said(*said, pause_s=pause_s))
+    ahead = core_hearing.LookAhead()
+    ahead.start(spotter, endings[0][1])
+    word, was_early = await ahead.spot(spotter, cuts[0][1])
+    assert was_early is early
+    assert word == spotter.spot(cuts[0][1])
+    assert (word == "inbox") is (said == ("inbox",))

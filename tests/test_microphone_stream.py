@@ -89,6 +89,34 @@ async def test_the_array_steers_to_the_owner_and_keeps_the_detectors_cut(heading
         world.close()
 
 
+async def test_the_utterance_about_to_be_cut_is_steered_ahead_of_the_cut():
+    world = World.from_file("small", seed=4)
+    try:
+        api = RobotAPI(world.add_robot("nao", pose=(0.6, 0.6, 0.0)))
+        heard, ahead = [], []
+
+        async def on_utterance(utterance):
+            heard.append((world.time, utterance))
+
+        async def on_ending(utterance):
+            ahead.append((world.time, utterance))
+
+        stream = MicrophoneStream(api, on_utterance, muted=lambda: False, spoke_during=lambda t0, t1: None,
+                                  on_ending=on_ending)
+        for _ in range(20):
+            await stream.step()
+        pcm = tts.synthesize("inbox")
+        house_sound(world).play("owner", talker_at((0.6, 0.6), 1.5, api.audio_in.position()[2]), pcm,
+                                at=world.time + 0.3, level_db=60)
+        while not heard and world.time < 10:
+            await stream.step()
+        assert len(heard) == 1 and len(ahead) == 1 and heard[0][1].bearing is not None
+        # told a piece (0.1 s) ahead of the cut, steered: the cut is that very utterance, steered once
+        assert heard[0][1] is ahead[0][1] and heard[0][0] - ahead[0][0] == pytest.approx(0.1, abs=0.02)
+    finally:
+        world.close()
+
+
 def _cut(mono: np.ndarray, end: int, n: int, lag: int) -> np.ndarray:
     """The n samples the detector's cut took from the start of listening (ending at `end`), shifted by `lag`."""
     return mono[end + lag - n:end + lag]
