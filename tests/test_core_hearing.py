@@ -125,3 +125,22 @@ async def test_the_keyword_spotted_ahead_is_taken_only_for_the_same_audio(spotte
     assert was_early is early
     assert word == spotter.spot(cuts[0][1])
     assert (word == "inbox") is (said == ("inbox",))
+
+
+@pytest.mark.parametrize("resume_frames, cut_within", [(2, 0.45), (1, None)])
+def test_a_click_alone_does_not_hold_the_utterance_open(resume_frames, cut_within):
+    """A single loud 10 ms frame in the silence after speech is the room's (the microphone's own noise
+    takes a frame for speech about once a second): the silence goes on; two in a row are speech again."""
+    pcm = np.concatenate([_said("check my inbox", pause_s=0.0), _said(pause_s=0.0)]).astype(np.float64)
+    spoken_until = 1.0 + len(tts.synthesize("check my inbox", "en-us")) / RATE
+    first = (int(spoken_until * 100) + 5) * 160  # a frame of the detector's, 40-50 ms after the speech
+    clicks = np.random.default_rng(2).normal(0, 80, 160)  # the room's sound, 8 dB louder for 10 ms
+    for at in range(first, first + int(0.9 * RATE), 15 * 160):  # one every 0.15 s for 0.9 s
+        pcm[at:at + 160] += clicks
+    vad = VoiceActivity(max_seconds=5.0, resume_frames=resume_frames)
+    cuts = [vad.heard_s + 0.01 for i in range(0, len(pcm), 160) if vad.feed(pcm[i:i + 160].astype(np.int16))]
+    assert len(cuts) == 1
+    if cut_within is not None:
+        assert cuts[0] - spoken_until < cut_within
+    else:  # each click held it open: cut 0.3 s after the last
+        assert cuts[0] - spoken_until > 0.9

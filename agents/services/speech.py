@@ -203,7 +203,10 @@ def _phrase_decoder(key: tuple, words: list[str] = ()) -> PhraseDecoder:
         kept = _kept.phrases = OrderedDict()
     dec = kept.pop(key, None)
     if dec is None:
-        dec = PhraseDecoder(jsgf=key[1], words=words) if key[0] == "jsgf" else PhraseDecoder(list(key[1:]))
+        # the Store's sentences searched wide (PhraseDecoder.WIDE_BEAMS); a grammar of words as before:
+        # there the phone loop searched wide too gained as much as the words (a margin of 0.01 became 0)
+        dec = PhraseDecoder(jsgf=key[1], words=words) if key[0] == "jsgf" else \
+            PhraseDecoder(list(key[1:]), beams=PhraseDecoder.WIDE_BEAMS)
     kept[key] = dec
     while len(kept) > KEPT_GRAMMARS:
         kept.popitem(last=False)

@@ -222,3 +222,13 @@ def _stereo(pcm) -> bytes:
         w.setnchannels(2), w.setsampwidth(2), w.setframerate(16000)
         w.writeframes(np.repeat(pcm, 2).tobytes())
     return buf.getvalue()
+
+
+@pytest.mark.parametrize("voice", ["en-us+m3", "en-us"])
+def test_a_sentence_the_search_once_pruned_early_is_recognised(ctx, voice):
+    # with pocketsphinx's default beams, "tell me the forecast" in eSpeak's American voices lost to
+    # "do i have new mail" in the first words and no sentence's end was reached (PhraseDecoder.WIDE_BEAMS)
+    sentences = ["tell me the forecast", "do i have new mail", "what's the weather like", "check my inbox",
+                 "give me a quiz", "check the hazards"]
+    _, pcm = _heard("tell me the forecast", voice=voice)
+    assert _recognise(ctx, pcm, sentences=sentences).text == "tell me the forecast"
