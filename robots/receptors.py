@@ -481,8 +481,10 @@ class PhraseDecoder:
     # in eSpeak's American voices lost to "do i have ..." early on). On bench/speech_offline.py's
     # recordings (2026-11-27, anechoic, four microphones) the Platform path's commands right went from
     # 82/83/80 to 82/83/84 of 84 (quiet/TV 50/TV 60), other sentences taken 11 -> 10 of 144, and a
-    # decode took ~25 ms more. The Core's keyword spotter keeps the defaults: there it moved as many
-    # keywords each way, and took "quiz" for "email" once
+    # decode took ~25 ms more. In a 0.3 s room it costs: 80/73/20 -> 81/72/14, and other sentences
+    # taken 4 -> 11 (quiet 0 -> 6 of 48, mostly "turn on the radio"). Narrower (1e-60, 1e-40) did not
+    # reach the sentence's end with one microphone. The Core's keyword spotter keeps the defaults:
+    # there it moved as many keywords each way, and took "quiz" for "email" once
     WIDE_BEAMS = dict(beam=1e-80, wbeam=1e-60, pbeam=1e-80)
 
     def known(self, phrase: str) -> bool:
