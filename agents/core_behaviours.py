@@ -160,6 +160,8 @@ class MicrophoneStream:
                 self.vad.reset()
                 pcm = pcm[:0]
         if pcm.size and four is not None:  # the array's filter and the detector: a few ms of CPU
+            if self._early is not None and not self._early[1].done():
+                await asyncio.wait({self._early[1]})  # Steering is not thread-safe: its steering ahead ends first
             heard = await asyncio.get_running_loop().run_in_executor(
                 None, self.steering.listen, self.vad, four[:, four.shape[1] - len(pcm):], audio.microphones)
             for utterance, end in heard:
