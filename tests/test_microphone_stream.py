@@ -93,13 +93,13 @@ async def test_the_utterance_about_to_be_cut_is_steered_ahead_of_the_cut():
     world = World.from_file("small", seed=4)
     try:
         api = RobotAPI(world.add_robot("nao", pose=(0.6, 0.6, 0.0)))
-        heard, ahead = [], []
+        told = []
 
         async def on_utterance(utterance):
-            heard.append((world.time, utterance))
+            told.append(("cut", utterance))
 
         async def on_ending(utterance):
-            ahead.append((world.time, utterance))
+            told.append(("ahead", utterance))
 
         stream = MicrophoneStream(api, on_utterance, muted=lambda: False, spoke_during=lambda t0, t1: None,
                                   on_ending=on_ending)
@@ -108,11 +108,12 @@ async def test_the_utterance_about_to_be_cut_is_steered_ahead_of_the_cut():
         pcm = tts.synthesize("inbox")
         house_sound(world).play("owner", talker_at((0.6, 0.6), 1.5, api.audio_in.position()[2]), pcm,
                                 at=world.time + 0.3, level_db=60)
-        while not heard and world.time < 10:
+        while not any(kind == "cut" for kind, _ in told) and world.time < 10:
             await stream.step()
-        assert len(heard) == 1 and len(ahead) == 1 and heard[0][1].bearing is not None
-        # told a piece (0.1 s) ahead of the cut, steered: the cut is that very utterance, steered once
-        assert heard[0][1] is ahead[0][1] and heard[0][0] - ahead[0][0] == pytest.approx(0.1, abs=0.02)
+        # told ahead of the cut (a piece ahead when the stream keeps up: robots' VoiceActivity.ending,
+        # tests/test_core_hearing.py), steered: the cut is that very utterance, steered once
+        assert [kind for kind, _ in told] == ["ahead", "cut"]
+        assert told[1][1] is told[0][1] and told[1][1].bearing is not None
     finally:
         world.close()
 
