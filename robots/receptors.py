@@ -668,8 +668,9 @@ class VoiceActivity:
     An utterance starts after `start_frames` speech frames in a row and ends after `end_silence` s
     without; once that silence has lasted `resume_after` s, only `resume_frames` speech frames in a
     row end it (the mic's own noise alone passes for speech in ~3 % of its frames, most of them one
-    at a time, and each held an utterance open up to 0.3 s longer). `feed` returns the finished ones (with `pad` s of audio before and after). One longer
-    than `max_seconds` is returned once, cut, with `too_long` set, and the rest of it is skipped."""
+    at a time, and each held an utterance open up to 0.3 s longer). `feed` returns the finished ones
+    (with `pad` s of audio before and after). One longer than `max_seconds` is returned once, cut,
+    with `too_long` set, and the rest of it is skipped."""
 
     def __init__(self, rate: int = 16000, margin_db: float = 6.0, start_frames: int = 5, end_silence: float = 0.3,
                  pad: float = 0.2, max_seconds: float = 10.0, floor_seconds: float = 5.0, min_speech: float = 0.2,
@@ -834,19 +835,22 @@ class VoiceActivity:
         return None
 
     def _padded(self) -> "HeardUtterance":
-        """The utterance so far, `pad` s of its silence kept."""
+        """The utterance so far, `pad` s of its silence kept (a lone loud frame in the silence left
+        out is not its speech: the cut then equals what `ending` said before it)."""
         keep = len(self.frames) - self.quiet_run + self.pad_frames
-        return HeardUtterance(np.concatenate(self.frames[:keep]), self.speech_frames / 100,
-                              loud=np.array(self.loud[:keep]))
+        speech = self.speech_frames - sum(self.loud[keep:])
+        return HeardUtterance(np.concatenate(self.frames[:keep]), speech / 100, loud=np.array(self.loud[:keep]))
 
     def ending(self) -> "HeardUtterance | None":
         """The utterance this detector will cut unless speech comes again, as soon as it is known: after
         `pad` s of silence its audio is fixed, and the rest of `end_silence` only confirms the end. A
         listener may start on it meanwhile (the Core spots a keyword in it): the cut, if it comes, is
-        equal to it (pcm, loud, end_sample). None while speech goes on or when it would not count."""
-        if self.skipping or not self.frames or self.quiet_run < self.pad_frames or self.speech_frames < self.min_frames:
+        equal to it (pcm, loud, speech, end_sample). None while speech goes on or when it would not count."""
+        if self.skipping or not self.frames or self.quiet_run < self.pad_frames:
             return None
         got = self._padded()
+        if got.speech_seconds < self.min_frames / 100:
+            return None
         fed = round(self.heard_s * self.rate) - len(self._rest)  # samples up to the last frame judged
         got.end_sample = fed - (self.quiet_run - self.pad_frames) * self.hop
         return got

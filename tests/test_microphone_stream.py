@@ -16,17 +16,23 @@ from robots.mic_array import Steering
 from robots.sound import house_sound, talker_at
 
 
+def _nao_listening(world, heading: float = 0.0, **stream_options):
+    """A NAO in the small house and its microphone stream: (robot API, stream, each utterance it cuts)."""
+    api = RobotAPI(world.add_robot("nao", pose=(0.6, 0.6, heading)))
+    heard = []
+
+    async def on_utterance(utterance):
+        heard.append(utterance)
+
+    stream = MicrophoneStream(api, on_utterance, muted=lambda: False, spoke_during=lambda t0, t1: None,
+                              **stream_options)
+    return api, stream, heard
+
+
 async def test_a_stream_that_falls_behind_hears_the_whole_utterance():
     world = World.from_file("small", seed=4)
     try:
-        api = RobotAPI(world.add_robot("nao", pose=(0.6, 0.6, 0.0)))
-        heard = []
-
-        async def on_utterance(utterance):
-            heard.append(utterance)
-
-        stream = MicrophoneStream(api, on_utterance, muted=lambda: False, spoke_during=lambda t0, t1: None,
-                                  array=False)
+        api, stream, heard = _nao_listening(world, array=False)
         t_start = world.time
         for _ in range(8):  # the detector learns the room's quiet
             await stream.step()
@@ -53,13 +59,7 @@ async def test_a_stream_that_falls_behind_hears_the_whole_utterance():
 async def test_the_array_steers_to_the_owner_and_keeps_the_detectors_cut(heading):
     world = World.from_file("small", seed=4)
     try:
-        api = RobotAPI(world.add_robot("nao", pose=(0.6, 0.6, heading)))
-        heard = []
-
-        async def on_utterance(utterance):
-            heard.append(utterance)
-
-        stream = MicrophoneStream(api, on_utterance, muted=lambda: False, spoke_during=lambda t0, t1: None)
+        api, stream, heard = _nao_listening(world, heading)
         t_start = world.time
         for _ in range(20):  # the detector learns the room's quiet; the array, its sound before the owner
             await stream.step()
@@ -92,28 +92,23 @@ async def test_the_array_steers_to_the_owner_and_keeps_the_detectors_cut(heading
 async def test_the_utterance_about_to_be_cut_is_steered_ahead_of_the_cut():
     world = World.from_file("small", seed=4)
     try:
-        api = RobotAPI(world.add_robot("nao", pose=(0.6, 0.6, 0.0)))
-        told = []
-
-        async def on_utterance(utterance):
-            told.append(("cut", utterance))
+        ahead = []
 
         async def on_ending(utterance):
-            told.append(("ahead", utterance))
+            ahead.append((len(heard), utterance))  # with how many utterances were cut by then
 
-        stream = MicrophoneStream(api, on_utterance, muted=lambda: False, spoke_during=lambda t0, t1: None,
-                                  on_ending=on_ending)
+        api, stream, heard = _nao_listening(world, on_ending=on_ending)
         for _ in range(20):
             await stream.step()
         pcm = tts.synthesize("inbox")
         house_sound(world).play("owner", talker_at((0.6, 0.6), 1.5, api.audio_in.position()[2]), pcm,
                                 at=world.time + 0.3, level_db=60)
-        while not any(kind == "cut" for kind, _ in told) and world.time < 10:
+        while not heard and world.time < 10:
             await stream.step()
         # told ahead of the cut (a piece ahead when the stream keeps up: robots' VoiceActivity.ending,
         # tests/test_core_hearing.py), steered: the cut is that very utterance, steered once
-        assert [kind for kind, _ in told] == ["ahead", "cut"]
-        assert told[1][1] is told[0][1] and told[1][1].bearing is not None
+        assert len(heard) == 1 and [n for n, _ in ahead] == [0]
+        assert heard[0] is ahead[0][1] and heard[0].bearing is not None
     finally:
         world.close()
 
