@@ -40,6 +40,7 @@ from spade.message import Message
 
 import ontology.robot
 from behaviours import BehaviourHost
+from behaviours.pause import charged_seconds
 from ontology import core as C
 from ontology import platform as P
 from ontology import store as S
@@ -585,6 +586,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         session = self.dynamic
         limit = session.manifest.time_limit_s
         start = prev = time.monotonic()
+        paused = 0.0
         # silence before we watch is no evidence: the hand-over itself may have held our loop (a
         # fleet's Cores in one process entered s8 5 s after their hand-off, every beat unread)
         session.last_beat = max(session.last_beat, start)
@@ -592,7 +594,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             now = time.monotonic()
             stall = now - prev - 0.1
             if self.estop_reason is not None:
-                start += now - prev  # a paused task's time limit does not run
+                paused += now - prev  # a paused task's time limit does not run (up to an allowance)
             prev = now
             if stall > 0.2:  # our own loop was stalled (GIL, CPU): the Dynamic Agent is not to blame
                 session.last_beat += stall
@@ -605,8 +607,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             if silence > HEARTBEAT_TIMEOUT_S and session.state != "Finished" and not late:
                 session.hung = True  # its loop does not run: it cannot log out, no grace
                 self._end(session, f"no heartbeat for {silence:.1f}s (hung?)")
-            elif now - start > limit:
-                self._end(session, f"time limit of {limit:g}s exceeded")
+            elif charged_seconds(now - start, paused, self.pause_allowance_s) > limit:
+                waiting = self.waiting_for()  # agents/core_strategies.py
+                self._end(session, f"time limit of {limit:g}s exceeded" + (f" while waiting for {waiting}"
+                                                                          if waiting else ""))
             try:
                 await asyncio.wait_for(session.ended.wait(), 0.1)
             except asyncio.TimeoutError:
@@ -752,5 +756,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if word in RESUME_WORDS:
             await self.resume_motion()
             return
-        await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}; say \"stop\" to pause it, "
-                             f"\"cancel\" to end it.")
+        waiting = self.waiting_for()
+        await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}" + (f", waiting for {waiting}" if waiting
+                                                                               else "")
+                             + "; say \"stop\" to pause it, \"cancel\" to end it.")

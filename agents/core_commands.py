@@ -191,7 +191,8 @@ class RobotCommands:
         Agent is told (C.TaskPaused): its task pauses and its motions are held, not failed.
         `by`: who latched it ("owner" or "safety"); only the owner releases an owner's stop."""
         first = self.estop_reason is None
-        self.estop_reason, self.estop_by = reason, by if first else self.estop_by
+        taken_over = not first and by == "owner" and self.estop_by != "owner"  # the strategies let go
+        self.estop_reason, self.estop_by = reason, by if first or taken_over else self.estop_by
         self.fail_held = None
         self._estop_released.clear()
         await self._stop_robot(everything=True)
@@ -199,18 +200,21 @@ class RobotCommands:
             self.record_structure("estop", robot=self.robot_id, reason=reason, by=by)
             await self._tell_task(True, reason)
             await self.publish(EventTopic.ESTOP, ESTOP_TTL_S, latched=True, reason=reason, by=by)
+        if (first or taken_over) and by != "safety":  # a safety stop is told folded (core_strategies)
             d = self.dynamic
             task = f" or \"cancel\" to end {d.rapp}" if d is not None and not d.ended.is_set() else ""
             await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again{task}.")
 
     async def resume_motion(self, by: str = "owner") -> None:
         if self.estop_reason is not None:
+            quiet = self.estop_by == "safety" and by != "owner"  # a strategy's hand-back: folded
             self.estop_reason, self.estop_by = None, None
             self.record_structure("estop-released", robot=self.robot_id, by=by)
             self._estop_released.set()
             await self._tell_task(False, "resumed")
             await self.publish(EventTopic.ESTOP, ESTOP_TTL_S, latched=False, reason="resumed", by=by)
-            await self.tell_user("Resumed: I may move again.")
+            if not quiet:
+                await self.tell_user("Resumed: I may move again.")
 
     async def _tell_task(self, paused: bool, reason: str) -> None:
         d = self.dynamic

@@ -1,11 +1,21 @@
 """A task's pause (paper 003's emergency stop as the task sees it): while paused, behaviours do not
 start their next iteration and FSMs do not enter their next state; a behaviour's timeout does not
-count paused time. The running step is suspended where it waits (its robot motions are held by the
-Core), not failed. The Dynamic Agent's runtime pauses and resumes it on the Core's notices."""
+count paused time, up to an allowance (`PAUSE_ALLOWANCE_S`): a task paused for ever still ends. The
+running step is suspended where it waits (its robot motions are held by the Core), not failed. The
+Dynamic Agent's runtime pauses and resumes it on the Core's notices."""
 from __future__ import annotations
 
 import asyncio
 import time
+
+PAUSE_ALLOWANCE_S = 600.0
+
+
+def charged_seconds(elapsed_s: float, paused_s: float, allowance_s: float = PAUSE_ALLOWANCE_S) -> float:
+    """Seconds that count against a time limit after `elapsed_s`, `paused_s` of them paused: a pause
+    stops the clock for at most `allowance_s` in all (10 minutes), beyond that it counts like work, so
+    a robot stopped for ever (or stopping again and again) still ends its task."""
+    return elapsed_s - min(paused_s, allowance_s)
 
 
 class PauseGate:
@@ -43,8 +53,9 @@ class PauseGate:
             await self._running.wait()
 
 
-async def run_pausable(coro, timeout: float, gate: PauseGate | None):
-    """`coro` with a timeout that stops counting while `gate` is paused (TimeoutError when it expires)."""
+async def run_pausable(coro, timeout: float, gate: PauseGate | None, allowance_s: float = PAUSE_ALLOWANCE_S):
+    """`coro` with a timeout that stops counting while `gate` is paused, for at most `allowance_s`
+    (TimeoutError when it expires; while paused only once the allowance is spent too)."""
     if gate is None:
         return await asyncio.wait_for(coro, timeout)
     task = asyncio.ensure_future(coro)
@@ -52,8 +63,9 @@ async def run_pausable(coro, timeout: float, gate: PauseGate | None):
     start, paused0 = loop.time(), gate.paused_seconds()
     try:
         while True:
-            left = start + timeout + (gate.paused_seconds() - paused0) - loop.time()
-            if left <= 0 and not gate.paused:
+            paused = gate.paused_seconds() - paused0
+            left = timeout - charged_seconds(loop.time() - start, paused, allowance_s)
+            if left <= 0 and (not gate.paused or paused >= allowance_s):
                 task.cancel()
                 await asyncio.gather(task, return_exceptions=True)
                 raise asyncio.TimeoutError

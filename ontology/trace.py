@@ -81,6 +81,7 @@ class StructureEvent(StrEnum):
     MOTION_HELD = "motion-held"  # a motion of the task waits for the emergency stop's release
     MOTION_RESUMED = "motion-resumed"  # ... and was (re-)issued after it
     STRATEGY = "strategy"  # a reactive strategy of the Core (phase start/end; agents/core_strategies.py)
+    SAFETY_INCIDENT = "safety-incident"  # the safety stops at one place are over (told to the owner in one line)
     # a Dynamic Agent's plan monitor (rapps/sdk/monitor.py)
     PLAN_FAILED = "plan-failed"  # an expectation of the running plan failed: the task re-plans
     OBSTACLE_MARKED = "obstacle-marked"  # an obstacle entered into the Platform's temporary layer

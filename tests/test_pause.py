@@ -75,3 +75,46 @@ async def test_the_timeout_decorator_does_not_count_paused_time_either():
     assert out.ok, out.reason
     out = await Timeout(Wait(lambda memory: False, period=0.05), 0.2).run(Context(pause=PauseGate()))
     assert not out.ok and "timeout after 0.2s" in out.reason
+
+
+async def test_a_pause_stops_the_clock_only_up_to_its_allowance():
+    """A task stopped for ever must still end (issue 42): paused time beyond the allowance counts."""
+    from behaviours.pause import charged_seconds, run_pausable
+
+    assert charged_seconds(10.0, 4.0, allowance_s=5.0) == 6.0
+    assert charged_seconds(10.0, 8.0, allowance_s=5.0) == 5.0
+    gate = PauseGate()
+    gate.pause("stop")  # never resumed
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    try:
+        await run_pausable(asyncio.sleep(30), 0.2, gate, allowance_s=0.3)
+        raise AssertionError("a pause without end kept the timeout from expiring")
+    except asyncio.TimeoutError:
+        pass
+    assert 0.45 <= loop.time() - t0 < 1.2  # 0.2 s limit + 0.3 s allowed pause
+
+
+async def test_the_plan_monitor_counts_a_pause_beyond_its_allowance():
+    """rapps/sdk/monitor.py: a leg held by an emergency stop that never ends fails its deadline."""
+    from types import SimpleNamespace
+
+    from agents.errors import RequestError
+    from rapps.sdk.monitor import ArriveBy, PlanFailed, PlanMonitor
+
+    async def no_events(*topics, handler=None):
+        raise RequestError("no events here")
+
+    traced = []
+    task = SimpleNamespace(paused="stopped by the user", subscribe=no_events, _trace=lambda *a, **k: traced.append(k),
+                           log=SimpleNamespace(warning=lambda *a: None))
+    monitor = PlanMonitor(task, ArriveBy((1.0, 0.0), within_s=0.3), period_s=0.05, pause_allowance_s=0.4)
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    try:
+        await monitor.run(asyncio.sleep(30))
+        raise AssertionError("the held leg never failed")
+    except PlanFailed as e:
+        assert e.expectation == "arrive-by"
+    assert 0.65 <= loop.time() - t0 < 1.5
+    assert traced and traced[0]["expectation"] == "arrive-by"

@@ -116,10 +116,14 @@ async def test_obstacle_within_safety_distance_latches_estop_and_strategies_hand
     """Paper 004's reactive strategies: a wall ahead stays, so waiting does not clear it; the Core backs
     off and hands the robot back (the interrupted relative move has already failed: code estop)."""
     core = system.handle.core
-    await run_command(system, "driveecho", "Emergency stop: obstacle ahead", timeout=60)
+    start = len(system.handle.user.received)
+    await run_command(system, "driveecho", "drive-echo ended", timeout=60)
     assert any("obstacle" in r["reason"] and r["by"] == "safety" for r in _events(system, "estop"))
-    await system.handle.user.wait_for(lambda t: "drive-echo ended" in t, timeout=30)
     await wait_until(lambda: core.estop_reason is None, timeout=30)  # released by the strategy
+    # a safety stop is one folded line to the owner, not "Emergency stop ... say resume"
+    line = await system.handle.user.wait_for(lambda t: t.startswith("Safety: stopped once"), timeout=30, start=start)
+    assert "backed off once" in line and "the task ended" in line
+    assert not any(t.startswith("Emergency stop") for t in system.handle.user.texts()[start:])
     steps = [(r["strategy"], r["phase"], r.get("outcome")) for r in _events(system, "strategy")]
     assert steps[-4:] == [("wait-for-clear", "start", None), ("wait-for-clear", "end", "still blocked"),
                           ("back-off", "start", None), ("back-off", "end", "backed off")]
@@ -160,7 +164,9 @@ async def test_a_task_subscribes_to_estop_events_and_expired_ones_are_dropped(sy
 
 async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
     core = system.handle.core
-    await run_command(system, "cruiseecho", "Emergency stop: obstacle ahead", timeout=60)
+    stops = len(_events(system, "estop"))
+    await run_command(system, "cruiseecho", "Starting cruise-echo", timeout=60)
+    await wait_until(lambda: any(r["by"] == "safety" for r in _events(system, "estop")[stops:]), timeout=60)
     pose = system.world.ground_truth().robots["nao"]
     await asyncio.sleep(0.3)
     assert system.world.ground_truth().robots["nao"] == pose  # halted while the strategy waits

@@ -7,6 +7,7 @@ import asyncio
 
 import pybullet as p
 import pytest
+import yaml
 
 from agents.tracing import read_trace
 from robots import RobotAPI, World
@@ -92,5 +93,53 @@ async def test_the_plan_monitor_stops_a_late_plan_and_learns_where_the_way_is_bl
             failed = [r for r in read_trace(system.settings.trace_file) if r["kind"] == "structure"
                       and r["event"] == "plan-failed"]
             assert [r["expectation"] for r in failed] == ["arrive-by", "path-free"]
+    finally:
+        world.close()
+
+
+@pytest.mark.timeout(180)
+async def test_a_wedged_motion_fails_blocked_and_a_paused_task_still_ends(tmp_path):
+    """Issue 42: a robot wedged on something its range sensors do not see (a box below the NAO's
+    sonars) reads clear the moment it stops; the Core resumes at most `max_resumes` times without
+    progress, then backs off and fails the motion `blocked`, so the plan monitor learns the way is
+    blocked. The owner hears one folded line, not a message per stop. And a task the owner stopped
+    and forgot still ends: the time limit stops for paused time only up to an allowance."""
+    low_box = {"disturbances": [{"kind": "box", "id": "toy", "at": 0.0, "position": [1.62, 2.4],
+                                 "size": [0.3, 0.6, 0.12], "drop_height": 0.0}]}
+    world = World.from_file("small", seed=2, rtf=2.0, disturbances=low_box)
+    try:
+        async with RappSystem(tmp_path, trace_file=tmp_path / "trace.jsonl") as system:
+            await system.publish(variant(tmp_path, "boxed-echo", "boxedecho", behaviour="monitored"))
+            idle = variant(tmp_path, "idle-echo", "idleecho", behaviour="silent")
+            manifest = yaml.safe_load((idle / "manifest.yaml").read_text())
+            limit = manifest["time_limit_s"] = 5.0
+            (idle / "manifest.yaml").write_text(yaml.safe_dump(manifest))
+            await system.publish(idle)
+            handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao", pose=(1.0, 2.4, 0.0))))
+            system.handle, core = handle, handle.core
+            await wait_until(lambda: core.vocabulary and state(core) == "s3_listen")
+
+            reply = await run_command(system, "boxedecho", "plan failed", timeout=90)
+            assert "path-free" in reply
+            records = read_trace(system.settings.trace_file)
+            estops = [r for r in records if r["kind"] == "structure" and r["event"] == "estop"]
+            assert len(estops) == core.max_resumes + 1, [r["reason"] for r in estops]
+            assert any("blocked the base" in r["reason"] for r in estops)
+            steps = [s for s in _strategy(system.settings.trace_file) if s[1] == "start"]
+            assert [s[0] for s in steps] == ["wait-for-clear"] * core.max_resumes + ["no-progress"]
+            line = await handle.user.wait_for(lambda t: t.startswith("Safety: stopped"), timeout=30)
+            assert f"stopped {core.max_resumes + 1} times" in line and "gave up on that way once" in line
+            chat = handle.user.texts()
+            assert not any(t.startswith(("Emergency stop", "Resumed")) for t in chat), chat
+            await handle.user.wait_for(lambda t: "boxed-echo finished" in t, timeout=30)
+            await wait_until(lambda: state(core) == "s3_listen")
+
+            core.pause_allowance_s = 2.0
+            task = asyncio.create_task(run_command(system, "idleecho", "idle-echo ended", timeout=limit + 60))
+            await wait_until(lambda: core.dynamic is not None and state(core) == "s8_serve", timeout=30)
+            await handle.user.say(core.address, "stop")  # ... and never "resume"
+            reply = await task
+            assert f"time limit of {limit:g}s exceeded while waiting for your \"resume\"" in reply
+            await handle.user.say(core.address, "resume")
     finally:
         world.close()

@@ -22,7 +22,8 @@ abandoned) and raises PlanFailed, traced as a structure record `plan-failed`. Ex
 
 `ObstacleMarks` (task.marks) enters obstacles into the Platform's temporary obstacle layer and takes each
 out again when the range sensors see its place free (the Core's obstacle-clear event), or it expires.
-Time spent paused (emergency stop) does not count against any deadline."""
+Time spent paused (emergency stop) does not count against any deadline, up to the monitor's
+`pause_allowance_s` (2 minutes): a motion held for ever still fails its deadline."""
 from __future__ import annotations
 
 import asyncio
@@ -38,11 +39,13 @@ Point = tuple[float, float]
 
 
 class PlanFailed(Exception):
-    """An expectation of the running plan failed; the robot has been stopped."""
+    """An expectation of the running plan failed; the robot has been stopped. `backed_off`: the Core's
+    reactive strategies already backed the robot away from the obstacle (agents/core_strategies.py)."""
 
-    def __init__(self, expectation: str, reason: str, obstacle: Point | None = None):
+    def __init__(self, expectation: str, reason: str, obstacle: Point | None = None, backed_off: bool = False):
         super().__init__(f"{expectation}: {reason}")
         self.expectation, self.reason, self.obstacle = expectation, reason, obstacle
+        self.backed_off = backed_off
 
 
 def echo_point(data: dict) -> Point | None:
@@ -139,8 +142,11 @@ class PathFree(Expectation):
 
     def on_motion_error(self, e: RequestError) -> str | None:
         if isinstance(e, RequestFailed) and e.code == ErrorCode.BLOCKED:
+            self.backed_off = "the Core backed off" in e.reason
             return f"the way was blocked ({e.reason})"
         return None
+
+    backed_off = False
 
 
 class Localized(Expectation):
@@ -157,11 +163,15 @@ class Localized(Expectation):
 
 
 class PlanMonitor:
-    """Runs one motion of a plan while checking its expectations every `period_s`."""
+    """Runs one motion of a plan while checking its expectations every `period_s`. Paused time (an
+    emergency stop) does not count against the deadlines for up to `pause_allowance_s` in all; beyond
+    it counts, so a motion held for ever still fails its deadline."""
 
-    def __init__(self, task, *expectations: Expectation, period_s: float = 0.25):
+    def __init__(self, task, *expectations: Expectation, period_s: float = 0.25, pause_allowance_s: float = 120.0):
         self.task, self.expectations, self.period_s = task, list(expectations), period_s
-        self.elapsed_s = 0.0  # unpaused time since run() started
+        self.pause_allowance_s = pause_allowance_s
+        self.elapsed_s = 0.0  # time since run() started less the paused time allowed
+        self.paused_s = 0.0
 
     async def run(self, motion: Awaitable[Any]) -> Any:
         job = asyncio.ensure_future(motion)
@@ -176,8 +186,11 @@ class PlanMonitor:
             while True:
                 before = loop.time()
                 done, _ = await asyncio.wait({job}, timeout=self.period_s)
-                if not self.task.paused:
-                    self.elapsed_s += loop.time() - before
+                step = loop.time() - before
+                if self.task.paused and self.paused_s + step <= self.pause_allowance_s:
+                    self.paused_s += step
+                else:
+                    self.elapsed_s += step
                 if done:
                     return await self._finished(job)
                 for ex in self.expectations:
@@ -221,7 +234,7 @@ class PlanMonitor:
         obstacle = getattr(ex, "obstacle", None)
         self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.PLAN_FAILED, expectation=ex.name,
                          reason=reason, obstacle=list(obstacle) if obstacle else None)
-        raise PlanFailed(ex.name, reason, obstacle)
+        raise PlanFailed(ex.name, reason, obstacle, backed_off=getattr(ex, "backed_off", False))
 
 
 class ObstacleMarks:

@@ -21,6 +21,8 @@ DOORWAY_M = 0.35  # an obstacle this close to a doorway's line is in that doorwa
 # a leg is at most as long as keeps the pose filter's predicted sideways error (1 sigma) within this:
 # three sigma stay inside the 10 cm tracking goal (params: leg_cross_track_std_m)
 LEG_CROSS_TRACK_STD_M = 0.035
+RELOCALIZE_LEG_M = 0.5  # re-localize when the pose filter allows no leg this long (params: relocalize_leg_m)
+AGAIN_M = 0.5  # blocked again within this of where a leg was blocked before: the same obstacle
 
 
 def path_length(poses) -> float:
@@ -109,6 +111,7 @@ class HazardTask(Task):
         nav.add_state("n1_turn", Step(self.turn))
         nav.add_state("n2_move_leg", Step(self.move_leg))
         nav.add_state("n2_back_off", Step(self.back_off))
+        nav.add_state("n3_uncertain", Step(self.uncertain))
         nav.add_state("n3_relocalize", self.localizer.build("n3_relocalize"))
         nav.add_state("n4_arrived", Step(self.arrived), final=True)
         # a leg starting far off the robot's heading: turn on the spot and re-localize first
@@ -116,9 +119,13 @@ class HazardTask(Task):
         nav.add_transition("n1_plan", "n1_turn", when=lambda m, o: o.value == "turn")
         nav.add_transition("n1_plan", "n2_move_leg", when=lambda m, o: o.value != "turn")
         nav.add_transition("n1_turn", "n3_relocalize")
-        nav.add_transition("n2_move_leg", "n2_back_off", when=lambda m, o: o.value == "blocked")
-        nav.add_transition("n2_move_leg", "n3_relocalize", when=lambda m, o: o.value != "blocked")  # moved / late
-        nav.add_transition("n2_back_off", "n3_relocalize")
+        nav.add_transition("n2_move_leg", "n2_back_off", when=lambda m, o: o.value == "back off")
+        nav.add_transition("n2_move_leg", "n3_uncertain", when=lambda m, o: o.value != "back off")
+        nav.add_transition("n2_back_off", "n3_uncertain")
+        # re-localize where the pose filter is too uncertain for the next leg (or the leg was late, or
+        # this is the standing pose), not after every short leg or back-off
+        nav.add_transition("n3_uncertain", "n3_relocalize", when=lambda m, o: o.value)
+        nav.add_transition("n3_uncertain", "n1_plan", when=lambda m, o: not o.value)
         nav.add_transition("n3_relocalize", "n4_arrived", when=lambda m, o: m["leg_final"])
         nav.add_transition("n3_relocalize", "n1_plan", when=lambda m, o: not m["leg_final"])
         return nav
@@ -142,6 +149,7 @@ class HazardTask(Task):
         memory["todo"].sort(key=lambda h: math.hypot(h.stand.x - pose.x, h.stand.y - pose.y))
         memory["hazard"] = memory["todo"].pop(0)
         memory["replans"] = memory["blocked"] = 0
+        memory["blocks"] = []  # where legs to this hazard were blocked
         self._show(memory, 0.0, "on the way")
         return True
 
@@ -194,18 +202,22 @@ class HazardTask(Task):
         within = path_length(leg) / float(self.params["leg_speed_floor_mps"]) + float(self.params["leg_slack_s"])
         monitor = PlanMonitor(self, ArriveBy(leg[-1], within_s=within), PathFree(leg),
                               Localized(self.localizer.position_std, float(self.params["lost_std_m"])))
+        memory["leg_outcome"] = "moved"
         try:
             await monitor.run(self.robot.move_along_path(poses=leg, _timeout=900.0,  # feedback: shown as progress
                                                          _feedback=lambda p: self._show(memory, 0.0, p.text)))
         except PlanFailed as e:
+            memory["leg_final"] = False  # not there: plan again from where it stopped
             if memory["blocked"] >= MAX_BLOCKED:
                 memory["error"] = f"(gave up: {e.reason})"
                 raise
             memory["blocked"] += 1
             if e.expectation != PathFree.name:
-                return "late"  # or lost: re-localize, then plan again from where it is
+                memory["leg_outcome"] = "late"  # or lost: re-localize, then plan again from where it is
+                return "late"
             await self.mark_obstacle(memory, e.obstacle)
-            return "blocked"
+            memory["leg_outcome"] = "blocked"
+            return "blocked" if e.backed_off else "back off"  # the Core's strategies backed off already
         except RequestError as e:
             memory["error"] = f"(motion failed: {e.reason})"
             raise
@@ -213,16 +225,21 @@ class HazardTask(Task):
 
     async def mark_obstacle(self, memory, where) -> None:
         """Enter what blocked the leg into the Platform's map, so that the next plan goes round it
-        (where the range sensors saw it; else just ahead of the robot)."""
+        (where the range sensors saw it; else just ahead of the robot). Near the map's walls it is
+        taken for the wall (the pose estimate was off) unless the way was blocked there before: then
+        it is marked all the same, and wider, so that the next plan is another way, not the same."""
+        pose = await self.robot.get_global_pose()
         if where is None:
-            pose = await self.robot.get_global_pose()
             ahead = float(self.params["back_off_m"]) + 0.3
             where = (pose.x + ahead * math.cos(pose.theta), pose.y + ahead * math.sin(pose.theta))
+        blocks = memory.setdefault("blocks", [])
+        again = sum(math.dist(b, (pose.x, pose.y)) <= AGAIN_M for b in blocks)
+        blocks.append((pose.x, pose.y))
         in_doorway = bool(blocking_doors(memory["home"].doors, [where]))  # a doorway's frame and leaf are
-        added = await self.marks.enter(memory["home"].map_id, where[0], where[1],  # no wall: mark it there
-                                       radius_m=float(self.params["obstacle_radius_m"]),
+        radius = float(self.params["obstacle_radius_m"]) * (1.0 + 0.5 * again)  # no wall: mark it there
+        added = await self.marks.enter(memory["home"].map_id, where[0], where[1], radius_m=radius,
                                        ttl_s=float(self.params["obstacle_ttl_s"]),
-                                       skip_within_m=0.0 if in_doorway else MAPPED_M,
+                                       skip_within_m=0.0 if in_doorway or again else MAPPED_M,
                                        note=f"blocked the way to {memory['hazard'].id}")
         if added:
             memory.setdefault("marked", []).append(tuple(where))
@@ -237,6 +254,18 @@ class HazardTask(Task):
         except RequestError as e:
             memory["error"] = f"(motion failed: {e.reason})"
             raise
+
+    async def uncertain(self, memory) -> bool:
+        """Whether to re-localize now: at the standing pose (the check and the score need the best
+        pose), after a late or lost leg, or when the pose filter no longer allows a leg of
+        `relocalize_leg_m` (params); not after a short leg or a back-off that left the pose certain."""
+        if memory["leg_final"] or memory.get("leg_outcome") == "late":
+            return True
+        await self.localizer.track()
+        longest = self.localizer.leg_length(
+            float(self.params["leg_length_m"]),
+            float(self.params.get("leg_cross_track_std_m", LEG_CROSS_TRACK_STD_M)))
+        return longest < float(self.params.get("relocalize_leg_m", RELOCALIZE_LEG_M))
 
     async def arrived(self, memory):
         pass
