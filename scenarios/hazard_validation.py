@@ -10,12 +10,15 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import random
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from agents.services import hazard
 from agents.services.images import encode_image
@@ -25,9 +28,12 @@ from ontology.services.hazard import DoorCheck, LightCheck
 from robots import RobotAPI, World
 from robots import receptors
 
-from rapps.hazard_detection.hazard_detection.task import door_geometry, door_look_point, door_open_threshold
+from rapps.hazard_detection.hazard_detection.cloud import views_for
+from rapps.hazard_detection.hazard_detection.models import DoorViews
+from rapps.hazard_detection.hazard_detection.task import (camera_spec, door_geometry, door_look_point,
+                                                          door_open_threshold)
 
-from .home_setup import DOOR_OPEN_DEG, LAYOUTS, hazard_list
+from .home_setup import DOOR_OPEN_DEG, LAYOUTS, hazard_list, hazard_overrides, home_description
 
 COMMAND = ".venv/bin/python -m scenarios.hazard_validation --out docs/hazard-validation.md"
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
@@ -63,9 +69,27 @@ class LightRow:
 
 
 @dataclass
+class ViewRow:
+    """One door check in a generated house: the robot arrived near a stand (a few cm and a degree off)
+    and looked, with the leaf at `true_deg`."""
+
+    seed: int
+    robot: str
+    door: str
+    stand: str  # "chosen": the RApp's view (view.py, looking again while unsure); "home": the home's stand
+    true_deg: float
+    angle: float
+    confidence: float
+    looks: int
+    right: bool
+
+
+@dataclass
 class Validation:
     doors: list[DoorRow] = field(default_factory=list)
     lights: list[LightRow] = field(default_factory=list)
+    views: list[ViewRow] = field(default_factory=list)
+    view_seeds: list[int] = field(default_factory=list)
     params: dict = field(default_factory=dict)
     seconds: float = 0.0
 
@@ -153,15 +177,76 @@ async def light_sweep(robot: str, params: dict) -> list[LightRow]:
     return rows
 
 
-async def validate() -> Validation:
+VIEW_ANGLES = (0.0, 20.0, 35.0, 50.0, 65.0, 80.0, 90.0)  # the scenario draws closed or 20..90 deg
+ARRIVAL_M, ARRIVAL_RAD = 0.03, 0.015  # how far off its stand a robot arrives (1 sigma; hazard runs: a few cm)
+
+
+async def generated_door_checks(seed: int, robot: str, params: dict, rng) -> list[ViewRow]:
+    """Every door hazard of the generated house `seed`: the robot checks it from the RApp's chosen view
+    (moving on to the next view while a frame's confidence is below door_min_confidence, as the RApp
+    does) and from the home description's stand, each reached a little off, the leaf at VIEW_ANGLES."""
+    house, res = "generated", params["check_resolution"]
+    world = World.from_file(house, seed=seed, overrides=hazard_overrides(house, seed), render="inline")
+    rows, placed = [], 0
+    try:
+        info, _, _ = home_description(world, house, Path(tempfile.mkdtemp(prefix="views-")))
+        probe = RobotAPI(world.add_robot(robot, name=f"{robot}-probe", pose=(-50.0, -50.0, 0.0)))
+        K = (await probe.get_camera_info(GetCameraInfo(resolution=res))).K
+        camera = camera_spec(K, res, (await probe.get_transform(GetTransform(chain="camera", space="robot"))).matrix)
+
+        async def look(pose) -> object:  # the robot arrives near `pose`, looks at the hinge, checks
+            nonlocal placed
+            placed += 1
+            off = (rng.normal(0, ARRIVAL_M), rng.normal(0, ARRIVAL_M), rng.normal(0, ARRIVAL_RAD))
+            api = RobotAPI(world.add_robot(robot, name=f"{robot}-{placed}", pose=tuple(p + o for p, o in zip(pose, off))))
+            try:
+                await api.look_at_point(LookAtPoint(x=x, y=y, z=z))
+                image = _gray(await api.capture_array(resolution=res))
+                return hazard.door_check(DoorCheck(image_b64=image, method="image"), None)
+            finally:
+                await world.run(api.robot.set_base_pose, -50.0, -50.0 - placed, 0.0)  # out of the next view
+
+        for spec in [h for h in info.hazards if h.type == "door"]:
+            x, y, z = door_look_point(spec, "image")
+            room = next((r for r in info.rooms if r.name == spec.room), None)
+            views = [(v.x, v.y, v.theta) for v in views_for(DoorViews(
+                door=spec.door, robot_side=[spec.stand.x, spec.stand.y], camera=camera, rooms=info.rooms,
+                doors=info.doors, room=room, open_threshold_deg=float(params["door_open_image_deg"]))).views]
+            home = (spec.stand.x, spec.stand.y, spec.stand.theta)
+            for stand, poses in (("chosen", views or [home]), ("home", [home])):
+                for angle in VIEW_ANGLES:
+                    await world.set_door(spec.id, angle)
+                    looks = []
+                    for pose in poses:
+                        looks.append(await look(pose))
+                        if looks[-1].confidence >= float(params["door_min_confidence"]):
+                            break
+                    best = max(reversed(looks), key=lambda r: r.confidence)
+                    right = (best.door_angle > door_open_threshold(params, "image")) == (angle > DOOR_OPEN_DEG)
+                    rows.append(ViewRow(seed, robot, spec.id, stand, angle, best.door_angle, best.confidence,
+                                        len(looks), right))
+    finally:
+        world.close()
+    return rows
+
+
+async def validate(view_seeds: list[int] = ()) -> Validation:
     t0 = time.monotonic()
     params = rapp_params()
-    out = Validation(params=params)
+    out = Validation(params=params, view_seeds=list(view_seeds))
     for house, door in DOOR_VIEWS:
         for robot in ROBOTS:
             out.doors += await door_sweep(house, door, robot, params)
     for robot in ROBOTS:
         out.lights += await light_sweep(robot, params)
+    rng = np.random.default_rng(list(view_seeds) or [0])
+    for seed in view_seeds:
+        for robot in ROBOTS:
+            rows = await generated_door_checks(seed, robot, params, rng)
+            out.views += rows
+            wrong = [f"{r.door}@{r.true_deg:g}({r.stand})" for r in rows if not r.right]
+            print(f"house {seed} {robot}: {sum(r.right for r in rows)}/{len(rows)} right"
+                  + (f"; wrong {' '.join(wrong)}" if wrong else ""), flush=True)
     out.seconds = time.monotonic() - t0
     return out
 

@@ -96,13 +96,17 @@ def door_hazard(door, side: str) -> HazardSpec:
     theta = math.atan2(look[1] - stand[1], look[0] - stand[0])
     return HazardSpec(id=door.id, type="door", stand=dict(x=stand[0], y=stand[1], theta=theta),
                       look_at=[look[0], look[1], 0.0],
-                      door=DoorShape(hinge=list(door.hinge), closed_yaw_deg=math.degrees(door.closed_yaw),
-                                     width_m=door.width))
+                      door=door_shape(door))
+
+
+def door_shape(door) -> DoorShape:
+    return DoorShape(hinge=list(door.hinge), closed_yaw_deg=math.degrees(door.closed_yaw), width_m=door.width,
+                     opens="left" if door.sign > 0 else "right")
 
 
 def doorway(plan, door) -> DoorwaySpec:
     """A door as the home description lists it: where and how wide (its shape), and its rooms."""
-    shape = DoorShape(hinge=list(door.hinge), closed_yaw_deg=math.degrees(door.closed_yaw), width_m=door.width)
+    shape = door_shape(door)
     mid = (door.hinge[0] + 0.5 * door.width * math.cos(door.closed_yaw),
            door.hinge[1] + 0.5 * door.width * math.sin(door.closed_yaw))
     normal = (-math.sin(door.closed_yaw), math.cos(door.closed_yaw))

@@ -61,9 +61,13 @@ def light_level(img: np.ndarray) -> int:
     return int(min(max((centre - surround) * 4, 0.0), 100.0))  # the original returned an int
 
 
+LIGHT_SURE_LEVELS = 20  # a level this far from the threshold is a sure answer (confidence 1)
+
+
 def light_check(req: LightCheck, ctx: ServiceContext) -> LightLevel:
     level = light_level(decode_image(req.image_b64))
-    return LightLevel(light_level=level, lamp_on=level >= req.on_threshold)
+    return LightLevel(light_level=level, lamp_on=level >= req.on_threshold,
+                      confidence=round(min(1.0, abs(level - req.on_threshold) / LIGHT_SURE_LEVELS), 3))
 
 
 # ------------------------------------------------------------------------- door angle, image
@@ -132,10 +136,31 @@ def floor_lines(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) -> 
 def door_angle_image(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) -> float:
     """Original image-only estimate (degrees): the angle between the floor lines of the two halves
     in the image, 90 when either half has none (the leaf turned away out of the floor line)."""
+    return image_answer(gray, params)[0]
+
+
+CENTRE_TOLERANCE = 0.10  # of the image width: a floor line passing this far from the centre is no evidence
+
+
+def image_answer(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) -> tuple[float, float, list]:
+    """(angle, confidence, lines) of the image-only method. The method assumes the camera looks at
+    where the door meets the floor, so both floor lines pass through the image's centre; the
+    confidence is how near the worse of the two does (1 through it, 0 at CENTRE_TOLERANCE of the
+    width or with a half without a line): a far wall's floor line taken for the leaf's is told apart."""
     lines = floor_lines(gray, params)
     if len(lines) < 2:
-        return NO_LINE_DEG
-    return abs(math.degrees(segment_angle(lines["left"]) - segment_angle(lines["right"])))
+        return NO_LINE_DEG, 0.0, [list(map(float, s)) for s in lines.values()]
+    h, w = gray.shape
+    off = max(line_distance(s, (w - 1) / 2, (h - 1) / 2) for s in lines.values())
+    confidence = max(0.0, 1.0 - off / (CENTRE_TOLERANCE * w))
+    angle = abs(math.degrees(segment_angle(lines["left"]) - segment_angle(lines["right"])))
+    return angle, confidence, [list(map(float, lines[side])) for side in ("left", "right")]
+
+
+def line_distance(s, x: float, y: float) -> float:
+    """Distance (px) from (x, y) to the infinite line through segment s."""
+    dx, dy = s[2] - s[0], s[3] - s[1]
+    return abs(dx * (y - s[1]) - dy * (x - s[0])) / max(math.hypot(dx, dy), 1e-9)
 
 
 # ---------------------------------------------------------------------- door angle, geometry
@@ -167,6 +192,13 @@ def floor_points(pix: np.ndarray, geo: DoorGeometry) -> np.ndarray:
 
 def door_angle_geometry(gray: np.ndarray, geo: DoorGeometry) -> float | None:
     """Opening angle from floor-projected segments that start at the hinge and run along the leaf."""
+    found = geometry_answer(gray, geo)
+    return None if found is None else found[0]
+
+
+def geometry_answer(gray: np.ndarray, geo: DoorGeometry) -> tuple[float, float] | None:
+    """(angle, confidence) of the geometry method, None when no segment runs along the leaf; the
+    confidence is the share of the leaf's width its voting segments cover (up to 1)."""
     segs = hough_segments(gray)
     if len(segs) == 0:
         return None
@@ -198,7 +230,7 @@ def door_angle_geometry(gray: np.ndarray, geo: DoorGeometry) -> float | None:
             weights.append(length)
     if not votes:
         return None
-    return float(np.average(votes, weights=weights))
+    return float(np.average(votes, weights=weights)), min(1.0, max(weights) / geo.width_m)
 
 
 def door_check(req: DoorCheck, ctx: ServiceContext) -> DoorAngle:
@@ -210,7 +242,9 @@ def door_check(req: DoorCheck, ctx: ServiceContext) -> DoorAngle:
             raise ServiceError('method "geometry" needs the geometry field', ErrorCode.BAD_REQUEST)
         if np.asarray(req.geometry.camera_to_world, float).shape != (4, 4):
             raise ServiceError("geometry.camera_to_world must be a 4x4 matrix", ErrorCode.BAD_TRANSFORM)
-        angle = door_angle_geometry(gray, req.geometry)
-        if angle is not None:
-            return DoorAngle(door_angle=round(min(angle, 90.0), 1), method="geometry")
-    return DoorAngle(door_angle=round(door_angle_image(gray), 1), method="image")
+        found = geometry_answer(gray, req.geometry)
+        if found is not None:
+            return DoorAngle(door_angle=round(min(found[0], 90.0), 1), method="geometry",
+                             confidence=round(found[1], 3))
+    angle, confidence, lines = image_answer(gray)
+    return DoorAngle(door_angle=round(angle, 1), method="image", confidence=round(confidence, 3), lines=lines)

@@ -22,8 +22,14 @@ from .images import b64_bytes
 from .maps import GridMap, parse_map
 from .obstacles import OverlayMap
 
-# footprint radius (m) of each robot type: the cost map inflates obstacles by it
-ROBOT_RADIUS = {"nao": 0.20, "elektron": 0.30}
+# footprint radius (m) of each robot type as the planner keeps it free: the cost map inflates obstacles
+# by it. Not the body alone (NAO 0.17 m, Elektron 0.26 m) but what its collision protection needs
+# (robots/controllers.py, the Core's 0.10 m safety margin): the NAO's sonars look 10-40 deg to each
+# side and stop it for an echo within 0.35 m, so a wall beside it must stay 0.29 m away (4 deg of
+# heading error), plus its 2 cm sway and 4 cm of the slip a leg accumulates: 0.35 m (= the generated
+# houses' guaranteed passage, robots/house_gen.NAV_RADIUS); the Elektron's laser stops it only for
+# what is ahead: its body and 4 cm (tests/services/test_navigation.py walks both beside a wall)
+ROBOT_RADIUS = {"nao": 0.35, "elektron": 0.30}
 GRID_ALGORITHMS = ("astar", "dijkstra")
 ALGORITHMS = GRID_ALGORITHMS + planning.OMPL_PLANNERS
 ESCAPE_M = 0.25  # how far a start inside an obstacle's inflation may be from free space

@@ -15,11 +15,14 @@ GROUP = "home"
 
 
 class DoorShape(Content):
-    """Hinge on the floor (m), closed direction hinge -> latch (deg) and leaf width (m)."""
+    """Hinge on the floor (m), closed direction hinge -> latch (deg), leaf width (m) and the way the
+    leaf swings open: "left" turns it counter-clockwise seen from above (as the house file says), None
+    when the owner did not say."""
 
     hinge: list[float] = Field(min_length=2, max_length=2)
     closed_yaw_deg: float
     width_m: float = Field(default=0.9, gt=0)
+    opens: Literal["left", "right"] | None = None
 
 
 class DoorwaySpec(Content):

@@ -159,3 +159,37 @@ def test_the_scenario_reads_the_reports_data_from_the_trace():
     assert hazard_reports(records, "core@localhost") == found
     assert reported(found) == parse_reports([r.text for r in reports]) == {
         "d1": {"state": "open", "angle": 37.3}, "l1": {"state": "unknown", "angle": None}}
+
+
+async def test_a_door_frame_without_usable_lines_is_looked_at_again_from_the_next_view():
+    """Issue 42: a frame whose floor lines do not pass where the camera looks (confidence below
+    door_min_confidence) is not answered: the robot goes to the next view and looks again; the
+    answer is the most confident look's, and says how sure it is."""
+    from ontology.services.hazard import DoorAngle
+    from rapps.hazard_detection.hazard_detection.models import DoorViewSpec
+
+    answers = iter([DoorAngle(door_angle=4.1, method="image", confidence=0.1),
+                    DoorAngle(door_angle=37.0, method="image", confidence=0.9)])
+    from ontology.robot import Image
+
+    runtime = FakeRuntime(capture_image=Image(camera="top", width=4, height=3, data_b64="AAAA"))
+    task, memory = HazardTask(runtime), memory_at_start()
+    original = runtime.request
+
+    async def request(to, content, timeout=None, **kw):
+        if content.action_name == "hazard_detection_door_check":
+            return next(answers)
+        return await original(to, content, timeout, **kw)
+
+    runtime.request = request
+    second = DoorViewSpec(x=1.5, y=-1.0, theta=2.0, look=[1.0, -0.45, 0.0], margin=3.0, distance_m=1.2, bearing_deg=45)
+    memory.update(looks=[], views=[second], todo=[])
+    assert await task.check_hazard(memory) == "again"
+    assert (memory["goal"].x, memory["goal"].y) == (1.5, -1.0) and memory["views"] == []
+    assert runtime.reports == []  # nothing said yet
+    assert await task.check_hazard(memory) == "done"
+    text, data = the_report(runtime)
+    assert data.state == "open" and data.angle_deg == 37.0 and data.confidence == 0.9 and data.looks == 2
+    assert text == "Hazard d1 (door): open, 37.0 degrees, confidence 0.90 (looked 2 times)."
+    top = task.build()
+    assert any(t.source == "s5_check_hazard" and t.target == "s4_5_go_to_hazard" for t in top.transitions)

@@ -171,3 +171,25 @@ def test_geometry_method_on_renders(sweeps, robot):
     for r in rows[robot]:
         assert r.geometry_method == "geometry"
         assert abs(r.geometry_deg - r.true_deg) <= 2.5  # the table's worst on this door: 1.1
+
+
+def test_the_image_answer_says_how_far_its_lines_pass_from_where_the_camera_looks():
+    """Issue 42: the method assumes the camera looks at the hinge, so both floor lines pass through
+    the image's centre; a far wall's floor line taken for the leaf's does not: confidence 0."""
+    through = hazard.door_check(DoorCheck(image_b64=encode_image(floor_edge(0, 15))), None)
+    assert through.door_angle == pytest.approx(15, abs=1.0) and through.confidence > 0.8
+    assert len(through.lines) == 2
+    far = floor_edge(0, None)
+    cv2.rectangle(far, (340, 0), (639, 60), 60, -1)  # a level edge 180 px above the centre, right half
+    reply = hazard.door_check(DoorCheck(image_b64=encode_image(far)), None)
+    assert reply.door_angle < 5.0 and reply.confidence == 0.0  # it reads "closed", but says it cannot tell
+    none = hazard.door_check(DoorCheck(image_b64=encode_image(floor_edge(0, None))), None)
+    assert none.door_angle == 90.0 and none.confidence == 0.0
+
+
+def test_the_light_answer_is_sure_far_from_its_threshold():
+    img = encode_image(np.full((240, 320, 3), 10, np.uint8))
+    assert hazard.light_check(LightCheck(image_b64=img, on_threshold=30), None).confidence == 1.0
+    lit = encode_image(painted([10] + [20] * 6 + [200, 30]))  # level 40: on, 10 above the threshold
+    reply = hazard.light_check(LightCheck(image_b64=lit, on_threshold=30), None)
+    assert reply.lamp_on and reply.confidence == pytest.approx(0.5)

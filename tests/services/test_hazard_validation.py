@@ -14,7 +14,7 @@ from ontology.manifest import load_manifest
 from ontology.registry import Done
 from ontology.robot import LookAtPoint, SetCameraParams
 from ontology.spawn import RobotInfo
-from rapps.hazard_detection.hazard_detection.task import HazardTask, door_look_point
+from rapps.hazard_detection.hazard_detection.task import HazardTask, door_look_point, door_report
 from scenarios import hazard_validation as V
 from scenarios.home_setup import hazard_list
 
@@ -122,7 +122,7 @@ async def test_door_check_aims_and_asks_by_the_method(house, method):
     api = robot_at(house, "elektron", spec)
     runtime = WiredRuntime(api, "elektron")
     runtime.params["door_method"] = method
-    report = await HazardTask(runtime).check_door(spec)
+    report = door_report(spec, [await HazardTask(runtime).check_door(spec)], runtime.params)
     look = next(c for c in runtime.sent if c.action_name == "look_at_point")
     aim = (spec.door.hinge[0], spec.door.hinge[1], 0.0) if method == "image" else tuple(spec.look_at)
     assert (look.x, look.y, look.z) == pytest.approx(aim) == door_look_point(spec, method)

@@ -74,18 +74,20 @@ def test_bad_map_upload(ctx):
 
 
 @pytest.mark.parametrize("alg", ["astar", "dijkstra", "rrtconnect", "bitstar"])
-def test_nao_fits_through_passage_elektron_does_not(ctx, alg):
-    upload(ctx, "room", passage_map(0.50))
-    nao = plan(ctx, "nao", alg, time_limit_s=0.5)
-    assert nao.plan_found == 1, nao.reason
-    assert collision_free(ctx, "room", "nao", nao.path)
-    assert (nao.path[0].x, nao.path[0].y) == (1.0, 2.0)
-    assert np.hypot(nao.path[-1].x - 5.0, nao.path[-1].y - 2.0) < 1e-6 and nao.path[-1].theta == 0.5
-    gaps = [np.hypot(a.x - b.x, a.y - b.y) for a, b in zip(nao.path[:-1], nao.path[1:])]
+def test_a_passage_too_narrow_for_the_naos_collision_protection_is_not_planned(ctx, alg):
+    """The planner keeps the clearance each robot's collision protection needs: the Elektron's laser
+    stops it only for what is ahead (0.30 m), the NAO's sonars also for a wall beside it (0.35 m)."""
+    upload(ctx, "room", passage_map(0.60))
+    el = plan(ctx, "elektron", alg, time_limit_s=0.5)
+    assert el.plan_found == 1, el.reason
+    assert collision_free(ctx, "room", "elektron", el.path)
+    assert (el.path[0].x, el.path[0].y) == (1.0, 2.0)
+    assert np.hypot(el.path[-1].x - 5.0, el.path[-1].y - 2.0) < 1e-6 and el.path[-1].theta == 0.5
+    gaps = [np.hypot(a.x - b.x, a.y - b.y) for a, b in zip(el.path[:-1], el.path[1:])]
     assert max(gaps) <= 0.3 + 1e-6
-    assert nao.length_m < 4.3  # nearly straight through the gap
-    el = plan(ctx, "elektron", alg, time_limit_s=0.3)
-    assert el.plan_found == 0 and el.path == []
+    assert el.length_m < 4.3  # nearly straight through the gap
+    nao = plan(ctx, "nao", alg, time_limit_s=0.3)
+    assert nao.plan_found == 0 and nao.path == []
 
 
 def test_wide_passage_both_fit(ctx):
@@ -108,7 +110,7 @@ def clearance(ctx, map_id, path) -> float:
 
 
 def test_clearance_kept_where_the_passage_allows(ctx):
-    upload(ctx, "wide", passage_map(1.0))
+    upload(ctx, "wide", passage_map(1.3))
     start, goal = (1.0, 0.6), (5.0, 0.6)  # the taut path bends around the gap's lower edge
     bare = plan(ctx, "nao", map_id="wide", start=start, goal=goal, clearance_m=0.0)
     kept = plan(ctx, "nao", map_id="wide", start=start, goal=goal)
@@ -126,7 +128,7 @@ def test_clearance_kept_where_the_passage_allows(ctx):
 
 def test_start_against_an_obstacle_escapes(ctx):
     upload(ctx, "room", passage_map())
-    # 0.12 m from the wall face (x = 2.95): inside NAO's 0.20 m inflation, outside the wall itself
+    # 0.12 m from the wall face (x = 2.95): inside NAO's 0.35 m inflation, outside the wall itself
     out = plan(ctx, "nao", start=(2.83, 1.0), goal=(1.0, 2.0))
     assert out.plan_found == 1, out.reason
     assert (out.path[0].x, out.path[0].y) == (2.83, 1.0)
@@ -160,3 +162,30 @@ def test_astar_matches_dijkstra_on_house():
         assert abs(planning.path_length(a) - planning.path_length(d)) < 1e-6
         smooth = planning.tighten(g.free, planning.shortcut(g.free, a))
         assert planning.path_length(smooth) < planning.path_length(a) * 0.99
+
+
+@pytest.mark.parametrize("robot", ["nao", "elektron"])
+def test_the_planned_footprint_keeps_the_robots_collision_protection_quiet_beside_a_wall(robot):
+    """navigation.ROBOT_RADIUS is what each robot's collision protection needs (issue 42): a robot
+    whose path keeps that far from a wall, off it by its sway and a leg's slip (NAO: 2 + 4 cm,
+    Elektron: 4 cm) and turned 4 deg towards it, is not stopped by its own protection (the Core's
+    0.10 m margin)."""
+    import math
+
+    from robots import World
+    from robots.failure_modes import ideal_robots
+
+    off = {"nao": 0.06, "elektron": 0.04}[robot]
+    world = World.from_file("small", seed=1)  # the bedroom's south wall: its face at y = 0.05
+    try:
+        with ideal_robots():
+            r = world.add_robot(robot, pose=(4.6, 0.05 + navigation.ROBOT_RADIUS[robot] - off, math.radians(-4)))
+        margin = world.run_sync(r.front_margin)
+        assert margin > 0.10, margin
+        assert not world.run_sync(r.collides, *r.pose[:2])
+        with ideal_robots():  # and 3 cm nearer it would be: the radius is not needlessly wide
+            near = world.add_robot(robot, name="near", pose=(4.6, 0.05 + navigation.ROBOT_RADIUS[robot] - off - 0.03,
+                                                           math.radians(-4)))
+        assert world.run_sync(near.front_margin) <= 0.10 or world.run_sync(near.collides, *near.pose[:2])
+    finally:
+        world.close()

@@ -16,7 +16,9 @@ from scipy.optimize import least_squares
 from rapps.sdk import CloudService
 from rapps.sdk import vision as L
 
-from .models import ONTOLOGY, Localization, Observation, Observations, Observe, SolvePose
+from .models import (ONTOLOGY, DoorViewList, DoorViews, DoorViewSpec, Localization, Observation, Observations,
+                     Observe, SolvePose)
+from .view import CameraModel, distinct, door_views
 
 
 def observe(req: Observe) -> Observations:
@@ -210,3 +212,18 @@ class LocalizationCloud(CloudService):
 
     async def solve_pose(self, req: SolvePose) -> Localization:
         return solve_pose(req)
+
+    async def door_views(self, req: DoorViews) -> DoorViewList:
+        return await asyncio.to_thread(views_for, req)
+
+
+def views_for(req: DoorViews) -> DoorViewList:
+    """The stands from which the image method is predicted right for every opening (view.py)."""
+    k, c = req.camera.intrinsics, req.camera
+    camera = CameraModel(k.fx, k.fy, k.cx, k.cy, c.width, c.height, c.z, c.ahead)
+    views = door_views(req.door, req.robot_side, camera, req.rooms, req.doors, robot_radius=req.robot_radius_m,
+                       room_rect=req.room.rect if req.room is not None else None,
+                       open_threshold_deg=req.open_threshold_deg)
+    return DoorViewList(views=[DoorViewSpec(x=v.x, y=v.y, theta=v.theta, look=list(v.look), margin=round(v.margin, 2),
+                                            distance_m=v.distance_m, bearing_deg=v.bearing_deg)
+                               for v in distinct(views)[:req.limit]])

@@ -3,7 +3,7 @@ from typing import Literal
 
 from ontology.registry import Action, Content, action
 from ontology.services.common import CameraIntrinsics, Pose2D
-from ontology.services.home import LandmarkSpec
+from ontology.services.home import DoorShape, DoorwaySpec, LandmarkSpec, RoomSpec
 
 ONTOLOGY = "cloud.hazard-detection"
 
@@ -54,6 +54,48 @@ class SolvePose(Action):
     prior: Pose2D | None = None  # current estimate: picks between a single code's ambiguous poses
 
 
+class CameraSpec(Content):
+    """The robot's camera at the check's resolution: intrinsics, size, height above the floor and how
+    far ahead of the base's centre it sits."""
+
+    intrinsics: CameraIntrinsics
+    width: int
+    height: int
+    z: float
+    ahead: float = 0.0
+
+
+class DoorViewSpec(Content):
+    """A stand facing the hinge and where to look from it (view.DoorView)."""
+
+    x: float
+    y: float
+    theta: float
+    look: list[float]
+    margin: float
+    distance_m: float
+    bearing_deg: float
+
+
+class DoorViewList(Content):
+    views: list[DoorViewSpec] = []
+
+
+@action("door_views", ontology=ONTOLOGY, reply=DoorViewList)
+class DoorViews(Action):
+    """Where to stand to check a door with the image method, best first (view.door_views)."""
+
+    door: DoorShape
+    robot_side: list[float]  # a point on the robot's side of the door (x, y)
+    camera: CameraSpec
+    rooms: list[RoomSpec] = []
+    doors: list[DoorwaySpec] = []
+    room: RoomSpec | None = None  # the room the robot checks from
+    robot_radius_m: float = 0.35
+    open_threshold_deg: float = 5.0
+    limit: int = 4
+
+
 class HazardReport(Content):
     """What the task found at one hazard: the data of its report to the Core (`data["hazard"]`; the
     report's text says the same to the user), read back by scenarios/hazard.py to score the run."""
@@ -66,3 +108,5 @@ class HazardReport(Content):
     angle_deg: float | None = None  # doors: the estimated opening angle
     method: str | None = None  # doors: how the angle was estimated
     light_level: float | None = None  # lamps
+    confidence: float | None = None  # 0..1: how far the check's evidence can be trusted (its service's answer)
+    looks: int = 1  # how many views it took (a frame without usable lines: the robot moved and looked again)

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import math
 
-from ontology.services.common import CameraIntrinsics
+from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.hazard import DoorGeometry
 from rapps.sdk import FSM, ArriveBy, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
 
 from .localize import Localizer
-from .models import ONTOLOGY, HazardReport
+from .models import ONTOLOGY, CameraSpec, HazardReport
 
 PLAN_FOUND = 1
 FINAL_LEG_SLACK = 1.25  # the whole rest of the path is one leg when at most this many legs long
@@ -93,7 +93,8 @@ class HazardTask(Task):
         fsm.add_transition("s3_next_hazard", "s6_report", when=lambda m, o: not o.value)
         fsm.add_transition("s4_5_go_to_hazard", "s5_check_hazard")
         fsm.add_transition("s4_5_go_to_hazard", "s5_unreachable", on_error=True)
-        fsm.add_transition("s5_check_hazard", "s3_next_hazard")
+        fsm.add_transition("s5_check_hazard", "s4_5_go_to_hazard", when=lambda m, o: o.value == "again")
+        fsm.add_transition("s5_check_hazard", "s3_next_hazard", when=lambda m, o: o.value != "again")
         fsm.add_transition("s5_check_hazard", "s5_unreachable", on_error=True)
         fsm.add_transition("s5_unreachable", "s2_localize")  # where are we after the failure?
         fsm.add_transition("s6_report", "s7_done")
@@ -147,11 +148,40 @@ class HazardTask(Task):
         pose = await self.robot.get_global_pose()
         # nearest first (greedy tour)
         memory["todo"].sort(key=lambda h: math.hypot(h.stand.x - pose.x, h.stand.y - pose.y))
-        memory["hazard"] = memory["todo"].pop(0)
+        hazard = memory["hazard"] = memory["todo"].pop(0)
         memory["replans"] = memory["blocked"] = 0
         memory["blocks"] = []  # where legs to this hazard were blocked
+        memory["looks"] = []  # (answer, where from) of each look at a door
+        memory["views"] = await self.door_views(memory, hazard) if hazard.type == "door" else []
+        memory["goal"] = self.view_pose(memory["views"].pop(0)) if memory["views"] else hazard.stand
         self._show(memory, 0.0, "on the way")
         return True
+
+    async def door_views(self, memory, h) -> list:
+        """Where to stand for the door check (view.py, on the Cloud Agent): best first, from the door's
+        geometry, the home's rooms and this robot's camera; [] (the home's own stand) when it has none
+        or the Cloud Agent cannot say."""
+        if not self.params.get("choose_door_views", True) or h.door is None:
+            return []
+        try:
+            if getattr(self, "camera_spec", None) is None:
+                res = self.params["check_resolution"]
+                info = await self.robot.get_camera_info(resolution=res)
+                at = await self.robot.get_transform(chain="camera", space="robot")
+                self.camera_spec = camera_spec(info.K, res, at.matrix)
+            home = memory["home"]
+            room = next((r for r in home.rooms if r.name == h.room), None)
+            reply = await self.cloud.call("door_views", door=h.door, robot_side=[h.stand.x, h.stand.y],
+                                          camera=self.camera_spec, rooms=home.rooms, doors=home.doors, room=room,
+                                          open_threshold_deg=float(self.params["door_open_image_deg"]))
+        except RequestError as e:
+            self.log.warning("no views for %s: %s; standing where the home description says", h.id, e)
+            return []
+        return list(reply.views)
+
+    @staticmethod
+    def view_pose(view) -> Pose2D:
+        return Pose2D(x=view.x, y=view.y, theta=view.theta)
 
     def _show(self, memory, fraction: float, text: str) -> None:
         """Progress: hazards done, plus how far the current one is (0..1)."""
@@ -162,9 +192,14 @@ class HazardTask(Task):
     async def plan(self, memory):
         hazard = memory["hazard"]
         pose = await self.robot.get_global_pose()
-        reply = await self.platform.path_planning_plan_path_2d(
-            map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
-            start=pose, goal=hazard.stand)
+        memory.setdefault("goal", hazard.stand)
+        while True:
+            reply = await self.platform.path_planning_plan_path_2d(
+                map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
+                start=pose, goal=memory["goal"])
+            if reply.plan_found == PLAN_FOUND or not memory.get("views") or "goal pose" not in reply.reason:
+                break
+            memory["goal"] = self.view_pose(memory["views"].pop(0))  # a stand the map has no room for
         if reply.plan_found != PLAN_FOUND:
             blocked = blocking_doors(memory["home"].doors, memory.get("marked", []))
             if blocked:  # the map's way there went through a door found closed: a hazard of its own
@@ -215,8 +250,8 @@ class HazardTask(Task):
             if e.expectation != PathFree.name:
                 memory["leg_outcome"] = "late"  # or lost: re-localize, then plan again from where it is
                 return "late"
-            await self.mark_obstacle(memory, e.obstacle)
             memory["leg_outcome"] = "blocked"
+            await self.mark_obstacle(memory, e.obstacle)
             return "blocked" if e.backed_off else "back off"  # the Core's strategies backed off already
         except RequestError as e:
             memory["error"] = f"(motion failed: {e.reason})"
@@ -235,16 +270,16 @@ class HazardTask(Task):
         blocks = memory.setdefault("blocks", [])
         again = sum(math.dist(b, (pose.x, pose.y)) <= AGAIN_M for b in blocks)
         blocks.append((pose.x, pose.y))
-        in_doorway = bool(blocking_doors(memory["home"].doors, [where]))  # a doorway's frame and leaf are
-        radius = float(self.params["obstacle_radius_m"]) * (1.0 + 0.5 * again)  # no wall: mark it there
+        radius = float(self.params["obstacle_radius_m"]) * (1.0 + 0.5 * again)
         added = await self.marks.enter(memory["home"].map_id, where[0], where[1], radius_m=radius,
                                        ttl_s=float(self.params["obstacle_ttl_s"]),
-                                       skip_within_m=0.0 if in_doorway or again else MAPPED_M,
+                                       skip_within_m=0.0 if again else MAPPED_M,
                                        note=f"blocked the way to {memory['hazard'].id}")
         if added:
             memory.setdefault("marked", []).append(tuple(where))
-        else:
+        else:  # a door frame, a passage door's leaf: re-localize before the same plan is tried again
             self.log.info("what blocked the leg at (%.2f, %.2f) is the map's wall", *where)
+            memory["leg_outcome"] = "late"
 
     async def back_off(self, memory):
         memory["leg_final"] = False
@@ -274,17 +309,30 @@ class HazardTask(Task):
         return self.robot_info.robot_type  # told by the runtime, not guessed
 
     # -- s5: look and check -----------------------------------------------------------------
-    async def check_hazard(self, memory):
+    async def check_hazard(self, memory) -> str:
+        """Check the hazard; "again" when a door's frame had no usable lines and another view is left:
+        the robot goes there and looks again before it answers."""
         h = memory["hazard"]
         try:
-            result = await (self.check_door(h) if h.type == "door" else self.check_lamp(h))
+            if h.type == "door":
+                reply = await self.check_door(h)
+                memory.setdefault("looks", []).append(reply)
+                if reply.confidence < float(self.params["door_min_confidence"]) and memory.get("views"):
+                    memory["goal"] = self.view_pose(memory["views"].pop(0))
+                    self._show(memory, 0.0, f"no usable lines (confidence {reply.confidence:.2f}): looking again")
+                    return "again"
+                result = door_report(h, memory["looks"], self.params)
+            else:
+                result = await self.check_lamp(h)
         except RequestError as e:
             memory["error"] = f"(check failed: {e.reason})"
             raise
         memory["results"].append(result)
         await self.report(describe(result), hazard=result.model_dump())
+        return "done"
 
-    async def check_door(self, h) -> HazardReport:
+    async def check_door(self, h):
+        """One look at the door: the check's answer (DoorAngle, with its confidence)."""
         method, res = self.params["door_method"], self.params["check_resolution"]
         x, y, z = door_look_point(h, method)
         await self.robot.look_at_point(x=x, y=y, z=z)
@@ -294,10 +342,7 @@ class HazardTask(Task):
             info = await self.robot.get_camera_info(resolution=res)
             tf = await self.robot.get_transform(chain="camera", space="global")
             request["geometry"] = door_geometry(info.K, tf.matrix, h)
-        reply = await self.platform.hazard_detection_door_check(**request)
-        is_open = reply.door_angle > door_open_threshold(self.params, reply.method)
-        return HazardReport(id=h.id, type="door", state="open" if is_open else "closed",
-                            angle_deg=reply.door_angle, method=reply.method, hazard=is_open)
+        return await self.platform.hazard_detection_door_check(**request)
 
     async def check_lamp(self, h) -> HazardReport:
         """As the original RApp: a low-exposure image (only light sources stay bright) for the light
@@ -312,7 +357,7 @@ class HazardTask(Task):
         reply = await self.platform.hazard_detection_light_check(image_b64=image.data_b64,
                                                                  on_threshold=int(self.params["light_on_level"]))
         return HazardReport(id=h.id, type="lamp", state="on" if reply.lamp_on else "off",
-                            light_level=reply.light_level, hazard=reply.lamp_on)
+                            light_level=reply.light_level, hazard=reply.lamp_on, confidence=reply.confidence)
 
     async def report_blocked_route(self, memory, doors) -> None:
         """A door on the only route to a hazard is closed: reported as a hazard of its own."""
@@ -351,6 +396,22 @@ class HazardTask(Task):
 
     async def done(self, memory):
         await self.say("Hazard check finished.")
+
+
+def camera_spec(K, resolution: str, camera_in_robot) -> CameraSpec:
+    """The check's camera for the view model: intrinsics at `resolution`, height and how far ahead of
+    the base it sits (get_transform(chain="camera", space="robot"))."""
+    w, h = (int(v) for v in resolution.split("x"))
+    return CameraSpec(intrinsics=CameraIntrinsics(fx=K[0][0], fy=K[1][1], cx=K[0][2], cy=K[1][2]), width=w, height=h,
+                      z=camera_in_robot[2][3], ahead=camera_in_robot[0][3])
+
+
+def door_report(h, looks, params: dict) -> HazardReport:
+    """The answer of the most confident look at a door (the last one among equals)."""
+    best = max(reversed(looks), key=lambda r: r.confidence)
+    is_open = best.door_angle > door_open_threshold(params, best.method)
+    return HazardReport(id=h.id, type="door", state="open" if is_open else "closed", angle_deg=best.door_angle,
+                        method=best.method, hazard=is_open, confidence=best.confidence, looks=len(looks))
 
 
 def blocking_doors(doorways, marked) -> list[str]:
@@ -398,4 +459,6 @@ def describe(r: HazardReport) -> str:
     text = f"Hazard {r.id} ({r.type}): {r.state}"
     if r.type == "door" and r.angle_deg is not None:
         text += f", {r.angle_deg:.1f} degrees"
+    if r.confidence is not None:
+        text += f", confidence {r.confidence:.2f}" + (f" (looked {r.looks} times)" if r.looks > 1 else "")
     return text + "."
