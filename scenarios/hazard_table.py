@@ -1,31 +1,36 @@
 """Accuracy table of the hazard-detection experiment over houses, seeds and robots, judged against
 paper 001 sec. 4 (localization within +-10 cm NAO / +-7 cm Elektron, tracking within 20 / 15 cm) and
-issue #17's bar for the checks (every hazard correct in >= 95 % of the checks).
+issue #42's bars: every run ends by itself, >= 98 % of the checks right.
 
-    python -m scenarios.hazard_table --houses 10 --full-house 1 [--robots nao elektron] [--out DIR]
-    python -m scenarios.hazard_table --seeds 10 --house house      # the full house only
-    python -m scenarios.hazard_table --from-json A/table.json B/table.json --markdown docs/hazard-table.md
+    rapp run hazard-table --houses 30 [--full-house 2] [--robots nao elektron] [--out DIR]
+    rapp run hazard-table --seeds 20 --house house       # the full house only
+    rapp run hazard-table --seed-list generated:417 house:88 --robots nao   # repeat runs of a table
+    rapp run hazard-table --from-json A/table.json B/table.json --markdown docs/hazard-table.md
 
-A run that fails (an exception, or a task that did not finish) stays in the table as a failed row
-with its reason; its hazards count as wrong checks.
+Seeds are drawn at random when the table starts (worlds nobody tuned for) and printed with the
+--seed-list that repeats them. A run that fails (an exception, a task that did not finish, or one
+that did not end by itself within the run's time-out) stays in the table as a failed row with its
+reason; its hazards count as wrong checks. Each row carries its wall time.
 """
 from __future__ import annotations
 
 import argparse
 import asyncio
 import json
+import random
 import statistics
 import sys
 import tempfile
 from pathlib import Path
 
 from .hazard import run_hazard_detection
-from .home_setup import GENERATED, HOUSES
+from .home_setup import DOOR_OPEN_DEG, GENERATED, HOUSES, hazard_overrides, layout
 
 # paper 001 sec. 4: the NAO localized within +-10 cm and tracked within 20 cm, the Elektron 7 / 15 cm
 PAPER_LOC_M = {"nao": 0.10, "elektron": 0.07}
 PAPER_TRACK_M = {"nao": 0.20, "elektron": 0.15}
-CHECKS_GOAL = 0.95
+CHECKS_GOAL = 0.98
+SEED_RANGE = (1, 100_000)  # seeds are drawn from here
 
 
 def wrong_ids(r: dict) -> list[str]:
@@ -39,6 +44,11 @@ def failure(r: dict) -> str:
     if r.get("finished") is False:
         return f"task did not finish: {r.get('end', '')}"
     return ""
+
+
+def ended_by_itself(r: dict) -> bool:
+    """The task ended (finished, or with a reason) without the table stopping it."""
+    return not r.get("failed")
 
 
 def _cm(v, width: int = 0) -> str:
@@ -67,7 +77,10 @@ def judge(rs: list[dict], robot: str) -> dict:
             "loc_goal_m": PAPER_LOC_M[robot], "loc_met": bool(loc) and max(loc) <= PAPER_LOC_M[robot],
             "track_max_m": max(trk, default=None), "track_mean_m": statistics.mean(trk) if trk else None,
             "track_goal_m": PAPER_TRACK_M[robot], "track_met": bool(trk) and max(trk) <= PAPER_TRACK_M[robot],
-            "failed_runs": len(failed)}
+            "failed_runs": len(failed), "ended": sum(map(ended_by_itself, rs)),
+            "ended_met": all(map(ended_by_itself, rs)),
+            "wall_mean_s": statistics.mean(r["duration_wall_s"] for r in rs if "duration_wall_s" in r)
+            if any("duration_wall_s" in r for r in rs) else None}
 
 
 def summary_rows(results: list[dict]) -> list[str]:
@@ -75,8 +88,11 @@ def summary_rows(results: list[dict]) -> list[str]:
     for robot in sorted({r["robot"] for r in results}):
         j = judge([r for r in results if r["robot"] == robot], robot)
         ratio = f"{j['checks_ratio'] * 100:.1f} %" if j["checks_ratio"] is not None else "n/a"
-        out.append(f"{robot:9s} checks right {j['checks_right']}/{j['checks']} ({ratio}; goal >= 95 %: "
-                   f"{'met' if j['checks_met'] else 'NOT met'}); failed runs {j['failed_runs']}/{j['runs']}")
+        wall = f"; wall {j['wall_mean_s']:.0f} s a run" if j["wall_mean_s"] is not None else ""
+        out.append(f"{robot:9s} runs ended by themselves {j['ended']}/{j['runs']} ("
+                   f"{'met' if j['ended_met'] else 'NOT met'}); failed runs {j['failed_runs']}{wall}")
+        out.append(f"{robot:9s} checks right {j['checks_right']}/{j['checks']} ({ratio}; goal >= "
+                   f"{CHECKS_GOAL * 100:.0f} %: {'met' if j['checks_met'] else 'NOT met'})")
         for what, key in (("localization", "loc"), ("tracking", "track")):
             if j[f"{key}_max_m"] is None:
                 continue
@@ -88,14 +104,17 @@ def summary_rows(results: list[dict]) -> list[str]:
 def markdown(results: list[dict], title: str) -> str:
     """The table and its summary as Markdown (docs/hazard-table.md)."""
     lines = [f"# {title}", "",
-             "| robot | house | seed | localization cm | tracking cm | all correct | sim s | wall s | wrong | failure |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| robot | house | seed | localization cm | tracking cm | checks right | safety stops | sim s | wall s "
+             "| wrong | failure |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         if r.get("failed"):
-            lines.append(f"| {r['robot']} | {r.get('house', '')} | {r['seed']} | | | no | | | | {r['failed']} |")
+            lines.append(f"| {r['robot']} | {r.get('house', '')} | {r['seed']} | | | 0/{len(r.get('hazards', []))} "
+                         f"| | | | | {r['failed']} |")
             continue
+        checks = len(r["hazards"])
         lines.append(f"| {r['robot']} | {r.get('house', '')} | {r['seed']} | {_cm(r['localization_error_m'])} | "
-                     f"{_cm(r['max_tracking_error_m'])} | {'yes' if r['all_correct'] else 'no'} | "
+                     f"{_cm(r['max_tracking_error_m'])} | {checks - len(wrong_ids(r))}/{checks} | {r.get('estops', '')} | "
                      f"{r['duration_sim_s']:.0f} | {r['duration_wall_s']:.0f} | {' '.join(wrong_ids(r))} | {failure(r)} |")
     lines += ["", "```", *summary_rows(results), "```", ""]
     return "\n".join(lines)
@@ -104,6 +123,8 @@ def markdown(results: list[dict], title: str) -> str:
 async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path) -> list[dict]:
     """`runs`: (house, seed) pairs, each run on every robot."""
     results = []
+    print(f"seeds: {' '.join(f'{h}:{s}' for h, s in runs)} (repeat: --seed-list {' '.join(f'{h}:{s}' for h, s in runs)})",
+          flush=True)
     print(f"{'robot':9s} {'house':9s} {'seed':>4s} {'loc cm':>6s} {'trk cm':>6s} {'ok':5s} {'sim s':>8s}"
           f" {'wall s':>7s}  wrong", flush=True)
     for robot in robots:
@@ -111,16 +132,26 @@ async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path) -
             try:
                 r = await run_hazard_detection(robot, seed, house, out_dir=out / f"{robot}-{house}-{seed}")
             except Exception as e:  # noqa: BLE001 - one failed run must not end the table; it stays in it
-                r = {"robot": robot, "seed": seed, "failed": f"{type(e).__name__}: {e}"[:300], "hazards": []}
+                r = {"robot": robot, "seed": seed, "failed": f"{type(e).__name__}: {e}"[:300],
+                     "hazards": unchecked(house, seed)}
             r["house"] = house
             results.append(r)
             print(row_text(r), flush=True)
     return results
 
 
+def unchecked(house: str, seed: int) -> list[dict]:
+    """The hazards of a run that failed, none of them reported: each counts as a wrong check."""
+    lay, truth = layout(house, seed=seed), hazard_overrides(house, seed)
+    return ([{"id": d, "type": "door", "true_state": "open" if truth["doors"][d] > DOOR_OPEN_DEG else "closed",
+              "reported_state": None} for d in lay["doors"]]
+            + [{"id": lp, "type": "lamp", "true_state": "on" if truth["lamps"][lp] else "off", "reported_state": None}
+               for lp in lay["lamps"]])
+
+
 def title(runs: list[tuple[str, int]]) -> str:
     gen = sorted(s for h, s in runs if h == GENERATED)
-    parts = [f"{len(gen)} generated houses (seeds {gen[0]}..{gen[-1]})"] if gen else []
+    parts = [f"{len(gen)} generated house{'s' if len(gen) > 1 else ''} (random seeds)"] if gen else []
     for house, name in (("house", "the full 20 m x 20 m house"), ("small", "the small house")):
         seeds = [s for h, s in runs if h == house]
         if seeds:
@@ -128,27 +159,49 @@ def title(runs: list[tuple[str, int]]) -> str:
     return "Hazard detection on " + " and ".join(parts)
 
 
+def draw_seeds(n: int, rng: random.Random | None = None) -> list[int]:
+    """n distinct seeds drawn at random (the table's worlds: nobody tuned for them)."""
+    return sorted((rng or random.SystemRandom()).sample(range(*SEED_RANGE), n))
+
+
+def table_runs(args) -> list[tuple[str, int]]:
+    """(house, seed) of every run: --seed-list as given, else seeds drawn now."""
+    default = GENERATED if args.houses else args.house
+    if args.seed_list:
+        runs = []
+        for item in args.seed_list:
+            house, _, seed = item.rpartition(":")
+            if (house or default) not in HOUSES or not seed.isdigit():
+                raise ValueError(f"--seed-list: {item!r} is not [HOUSE:]SEED (houses: {', '.join(HOUSES)})")
+            runs.append((house or default, int(seed)))
+        return runs
+    if args.houses:
+        return ([(GENERATED, s) for s in draw_seeds(args.houses)]
+                + [("house", s) for s in draw_seeds(args.full_house)])
+    return [(args.house, s) for s in draw_seeds(args.seeds)]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rapp run hazard-table", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", type=int, default=10, help="seeds 1..N of --house")
-    ap.add_argument("--first-seed", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=10, help="N seeds of --house, drawn at random")
     ap.add_argument("--robots", nargs="+", default=["nao", "elektron"], choices=["nao", "elektron"])
     ap.add_argument("--house", default="house", choices=HOUSES,
                     help="house of --seeds (ignored with --houses)")
-    ap.add_argument("--houses", type=int, metavar="N", help="N generated houses (seeds first-seed..)")
+    ap.add_argument("--houses", type=int, metavar="N", help="N generated houses, their seeds drawn at random")
     ap.add_argument("--full-house", type=int, default=0, metavar="K",
-                    help="with --houses: also K seeds of the full house")
+                    help="with --houses: also K random seeds of the full house")
+    ap.add_argument("--seed-list", nargs="+", metavar="[HOUSE:]SEED",
+                    help="these runs instead of random seeds (a plain SEED is of --house, or generated with --houses)")
     ap.add_argument("--out", default=None, help="directory for the runs' outputs and table.json")
     ap.add_argument("--markdown", metavar="FILE", help="also write the table as Markdown")
     ap.add_argument("--from-json", nargs="+", metavar="TABLE_JSON",
                     help="no runs: merge and rewrite earlier table.json files")
     args = ap.parse_args(argv)
-    seeds = list(range(args.first_seed, args.first_seed + (args.houses or args.seeds)))
-    if args.houses:
-        runs = [(GENERATED, s) for s in seeds] + [("house", s) for s in range(1, args.full_house + 1)]
-    else:
-        runs = [(args.house, s) for s in seeds]
+    try:
+        runs = table_runs(args)
+    except ValueError as e:
+        ap.error(str(e))
     if args.from_json:
         results = [r for f in args.from_json for r in json.loads(Path(f).read_text())]
         runs = sorted({(r.get("house", args.house), r["seed"]) for r in results})
@@ -161,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.markdown:
         Path(args.markdown).write_text(markdown(results, title(runs)))
     met = all(judge([r for r in results if r["robot"] == rb], rb)[k]
-              for rb in {r["robot"] for r in results} for k in ("checks_met", "loc_met", "track_met"))
+              for rb in {r["robot"] for r in results} for k in ("ended_met", "checks_met", "loc_met", "track_met"))
     return 0 if results and met else 1
 
 

@@ -122,22 +122,59 @@ def test_table_rows_and_markdown():
                 "localization_error_m": loc, "max_tracking_error_m": trk, "duration_sim_s": 100.0,
                 "duration_wall_s": 30.0, "finished": True, "end": "finished"}
 
+    failed = {"robot": "elektron", "seed": 2, "house": "generated", "failed": "TimeoutError: x",
+              "hazards": [{"id": "d1", "true_state": "open", "reported_state": None}]}  # counted as wrong
     results = [run("nao", 1, 0.012, 0.071), run("nao", 2, 0.062, 0.08, wrong=("l1",)),
-               run("elektron", 1, None, 0.03, house="house"),
-               {"robot": "elektron", "seed": 2, "house": "generated", "hazards": [], "failed": "TimeoutError: x"}]
+               run("elektron", 1, None, 0.03, house="house"), failed]
     summary = summary_rows(results)
-    # 3 of 4 checks right: under the 95 % bar; the NAO's 6.2 cm is inside the paper's 10 cm
-    assert "nao       checks right 3/4 (75.0 %; goal >= 95 %: NOT met); failed runs 0/2" in summary
+    # 3 of 4 checks right: under the 98 % bar; the NAO's 6.2 cm is inside the paper's 10 cm
+    assert "nao       checks right 3/4 (75.0 %; goal >= 98 %: NOT met)" in summary
+    assert "nao       runs ended by themselves 2/2 (met); failed runs 0; wall 30 s a run" in summary
     assert any("nao       localization" in line and "(paper 10.0 cm: met)" in line for line in summary)
-    assert "elektron  checks right 2/2 (100.0 %; goal >= 95 %: met); failed runs 1/2" in summary
+    assert "elektron  checks right 2/3 (66.7 %; goal >= 98 %: NOT met)" in summary
+    assert "elektron  runs ended by themselves 1/2 (NOT met); failed runs 1; wall 30 s a run" in summary
     assert not any(line.startswith("elektron  localization") for line in summary)  # no localization: no row
     nao = judge(results[:2], "nao")
     assert nao["loc_max_m"] == 0.062 and nao["track_met"] and not nao["checks_met"]
     assert not judge([run("elektron", 3, 0.071, 0.05)], "elektron")["loc_met"]  # the Elektron's bar is 7 cm
     text = markdown(results, "T")
-    assert "| nao | generated | 2 | 6.2 | 8.0 | no | 100 | 30 | l1 |  |" in text
-    assert "| elektron | house | 1 | n/a | 3.0 | yes | 100 | 30 |  |  |" in text
-    assert "| elektron | generated | 2 | | | no | | | | TimeoutError: x |" in text
+    assert "| nao | generated | 2 | 6.2 | 8.0 | 1/2 |  | 100 | 30 | l1 |  |" in text
+    assert "| elektron | house | 1 | n/a | 3.0 | 2/2 |  | 100 | 30 |  |  |" in text
+    assert "| elektron | generated | 2 | | | 0/1 | | | | | TimeoutError: x |" in text
+
+
+def test_table_seeds_are_drawn_at_run_time_and_can_be_repeated(capsys, monkeypatch):
+    """Issue 42: worlds nobody tuned for: the table draws its seeds when it starts and prints the
+    --seed-list that repeats them."""
+    import argparse
+
+    from scenarios import hazard_table as T
+
+    def args(**kw):
+        return argparse.Namespace(**{"houses": None, "full_house": 0, "seeds": 3, "house": "house", "seed_list": None,
+                                     **kw})
+
+    first, second = T.table_runs(args()), T.table_runs(args())
+    assert len(first) == 3 and {h for h, _ in first} == {"house"} and first != second
+    runs = T.table_runs(args(houses=4, full_house=1))
+    assert [h for h, _ in runs] == ["generated"] * 4 + ["house"]
+    assert T.table_runs(args(seed_list=["generated:417", "88"])) == [("generated", 417), ("house", 88)]
+    assert T.table_runs(args(houses=2, seed_list=["5"])) == [("generated", 5)]
+    with pytest.raises(ValueError, match="HOUSE"):
+        T.table_runs(args(seed_list=["attic:3"]))
+
+    async def fake_run(robot, seed, house, out_dir):  # the runs themselves: not this test's subject
+        raise TimeoutError("no run here")
+
+    monkeypatch.setattr(T, "run_hazard_detection", fake_run)
+    import asyncio
+    import tempfile
+    from pathlib import Path
+
+    rows = asyncio.run(T.run_table([("house", 88)], ["nao"], Path(tempfile.mkdtemp())))
+    assert "repeat: --seed-list house:88" in capsys.readouterr().out
+    assert rows[0]["failed"] and {h["id"] for h in rows[0]["hazards"]} == {"d_kitchen", "d_bedroom", "l_living",
+                                                                           "l_office"}
 
 
 def test_table_from_json_merges_files(tmp_path):
@@ -153,7 +190,7 @@ def test_table_from_json_merges_files(tmp_path):
     md = tmp_path / "t.md"
     assert main(["--from-json", str(tmp_path / "a.json"), str(tmp_path / "b.json"), "--markdown", str(md)]) == 1
     text = md.read_text()  # the Elektron's 8 cm misses its 7 cm bar: exit 1
-    assert text.startswith("# Hazard detection on 1 generated houses (seeds 1..1) and the full 20 m x 20 m house")
+    assert text.startswith("# Hazard detection on 1 generated house (random seeds) and the full 20 m x 20 m house")
     assert "| elektron | generated | 1 | 8.0 |" in text
 
 
