@@ -42,3 +42,25 @@ def test_first_leg_cuts_the_path_near_the_leg_length():
     assert final and poses[-1].x == pytest.approx(0.65)
     poses, final = first_leg(straight(0.75, 0), LEG / 2)  # more: cut, the rest is the next leg
     assert not final and poses[-1].x < 0.75
+
+
+async def test_it_relocalizes_when_the_pose_is_uncertain_not_after_every_short_leg():
+    """Issue 42: the NAO re-localized every few decimetres in a stop-and-replan loop (4,211 steps):
+    now only at a standing pose, after a late leg, or when the pose filter no longer allows a leg of
+    relocalize_leg_m."""
+    from rapps.sdk.ekf import PoseEKF
+
+    from .test_hazard_reports import FakeRuntime
+    from rapps.hazard_detection.hazard_detection.task import HazardTask
+
+    task = HazardTask(FakeRuntime())
+    task.build()
+    loc = task.localizer
+    loc.ekf, loc.odom_ref = PoseEKF((0.0, 0.0, 0.0), 0.004, 0.002), (0.0, 0.0, 0.0)  # just fixed
+    memory = {"leg_final": False, "leg_outcome": "blocked"}
+    loc.moved(0.3)  # a short leg cut by an obstacle and the back-off: the NAO may still walk 0.49 m
+    assert await task.uncertain(memory) is False
+    assert await task.uncertain({**memory, "leg_final": True}) is True  # the standing pose: the check's fix
+    assert await task.uncertain({**memory, "leg_outcome": "late"}) is True  # late or lost: look
+    loc.moved(2.5)  # metres walked since the fix: the filter no longer allows a useful leg
+    assert await task.uncertain(memory) is True

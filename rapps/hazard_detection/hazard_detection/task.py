@@ -21,7 +21,7 @@ DOORWAY_M = 0.35  # an obstacle this close to a doorway's line is in that doorwa
 # a leg is at most as long as keeps the pose filter's predicted sideways error (1 sigma) within this:
 # three sigma stay inside the 10 cm tracking goal (params: leg_cross_track_std_m)
 LEG_CROSS_TRACK_STD_M = 0.035
-RELOCALIZE_LEG_M = 0.5  # re-localize when the pose filter allows no leg this long (params: relocalize_leg_m)
+RELOCALIZE_LEG_M = 0.4  # re-localize when the pose filter allows no leg this long (params: relocalize_leg_m)
 AGAIN_M = 0.5  # blocked again within this of where a leg was blocked before: the same obstacle
 
 
