@@ -137,8 +137,11 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         records = read_trace(trace, validate=True)
         reports = hazard_reports(records, handle.core.address)
         rows = score_hazards(info.hazards, world.ground_truth(), reported(reports))
-        for row, frame in zip(rows_in_order(rows, [r.id for r in reports]), recorder.frames):
-            frame.rename(frame.with_name(f"{row['id']}{frame.suffix}"))  # .jpg from a noisy camera
+        frames = iter(recorder.frames)  # one per look: a door looked at again has more (HazardReport.looks)
+        for report in (r for r in reports if r.type != "route" and r.state != "unknown"):
+            shots = [f for f in (next(frames, None) for _ in range(report.looks)) if f is not None]
+            for k, frame in enumerate(shots, 1):  # .jpg from a noisy camera
+                frame.rename(frame.with_name(f"{report.id}{'' if k == len(shots) else f'-look{k}'}{frame.suffix}"))
         result = {
             "robot": robot, "seed": seed, "hazards": rows,
             "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),

@@ -35,7 +35,8 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     assert "hazard-detection finished" in chat
     assert set(parse_reports(chat.splitlines())) == hazard_ids  # the user got every hazard's report
     assert Path(result["plot"]).stat().st_size > 10_000
-    assert {p.stem for p in (out / "frames").glob("*.*")} == hazard_ids  # PNG, or JPEG from a noisy camera
+    stems = {p.stem for p in (out / "frames").glob("*.*")}  # PNG, or JPEG from a noisy camera
+    assert {s.split("-look")[0] for s in stems} == hazard_ids <= stems  # a door looked at again: <id>-lookN too
     assert json.loads((out / "result.json").read_text()) == result
 
 

@@ -139,7 +139,7 @@ def door_angle_image(gray: np.ndarray, params: DoorLineParams = DoorLineParams()
     return image_answer(gray, params)[0]
 
 
-CENTRE_TOLERANCE = 0.10  # of the image width: a floor line passing this far from the centre is no evidence
+CENTRE_TOLERANCE = 0.20  # of the image width: a floor line passing this far from the centre is no evidence
 
 
 def image_answer(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) -> tuple[float, float, list]:
