@@ -31,6 +31,9 @@ PAPER_LOC_M = {"nao": 0.10, "elektron": 0.07}
 PAPER_TRACK_M = {"nao": 0.20, "elektron": 0.15}
 CHECKS_GOAL = 0.98
 SEED_RANGE = (1, 100_000)  # seeds are drawn from here
+# a run the table stops did not end by itself: beyond the RApp's time limit (3600 s) and its pause
+# allowance (600 s), when the Core ends any task with a reason
+RUN_TIMEOUT_S = 4800.0
 
 
 def wrong_ids(r: dict) -> list[str]:
@@ -130,7 +133,8 @@ async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path) -
     for robot in robots:
         for house, seed in runs:
             try:
-                r = await run_hazard_detection(robot, seed, house, out_dir=out / f"{robot}-{house}-{seed}")
+                r = await run_hazard_detection(robot, seed, house, out_dir=out / f"{robot}-{house}-{seed}",
+                                               timeout_s=RUN_TIMEOUT_S)
             except Exception as e:  # noqa: BLE001 - one failed run must not end the table; it stays in it
                 r = {"robot": robot, "seed": seed, "failed": f"{type(e).__name__}: {e}"[:300],
                      "hazards": unchecked(house, seed)}

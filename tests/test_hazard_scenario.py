@@ -164,7 +164,7 @@ def test_table_seeds_are_drawn_at_run_time_and_can_be_repeated(capsys, monkeypat
     with pytest.raises(ValueError, match="HOUSE"):
         T.table_runs(args(seed_list=["attic:3"]))
 
-    async def fake_run(robot, seed, house, out_dir):  # the runs themselves: not this test's subject
+    async def fake_run(robot, seed, house, out_dir, timeout_s):  # the runs themselves: not this test's subject
         raise TimeoutError("no run here")
 
     monkeypatch.setattr(T, "run_hazard_detection", fake_run)
