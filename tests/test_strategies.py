@@ -143,3 +143,53 @@ async def test_a_wedged_motion_fails_blocked_and_a_paused_task_still_ends(tmp_pa
             await handle.user.say(core.address, "resume")
     finally:
         world.close()
+
+
+class _Host:
+    """The Core's e-stop and strategy mixins on a robot that only records (no agents, no server)."""
+
+    def __new__(cls):
+        from agents.core_commands import RobotCommands
+        from agents.core_strategies import Strategies
+
+        class Host(RobotCommands, Strategies):
+            pass
+
+        host = Host()
+        host.robot_id, host.estop_reason, host.estop_by, host.driving = "nao-1", None, None, False
+        host._estop_released, host.dynamic, host.told, host.records = asyncio.Event(), None, [], []
+        host._estop_released.set()
+        host.record_structure = lambda event, **k: host.records.append((event, k))
+
+        async def tell_user(text, speak=True):
+            host.told.append(text)
+
+        async def nothing(*a, **k):
+            return None
+
+        host.tell_user, host._tell_task, host.publish = tell_user, nothing, nothing
+        host.robot = type("R", (), {"halt": nothing, "handle": nothing})()
+        return host
+
+
+async def test_an_owners_stop_during_a_safety_stop_is_the_owners_and_is_told():
+    host = _Host()
+    await host.emergency_stop("obstacle ahead", by="safety")
+    assert host.told == []  # a safety stop is told folded, when its incident is over
+    await host.emergency_stop("stopped by the user", by="owner")
+    assert host.estop_by == "owner" and host.told == ['Emergency stop: stopped by the user. Say "resume" to let '
+                                                      'me move again.']
+    assert not host._still_ours()  # the strategies let go: only the owner releases it
+    assert host.waiting_for() == 'your "resume" (you stopped the robot)'
+    await host.resume_motion()
+    assert host.told[-1] == "Resumed: I may move again."
+
+
+def test_a_safety_incident_is_one_line():
+    from agents.core_strategies import Incident
+
+    i = Incident(4.31, 9.98, stops=12, done={"wait-for-clear": 3, "back-off": 8, "no-progress": 1})
+    assert i.line("went on") == ("Safety: stopped 12 times for an obstacle ahead near (4.3, 10.0); waited for it "
+                                 "to clear 3 times, backed off 8 times, gave up on that way once; went on.")
+    assert Incident(1.0, 2.0, stops=1).line("the task ended") == \
+        "Safety: stopped once for an obstacle ahead near (1.0, 2.0); the task ended."
