@@ -171,7 +171,7 @@ class HazardTask(Task):
                 self.camera_spec = camera_spec(info.K, res, at.matrix)
             home = memory["home"]
             room = next((r for r in home.rooms if r.name == h.room), None)
-            reply = await self.cloud.call("door_views", door=h.door, robot_side=[h.stand.x, h.stand.y],
+            reply = await self.cloud.call("door_views", _timeout=180.0, door=h.door, robot_side=[h.stand.x, h.stand.y],
                                           camera=self.camera_spec, rooms=home.rooms, doors=home.doors, room=room,
                                           open_threshold_deg=float(self.params["door_open_image_deg"]))
         except RequestError as e:
