@@ -3,6 +3,7 @@ a HazardReport in the report's data; an unreachable one says why (planning, moti
 the check failed). The task's own steps and FSMs run; only the agents it talks to are faked."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
@@ -193,3 +194,29 @@ async def test_a_door_frame_without_usable_lines_is_looked_at_again_from_the_nex
     assert text == "Hazard d1 (door): open, 37.0 degrees, confidence 0.90 (looked 2 times)."
     top = task.build()
     assert any(t.source == "s5_check_hazard" and t.target == "s4_5_go_to_hazard" for t in top.transitions)
+
+
+async def test_blocked_again_at_the_same_place_it_is_marked_so_the_next_plan_is_another_way():
+    """Issue 42: the first time a leg is blocked next to the map's walls the task takes it for the wall
+    (its pose was off: it re-localizes); blocked again within AGAIN_M it marks it all the same, wider."""
+    from ontology.services.navigation import ObstacleLayer
+    from rapps.hazard_detection.hazard_detection.task import AGAIN_M, MAPPED_M
+
+    sent = []
+    runtime = FakeRuntime(path_planning_add_obstacle=ObstacleLayer(map_id="m", added="", obstacles=[]))  # the wall
+    original = runtime.request
+
+    async def request(to, content, timeout=None, **kw):
+        if content.action_name == "path_planning_add_obstacle":
+            sent.append(content)
+        return await original(to, content, timeout, **kw)
+
+    runtime.request = request
+    task, memory = HazardTask(runtime), memory_at_start()
+    memory.update(blocks=[], leg_outcome="blocked")
+    await task.mark_obstacle(memory, (0.5, 0.0))
+    assert sent[-1].skip_within_m == MAPPED_M and memory["leg_outcome"] == "late"  # re-localize first
+    memory["leg_outcome"] = "blocked"
+    await task.mark_obstacle(memory, (0.5, 0.05))  # the robot is back where it was (0, 0)
+    assert sent[-1].skip_within_m == 0.0 and sent[-1].radius_m == pytest.approx(1.5 * sent[0].radius_m)
+    assert math.dist(memory["blocks"][0], memory["blocks"][1]) <= AGAIN_M
