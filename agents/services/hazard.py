@@ -146,15 +146,17 @@ def image_answer(gray: np.ndarray, params: DoorLineParams = DoorLineParams()) ->
     """(angle, confidence, lines) of the image-only method. The method assumes the camera looks at
     where the door meets the floor, so both floor lines pass through the image's centre; the
     confidence is how near the worse of the two does (1 through it, 0 at CENTRE_TOLERANCE of the
-    width or with a half without a line): a far wall's floor line taken for the leaf's is told apart."""
+    width): a far wall's floor line taken for the leaf's is told apart. A 90 deg answer (a half
+    without a floor line: a leaf turned far away) is at most half sure, as sure as the other half's
+    line is where it should be: nothing shows the leaf. No line at all: 0."""
     lines = floor_lines(gray, params)
-    if len(lines) < 2:
-        return NO_LINE_DEG, 0.0, [list(map(float, s)) for s in lines.values()]
     h, w = gray.shape
-    off = max(line_distance(s, (w - 1) / 2, (h - 1) / 2) for s in lines.values())
-    confidence = max(0.0, 1.0 - off / (CENTRE_TOLERANCE * w))
+    near = {side: max(0.0, 1.0 - line_distance(s, (w - 1) / 2, (h - 1) / 2) / (CENTRE_TOLERANCE * w))
+            for side, s in lines.items()}
+    if len(lines) < 2:
+        return NO_LINE_DEG, 0.5 * max(near.values(), default=0.0), [list(map(float, s)) for s in lines.values()]
     angle = abs(math.degrees(segment_angle(lines["left"]) - segment_angle(lines["right"])))
-    return angle, confidence, [list(map(float, lines[side])) for side in ("left", "right")]
+    return angle, min(near.values()), [list(map(float, lines[side])) for side in ("left", "right")]
 
 
 def line_distance(s, x: float, y: float) -> float:

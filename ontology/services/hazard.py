@@ -33,8 +33,8 @@ class DoorAngle(Content):
     door_angle: float  # degrees, 0 = closed
     method: DoorMethod  # the method that answered: "geometry" falls back to "image" when it finds no leaf
     # 0..1, how far the answer's evidence can be trusted: image method, whether the floor lines it took
-    # pass where the camera looks (the hinge, the image's centre; 0 when a half has none: the 90 deg
-    # answer); geometry method, how much of the leaf's width its segments cover
+    # pass where the camera looks (the hinge, the image's centre; the 90 deg answer, a half without a
+    # line, at most 0.5); geometry method, how much of the leaf's width its segments cover
     confidence: float = Field(default=0.0, ge=0.0, le=1.0)
     lines: list[list[float]] = []  # the image segments it took (x1, y1, x2, y2 px): image method left, right
 

@@ -183,7 +183,9 @@ def test_the_image_answer_says_how_far_its_lines_pass_from_where_the_camera_look
     cv2.rectangle(far, (340, 0), (639, 60), 60, -1)  # a level edge 180 px above the centre, right half
     reply = hazard.door_check(DoorCheck(image_b64=encode_image(far)), None)
     assert reply.door_angle < 5.0 and reply.confidence == 0.0  # it reads "closed", but says it cannot tell
-    none = hazard.door_check(DoorCheck(image_b64=encode_image(floor_edge(0, None))), None)
+    open_ = hazard.door_check(DoorCheck(image_b64=encode_image(floor_edge(0, None))), None)
+    assert open_.door_angle == 90.0 and 0.4 < open_.confidence <= 0.5  # the wall's line is there, no leaf's
+    none = hazard.door_check(DoorCheck(image_b64=encode_image(np.full((480, 640), 128, np.uint8))), None)
     assert none.door_angle == 90.0 and none.confidence == 0.0
 
 
