@@ -111,7 +111,7 @@ def clearance(ctx, map_id, path) -> float:
 
 def test_clearance_kept_where_the_passage_allows(ctx):
     upload(ctx, "wide", passage_map(1.3))
-    start, goal = (1.0, 0.6), (5.0, 0.6)  # the taut path bends around the gap's lower edge
+    start, goal = (1.0, 0.65), (5.0, 0.65)  # the taut path bends around the gap's lower edge
     bare = plan(ctx, "nao", map_id="wide", start=start, goal=goal, clearance_m=0.0)
     kept = plan(ctx, "nao", map_id="wide", start=start, goal=goal)
     assert bare.plan_found == kept.plan_found == 1
@@ -189,3 +189,16 @@ def test_the_planned_footprint_keeps_the_robots_collision_protection_quiet_besid
         assert world.run_sync(near.front_margin) <= 0.10 or world.run_sync(near.collides, *near.pose[:2])
     finally:
         world.close()
+
+
+def test_a_start_inside_the_margin_goes_on_from_where_it_stands_not_sideways_first(ctx):
+    """A robot that stopped near a wall (inside the 0.20 m margin, outside its footprint) does not
+    first step sideways to where the margin is kept and then turn: a turn at a leg's start costs
+    heading (issue 42: an Elektron ended 17 cm off a 1.1 m leg after such a step)."""
+    upload(ctx, "room", passage_map(0.0))  # a wall from bottom to top at x = 3 m
+    start, goal = (2.58, 0.8), (2.58, 3.2)  # 0.37 m from its face: inside the Elektron's 0.30 + 0.20
+    out = plan(ctx, "elektron", start=start, goal=goal)
+    assert out.plan_found == 1 and out.clearance_m == pytest.approx(0.20)
+    first = np.arctan2(out.path[1].y - start[1], out.path[1].x - start[0])
+    assert abs(first - np.pi / 2) < 0.35, out.path[:3]  # along the wall, not first a step away from it
+    assert collision_free(ctx, "room", "elektron", out.path)
