@@ -508,7 +508,8 @@ class ServicePool:
         out = await fut
         if out[0] == "error":
             raise ServiceError(out[1], out[2])
-        _merge(service, ctx, out[2])
+        if out[2]:  # written through to the Platform's saved data: off the event loop
+            await asyncio.to_thread(_merge, service, ctx, out[2])
         return out[1]
 
     def close(self) -> None:
