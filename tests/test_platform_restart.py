@@ -1,6 +1,6 @@
 """A Platform that remembers (issue 47, item 2): `rapp agent platform --data DIR` is a real process on
 the test's XMPP server; the owner's first run uploads a map and a home, teaches an object, a face and
-a room, records a cognitive score and marks an obstacle; the Platform is killed (SIGKILL: no clean
+rooms, records a cognitive score and marks an obstacle; the Platform is killed (SIGKILL: no clean
 stop) and started again on the same directory; the owner's second run finds every datum."""
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from ontology import platform as P
 from ontology.services.home import GetHomeInfo, HomeInfo, RoomSpec, UploadHomeInfo
 from ontology.services.knowledge import ChooseCognitiveTest, GetHistory, RecordPerformance
 from ontology.services.navigation import AddObstacle, ListMaps, ListObstacles
-from ontology.services.vision import FindObjects, LearnObject
+from ontology.services.vision import (FindObjects, LearnFace, LearnObject, LearnScene, RecognizeFaces,
+                                     RecognizeScene)
 from scenarios.launch import LoggedProcesses
 
 from .services.test_saved import _map_request
@@ -68,6 +69,10 @@ async def test_a_killed_platform_keeps_every_datum_of_its_owner(settings, unique
         home = HomeInfo(home_id="home", map_id="flat", rooms=[RoomSpec(name="kitchen", rect=[0, 0, 2, 2])])
         await call(UploadHomeInfo(info=home), token)
         await call(LearnObject(name="mug", image_b64=_b64("coffee.jpg")), token)
+        # a face learned in the service pool's worker, kept by the Platform
+        await call(LearnFace(name="Barack", images_b64=[_b64("faces/obama-1.jpg")]), token)
+        await call(LearnScene(room="kitchen", images_b64=[_b64("coffee.jpg")]), token)
+        await call(LearnScene(room="study", images_b64=[_b64("cameraman.jpg")]), token)
         test = await call(ChooseCognitiveTest(test_type="arithmetic"), token)
         await call(RecordPerformance(test_id=test.test_id, score=90), token)
         mark = await call(AddObstacle(map_id="flat", x=2.0, y=0.5, radius_m=0.3, ttl_s=900, note="box"), token)
@@ -82,6 +87,9 @@ async def test_a_killed_platform_keeps_every_datum_of_its_owner(settings, unique
         found = (await call(FindObjects(image_b64=_b64("coffee.jpg")), again)).objects
         assert [f.name for f in found] == ["mug"]
         assert [r.score for r in (await call(GetHistory(), again)).records] == [90]
+        faces = (await call(RecognizeFaces(image_b64=_b64("faces/obama-2.jpg")), again)).faces
+        assert [f.name for f in faces] == ["Barack"]
+        assert (await call(RecognizeScene(images_b64=[_b64("cameraman.jpg")]), again)).room == "study"
         marks = (await call(ListObstacles(map_id="flat"), again)).obstacles
         assert [(k.id, k.note) for k in marks] == [(mark.added, "box")]
     finally:
