@@ -7,8 +7,9 @@ pauses, its motion is held. Then, in the order of STRATEGIES:
     wait-for-clear   something (a person crossing, a door swinging) may move away: wait up to
                      `wait_s` for the range sensors to read clear ahead; if they do, release the stop
                      and the held motion goes on where it was going
-    back-off         still blocked: back away `back_off_m` (the Core's own motion, with the base lock
-                     taken from nobody: the task's motion is held), release the stop and fail the
+    back-off         still blocked: back away `back_off_m` (the Core's own motion, acting for the task:
+                     it inherits the task's base lock, paper 003 sec. V-B, and gives it back after;
+                     the base free, it locks it), release the stop and fail the
                      held motion with code `blocked`, so the plan re-plans around what stands there
                      (an obstacle event with the reading just before tells subscribers where it is)
 
@@ -43,7 +44,7 @@ STRATEGIES = (
 
 class Strategies:
     """Mixed into CoreAgent (needs estop_reason/estop_by, resume_motion, nearest_obstacle, nearest_echo,
-    publish_echo, robot, safety_distance, record_structure)."""
+    publish_echo, robot, locks, safety_distance, record_structure)."""
 
     wait_s = 2.0
     back_off_m = 0.25
@@ -65,13 +66,15 @@ class Strategies:
             await self.resume_motion(by=f"strategy:{name}")
             return name
         name = STRATEGIES[1].name
-        self._strategy_trace(name, "start", distance_m=self.back_off_m)
+        heir = f"core:{name}"
         try:
-            await self.robot.handle(ontology.robot.MoveTo(x=-self.back_off_m, y=0.0, theta=0.0))
+            async with self.locks.acting_for("base", heir, timeout=self.wait_s) as giver:
+                self._strategy_trace(name, "start", distance_m=self.back_off_m, base=self.locks.chain("base"))
+                await self.robot.handle(ontology.robot.MoveTo(x=-self.back_off_m, y=0.0, theta=0.0))
             outcome = "backed off"
         except Exception as e:  # noqa: BLE001 - blocked behind too: hand back all the same
-            outcome = f"could not back off: {e}"
-        self._strategy_trace(name, "end", outcome=outcome)
+            giver, outcome = None, f"could not back off: {e}"
+        self._strategy_trace(name, "end", outcome=outcome, base_given_back_to=giver)
         if not self._still_ours():
             return ""
         echo = await self.nearest_echo()  # where it stands: the plan's monitor enters it into the map

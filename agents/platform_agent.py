@@ -98,10 +98,13 @@ class PlatformAgent(RappAgent):
         self._own_workdir = workdir is None  # a temporary one: removed whole at stop
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-platform-"))
         self.services = services
-        # per-user service files (maildirs...) in the Platform's own work directory
-        self.state = services_state or ServiceState(work_dir=self.workdir / "services")
         # users and tokens survive a restart when data_dir is kept (SQLite, 0600)
         self.data_dir = Path(data_dir) if data_dir else None
+        # per-user service data (maps, homes, learned models, history, marks; agents/services/saved.py)
+        # kept in data_dir too; without one, in memory and files in the Platform's own work directory
+        self._own_state = services_state is None
+        self.state = services_state or (ServiceState.keeping(self.data_dir) if self.data_dir
+                                        else ServiceState(work_dir=self.workdir / "services"))
         self.directory = UserDirectory(self.data_dir / "users.db" if self.data_dir else None)
         self._tokens: dict[str, TokenInfo] = {}  # cache of the directory's answers
         self.accounts = EphemeralAccounts(self.settings, owner=name)
@@ -182,6 +185,8 @@ class PlatformAgent(RappAgent):
             log.warning("prepared Cloud Agent accounts not all deleted; the next start sweeps them")
         await super().stop()
         self.directory.close()
+        if self._own_state:
+            self.state.close()
         await asyncio.to_thread(sweep_run_dirs, self.workdir, self._own_workdir)
 
     async def _sweep_accounts(self, leftovers: dict[str, str]) -> None:

@@ -63,7 +63,9 @@ async def _platform(a, settings) -> None:
 
     # a second Platform on the same machine (a replica) must not share the first one's files
     home = data_dir(a.name or "platform", a.data)
-    state = ServiceState(work_dir=home / "services")  # per-user files (maildirs)
+    # every per-user datum (maps, homes, learned objects, faces and scenes, history, marks: SQLite and
+    # blob files, agents/services/saved.py) and per-user files (maildirs) survive a restart
+    state = ServiceState.keeping(home)
     if a.maps:
         print(f"maps preloaded: {', '.join(state.preload_maps(a.maps)) or 'none'}")
     platform = PlatformAgent(a.name or "platform", store=a.store, settings=settings, services_state=state,

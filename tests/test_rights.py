@@ -124,6 +124,9 @@ async def test_obstacle_within_safety_distance_latches_estop_and_strategies_hand
     assert steps[-4:] == [("wait-for-clear", "start", None), ("wait-for-clear", "end", "still blocked"),
                           ("back-off", "start", None), ("back-off", "end", "backed off")]
     assert _events(system, "estop-released")[-1]["by"] == "strategy:back-off"
+    # the relative move had failed and freed the base: the back-off locks it itself (tests/test_locks.py:
+    # a task still holding it lends it)
+    assert _events(system, "strategy")[-2]["base"] == ["core:back-off"]
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
 
 
