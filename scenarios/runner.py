@@ -225,8 +225,9 @@ class Run:
 
     def reason(self, owner: Owner) -> str:
         if self.signum:
+            n = len(owner.reports)
             return f"{self.interrupted} after {self.wall_s:.0f} s" + (
-                f" (the RApp had reported {len(owner.reports)} time{"" if len(owner.reports) == 1 else "s"})" if owner.reports else "")
+                f" (the RApp had reported {n} time{'' if n == 1 else 's'})" if n else "")
         if owner.record is None:
             return self.failure or "no end"
         return owner.record.reason
