@@ -734,7 +734,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def _tell_watchers(self, content: TaskReported | TaskEnded) -> None:
         for jid in list(self.task_watchers):
-            await self.notify(jid, content, ontology=content.ontology_name, action=content.action_name)
+            try:
+                await self.notify(jid, content, ontology=content.ontology_name, action=content.action_name)
+            except Exception as e:  # noqa: BLE001 - the owner's client gone: the task and the chat go on
+                log.warning("%s to %s failed: %s", content.action_name, jid, e)
 
     async def _tell_task_end(self, record: TaskRecord) -> None:
         self._command_told = None  # this command's end is told

@@ -77,9 +77,9 @@ def _scenario_list() -> str:
     width = max(map(len, SCENARIOS))
     return "scenarios (rapp run SCENARIO --help for each one's options):\n" + "\n".join(
         f"  {name:{width}}  {what}" for name, (_, what) in SCENARIOS.items()) + (
-        "\n\nEvery run writes result.json (ok, reason, what happened, the world's truth), chat, trace and a plot "
-        "in its --out folder;\nCtrl-C or SIGTERM ends it with those files written (ok: false) and exit code "
-        "128 + the signal.")
+        "\n\nA run of rapp, hazard-detection, two-robots or disturbances writes result.json (ok, reason, what "
+        "happened, the world's truth),\nchat, trace and a plot in its --out folder; Ctrl-C or SIGTERM ends it with "
+        "those files written (ok: false)\nand exit code 128 + the signal.")
 
 
 # -- test -------------------------------------------------------------------------------------
@@ -349,14 +349,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", required=True)
 
-    s = sub.add_parser("server", help="run the embedded XMPP server (pyjabber) on this machine")
-    s.add_argument("--host", default="127.0.0.1")
-    s.add_argument("--port", type=int, default=5222)
-    s.add_argument("--domain", default="localhost")
+    s = sub.add_parser("server", help="run the embedded XMPP server (pyjabber) on this machine",
+                       description="Run the embedded XMPP server (pyjabber) until Ctrl-C, for agents started with "
+                                   "`rapp agent` (a `rapp run` starts its own).")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    s.add_argument("--port", type=int, default=5222, help="client port (default 5222)")
+    s.add_argument("--domain", default="localhost", help="the XMPP domain of the agents' JIDs (default localhost)")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--db", help="SQLite file for accounts (default: a fresh file per run)")
     g.add_argument("--memory", action="store_true", help="in-memory database (pyjabber loses it on some disconnects)")
-    s.add_argument("--verbose", action="store_true")
+    s.add_argument("--verbose", action="store_true", help="log the server's connections and stanzas")
 
     r = sub.add_parser("run", help=f"run a scenario ({', '.join(SCENARIOS)})", epilog=_scenario_list(),
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -369,29 +371,38 @@ def build_parser() -> argparse.ArgumentParser:
                                    "pytest configuration is not used. Options after DIR go to pytest (-k, -x, -q).")
     t.add_argument("dir", help="the RApp's folder (as `rapp new` made it)")
 
-    n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)")
+    n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)",
+                       description="Create a RApp folder to start from: a manifest, a task with a two-state FSM, "
+                                   "a test (and with --cloud a Cloud Agent part); docs/sdk.md walks through one.")
     n.add_argument("name", help="the RApp's name (lower case, dashes)")
     n.add_argument("dir", nargs="?", help="where to create it (default: ./NAME)")
     n.add_argument("--cloud", action="store_true", help="with a Cloud Agent part")
 
-    k = sub.add_parser("package", help="build a RApp package or a signing key; print the manifest's JSON Schema")
-    k.add_argument("action", choices=["build", "keygen", "schema"])
+    k = sub.add_parser("package", help="build a RApp package or a signing key; print the manifest's JSON Schema",
+                       description="build: a .rapp package of a RApp folder (signed with --key); keygen: an ed25519 "
+                                   "signing key; schema: the manifest's JSON Schema.")
+    k.add_argument("action", choices=["build", "keygen", "schema"], help="what to do")
     k.add_argument("dir", nargs="?", help="RApp source directory (build), key file to write (keygen), "
                                           "schema file to write (schema; default: stdout)")
-    k.add_argument("-o", "--output")
+    k.add_argument("-o", "--output", help="build: the package file or a folder for it (default: the current "
+                                          "folder); schema: the file to write")
     k.add_argument("--key", help="ed25519 private key (PEM) to sign with")
 
-    st = sub.add_parser("store", help="talk to the Store Agent on the configured XMPP server")
-    st.add_argument("action", choices=["publish", "list", "info", "remove"])
+    st = sub.add_parser("store", help="talk to the Store Agent on the configured XMPP server",
+                        description="Publish, list, describe or remove RApp packages in the Store Agent on the "
+                                    "configured XMPP server (RAPP_XMPP_*; docs/deployment.md).")
+    st.add_argument("action", choices=["publish", "list", "info", "remove"], help="what to do")
     st.add_argument("target", nargs="?", help="package file (publish) or package name")
-    st.add_argument("--owner")
-    st.add_argument("--password")
-    st.add_argument("--version")
-    st.add_argument("--robot-type")
+    st.add_argument("--owner", help="publish, remove: the Store owner's name (their own XMPP account)")
+    st.add_argument("--password", help="publish, remove: the owner's password")
+    st.add_argument("--version", help="remove: only this version (default: every version)")
+    st.add_argument("--robot-type", help="list: only packages for this robot type")
     st.add_argument("--store", default="store", help="the Store Agent's name or JID")
 
-    pl = sub.add_parser("platform", help="talk to the Platform Agent as a robot owner")
-    pl.add_argument("action", choices=["upload-home"])
+    pl = sub.add_parser("platform", help="talk to the Platform Agent as a robot owner",
+                        description="upload-home: the home description and map of a house, as the robot owner "
+                                    "uploads them once before asking for hazard checks.")
+    pl.add_argument("action", choices=["upload-home"], help="what to do")
     pl.add_argument("--house", default="small", help="house whose home description and map to upload "
                                                       "(small, house, or generated with --seed)")
     pl.add_argument("--seed", type=int, default=0, help="the generated house's seed")
@@ -399,8 +410,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--password", help="the owner's Platform password")
     pl.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
 
-    sy = sub.add_parser("say", help="the owner speaks into a running `rapp run` (the robot hears it)")
-    sy.add_argument("text")
+    sy = sub.add_parser("say", help="the owner speaks into a running `rapp run` (the robot hears it)",
+                        description="The owner says TEXT aloud in the house of a running `rapp run` (started with "
+                                    "--listen or --speak): the robot hears it through its microphone.")
+    sy.add_argument("text", help="what the owner says")
     sy.add_argument("--run", help="the run's --out folder (default: the newest running `rapp run`)")
     sy.add_argument("--distance", type=float, default=1.0, help="metres from the robot (0.3-8)")
     sy.add_argument("--voice", default="en-us", help="eSpeak NG voice (en-us, en, en-gb-x-rp, ...)")
@@ -411,7 +424,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("bench", help="run the benchmarks (rapp bench --help)", add_help=False)
     sub.add_parser("agent", help="run one Store, Platform or Core agent here (rapp agent --help)",
                    add_help=False)
-    sub.add_parser("doctor", help="check the installation and the configured XMPP server")
+    sub.add_parser("doctor", help="check the installation and the configured XMPP server",
+                   description="Check the pinned versions, PyBullet, OpenCV, speech and the configured XMPP server, "
+                               "one line each.")
     return p
 
 

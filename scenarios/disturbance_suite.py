@@ -105,8 +105,8 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rapp run disturbances", description=__doc__.split("\n\n")[0].replace("\n", " "),
-                                 epilog=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="rapp run disturbances", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--robot", choices=ROBOTS, action="append", help="a robot (repeatable; default: both)")
     ap.add_argument("--case", choices=list(CASES), action="append", help="a case (repeatable; default: all)")
     ap.add_argument("--seed", type=int, default=1, help="draws the world (as in every scenario)")
@@ -136,6 +136,10 @@ def main(argv: list[str] | None = None) -> int:
             if a.json_path:  # after every case: a long run interrupted keeps what it measured
                 Path(a.json_path).write_text(json.dumps(rows, indent=1))
     print(table(rows))
+    for r in rows:  # each run's result.json, plot, frames, chat and trace
+        print(f"  {r['case']} on {r['robot']}: {Path(r['trace']).parent}")
+    if a.json_path:
+        print(f"  rows: {a.json_path}")
     return 0 if all(r["passed"] for r in rows) else 1
 
 
