@@ -167,6 +167,9 @@ async def test_trace_show_and_export_mermaid(running, tmp_path):
 
     res = await arapp("trace", "show", trace, "--agent", "store")
     assert res.returncode == 0, res.stderr
+    assert "  store " in res.stdout and "messages (" in res.stdout.splitlines()[0]  # the summary, by default
+    res = await arapp("trace", "show", trace, "--agent", "store", "--view", "table")
+    assert res.returncode == 0, res.stderr
     assert "list_packages" in res.stdout
 
     out = tmp_path / "trace.mmd"
