@@ -50,6 +50,8 @@ from robots.interface import check_robot
 from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
+from ontology.results import (RefusalRecord, ReportRecord, SubscribeTasks, TaskEnded, TaskRecord, TaskReported,
+                              TaskStage)
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
 from robots.mic_array import Steering
@@ -111,6 +113,10 @@ class DynamicSession:
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     end_reason: str = ""
     account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
+    command: str = ""  # the owner's command that started it (text; "" when heard as sound)
+    started: float | None = None  # when supervision was handed to it (s since the epoch)
+    reports: list[ReportRecord] = field(default_factory=list)  # what it reported, in order
+    refusals: list[dict] = field(default_factory=list)  # what was refused it: what, by, why
 
 
 class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
@@ -173,6 +179,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.estop_reason: str | None = None
         self.estop_by: str | None = None
         self.subscriptions: dict[str, set[str]] = {}  # sensor events (agents/core_events.py)
+        self.task_watchers: set[str] = set()  # the owner's clients told of reports and ends (ontology/results.py)
+        self._command_told: tuple[str, int] | None = None  # the command in hand and len(told) when it came
         self._estop_released = asyncio.Event()
         self._estop_released.set()
         self.driving = False  # a move_vel velocity is in force
@@ -187,6 +195,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                                          "get_state": self._on_get_state, "release_stop": self._on_release_stop})
         self.activate("core-service", service, service.make_template())
         events = self._events_service()  # FIPA subscribe to sensor events (agents/core_events.py)
+        events.handlers[SubscribeTasks.action_name] = self._on_subscribe_tasks  # and to task records
         self.activate("core-events", events, events.make_template())
         self.activate("user-listener", UserChat(self.owner, self._command_heard))
         self._listen_to_microphone()
@@ -287,7 +296,12 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             await self.commands.put(text)
 
     async def next_command(self) -> str | HeardUtterance:
-        return await self.commands.get()
+        await self._command_failed()  # back in s3 without a task's end: the last command failed before it ran
+        command = await self.commands.get()
+        for key in ("rapp", "params", "package"):  # the last command's, not this one's
+            self.memory.pop(key, None)
+        self._command_told = (command if isinstance(command, str) else "", len(self.told))
+        return command
 
     def hear(self, text: str) -> None:
         """The robot's microphone heard the user (scenario scripts and tests call this)."""
@@ -471,7 +485,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         ident = self.accounts.take(self._dynamic_prefix(m.name))  # made ahead, or registered at its login
         name = ident.name
         session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
-                                 manifest=m, workdir=workdir, account=ident)
+                                 manifest=m, workdir=workdir, account=ident,
+                                 command=self._command_told[0] if self._command_told else "")
         self.dynamic = session
         app_token = await self.request(self.platform, P.IssueAppToken(
             token=await self.fresh_token(), rapp=m.name, services=m.services, holder_jid=session.jid,
@@ -539,6 +554,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             self.activate("safety", SafetyMonitor(self, period=self.safety_period))
             self.robot.protect(self.safety_distance)  # the same margin, checked by the robot at its own rate
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
+        self.dynamic.started = time.time()
         # the owner knows at once (chat only: the loudspeaker is the RApp's now)
         self._in_background(self.tell_user(f"Starting {self.dynamic.rapp}.", speak=False))
 
@@ -672,6 +688,12 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             await self.tell_user(f"{session.rapp} finished.")
         else:
             await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}")
+        await self._tell_task_end(TaskRecord(
+            robot_id=self.robot_id, command=session.command, rapp=session.rapp, version=session.version,
+            stage=TaskStage.RUN if session.started is not None else TaskStage.START, state=session.state,
+            ok=session.state == "Finished" and not session.refusals, reason=session.end_reason or session.detail,
+            told=self.told[-1], reports=session.reports, refusals=[RefusalRecord(**r) for r in session.refusals],
+            outputs=str(outputs) if outputs.is_dir() else None, started=session.started, ended=time.time()))
 
     def _resume_if_needed(self) -> None:
         if "user-listener" not in self.active_behaviours():
@@ -695,10 +717,43 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         return Done()
 
     async def _on_report(self, req: C.Report, ctx) -> Done:
-        self._from_dynamic(ctx)
+        d = self._from_dynamic(ctx)
+        report = ReportRecord(text=req.text, data=req.data, stamp=time.time())
+        d.reports.append(report)
         # a RApp that has just said the text itself marks it `said`: chat only, not a second time aloud
         await self.tell_user(req.text, speak=not req.data.get("said", False))
+        await self._tell_watchers(TaskReported(robot_id=self.robot_id, rapp=d.rapp, report=report))
         return Done()
+
+    # -- the owner's task records (ontology/results.py) --------------------------------------
+    async def _on_subscribe_tasks(self, req: SubscribeTasks, ctx) -> Done:
+        if ctx.sender != bare(self.owner):
+            raise Refusal(f"{ctx.sender} is not the owner of {self.robot_id}", ErrorCode.PERMISSION)
+        self.task_watchers.add(ctx.sender)
+        return Done()
+
+    async def _tell_watchers(self, content: TaskReported | TaskEnded) -> None:
+        for jid in list(self.task_watchers):
+            try:
+                await self.notify(jid, content, ontology=content.ontology_name, action=content.action_name)
+            except Exception as e:  # noqa: BLE001 - the owner's client gone: the task and the chat go on
+                log.warning("%s to %s failed: %s", content.action_name, jid, e)
+
+    async def _tell_task_end(self, record: TaskRecord) -> None:
+        self._command_told = None  # this command's end is told
+        await self._tell_watchers(TaskEnded(record=record.fitted()))
+
+    async def _command_failed(self) -> None:
+        """The command in hand ended before a task ran (s4-s6 failed, the owner was told why): its record."""
+        if self._command_told is None:
+            return
+        command, told = self._command_told
+        stage = (TaskStage.START if "package" in self.memory else TaskStage.DOWNLOAD if "rapp" in self.memory
+                 else TaskStage.UNDERSTAND)
+        said = self.told[told:]
+        await self._tell_task_end(TaskRecord(robot_id=self.robot_id, command=command, rapp=self.memory.get("rapp", ""),
+                                             stage=stage, ok=False, reason=said[-1] if said else "not understood",
+                                             told=said[-1] if said else "", ended=time.time()))
 
     async def _on_release_stop(self, req: C.ReleaseStop, ctx) -> Done:
         """The supervising RApp releases a stop its robot's safety latched (never the owner's)."""

@@ -28,6 +28,28 @@ Maps: world.export_grid_map(dir) (ROS map_server PNG + YAML), world.write_landma
 """
 from .blas import one_blas_thread
 
+
+def _import_pybullet_quietly() -> None:
+    """pybullet's C module prints "pybullet build time: ..." on stderr when it is first imported: every
+    process imports it through this package first, with stderr closed for that moment (a render
+    process, which skips this package, does the same in robots/render_process.py)."""
+    import os
+    import sys
+
+    if "pybullet" in sys.modules:
+        return
+    sys.stderr.flush()
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        import pybullet  # noqa: F401
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
+_import_pybullet_quietly()
 one_blas_thread()  # before numpy is used from several threads (robots/blas.py)
 
 from .api import RobotAPI  # noqa: E402

@@ -42,6 +42,7 @@ def _versions() -> str:
 
 
 def _pybullet() -> str:
+    import robots  # noqa: F401 - imports pybullet without its build banner
     import pybullet as p
     cid = p.connect(p.DIRECT)
     try:
