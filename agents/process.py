@@ -278,7 +278,13 @@ class AgentProcess:
         self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
         self._logged_out = worker._logged_out
         self.cgroup, self.runtime_pid, self.refusals = worker.cgroup, worker.runtime_pid, worker.refusals
+        worker.cgroup = None  # this run's to clean up now
         self._report_r, worker._report_r = worker._report_r, None
+        if self._report_r is not None:  # the worker's events are this run's now
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(self._report_r)
+            loop.add_reader(self._report_r, self._sandbox_said)
+        self._waiter.add_done_callback(lambda _: self._after_exit())
         self._trace, worker._trace = worker._trace, None
         if self._trace is not None:
             self._trace.who, self._trace.pid = self.identity, lambda: self.agent_pid

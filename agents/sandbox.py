@@ -156,6 +156,25 @@ def describe() -> str:
     return text
 
 
+def allow_unsandboxed(asked: bool, prog: str) -> bool:
+    """A command's --allow-unsandboxed: the sandbox is used wherever the kernel allows one (the flag
+    then changes nothing); where it allows none, the run goes on unsandboxed only if asked, with the
+    reason printed either way. False: refused (the caller exits)."""
+    found = probe()
+    if found.mode != "off":
+        if asked:
+            print(f"{prog}: --allow-unsandboxed ignored: RApps are sandboxed here ({found.mode} mode)",
+                  file=sys.stderr, flush=True)
+        return True
+    if not asked:
+        print(f"{prog}: RApps cannot be sandboxed on this machine: {found.reason}. --allow-unsandboxed runs "
+              "them with this user's rights (development only)", file=sys.stderr, flush=True)
+        return False
+    os.environ[ALLOW_UNSANDBOXED_ENV] = "1"
+    print(f"WARNING: {prog}: RApps run UNSANDBOXED, with this user's rights: {found.reason}", file=sys.stderr, flush=True)
+    return True
+
+
 def say_once() -> None:
     """Log the sandbox's line once per process, as a warning when something is missing."""
     if getattr(say_once, "done", False):

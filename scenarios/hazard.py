@@ -133,7 +133,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             if "did not understand" in end:
                 raise RuntimeError(f"the Core did not start the RApp: {end}")
             sim_s, wall_s = world.time - sim0, time.monotonic() - wall0
-            texts = handle.user.texts()
+            texts = handle.user.transcript(core=handle.core.address)  # each line with its sender
         records = read_trace(trace, validate=True)
         reports = hazard_reports(records, handle.core.address)
         rows = score_hazards(info.hazards, world.ground_truth(), reported(reports))

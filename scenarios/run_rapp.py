@@ -17,11 +17,11 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import shutil
 import sys
 import tempfile
 from pathlib import Path
 
+from agents.sandbox import allow_unsandboxed, copy_outputs
 from agents.tracing import read_trace
 from ontology.manifest import load_manifest
 from ontology.trace import Direction, RecordKind, StructureEvent
@@ -50,13 +50,17 @@ def _reports(records: list[dict], core: str) -> list[dict]:
 
 
 def _copy_outputs(records: list[dict], core: str, dest: Path) -> list[str]:
-    """The RApp's output directory (Task.outputs, named by the Core's destroy record) copied to dest."""
+    """The RApp's output directory (Task.outputs, named by the Core's destroy record) copied to dest:
+    the RApp's to fill, so copied as agents/sandbox.py copy_outputs does (regular files only, no link
+    followed, size-capped; what it left out is said, and never fails the run)."""
     kept = [r.get("outputs") for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("agent") == core
-            and r.get("event") == StructureEvent.DESTROY and r.get("outputs")]
-    if not kept or not Path(kept[-1]).is_dir():
+            and r.get("event") == StructureEvent.DESTROY and r.get("outputs") and not r.get("origin")]
+    if not kept:
         return []
-    shutil.copytree(kept[-1], dest, dirs_exist_ok=True)
-    return sorted(str(p.relative_to(dest)) for p in dest.rglob("*") if p.is_file())
+    copied, skipped = copy_outputs(kept[-1], dest)
+    for why in skipped:
+        print(f"[outputs] not copied: {why}", flush=True)
+    return sorted(copied)
 
 
 async def _sample_poses(api, into: list, period_s: float = 0.2) -> None:
@@ -151,15 +155,17 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
             reports = _reports(records, handle.core.address)
             outputs = await asyncio.to_thread(_copy_outputs, records, handle.core.address, out / "outputs")
         sampler.cancel()
-        ok = end.startswith(f"{name} finished")
+        refused = list(handle.core.last_refusals)  # told, not hidden: a refused RApp is no success
+        ok = end.startswith(f"{name} finished") and not refused
         plot = await asyncio.to_thread(_plot, out, world, house, api, trajectory, f"{name} on {robot} in {house}, "
                                        f"seed {seed}: {'finished' if ok else 'error'}")
         result = {"rapp": name, "robot": robot, "house": house, "seed": seed, "command": command,
                   "spoken": voice.spoken, "person_contacts": world.person_contacts(),
                   "object_contacts": world.object_contacts(),
                   "ok": ok, "end": end, "reports": reports, "trace": str(out / "trace.jsonl"),
-                  "plot": str(plot), "frames": [str(f) for f in api.frames], "outputs": outputs}
-        (out / "chat.txt").write_text("\n".join(texts) + "\n")
+                  "plot": str(plot), "frames": [str(f) for f in api.frames], "outputs": outputs,
+                  "refusals": refused}
+        (out / "chat.txt").write_text("\n".join(handle.user.transcript(start, handle.core.address)) + "\n")
         (out / "result.json").write_text(json.dumps(result, indent=1))
         return result
     finally:
@@ -191,7 +197,11 @@ def main(argv: list[str] | None = None) -> int:
                                                        "times, its `disturbances:` (people, doors, boxes) happen")
     p.add_argument("--listen", action="store_true", help="send no command: the owner gives it by voice "
                                                           "(`rapp say TEXT` while it runs, or --scenario lines)")
+    p.add_argument("--allow-unsandboxed", action="store_true",
+                   help="run the RApp without the sandbox where the kernel allows none (the reason is printed)")
     a = p.parse_args(argv)
+    if not allow_unsandboxed(a.allow_unsandboxed, "rapp run rapp"):
+        return 2
     src = Path(a.rapp)
     if not src.exists():
         print(f"rapp run rapp: {src} does not exist", file=sys.stderr)

@@ -53,7 +53,7 @@ async def _run_one(handle, timeout_s: float) -> tuple[str, list[str], float]:
     await handle.user.say(handle.core.address, COMMAND)
     end = await handle.user.wait_for(lambda t: t.startswith(FINISHED) or "did not understand" in t,
                                      timeout=timeout_s)
-    return end, handle.user.texts(), time.monotonic() - t0
+    return end, handle.user.transcript(core=handle.core.address), time.monotonic() - t0
 
 
 async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json_path=None, shared: bool = False,

@@ -131,7 +131,7 @@ async def check_full_lifecycle(system) -> list[dict]:
     assert stopped, "the Dynamic Agent logged out"
     with pytest.raises(RequestTimeout):
         await core.request(spawn["dynamic"], R.GetGlobalPose(), timeout=0.5)
-    assert "echo done for owner-nao1" in system.handle.user.texts()
+    assert "[echo-app] echo done for owner-nao1" in system.handle.user.texts()  # labelled: the RApp's words
     return trace
 
 

@@ -73,7 +73,8 @@ async def attack(system, name: str, handle=None, timeout: float = 60.0, **params
     rapp = f"hostile-{name}".replace("_", "-")
     end = await user.wait_for(lambda t: t.startswith(f"{rapp} finished") or t.startswith(f"{rapp} ended"),
                               timeout=timeout, start=start)
-    reports = [t for t in user.texts()[start:] if t.startswith("{")]
+    label = f"[{rapp}] "  # a RApp's words reach the owner labelled as its own
+    reports = [t[len(label):] for t in user.texts()[start:] if t.startswith(label + "{")]
     return (json.loads(reports[-1]) if reports else {}), end
 
 
@@ -197,10 +198,10 @@ def test_a_restart_does_not_follow_a_link_its_last_process_left(tmp_path):
 
     run, victim = tmp_path / "0001-app", tmp_path / "victim"
     run.mkdir()
-    victim.mkdir()  # a directory: made "again" by mkdir(exist_ok=True), chowned through the link
+    victim.mkdir()  # a directory: "made again" by mkdir(exist_ok=True), chowned through the link
     os.chown(victim, 4242, 4242)
-    (run / ".root").symlink_to(victim)
+    (run / "tmp").symlink_to(victim)
     (run / "dir-link").symlink_to(tmp_path)
-    Sandbox(enabled=True).prepare(run, 0x5AF0_0001)
-    assert (run / ".root").is_dir() and not (run / ".root").is_symlink() and (run / ".root").stat().st_uid == 0
+    Sandbox(mode="root").prepare(run, 0x5AF0_0001)
+    assert run.stat().st_uid == 0x5AF0_0001 and os.lstat(run / "tmp").st_uid == 0x5AF0_0001
     assert victim.stat().st_uid == 4242 and tmp_path.stat().st_uid == 0  # neither link was followed
