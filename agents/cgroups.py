@@ -28,6 +28,9 @@ SANDBOX_GROUP = "rapp-sandbox"
 V1_CONTROLLERS = ("memory", "pids", "cpu")
 CPU_PERIOD_US = 100_000
 # the kernel's weight of each nice value (kernel/sched/core.c sched_prio_to_weight), from nice 0 to 19
+# the group's process limit stands above the runtime's RLIMIT_NPROC by this much: the group also holds
+# the sandbox's own two processes (agents/confine.py P and F), and the rlimit says "try again" first
+PIDS_SLACK = 16
 NICE_WEIGHT = (1024, 820, 655, 526, 423, 335, 272, 215, 172, 137, 110, 87, 70, 56, 45, 36, 29, 23, 18, 15)
 
 
@@ -292,7 +295,7 @@ def _limit_v2(path: Path, limits, controllers) -> None:
         (path / "memory.max").write_text(str(limits.memory_bytes))
         (path / "memory.swap.max").exists() and (path / "memory.swap.max").write_text("0")
     if "pids" in controllers and limits.processes:
-        (path / "pids.max").write_text(str(limits.processes))
+        (path / "pids.max").write_text(str(limits.processes + PIDS_SLACK))
     if "cpu" in controllers and limits.cpu_cores:
         (path / "cpu.max").write_text(f"{int(limits.cpu_cores * CPU_PERIOD_US)} {CPU_PERIOD_US}")
 
@@ -301,7 +304,7 @@ def _limit_v1(ctrl: str, path: Path, limits) -> None:
     if ctrl == "memory" and limits.memory_bytes:
         (path / "memory.limit_in_bytes").write_text(str(limits.memory_bytes))
     elif ctrl == "pids" and limits.processes:
-        (path / "pids.max").write_text(str(limits.processes))
+        (path / "pids.max").write_text(str(limits.processes + PIDS_SLACK))
     elif ctrl == "cpu" and limits.cpu_cores:
         (path / "cpu.cfs_period_us").write_text(str(CPU_PERIOD_US))
         (path / "cpu.cfs_quota_us").write_text(str(int(limits.cpu_cores * CPU_PERIOD_US)))

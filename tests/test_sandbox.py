@@ -117,6 +117,9 @@ async def test_b_cannot_log_in_as_any_agent(system):
                                paths=[str(p) for p in (system.workdir / "credentials").glob("*")])
     assert "finished" in end, end
     assert report["tried"] >= 2 and report["logged_in"] == []
+    # its one connection is its agent's: every other was refused by its sandbox, and told
+    assert any(r["what"] == "a second XMPP connection" for r in system.a.core.last_refusals), system.a.core.last_refusals
+    assert "It was refused" in end, end
     await assert_safe_and_supervising(system.a)
 
 
@@ -185,7 +188,7 @@ async def test_g_cannot_stop_another_rapps_cloud_agent(system):
     assert report["stopped"] is False and "does not own" in report["refused"], report
     assert target in system.platform.clouds, "the other RApp's Cloud Agent still runs"
     events = structure(read_trace(system.settings.trace_file), system.platform.address)
-    assert any(r["event"] == "refused" and r["cloud"] == target for r in events)
+    assert any(r["event"] == "refused" and r.get("cloud") == target for r in events)
     # the victim lingers until cancelled: a loaded machine took over 12 s to run the attack, and the
     # victim had ended by then ("no Cloud Agent")
     await user.say(b.core.address, "cancel")
@@ -325,3 +328,15 @@ async def test_o_registrations_are_refused_to_a_rapp(system):
     assert report.pop("get_state").startswith("answered"), report  # to its supervisor, the running RApp: yes
     assert all(v.startswith("refused") for v in report.values()), report
     assert system.platform.robots["nao2"].core_jid == system.b.core.address  # not overwritten
+
+
+async def test_p_failed_logins_and_registrations_are_traced_by_the_server(system):
+    s = system.settings
+    with pytest.raises(LoginError):
+        await probe_login(s.host, s.port, s.domain, user=system.a.core.name, password="guessed", register=False,
+                          timeout=5)
+    name = f"squatter{os.getpid()}"
+    await probe_login(s.host, s.port, s.domain, user=name, password="x", register=True, timeout=5)
+    events = [r for r in read_trace(s.trace_file) if str(r.get("agent", "")).startswith("xmpp-server@")]
+    assert any(r["event"] == "login-failed" and r["account"] == system.a.core.name for r in events), events[-5:]
+    assert any(r["event"] == "registered" and r["account"] == name for r in events), events[-5:]
