@@ -184,6 +184,14 @@ def _v2_base(mount: Path, own: str, missing: list[str]) -> tuple[Path | None, se
     return None, set()
 
 
+def release_if_used() -> None:
+    """Where this process uses the sandbox's groups (a Core or Platform at its start and stop): the
+    groups of creators that died removed (`sweep`), then the base groups where empty."""
+    if support.cache_info().currsize:
+        sweep()
+        support().release()
+
+
 _serial = itertools.count(1)
 
 

@@ -27,8 +27,8 @@ from pathlib import Path
 
 from ontology.spawn import SpawnSpec, WarmLogin
 
-from .cgroups import RunGroup
-from .priority import set_priority
+from .cgroups import RunGroup, release_if_used
+from .priority import each_thread, set_priority
 from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree, open_run_file
 from .tracing import TraceRelay, tracer_for
 
@@ -165,6 +165,7 @@ def sweep_run_dirs(workdir: Path, remove_root: bool = False) -> None:
     """Remove the run directories (`NNNN-<rapp>`: package, logs; idle warm workers' `NNNN-.warm`)
     under a Core's or Platform's work directory: at stop, and at start for those a crash left behind."""
     workdir = Path(workdir)
+    release_if_used()  # the sandbox's base control groups, where no run is left in them
     if remove_root:
         shutil.rmtree(workdir, ignore_errors=True)
         return
@@ -321,12 +322,6 @@ class AgentProcess:
         finally:
             os.close(spec_w)
 
-    def _at_parents_priority(self) -> None:
-        try:  # in a thread: it may wait out an unprivileged parent's rate limit
-            set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0), retry_s=0.5)
-        except (PermissionError, ProcessLookupError):
-            pass
-
     def _spec_bytes(self) -> bytes:
         data = self.spec.model_dump_json().encode()
         if len(data) > 60_000:  # a pipe holds 64 KiB: the write must not block
@@ -473,17 +468,22 @@ class AgentProcess:
         (a group write refused for its rate limit leaves the group as it was)."""
         if self.proc is None or not self.alive():
             return
+        nice = os.getpriority(os.PRIO_PROCESS, 0) + by
         try:
-            set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0) + by)
-        except OSError:  # gone meanwhile
+            set_priority(self.proc.pid, nice)  # the sandbox's outer process and its session's group
+            if self.runtime_pid:  # the runtime itself, inside the sandbox (its init's child)
+                each_thread(self.runtime_pid, lambda tid: os.setpriority(os.PRIO_PROCESS, tid, nice))
+        except OSError:  # gone meanwhile, or a raise this user may not make
             pass
+        if self.cgroup is not None:  # in a CPU group of its own, the group's weight is what counts
+            self.cgroup.set_nice(by)
 
     def _at_parents_priority(self) -> None:
         """A run that lowered its priority (a Cloud Agent once serving, CLOUD_NICE) logs out and
         exits at its parent's where that is allowed (a fleet's stops at nice +5 took 90-135 ms
         under load, when they waited for the exit)."""
         try:
-            if os.getpriority(os.PRIO_PROCESS, self.proc.pid) > os.getpriority(os.PRIO_PROCESS, 0):
+            if os.getpriority(os.PRIO_PROCESS, self.agent_pid) > os.getpriority(os.PRIO_PROCESS, 0):
                 self.yield_cpu(0)
         except OSError:  # gone already
             pass
