@@ -361,6 +361,8 @@ class Monitor:
         if os.getppid() != self.asked["parent"]:
             return 125
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the runtime logs out first (its group gets it)
+        if self.asked["nice"]:  # the run's priority, its forwarding included
+            os.nice(self.asked["nice"])
         self.sel = selectors.DefaultSelector()
         pidfd = os.pidfd_open(self.child)
         self.sel.register(pidfd, selectors.EVENT_READ, "child")

@@ -288,7 +288,7 @@ class AgentProcess:
         self._waiter.add_done_callback(lambda _: self._after_exit())
         self._trace, worker._trace = worker._trace, None
         if self._trace is not None:
-            self._trace.who, self._trace.pid = self.identity, lambda: self.agent_pid
+            self._trace.who, self._trace.pid = self.identity, lambda: self.pid
         spec_w, worker._spec_w = worker._spec_w, None
         worker._forget_ready()
         self.spec, self.warm = self._placed(self._given), True
@@ -364,7 +364,7 @@ class AgentProcess:
                 _widen(trace_w)
                 extra["RAPP_TRACE_FD"] = str(trace_w)
                 self._trace = TraceRelay(trace_r, tracer_for(self.settings.trace_file), self.identity,
-                                         lambda: self.agent_pid)
+                                         lambda: self.pid)
             child_fds = tuple(fds)
             report_w = None
             if self.sandboxed:  # the sandbox's own events (its outer process writes them, never the RApp)
