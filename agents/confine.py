@@ -386,9 +386,10 @@ class Monitor:
         self._drain_ctl()
         how = self.status or ({"signal": os.WTERMSIG(status)} if os.WIFSIGNALED(status)
                               else {"exit": os.WEXITSTATUS(status)})
-        if "signal" in how:
+        if "signal" in how:  # as the runtime ended (killed by a signal): its Core reads -N as before
             sig = how["signal"]
-            signal.signal(sig, signal.SIG_DFL)
+            if sig not in (signal.SIGKILL, signal.SIGSTOP):  # those two have no handler to reset
+                signal.signal(sig, signal.SIG_DFL)
             os.kill(os.getpid(), sig)
         return how.get("exit", 1)
 

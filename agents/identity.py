@@ -33,7 +33,7 @@ def is_rapp_account(jid: str) -> bool:
 def trace_refusal(agent, sender: str, action: str, refusal) -> None:
     """The `refused` record of an operation `agent` refused `sender` (told, not hidden)."""
     agent.record_structure("refused", action=action, sender=sender, reason=str(getattr(refusal, "reason", refusal))[:300],
-                           code=str(getattr(refusal, "code", "")), rapp_account=is_rapp_account(sender))
+                           code=getattr(refusal, "code", None), rapp_account=is_rapp_account(sender))
 
 
 @dataclass(frozen=True)

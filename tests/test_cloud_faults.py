@@ -75,7 +75,7 @@ async def test_restartable_cloud_agent_is_started_once_more(system):
     texts = user.texts()[start:]
     # calls go on: one in flight is answered by the new process (the server kept it) or fails
     # with "cloud-restarted" and the next succeeds; none is lost, the task ends well
-    assert "[cloud-again] echo done for owner-nao1, doubled 42" in texts and not any("cloud lost:" in t for t in texts)
+    assert "[cloud-again] echo done for owner-nao1, doubled 42" in texts and "[cloud-again] cloud lost: cloud-lost" not in texts
     trace = read_trace(system.settings.trace_file)
     events = [r for r in trace if r["kind"] == "structure"]
     lost = next(r for r in events if r["event"] == "cloud-lost" and r["rapp"] == "cloud-again")

@@ -99,7 +99,8 @@ async def run_command(system, text: str, expect: str, timeout=60.0) -> str:
 
 
 def structure(trace, agent_prefix=None):
-    return [r for r in trace if r["kind"] == "structure"
+    """The agents' structure records (not the XMPP server's logins and registrations)."""
+    return [r for r in trace if r["kind"] == "structure" and not str(r.get("agent", "")).startswith("xmpp-server@")
             and (agent_prefix is None or r["agent"].startswith(agent_prefix))]
 
 

@@ -45,7 +45,7 @@ async def command(system, text: str, expect: str, timeout: float = 60.0, handle=
     start = len(user.received)
     await user.say(core.address, text)
     await user.wait_for(lambda t: expect in t, timeout=timeout, start=start)
-    return user.texts()[start:]
+    return [re.sub(r"^\[[^]]*\] ", "", t) for t in user.texts()[start:]]  # a RApp's words, their label off
 
 
 async def test_weather_reporter(system):
