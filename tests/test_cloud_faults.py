@@ -49,7 +49,7 @@ async def _kill_cloud_of(system, keyword: str, rapp: str, sig=signal.SIGKILL) ->
     await wait_until(lambda: thread_priorities(session.process.pid) == {own + CLOUD_NICE}, 5)  # and its group
     assert os.getpriority(os.PRIO_PROCESS, 0) == own
     killed = time.time()  # the trace's clock
-    os.kill(session.process.pid, sig)
+    os.kill(session.process.agent_pid, sig)  # the runtime itself (inside its sandbox: not the outer process)
     return killed, start
 
 
