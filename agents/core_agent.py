@@ -69,7 +69,7 @@ from .core_fsm import build_core_fsm
 from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
-from .identity import EphemeralAccounts, Identity
+from .identity import EphemeralAccounts, Identity, trace_refusal
 from .liveness import GRACE_S, MARK_AFTER_S, SilenceWatch, sample_main_thread
 from .process import (AgentProcess, InProcessAgent, Limits, check_spawn_mode, crash_summary, spawn_agent,
                       sweep_run_dirs)
@@ -116,7 +116,8 @@ class DynamicSession:
     command: str = ""  # the owner's command that started it (text; "" when heard as sound)
     started: float | None = None  # when supervision was handed to it (s since the epoch)
     reports: list[ReportRecord] = field(default_factory=list)  # what it reported, in order
-    refusals: list[dict] = field(default_factory=list)  # what was refused it: what, by, why
+    # what was refused it (by this Core, its sandbox, the Platform): {by, what, why, count}, told at its end
+    refusals: list[dict] = field(default_factory=list)
 
 
 class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
@@ -163,6 +164,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.look_ahead = LookAhead()  # s4a's spotting begun before the detector's cut
         self.dynamic: DynamicSession | None = None
         self.told: list[str] = []  # everything said to the user, in order
+        self.last_refusals: list[dict] = []  # what the last RApp run was refused (told to the owner at its end)
         self.supervisor: BehaviourHost | None = None
         self._serial = itertools.count(1)
         self._background: set[asyncio.Task] = set()
@@ -319,7 +321,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                                                           core_jid=self.address))
         await self.request(self.store, S.RegisterOwner(owner=self.user, password=self.password))
         await self.request(self.store, S.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
-                                                       owner=self.user))
+                                                       owner=self.user, token=self.token))
         self.record_structure("register", robot=self.robot_id, platform=self.platform, store=self.store)
         self._in_background(self._sweep_accounts(self.accounts.pending()))
 
@@ -497,9 +499,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                                          capabilities=sorted(self.robot.capabilities())))
         session.process = spawn_agent(spec, workdir, self.settings, mode=self.dynamic_mode, limits=self.limits,
                                       sandbox=self.sandbox, pool=self.warm_pool)
+        session.process.on_refusal = lambda refusal: self._sandbox_refused(session, refusal)
         await session.process.start()
         self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
-                              pid=session.process.pid, sandbox=session.process.uid is not None,
+                              pid=session.process.pid, sandbox=session.process.sandboxed,
                               warm=getattr(session.process, "warm", False))
         watcher = asyncio.create_task(self._watch_process(session))
         try:
@@ -633,7 +636,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         """Whether a silence is the loaded machine's, not a hang (agents/liveness.py). Looks at the
         Dynamic Agent's process from the second missed beat on; False while the silence is shorter
         than the timeout."""
-        pid = session.process.pid if isinstance(session.process, AgentProcess) else None
+        pid = session.process.agent_pid if isinstance(session.process, AgentProcess) else None
         if pid is None or silence <= MARK_AFTER_S:
             session.silence = None  # a beat (or our own stall) ended the silence: the next starts afresh
             return False  # (a thread or in-process agent: nothing to look at)
@@ -675,8 +678,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                               reason=session.end_reason, exit_code=code)
         self._resume_if_needed()  # supervising again at once; the rest is clean-up
         try:
-            await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),
-                               timeout=5.0)
+            released = await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),
+                                          timeout=5.0)
+            for r in getattr(released, "refused", ()):
+                _keep_refusal(session.refusals, {"by": r.by, "what": r.what, "why": r.why, "count": r.count})
         except RequestError as e:
             log.info("no cloud agent to stop for %s: %s", session.jid, e)
         shutil.rmtree(session.workdir / "package", ignore_errors=True)
@@ -684,10 +689,17 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             deletion = asyncio.create_task(self._delete_account(session))
             self._deletions.add(deletion)
             deletion.add_done_callback(self._deletions.discard)
-        if session.state == "Finished":  # told once its Cloud Agents are gone too
-            await self.tell_user(f"{session.rapp} finished.")
+        refused = ""
+        if session.refusals:  # told, not hidden: the owner learns what the RApp tried
+            self.last_refusals = list(session.refusals)
+            self.record_structure("refusals", dynamic=session.jid, rapp=session.rapp, refused=session.refusals)
+            refused = " " + refusal_summary(session.refusals)
         else:
-            await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}")
+            self.last_refusals = []
+        if session.state == "Finished":  # told once its Cloud Agents are gone too
+            await self.tell_user(f"{session.rapp} finished.{refused}")
+        else:
+            await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}{refused}")
         await self._tell_task_end(TaskRecord(
             robot_id=self.robot_id, command=session.command, rapp=session.rapp, version=session.version,
             stage=TaskStage.RUN if session.started is not None else TaskStage.START, state=session.state,
@@ -698,6 +710,18 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     def _resume_if_needed(self) -> None:
         if "user-listener" not in self.active_behaviours():
             self._resume()
+
+    def note_refusal(self, sender: str, action: str, refusal) -> None:
+        trace_refusal(self, sender, action, refusal)
+        d = self.dynamic
+        if d is not None and sender == bare(d.jid):
+            _keep_refusal(d.refusals, {"by": self.address, "what": action, "why": refusal.reason[:200], "count": 1})
+
+    def _sandbox_refused(self, session: DynamicSession, refusal: dict) -> None:
+        self.record_structure("refused", by="sandbox", sender=session.jid, action=refusal["what"],
+                              reason=refusal.get("why", ""), count=refusal["count"], rapp_account=True)
+        _keep_refusal(session.refusals, {"by": "sandbox", "what": refusal["what"], "why": refusal.get("why", ""),
+                                         "count": refusal["count"]})
 
     # -- services to the Dynamic Agent ------------------------------------------------------
     def _from_dynamic(self, ctx) -> DynamicSession:
@@ -720,8 +744,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         d = self._from_dynamic(ctx)
         report = ReportRecord(text=req.text, data=req.data, stamp=time.time())
         d.reports.append(report)
-        # a RApp that has just said the text itself marks it `said`: chat only, not a second time aloud
-        await self.tell_user(req.text, speak=not req.data.get("said", False))
+        # a RApp that has just said the text itself marks it `said`: chat only, not a second time aloud.
+        # In the chat its words are labelled as its own: the Core does not vouch for them
+        await self.tell_user(req.text, speak=not req.data.get("said", False), label=d.rapp)
         await self._tell_watchers(TaskReported(robot_id=self.robot_id, rapp=d.rapp, report=report))
         return Done()
 
@@ -766,17 +791,22 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         return Done()
 
     async def _on_get_state(self, req: C.GetState, ctx) -> C.CoreState:
+        """Told to its supervisor (the running Dynamic Agent), its owner and the Platform only: the
+        current RApp and Dynamic Agent are nobody else's business."""
         d = self.dynamic
+        if ctx.sender not in {bare(self.owner), bare(self.platform)} and not (d is not None and ctx.sender == bare(d.jid)):
+            raise Refusal(f"{ctx.sender} may not read {self.address}'s state", ErrorCode.FORBIDDEN)
         return C.CoreState(state=self.supervisor.behaviour.current or "" if self.supervisor else "",
                            active_behaviours=sorted(self.active_behaviours()),
                            dynamic_agent=d.jid if d else None, rapp=d.rapp if d else None)
 
     # -- talking to the user ----------------------------------------------------------------
-    async def tell_user(self, text: str, speak: bool = True) -> None:
+    async def tell_user(self, text: str, speak: bool = True, label: str = "") -> None:
         """Chat at once; speak beside listening: the Core never waits for its own sentence
-        (utterances queue behind one another, in order)."""
+        (utterances queue behind one another, in order). `label`: whose words these are when they are
+        not the Core's own (a RApp's report), put before them in the chat."""
         self.told.append(text)
-        await self.send(Message(to=self.owner, body=text))
+        await self.send(Message(to=self.owner, body=f"[{label}] {text}" if label else text))
         if self.say_reports and speak:
             self.sentences_begun += 1  # without the loudspeaker's times the listener drops sound made meanwhile
             previous = self._speech
@@ -809,3 +839,22 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             return
         await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}; say \"stop\" to pause it, "
                              f"\"cancel\" to end it.")
+
+
+def _keep_refusal(kept: list[dict], refusal: dict, limit: int = 50) -> None:
+    """One entry per (by, what, why), counted."""
+    same = next((r for r in kept if (r["by"], r["what"], r["why"]) == (refusal["by"], refusal["what"], refusal["why"])),
+                None)
+    if same is not None:
+        same["count"] = max(same["count"] + (refusal["by"] != "sandbox"), refusal["count"])
+    elif len(kept) < limit:
+        kept.append(dict(refusal))
+
+
+def refusal_summary(refusals: list[dict], limit: int = 600) -> str:
+    """What a run was refused, in one sentence for its owner."""
+    n = sum(r["count"] for r in refusals)
+    items = [f"{r['what']} ({r['by'].split('@')[0]}{': ' + r['why'] if r['why'] else ''})"
+             + (f" x{r['count']}" if r["count"] > 1 else "") for r in refusals]
+    text = f"It was refused {n} operation{'s' if n != 1 else ''}: " + "; ".join(items)
+    return (text[:limit - 3] + "...") if len(text) > limit else text + "."

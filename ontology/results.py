@@ -47,6 +47,7 @@ class RefusalRecord(Content):
     what: str
     by: str = ""
     why: str = ""
+    count: int = Field(1, description="how many times the same thing was refused")
 
 
 class TaskRecord(Content):

@@ -124,7 +124,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                   f" tracking {cm(result['max_tracking_error_m'])}"
                                   + (f" ({run.interrupted})" if run.signum else ""),
                             trajectory=[p[1:3] for p in run.trajectories[robot]])
-            (out / "chat.txt").write_text("\n".join(owner.chat) + "\n")
+            (out / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
             (out / "recording.json").write_text(json.dumps({"localizations": recorder.localizations,
                                                             "paths": recorder.paths}))
             Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))

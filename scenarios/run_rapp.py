@@ -19,11 +19,11 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import shutil
 import sys
 import tempfile
 from pathlib import Path
 
+from agents.sandbox import allow_unsandboxed, copy_outputs
 from agents.tracing import read_trace
 from ontology.results import TaskStage
 from ontology.trace import RecordKind, StructureEvent
@@ -42,13 +42,17 @@ ROBOTS = ("nao", "elektron")
 
 
 def _copy_outputs(records: list[dict], core: str, dest: Path) -> list[str]:
-    """The RApp's output directory (Task.outputs, named by the Core's destroy record) copied to dest."""
+    """The RApp's output directory (Task.outputs, named by the Core's destroy record) copied to dest:
+    the RApp's to fill, so copied as agents/sandbox.py copy_outputs does (regular files only, no link
+    followed, size-capped; what it left out is said, and never fails the run)."""
     kept = [r.get("outputs") for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("agent") == core
-            and r.get("event") == StructureEvent.DESTROY and r.get("outputs")]
-    if not kept or not Path(kept[-1]).is_dir():
+            and r.get("event") == StructureEvent.DESTROY and r.get("outputs") and not r.get("origin")]
+    if not kept:
         return []
-    shutil.copytree(kept[-1], dest, dirs_exist_ok=True)
-    return sorted(str(p.relative_to(dest)) for p in dest.rglob("*") if p.is_file())
+    copied, skipped = copy_outputs(kept[-1], dest)
+    for why in skipped:
+        print(f"[outputs] not copied: {why}", flush=True)
+    return sorted(copied)
 
 
 async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None, out: Path,
@@ -131,7 +135,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                       "duration_sim_s": round(run.sim_s, 2), "duration_wall_s": round(run.wall_s, 2),
                       "trace": str(out / "trace.jsonl"), "plot": str(plot), "frames": [str(f) for f in api.frames],
                       "outputs": outputs, "truth": run.truth()}
-            (out / "chat.txt").write_text("\n".join(owner.chat) + "\n")
+            (out / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
             (out / "result.json").write_text(json.dumps(result, indent=1))
         check_interrupted(result)
         return result
@@ -176,7 +180,11 @@ def main(argv: list[str] | None = None) -> int:
                                                        "times, its `disturbances:` (people, doors, boxes) happen")
     p.add_argument("--listen", action="store_true", help="send no command: the owner gives it by voice "
                                                           "(`rapp say TEXT` while it runs, or --scenario lines)")
+    p.add_argument("--allow-unsandboxed", action="store_true",
+                   help="run the RApp without the sandbox where the kernel allows none (the reason is printed)")
     a = p.parse_args(argv)
+    if not allow_unsandboxed(a.allow_unsandboxed, "rapp run rapp"):
+        return 2
     src = Path(a.rapp)
     if not src.exists():
         print(f"rapp run rapp: {src} does not exist", file=sys.stderr)

@@ -63,6 +63,7 @@ class Owner:
     handle: RobotHandle | None = None
     record: TaskRecord | None = None
     chat: list[str] = field(default_factory=list)
+    transcript: list[str] = field(default_factory=list)  # the chat with each line's sender (chat.txt)
     wall_s: float = 0.0
     _told_from: int = 0  # the owner client's ends and chat before the command: not this run's
     _chat_from: int = 0
@@ -148,6 +149,7 @@ class Run:
             for owner in self.owners:  # the chat as it was when the run ended
                 if owner.handle is not None:
                     owner.chat = owner.handle.user.texts()[owner._chat_from:]
+                    owner.transcript = owner.handle.user.transcript(owner._chat_from, owner.handle.core.address)
             with saving():  # a signal now does not cut the stopping short
                 await system.stop()
             for task in samplers:

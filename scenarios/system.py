@@ -88,7 +88,7 @@ class RappSystem:
             # every agent of this run has its own password, in a directory of this run
             overrides["credentials_dir"] = self.workdir / "credentials"
         if self._given_settings is None:
-            self.server = EmbeddedServer(db=self.workdir / "xmpp.db")
+            self.server = EmbeddedServer(db=self.workdir / "xmpp.db", trace_file=self._trace_file)
             await self.server.astart()
             self.settings = self.server.settings(**overrides)
         else:

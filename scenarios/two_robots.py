@@ -76,7 +76,7 @@ async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json
                                 title=f"{kind} (with another robot) seed {seed} ({house}): localization "
                                       f"{cm(r['localization_error_m'])}, tracking {cm(r['max_tracking_error_m'])}",
                                 trajectory=[p[1:3] for p in run.trajectories[kind]])
-                (out / kind / "chat.txt").write_text("\n".join(owner.chat) + "\n")
+                (out / kind / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
                 result["robots"][kind] = r
             result["all_correct"] = all(r["all_correct"] for r in result["robots"].values())
             Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))

@@ -100,7 +100,8 @@ async def run_command(system, text: str, expect: str, timeout=60.0) -> str:
 
 
 def structure(trace, agent_prefix=None):
-    return [r for r in trace if r["kind"] == "structure"
+    """The agents' structure records (not the XMPP server's logins and registrations)."""
+    return [r for r in trace if r["kind"] == "structure" and not str(r.get("agent", "")).startswith("xmpp-server@")
             and (agent_prefix is None or r["agent"].startswith(agent_prefix))]
 
 
@@ -132,7 +133,7 @@ async def check_full_lifecycle(system) -> list[dict]:
     assert stopped, "the Dynamic Agent logged out"
     with pytest.raises(RequestTimeout):
         await core.request(spawn["dynamic"], R.GetGlobalPose(), timeout=0.5)
-    assert "echo done for owner-nao1" in system.handle.user.texts()
+    assert "[echo-app] echo done for owner-nao1" in system.handle.user.texts()  # labelled: the RApp's words
     return trace
 
 

@@ -45,7 +45,7 @@ async def command(system, text: str, expect: str, timeout: float = 60.0, handle=
     start = len(user.received)
     await user.say(core.address, text)
     await user.wait_for(lambda t: expect in t, timeout=timeout, start=start)
-    return user.texts()[start:]
+    return [re.sub(r"^\[[^]]*\] ", "", t) for t in user.texts()[start:]]  # a RApp's words, their label off
 
 
 async def test_weather_reporter(system):
@@ -92,12 +92,12 @@ async def test_cognitive_game_hears_answers_and_records_score(system):
                "How much is 7 times 8?": "56", "How much is 45 divided by 5?": "nine"}
     asked = 0
     while True:
-        text = await user.wait_for(lambda t: t.startswith("Question") or "finished:" in t,
+        text = await user.wait_for(lambda t: "] Question" in t or "finished:" in t,
                                    timeout=60, start=start)
         start = user.received.index(next(r for r in user.received[start:] if r[2] == text)) + 1
         if "finished:" in text:
             break
-        question = re.sub(r"^Question \d+: ", "", text)
+        question = re.sub(r"^\[[^]]*\] Question \d+: ", "", text)  # a RApp's words come labelled
         mic.hear(answers.get(question, "pass"))
         asked += 1
     assert asked >= 2 and f"{asked} of {asked} correct, score 100" in text

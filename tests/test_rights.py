@@ -151,7 +151,7 @@ async def test_a_task_subscribes_to_estop_events_and_expired_ones_are_dropped(sy
 
     core = system.handle.core
     task = asyncio.create_task(run_command(system, "eventsecho", "events-echo finished", timeout=60))
-    await system.handle.user.wait_for(lambda t: t == "subscribed", timeout=30)
+    await system.handle.user.wait_for(lambda t: t == "[events-echo] subscribed", timeout=30)  # its words, labelled
     dyn = core.dynamic.jid
     await core.send_notification(Notification.event(EventTopic.ESTOP, ttl_s=-1.0, latched=True), [bare(dyn)])
     await wait_until(lambda: any(r.get("topic") == "estop" for r in _events(system, "notification-expired")))

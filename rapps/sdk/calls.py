@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Literal
 
-from ontology.platform import CloudAgentReply, Pong, TokenReply
+from ontology.platform import CloudAgentReply, Pong, Released, TokenReply
 from ontology.registry import Done, Progress
 from ontology.robot import Audio, CameraInfo, CameraParams, Image, JointAngles, LaserScan, LockState, MicrophoneLevel, SonarReading, Transform, WordSpotted
 from ontology.services.common import CameraIntrinsics, Pose2D
@@ -229,8 +229,8 @@ class PlatformCalls(_Calls):
         """Find and decode QR codes; with intrinsics also each code's pose (code frame: origin at the"""
         return await self._call("qr_detection", {"token": token, "image_b64": image_b64, "camera": camera, "code_size_m": code_size_m}, _timeout, _feedback)
 
-    async def release_cloud_agents(self, *, owner_jid: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
-        """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy)."""
+    async def release_cloud_agents(self, *, owner_jid: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Released:
+        """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy); the"""
         return await self._call("release_cloud_agents", {"token": token, "owner_jid": owner_jid}, _timeout, _feedback)
 
     async def scene_recognition_forget(self, *, home_id: str = 'home', room: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
