@@ -52,15 +52,16 @@ from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
-from robots.mic_array import Steering
-from robots.receptors import HeardUtterance, KeywordSpotter, VoiceActivity
-from robots.sound import encode_wav
+from hearing.keywords import KeywordSpotter, LookAhead, keyword_in_a_sentence
+from hearing.steering import Steering
+from hearing.vad import HeardUtterance, VoiceActivity
+from hearing.wav import encode_wav
 
 from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
                               UserChat, heartbeat_template)
 from .core_commands import RobotCommands
-from .core_hearing import Continuation, LookAhead, keyword_in_a_sentence
+from .core_hearing import Continuation
 from .core_events import CoreEvents
 from .core_strategies import Strategies
 from .core_fsm import build_core_fsm

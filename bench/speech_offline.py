@@ -36,7 +36,7 @@ CACHE = Path("/tmp/rapp-speech-offline")
 VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
 ACOUSTICS: dict[str, float] = {}  # the house's reverberation under test (--rt60 0.5: rt60_s; --equal-tv: tv_db)
 ARRAY: dict = {}  # the NAO's four microphones and a beamformer under test (--beam mvdr|das, --loading)
-MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/receptors.py AudioInput)
+MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/microphones.py AudioInput)
 
 
 def items(path: str) -> list[tuple[str, str | None]]:
@@ -77,8 +77,8 @@ def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
 
 def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
     """heard_utterances, each as (HeardUtterance, the detector's time it started, its time it was cut)."""
+    from hearing.vad import VoiceActivity
     from robots.floorplan import load_plan
-    from robots.receptors import VoiceActivity
     from robots.sound import HouseSound, NoiseSource, talker_at
     from robots.world import HOUSES
 
@@ -110,7 +110,8 @@ def _beamformed(house, owner, seconds: float, quiet_until: float) -> np.ndarray:
     """The NAO's four microphones (robots/mic_array.py), facing +x, steered to where the owner's mouth
     is (known here, as a sound localisation would estimate it), the noise estimated from the room
     before the owner speaks."""
-    from robots.mic_array import NAO_MICS, arrival_delays, heads_mics, mvdr
+    from hearing.steering import mvdr
+    from robots.mic_array import NAO_MICS, arrival_delays, heads_mics
 
     mics = heads_mics(NAO_MICS, 0.0) + np.array([*ROBOT_AT, MIC_Z])[None]
     channels = house.receive_array(mics, 0.0, seconds, mic="nao").astype(np.float64)
@@ -125,10 +126,11 @@ def _beamformed(house, owner, seconds: float, quiet_until: float) -> np.ndarray:
 def _located(house, seconds: float) -> list:
     """timed_utterances as the Core hears them with four microphones (agents/core_behaviours.py
     MicrophoneStream): the detector on the first, the room's dominant sound taken out, cuts the
-    utterance, which robots/mic_array.py Steering hears again with all four, steered to where it came
+    utterance, which hearing/steering.py Steering hears again with all four, steered to where it came
     from."""
-    from robots.mic_array import NAO_MICS, Steering, heads_mics
-    from robots.receptors import VoiceActivity
+    from hearing.steering import Steering
+    from hearing.vad import VoiceActivity
+    from robots.mic_array import NAO_MICS, heads_mics
 
     channels = house.receive_array(heads_mics(NAO_MICS, 0.0) + np.array([*ROBOT_AT, MIC_Z])[None], 0.0, seconds,
                                    mic="nao")
@@ -143,13 +145,17 @@ def _located(house, seconds: float) -> list:
 
 
 def _hearing_code() -> bytes:
-    """The source of what renders and cuts a recording (robots' and this harness's): a change to it makes
-    new recordings (the options under test alone missed a change of code with the same options)."""
+    """The source of what renders and cuts a recording (the house's sound, the detector and the array's
+    processing, this harness): a change to it makes new recordings (the options under test alone
+    missed a change of code with the same options)."""
+    import hearing.bands
+    import hearing.steering
+    import hearing.vad
     import robots.mic_array
-    import robots.receptors
     import robots.reverb
     import robots.sound
-    files = [Path(m.__file__) for m in (robots.mic_array, robots.receptors, robots.reverb, robots.sound)]
+    files = [Path(m.__file__) for m in (hearing.bands, hearing.steering, hearing.vad, robots.mic_array, robots.reverb,
+                                        robots.sound)]
     return hashlib.sha1(b"".join(f.read_bytes() for f in [*files, Path(__file__)])).digest()  # and this harness
 
 
@@ -158,7 +164,7 @@ _HEARING_CODE = _hearing_code()
 
 def _record(cond: tuple) -> list:
     """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut, loud frames), cached."""
-    from robots import tts
+    from hearing import tts
 
     text, _, voice, speed, dist, noise = cond
     pcm = tts.synthesize(text, voice, speed) if text else None
@@ -191,7 +197,8 @@ _SPOTTER = None
 def decide_keyword(utts: list) -> str | None:
     """s4a as the Core runs it, then s4b for an utterance not spotted: the first RApp decided."""
     global _SPOTTER
-    from robots.receptors import HeardUtterance, KeywordSpotter
+    from hearing.keywords import KeywordSpotter
+    from hearing.vad import HeardUtterance
     vocab = _vocabulary()
     if _SPOTTER is None:
         _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab)
@@ -217,7 +224,7 @@ def _sentence(utts: list, k: int) -> str | None:
     """s4b on utterance k, joined with the next when the owner went on within the Core's pause
     (agents/core_hearing.py), the first part alone if the whole is not understood."""
     from agents.core_hearing import CONTINUE_WITHIN_S
-    from robots.receptors import HeardUtterance
+    from hearing.vad import HeardUtterance
 
     pcm, speech, too_long, _, cut, loud = utts[k]
     heard = HeardUtterance(pcm, speech, too_long, loud=loud)
@@ -234,9 +241,9 @@ def _platform(heard) -> str | None:
     from agents.services.context import ServiceContext, ServiceState
     from agents.services.interpretation import interpret
     from ontology.services.speech import SpeechRecognition
-    from agents.core_hearing import keyword_in_a_sentence
-    from robots.receptors import normalize
-    from robots.sound import encode_wav
+    from hearing.decoder import normalize
+    from hearing.keywords import keyword_in_a_sentence
+    from hearing.wav import encode_wav
 
     ctx = ServiceContext(user="bench", state=ServiceState(work_dir=Path("/tmp")))
     keywords = {normalize(k) for k in _vocabulary()}

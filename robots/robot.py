@@ -12,7 +12,8 @@ import pybullet as p
 from .effectors import BaseEffector, HeadEffector, JointsEffector, Loudspeaker
 from .failure_modes import Locomotion, defaults_for, make_locomotion
 from .odometry import Odometry, OdometryNoise
-from .receptors import Camera, Microphone, RangeSensor, pose_matrix
+from .microphones import Microphone
+from .receptors import Camera, RangeSensor, pose_matrix
 
 AHEAD_RAD = 0.52  # "ahead" for the collision protection: readings within ±30° of the heading
 from .spec import RobotSpec

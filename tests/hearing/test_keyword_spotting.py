@@ -4,8 +4,8 @@ a keyword scoring a little below the free phone loop is still the keyword, where
 import pytest
 
 from bench.speech_offline import heard_utterances
-from robots import tts
-from robots.receptors import KeywordSpotter
+from hearing import tts
+from hearing.keywords import KeywordSpotter
 
 KEYWORDS = {"hazards": "hazard_detection", "hazard": "hazard_detection", "weather": "weather_reporter",
             "forecast": "weather_reporter", "email": "email_reader", "mail": "email_reader",
@@ -32,7 +32,7 @@ CLOSE_CALLS = [("hazards", "en", 160, 1.0), ("hazard", "en", 130, 1.0), ("weathe
 def test_keywords_a_little_below_the_phone_loop_are_the_keywords():
     # counted over several, not judged one by one: the margins are within 0.04 of the bound, and a
     # small change to the synthesiser or the house moves them (eSpeak NG's output moved with what a
-    # process had synthesised before, until robots/tts.py loaded it afresh per call). One spotter of
+    # process had synthesised before, until hearing/tts.py loaded it afresh per call). One spotter of
     # each kind decides them all, as the Core's does: a decision depends on its own audio only.
     owner, supervision = [], []
     loose, strict = _spotter(), _spotter(KeywordSpotter.STRICT)
@@ -48,7 +48,7 @@ def test_keywords_a_little_below_the_phone_loop_are_the_keywords():
 # the middle three were each taken for a keyword (email, hazards, email) that covered 0.4-0.7 of the
 # speech heard, before the spotter asked a keyword alone to cover most of it (KeywordSpotter.MIN_COVER);
 # the last one for "weather", covering 0.79 of it with 0.13 s of speech before it, until a keyword alone
-# had to leave no more than MAX_OTHER_SPEECH_S outside (robots/receptors.py said_alone). The third
+# had to leave no more than MAX_OTHER_SPEECH_S outside (hearing/keywords.py said_alone). The third
 # needs that rule too since the detector no longer holds an utterance open for one loud frame
 @pytest.mark.parametrize("said,voice,speed,distance", [
     ("thank you very much", "en-us", 160, 1.0), ("hello there", "en+f2", 160, 1.0),
@@ -61,7 +61,7 @@ def test_a_sentence_is_no_keyword(said, voice, speed, distance):
 
 # in a furnished room (reverberation time 0.6 s) the detector hears a word's echo as speech for a few
 # hundred ms after it: these keywords, said alone, covered 0.40-0.72 of the speech heard and were
-# refused until the echo (ECHO_DB below the words) was left out (robots/receptors.py said_alone)
+# refused until the echo (ECHO_DB below the words) was left out (hearing/keywords.py said_alone)
 ALONE_IN_A_ROOM = [("email", "en-us", 160, 1.0), ("forecast", "en-us", 130, 2.0), ("hazards", "en-us", 130, 0.5),
                    ("quiz", "en", 190, 0.5), ("weather", "en-us+f3", 190, 1.0)]
 # and these sentences, taken for a keyword there, stay refused: their other words are as loud as it
