@@ -148,8 +148,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # game with supervision on has not been re-measured under load since
         self.voice_supervision = voice_supervision
         self.keywords = KeywordSpotter([])
-        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS,
-                                                accept=KeywordSpotter.STRICT, min_cover=0.0)
+        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS, min_cover=0.0)
         self._voice_supervision: asyncio.Task | None = None  # listening for them while a RApp runs
         # the voice detectors of s3 and of a task's supervision words: kept across tasks, they know the room
         self._voices = VoiceActivity(max_seconds=5.0), VoiceActivity(max_seconds=5.0)
@@ -335,8 +334,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # during a task only the supervision words count; the Store's words compete so that a command
         # or a keyword is heard as what it is, not squeezed into "stop"
         self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), sorted(self.vocabulary) + [
-            ph for p in packages for ph in p.phrases], groups=SUPERVISION_WORDS, accept=KeywordSpotter.STRICT,
-            min_cover=0.0)
+            ph for p in packages for ph in p.phrases], groups=SUPERVISION_WORDS, min_cover=0.0)
         if self.hear_audio and self.vocabulary and "microphone" in self.robot.capabilities():
             # its decoder loads in the background, not at the first word (and only where it can hear)
             self._in_background(asyncio.to_thread(self.keywords.warm_up))

@@ -6,6 +6,14 @@ more recordings per cell, so a change to a recogniser is judged on more than 10 
 
     python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong] [--rt60 S]
 
+Two more keyword paths, measured on request (--only): `supervision`, the Core's supervision words
+("stop", "cancel", "resume", ...) said alone, spotted as the Core spots them during a task, and
+everything else the owner says, which must not be taken for one; `words`, the cognitive game's
+answers said alone, found as the robot's word_spotting finds them (robots/microphones.py
+spot_in_audio: the recording cut by level, each piece decoded with the game's words), and the
+other sentences. `--accept X` puts every keyword spotter's threshold (hearing/keywords.py ACCEPT)
+under test.
+
 Recordings are cached in /tmp (keyed by the conditions, the synthesiser's output and the source of
 what renders and cuts them) so a second run decodes only. Not part of `python -m bench`: it measures
 recognisers, not the system."""
@@ -36,13 +44,31 @@ CACHE = Path("/tmp/rapp-speech-offline")
 VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
 ACOUSTICS: dict[str, float] = {}  # the house's reverberation under test (--rt60 0.5: rt60_s; --equal-tv: tv_db)
 ARRAY: dict = {}  # the NAO's four microphones and a beamformer under test (--beam mvdr|das, --loading)
+ACCEPT: dict[str, float] = {}  # the keyword threshold under test (--accept -0.02: accept)
+PATHS = ("keyword", "platform", "supervision", "words")
+# the cognitive game's answers said alone (its word_spotting hears numbers 0-300 as words or digits)
+ANSWERS = ("five", "six", "nine", "twelve", "twenty", "thirty five", "sixty", "one hundred", "pass")
 MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/microphones.py AudioInput)
 
 
 def items(path: str) -> list[tuple[str, str | None]]:
-    """(text, expected RApp) of one path; the other sentences for both."""
+    """(text, expected answer: a RApp, a supervision word's action, a number) of one path; the other
+    sentences for every path, and for the supervision words every command too."""
+    if path == "supervision":
+        from agents.core_agent import SUPERVISION_WORDS
+        commands = [(t, None) for ws, ps in VOCABULARY.values() for t in (*ws, *ps)]
+        return sorted(SUPERVISION_WORDS.items()) + commands + [(t, None) for t in OTHER]
+    if path == "words":
+        meaning = _answer_words()
+        return [(a, meaning[a]) for a in ANSWERS] + [(t, None) for t in OTHER]
     said = [(w, rapp) for rapp, (ws, ps) in VOCABULARY.items() for w in (ws if path == "keyword" else ps)]
     return said + [(t, None) for t in OTHER]
+
+
+def _answer_words() -> dict[str, str]:
+    """What the cognitive game listens for -> the answer it means (its own table)."""
+    from rapps.cognitive_game.cognitive_game.task import answer_words
+    return answer_words([])
 
 
 def conditions(path: str, quick: bool) -> list[tuple]:
@@ -75,9 +101,9 @@ def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
     return [u for u, _, _ in timed_utterances(pcm, distance, noise_db)]
 
 
-def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
-    """heard_utterances, each as (HeardUtterance, the detector's time it started, its time it was cut)."""
-    from hearing.vad import VoiceActivity
+def _owner_in_the_house(pcm: np.ndarray | None, distance: float, noise_db: float | None):
+    """(the house with the owner saying `pcm` from 4 s on, the TV at `noise_db` or off, the seconds to
+    record, when the owner starts)."""
     from robots.floorplan import load_plan
     from robots.sound import HouseSound, NoiseSource, talker_at
     from robots.world import HOUSES
@@ -92,7 +118,21 @@ def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
         pcm = np.zeros(20 * 16000, np.int16)
     else:
         house.play("owner", talker_at(ROBOT_AT, distance, MIC_Z), pcm, at=at, level_db=60)
-    seconds = at + len(pcm) / 16000 + 1.5
+    return house, at + len(pcm) / 16000 + 1.5, at
+
+
+def recording(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> np.ndarray:
+    """The NAO's one microphone (as its word_spotting hears it) over the whole of heard_utterances' scene."""
+    house, seconds, _ = _owner_in_the_house(pcm, distance, noise_db)
+    return house.receive((*ROBOT_AT, MIC_Z), 0.0, seconds, mic="nao")
+
+
+def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
+    """heard_utterances, each as (HeardUtterance, the detector's time it started, its time it was cut)."""
+    from hearing.vad import VoiceActivity
+    from robots.sound import talker_at
+
+    house, seconds, at = _owner_in_the_house(pcm, distance, noise_db)
     if ARRAY.get("beam") == "located":
         return _located(house, seconds)
     if ARRAY:
@@ -162,8 +202,9 @@ def _hearing_code() -> bytes:
 _HEARING_CODE = _hearing_code()
 
 
-def _record(cond: tuple) -> list:
-    """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut, loud frames), cached."""
+def _record(cond: tuple, whole: bool = False):
+    """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut, loud frames),
+    or with `whole` its one microphone's whole recording; cached."""
     from hearing import tts
 
     text, _, voice, speed, dist, noise = cond
@@ -171,15 +212,19 @@ def _record(cond: tuple) -> list:
     # keyed by the speech too: a change to the synthesiser makes new recordings
     # (and by the detector's options and the room under test, if any)
     under_test = tuple(tuple(sorted(opts.items())) for opts in (VAD, ACOUSTICS, ARRAY) if opts)
-    said = _HEARING_CODE + repr((cond[0],) + cond[2:] + under_test).encode()
+    said = _HEARING_CODE + repr((cond[0],) + cond[2:] + under_test + (("whole",) if whole else ())).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
-    utts = [(u.pcm, u.speech_seconds, u.too_long, t0, t1, u.loud) for u, t0, t1 in timed_utterances(pcm, dist, NOISE[noise])]
+    if whole:
+        got = recording(pcm, dist, NOISE[noise])
+    else:
+        got = [(u.pcm, u.speech_seconds, u.too_long, t0, t1, u.loud)
+               for u, t0, t1 in timed_utterances(pcm, dist, NOISE[noise])]
     CACHE.mkdir(exist_ok=True)
-    f.write_bytes(pickle.dumps(utts))
-    return utts
+    f.write_bytes(pickle.dumps(got))
+    return got
 
 
 def _rapps():
@@ -201,13 +246,51 @@ def decide_keyword(utts: list) -> str | None:
     from hearing.vad import HeardUtterance
     vocab = _vocabulary()
     if _SPOTTER is None:
-        _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab)
+        _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab,
+                                  **ACCEPT)
     for k, (pcm, speech, too_long, _, _, loud) in enumerate(utts):
         word = _SPOTTER.spot(HeardUtterance(pcm, speech, too_long, loud=loud))
         rapp = vocab.get(word.lower()) if word else _sentence(utts, k)
         if rapp:
             return rapp
     return None
+
+
+def decide_supervision(utts: list) -> str | None:
+    """The Core's supervision words during a task, spotted as agents/core_agent.py set_catalogue builds
+    its spotter (the Store's words compete; any share of the speech will do): the first word's action."""
+    global _SUPERVISION
+    from agents.core_agent import SUPERVISION_WORDS
+    from hearing.keywords import KeywordSpotter
+    from hearing.vad import HeardUtterance
+    if _SUPERVISION is None:
+        _SUPERVISION = KeywordSpotter(sorted(SUPERVISION_WORDS), sorted(_vocabulary()) + [
+            p for _, ps in VOCABULARY.values() for p in ps], groups=SUPERVISION_WORDS, min_cover=0.0, **ACCEPT)
+    for pcm, speech, too_long, _, _, loud in utts:
+        word = _SUPERVISION.spot(HeardUtterance(pcm, speech, too_long, loud=loud))
+        if word:
+            return SUPERVISION_WORDS[word]
+    return None
+
+
+def decide_words(heard: np.ndarray) -> str | None:
+    """The cognitive game's word_spotting on one microphone's recording, as robots/microphones.py
+    spot_in_audio does it (the pieces speech_segments cuts, in order, each decoded with the game's
+    words, longest first as the game asks, its last 8 s at most): the answer the first word found means."""
+    global _WORDS
+    from hearing.keywords import WordSpotter
+    from hearing.vad import speech_segments
+    meaning = _answer_words()
+    if _WORDS is None:
+        _WORDS = WordSpotter(sorted(meaning, key=lambda w: (-len(w), w)), **ACCEPT)
+    for s, e in speech_segments(heard):
+        word, _ = _WORDS.spot(heard[max(s, e - 8 * 16000):e])
+        if word is not None:
+            return meaning.get(word.lower())
+    return None
+
+
+_SUPERVISION = _WORDS = None
 
 
 def decide_platform(utts: list) -> str | None:
@@ -270,16 +353,20 @@ def _platform(heard) -> str | None:
 def _one(args: tuple) -> dict:
     path, cond = args
     t0 = time.perf_counter()
-    utts = _record(cond)
+    heard = _record(cond, whole=path == "words")
     t1 = time.perf_counter()
-    got = (decide_keyword if path == "keyword" else decide_platform)(utts)
+    got = {"keyword": decide_keyword, "platform": decide_platform, "supervision": decide_supervision,
+           "words": decide_words}[path](heard)
+    if path == "words":
+        from hearing.vad import speech_segments
+        heard = speech_segments(heard)
     return dict(path=path, text=cond[0], expected=cond[1], voice=cond[2], speed=cond[3], distance=cond[4],
-                noise=cond[5], got=got, utterances=len(utts), decode_ms=(time.perf_counter() - t1) * 1e3,
+                noise=cond[5], got=got, utterances=len(heard), decode_ms=(time.perf_counter() - t1) * 1e3,
                 record_ms=(t1 - t0) * 1e3)
 
 
 def report(rows: list[dict], show_wrong: bool) -> None:
-    for path in ("keyword", "platform"):
+    for path in PATHS:
         mine = [r for r in rows if r["path"] == path]
         if not mine:
             continue
@@ -307,7 +394,7 @@ def report(rows: list[dict], show_wrong: bool) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.speech_offline", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="2 recordings per sentence and noise instead of 6")
-    ap.add_argument("--only", choices=("keyword", "platform"))
+    ap.add_argument("--only", choices=PATHS, help="one path (default: keyword and platform)")
     ap.add_argument("--show-wrong", action="store_true")
     ap.add_argument("--vad", action="append", default=[], metavar="NAME=VALUE",
                     help="a VoiceActivity option under test (recorded apart in the cache)")
@@ -320,6 +407,8 @@ def main(argv=None) -> int:
                          "on the room's noise), or as the Core hears them: the detector on the first with the room's dominant "
                          "sound taken out, each utterance located and beamformed (located)")
     ap.add_argument("--loading", type=float, default=1e-2, help="with --beam mvdr: its diagonal loading")
+    ap.add_argument("--accept", type=float, metavar="X",
+                    help="every keyword spotter's threshold (log-score per second against the phone loop) under test")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
     # the workers fork after this; counts (start_frames) stay whole numbers
@@ -332,7 +421,10 @@ def main(argv=None) -> int:
                   file=sys.stderr)
     if a.beam:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
-    jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
+    if a.accept is not None:
+        ACCEPT["accept"] = a.accept
+    paths = [a.only] if a.only else ["keyword", "platform"]
+    jobs = [(p, c) for p in paths for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:
         rows = list(pool.map(_one, jobs, chunksize=4))

@@ -6,9 +6,12 @@
     WordSpotter(words).spot(pcm)                          # a RApp's words (the robot's word_spotting)
     ahead = LookAhead(); ahead.start(spotter, utterance)  # spotting begun before the detector's cut
 
-A keyword's path is checked against a free phone loop (decoder.PhraseDecoder); a keyword alone is
-most of the speech the voice detector heard in the utterance (said_alone). What the thresholds were
-measured on: docs/sound.md, "Keywords".
+Every keyword decision here, the owner's commands (s4a), the supervision words during a task and a
+RApp's word spotting, takes a keyword by one rule: its path, aligned alone to the audio, scores at
+least ACCEPT against a free phone loop (decoder.PhraseDecoder: the owner said the keyword, not
+something else). What else each asks is said where it is asked: said alone (said_alone, `min_cover`),
+no close runner-up meaning something else (MIN_LEAD), the search's own answer trusted (WordSpotter).
+What ACCEPT was measured on: docs/sound.md, "Keywords".
 """
 from __future__ import annotations
 
@@ -25,6 +28,12 @@ from .vad import HeardUtterance, frame_levels
 if TYPE_CHECKING:
     from ontology.services.speech import Recognition
 
+# how far a keyword's path may score below the free phone loop's (log-score per second), for every
+# keyword spotted here: keywords said alone in a quiet room score a little below it, and a stricter
+# bound refused them where nothing else would have heard them (a "stop" beside a TV too); most other
+# speech forced onto a keyword scores lower (docs/sound.md, "Keywords")
+ACCEPT = -0.04
+
 
 class KeywordSpotter:
     """Is an utterance one of `keywords`, said alone? A grammar of the keywords and the command phrases
@@ -37,19 +46,15 @@ class KeywordSpotter:
     a runner-up of another group closer than MIN_LEAD is not understood rather than guessed."""
 
     MAX_KEYWORD_SECONDS = 1.6  # of speech: longer is a sentence, whatever it sounds like
-    # how far the keyword's path may score below the phone loop's (log-score per second): the owner's
-    # keywords said in a quiet room score a little below it. A spotted supervision word ends the
-    # owner's task: those keep 0.0 (STRICT). Measured: docs/sound.md, "Keywords"
-    ACCEPT = -0.04
-    STRICT = 0.0
     MIN_LEAD = 0.01  # log-score per second over a runner-up keyword of another group
     # a keyword said alone is most of the speech heard: the keyword's aligned words cover at least this
     # share of the detector's speech seconds, less the echo after them (said_alone); a word of a
-    # sentence covers less. A supervision word keeps 0: "stop, stop!" stops the robot (STRICT guards it)
+    # sentence covers less. The supervision words ask 0: "stop, stop!" stops the robot
     MIN_COVER = 0.75
 
     def __init__(self, keywords: list[str], phrases: list[str] = (), groups: dict[str, str] | None = None,
                  accept: float = ACCEPT, min_cover: float = MIN_COVER):
+        # accept: ACCEPT but for a threshold under test (bench/speech_offline.py --accept)
         self.accept, self.min_cover = accept, min_cover
         self.keywords = {normalize(k): k for k in keywords if normalize(k)}
         self.phrases = [p for p in dict.fromkeys(normalize(p) for p in phrases) if p and p not in self.keywords]
@@ -138,19 +143,14 @@ def keyword_in_a_sentence(reply: "Recognition", keywords, utterance: HeardUttera
     return normalize(reply.text) in keywords and not said_alone(utterance, words)
 
 
-# a RApp's word spotting: how far below the phone loop's score an isolated word may be. A short word's
-# margin moves with where the cut falls (the owner's timing); a looser bound took other words for
-# the RApp's (docs/sound.md, "Keywords")
-WORD_SPOTTING_ACCEPT = -0.02
-
-
 class WordSpotter:
-    """A RApp's words (the robot's word_spotting): a grammar of them alone, the search's own complete
-    answer trusted (PhraseDecoder `trust_search`: a number said alone must not lose to a longer one
-    aligned alone), checked against the phone loop. Not thread-safe: one per listener."""
+    """A RApp's words (the robot's word_spotting), in a stretch of speech cut by level alone: a grammar
+    of them alone, the search's own complete answer trusted (PhraseDecoder `trust_search`: a number
+    said alone must not lose to a longer one aligned alone), taken at ACCEPT. Not thread-safe: one per
+    listener."""
 
-    def __init__(self, words: list[str]):
-        self.decoder = PhraseDecoder(words, trust_search=True)
+    def __init__(self, words: list[str], accept: float = ACCEPT):
+        self.decoder, self.accept = PhraseDecoder(words, trust_search=True), accept
         self._as_given = {normalize(w): w for w in words}
 
     @property
@@ -160,7 +160,7 @@ class WordSpotter:
 
     def spot(self, pcm: np.ndarray) -> tuple[str | None, str | None]:
         """(the word as given, what was heard) in one stretch of speech, or (None, None) (CPU work)."""
-        heard, _ = self.decoder.decode(pcm, WORD_SPOTTING_ACCEPT)
+        heard, _ = self.decoder.decode(pcm, self.accept)
         if heard is None:
             return None, None
         return self._as_given.get(heard, heard), heard
