@@ -26,8 +26,8 @@ from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, MAX_MICROPHONES, 
                             MoveVel, PlayAudio, Pose2D, Rest, Say, SetCameraParam, SetCameraParams, SetGlobalPose,
                             SonarReading, TakePredefinedPosture, Transform, WordSpotted, WordSpotting)
 from .controllers import GoToPose, JointMotion, LookAt, PathFollower, VelocityController
-from .effectors import check_speech
 from .errors import InvalidArgument, MotionInterrupted, UnsupportedOperation
+from .loudspeaker import check_speech
 from .microphones import AudioInput, spot_in_audio
 from .receptors import Camera, encode_frame, parse_resolution
 from .robot import Robot

@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pybullet as p
 
-from .effectors import BaseEffector, HeadEffector, JointsEffector, Loudspeaker
+from .effectors import BaseEffector, HeadEffector, JointsEffector
 from .failure_modes import Locomotion, defaults_for, make_locomotion
+from .loudspeaker import Loudspeaker
 from .odometry import Odometry, OdometryNoise
 from .microphones import Microphone
 from .receptors import Camera, RangeSensor, pose_matrix
