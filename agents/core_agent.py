@@ -54,15 +54,16 @@ from ontology.results import (RefusalRecord, ReportRecord, SubscribeTasks, TaskE
                               TaskStage)
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
-from robots.mic_array import Steering
-from robots.receptors import HeardUtterance, KeywordSpotter, VoiceActivity
-from robots.sound import encode_wav
+from hearing.keywords import KeywordSpotter, LookAhead, keyword_in_a_sentence
+from hearing.steering import Steering
+from hearing.vad import HeardUtterance, VoiceActivity
+from hearing.wav import encode_wav
 
 from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
                               UserChat, heartbeat_template)
 from .core_commands import RobotCommands
-from .core_hearing import Continuation, LookAhead, keyword_in_a_sentence
+from .core_hearing import Continuation
 from .core_events import CoreEvents
 from .core_strategies import Strategies
 from .core_fsm import build_core_fsm
@@ -154,8 +155,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # game with supervision on has not been re-measured under load since
         self.voice_supervision = voice_supervision
         self.keywords = KeywordSpotter([])
-        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS,
-                                                accept=KeywordSpotter.STRICT, min_cover=0.0)
+        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS, min_cover=0.0)
         self._voice_supervision: asyncio.Task | None = None  # listening for them while a RApp runs
         # the voice detectors of s3 and of a task's supervision words: kept across tasks, they know the room
         self._voices = VoiceActivity(max_seconds=5.0), VoiceActivity(max_seconds=5.0)
@@ -350,8 +350,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # during a task only the supervision words count; the Store's words compete so that a command
         # or a keyword is heard as what it is, not squeezed into "stop"
         self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), sorted(self.vocabulary) + [
-            ph for p in packages for ph in p.phrases], groups=SUPERVISION_WORDS, accept=KeywordSpotter.STRICT,
-            min_cover=0.0)
+            ph for p in packages for ph in p.phrases], groups=SUPERVISION_WORDS, min_cover=0.0)
         if self.hear_audio and self.vocabulary and "microphone" in self.robot.capabilities():
             # its decoder loads in the background, not at the first word (and only where it can hear)
             self._in_background(asyncio.to_thread(self.keywords.warm_up))

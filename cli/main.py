@@ -328,13 +328,13 @@ def cmd_say(a) -> int:
 
 def _check_voice(voice: str) -> None:
     """An unknown voice is refused here, not only in the run's own output (where the line is dropped)."""
-    from robots import tts
-    from robots.errors import InvalidArgument, UnsupportedOperation
+    from hearing import tts
+    from hearing.errors import InvalidArgument, SpeechUnavailable
     try:
         tts.check_voice(voice)
     except InvalidArgument as e:
         raise CliError(f"rapp say: {e}") from None
-    except UnsupportedOperation:
+    except SpeechUnavailable:
         pass  # no eSpeak NG here: the run says whether it can speak
 
 

@@ -207,12 +207,12 @@ def test_doctor_explains_when_nothing_listens():
 
 def test_doctor_notes_a_missing_speech_extra(monkeypatch, capsys):
     """Without eSpeak NG the install works, minus speech: a note that says what is lost, not a FAIL."""
-    from robots import tts
-    from robots.errors import UnsupportedOperation
+    from hearing import tts
+    from hearing.errors import SpeechUnavailable
     from scenarios import doctor
 
     def missing(*a, **kw):
-        raise UnsupportedOperation("text to speech needs the espeakng-loader package")
+        raise SpeechUnavailable("text to speech needs the espeakng-loader package")
 
     monkeypatch.setattr(tts, "synthesize", missing)
     assert doctor._check("text to speech", doctor._synthesis)

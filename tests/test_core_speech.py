@@ -17,8 +17,9 @@ import pytest
 from agents.core_agent import CoreAgent
 from agents.core_hearing import Continuation
 from agents.tracing import read_trace
-from robots import RobotAPI, World, tts
-from robots.receptors import HeardUtterance, VoiceActivity
+from hearing import tts
+from hearing.vad import HeardUtterance, VoiceActivity
+from robots import RobotAPI, World
 from robots.sound import HouseSound, NoiseSource, house_sound, talker_at
 from scenarios.system import RappSystem
 
@@ -219,7 +220,7 @@ async def test_the_cognitive_game_is_answered_by_voice(system):
 
 async def test_a_rapp_named_outside_the_dictionary_is_heard_by_both_paths(system, tmp_path):
     # `rapp new greeter` makes the keyword "greeter" and the phrase "run greeter"; pocketsphinx's
-    # dictionary has no "greeter", and neither path heard it until robots/pronounce.py
+    # dictionary has no "greeter", and neither path heard it until hearing/pronounce.py
     from rapps.scaffold import create
 
     core, user = system.handle.core, system.handle.user

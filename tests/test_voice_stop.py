@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from agents.tracing import read_trace
-from robots import RobotAPI, World, tts
+from hearing import tts
+from robots import RobotAPI, World
 from robots.sound import house_sound, talker_at
 from scenarios.system import RappSystem
 
