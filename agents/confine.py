@@ -471,21 +471,14 @@ class Monitor:
             self.report({"event": "refused", "what": "a second XMPP connection",
                          "why": f"a RApp process holds {self.max_connections} at a time"})
             return
-        target = self.targets[inner]
-        up = socket.socket(socket.AF_INET6 if ":" in target[0] else socket.AF_INET, socket.SOCK_STREAM)
-        up.setblocking(False)
-        try:
-            up.connect_ex(target)
-        except OSError as e:  # a name that does not resolve (connect_ex raises then)
-            self._upstream_failed(conn, up, target, e)
-            return
+        # the server asked for first, then the domain's other nodes (a cluster's fallbacks): a node
+        # that is down is then passed over here, as a client outside would pass it over itself
+        first = self.targets[inner]
+        candidates = [first] + [t for t in dict.fromkeys(self.targets.values()) if t != first]
         self.open_connections += 1
-        link = _Link(self, conn, up, target)
-        self.sel.register(up, selectors.EVENT_WRITE, link)
+        _Link(self, conn, candidates).dial()
 
-    def _upstream_failed(self, conn, up, target, error) -> None:
-        for s in (conn, up):
-            s.close()
+    def _upstream_failed(self, target, error) -> None:
         self.report({"event": "upstream", "error": f"{target[0]}:{target[1]}: {error}"})
 
     def closed(self, link: "_Link") -> None:
@@ -496,21 +489,41 @@ class _Link:
     """One forwarded connection, both ways, in P's selector loop (P cannot start threads: it made a
     PID namespace for its children, and a thread is a child too)."""
 
-    def __init__(self, monitor: Monitor, inner: socket.socket, up: socket.socket, target):
+    def __init__(self, monitor: Monitor, inner: socket.socket, candidates: list):
         self.monitor, self.sel = monitor, monitor.sel
-        self.inner, self.up, self.target = inner, up, target
+        self.inner, self.candidates = inner, list(candidates)
         inner.setblocking(False)
-        self.pending = {inner: b"", up: b""}  # bytes waiting to be written to that socket
+        self.up = None
         self.shut = set()  # sockets whose peer side ended (no more to read from them)
         self.connected = False
+
+    def dial(self) -> None:
+        """Connect upstream to the next candidate server; none left: the inner connection ends."""
+        while self.candidates:
+            self.target = self.candidates.pop(0)
+            up = socket.socket(socket.AF_INET6 if ":" in self.target[0] else socket.AF_INET, socket.SOCK_STREAM)
+            up.setblocking(False)
+            try:
+                up.connect_ex(self.target)
+            except OSError as e:  # a name that does not resolve (connect_ex raises then)
+                up.close()
+                self.monitor._upstream_failed(self.target, e)
+                continue
+            self.up = up
+            self.pending = {self.inner: b"", up: b""}  # bytes waiting to be written to that socket
+            self.sel.register(up, selectors.EVENT_WRITE, self)
+            return
+        self.inner.close()
+        self.monitor.closed(self)
 
     def __call__(self, sock: socket.socket, events: int) -> None:
         if not self.connected:
             err = self.up.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
             if err:
                 self._want(self.up, 0)
-                self.monitor.closed(self)
-                self.monitor._upstream_failed(self.inner, self.up, self.target, os.strerror(err))
+                self.up.close()
+                self.monitor._upstream_failed(self.target, os.strerror(err))
+                self.dial()
                 return
             self.connected = True
             for sock in (self.inner, self.up):

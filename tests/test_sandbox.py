@@ -274,16 +274,17 @@ async def test_j_forbidden_system_calls_are_refused_and_told(system):
 
 
 async def test_k_the_trace_cannot_be_erased_or_forged(system):
-    from scenarios.run_rapp import _reports
-
     core = system.a.core.address
+    await system.a.user.watch_tasks(core)  # the owner's typed records of the run (ontology/results.py)
+    ended = len(system.a.user.ended)
     report, end = await attack(system, "trace", core=core)
     assert report["has_writer"] and report["truncate"].startswith("ERR"), report  # a pipe: nothing to truncate
     records = read_trace(system.settings.trace_file)
     assert any(r.get("event") == "spawn" and r.get("agent") == core for r in records)  # the run's history is there
     forged = [r for r in records if r.get("claimed_agent") == core]
     assert len(forged) == 2 and all(r["origin"] == r["agent"] != core for r in forged), forged
-    assert not any("FORGED" in json.dumps(x) for x in _reports(records, core))
+    record = await system.a.user.task_end(10, start=ended)
+    assert record.reports and not any("FORGED" in r.model_dump_json() for r in record.reports), record
     assert any(r.get("origin") and "not a trace record" in r.get("message", "") for r in records)
 
 
