@@ -51,24 +51,27 @@ from robots.interface import check_robot
 from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
+from ontology.results import (RefusalRecord, ReportRecord, SubscribeTasks, TaskEnded, TaskRecord, TaskReported,
+                              TaskStage)
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
-from robots.mic_array import Steering
-from robots.receptors import HeardUtterance, KeywordSpotter, VoiceActivity
-from robots.sound import encode_wav
+from hearing.keywords import KeywordSpotter, LookAhead, keyword_in_a_sentence
+from hearing.steering import Steering
+from hearing.vad import HeardUtterance, VoiceActivity
+from hearing.wav import encode_wav
 
 from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
                               UserChat, heartbeat_template)
 from .core_commands import RobotCommands
-from .core_hearing import Continuation, LookAhead, keyword_in_a_sentence
+from .core_hearing import Continuation
 from .core_events import CoreEvents
 from .core_strategies import Strategies
 from .core_fsm import build_core_fsm
 from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
-from .identity import EphemeralAccounts, Identity
+from .identity import EphemeralAccounts, Identity, trace_refusal
 from .liveness import GRACE_S, MARK_AFTER_S, SilenceWatch, sample_main_thread
 from .process import (AgentProcess, InProcessAgent, Limits, check_spawn_mode, crash_summary, spawn_agent,
                       sweep_run_dirs)
@@ -112,6 +115,11 @@ class DynamicSession:
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     end_reason: str = ""
     account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
+    command: str = ""  # the owner's command that started it (text; "" when heard as sound)
+    started: float | None = None  # when supervision was handed to it (s since the epoch)
+    reports: list[ReportRecord] = field(default_factory=list)  # what it reported, in order
+    # what was refused it (by this Core, its sandbox, the Platform): {by, what, why, count}, told at its end
+    refusals: list[dict] = field(default_factory=list)
 
 
 class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
@@ -148,8 +156,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # game with supervision on has not been re-measured under load since
         self.voice_supervision = voice_supervision
         self.keywords = KeywordSpotter([])
-        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS,
-                                                accept=KeywordSpotter.STRICT, min_cover=0.0)
+        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS, min_cover=0.0)
         self._voice_supervision: asyncio.Task | None = None  # listening for them while a RApp runs
         # the voice detectors of s3 and of a task's supervision words: kept across tasks, they know the room
         self._voices = VoiceActivity(max_seconds=5.0), VoiceActivity(max_seconds=5.0)
@@ -158,6 +165,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.look_ahead = LookAhead()  # s4a's spotting begun before the detector's cut
         self.dynamic: DynamicSession | None = None
         self.told: list[str] = []  # everything said to the user, in order
+        self.last_refusals: list[dict] = []  # what the last RApp run was refused (told to the owner at its end)
         self.supervisor: BehaviourHost | None = None
         self._serial = itertools.count(1)
         self._background: set[asyncio.Task] = set()
@@ -174,6 +182,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.estop_reason: str | None = None
         self.estop_by: str | None = None
         self.subscriptions: dict[str, set[str]] = {}  # sensor events (agents/core_events.py)
+        self.task_watchers: set[str] = set()  # the owner's clients told of reports and ends (ontology/results.py)
+        self._command_told: tuple[str, int] | None = None  # the command in hand and len(told) when it came
         self._estop_released = asyncio.Event()
         self._estop_released.set()
         self.driving = False  # a move_vel velocity is in force
@@ -188,6 +198,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                                          "get_state": self._on_get_state, "release_stop": self._on_release_stop})
         self.activate("core-service", service, service.make_template())
         events = self._events_service()  # FIPA subscribe to sensor events (agents/core_events.py)
+        events.handlers[SubscribeTasks.action_name] = self._on_subscribe_tasks  # and to task records
         self.activate("core-events", events, events.make_template())
         self.activate("user-listener", UserChat(self.owner, self._command_heard))
         self._listen_to_microphone()
@@ -288,7 +299,12 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             await self.commands.put(text)
 
     async def next_command(self) -> str | HeardUtterance:
-        return await self.commands.get()
+        await self._command_failed()  # back in s3 without a task's end: the last command failed before it ran
+        command = await self.commands.get()
+        for key in ("rapp", "params", "package"):  # the last command's, not this one's
+            self.memory.pop(key, None)
+        self._command_told = (command if isinstance(command, str) else "", len(self.told))
+        return command
 
     def hear(self, text: str) -> None:
         """The robot's microphone heard the user (scenario scripts and tests call this)."""
@@ -306,7 +322,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                                                           core_jid=self.address))
         await self.request(self.store, S.RegisterOwner(owner=self.user, password=self.password))
         await self.request(self.store, S.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
-                                                       owner=self.user))
+                                                       owner=self.user, token=self.token))
         self.record_structure("register", robot=self.robot_id, platform=self.platform, store=self.store)
         self._in_background(self._sweep_accounts(self.accounts.pending()))
 
@@ -335,8 +351,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # during a task only the supervision words count; the Store's words compete so that a command
         # or a keyword is heard as what it is, not squeezed into "stop"
         self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), sorted(self.vocabulary) + [
-            ph for p in packages for ph in p.phrases], groups=SUPERVISION_WORDS, accept=KeywordSpotter.STRICT,
-            min_cover=0.0)
+            ph for p in packages for ph in p.phrases], groups=SUPERVISION_WORDS, min_cover=0.0)
         if self.hear_audio and self.vocabulary and "microphone" in self.robot.capabilities():
             # its decoder loads in the background, not at the first word (and only where it can hear)
             self._in_background(asyncio.to_thread(self.keywords.warm_up))
@@ -472,7 +487,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         ident = self.accounts.take(self._dynamic_prefix(m.name))  # made ahead, or registered at its login
         name = ident.name
         session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
-                                 manifest=m, workdir=workdir, account=ident)
+                                 manifest=m, workdir=workdir, account=ident,
+                                 command=self._command_told[0] if self._command_told else "")
         self.dynamic = session
         app_token = await self.request(self.platform, P.IssueAppToken(
             token=await self.fresh_token(), rapp=m.name, services=m.services, holder_jid=session.jid,
@@ -483,9 +499,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                                          capabilities=sorted(self.robot.capabilities())))
         session.process = spawn_agent(spec, workdir, self.settings, mode=self.dynamic_mode, limits=self.limits,
                                       sandbox=self.sandbox, pool=self.warm_pool)
+        session.process.on_refusal = lambda refusal: self._sandbox_refused(session, refusal)
         await session.process.start()
         self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
-                              pid=session.process.pid, sandbox=session.process.uid is not None,
+                              pid=session.process.pid, sandbox=session.process.sandboxed,
                               warm=getattr(session.process, "warm", False))
         watcher = asyncio.create_task(self._watch_process(session))
         try:
@@ -540,6 +557,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             self.activate("safety", SafetyMonitor(self, period=self.safety_period))
             self.robot.protect(self.safety_distance)  # the same margin, checked by the robot at its own rate
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
+        self.dynamic.started = time.time()
         # the owner knows at once (chat only: the loudspeaker is the RApp's now)
         self._in_background(self.tell_user(f"Starting {self.dynamic.rapp}.", speak=False))
 
@@ -621,7 +639,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         """Whether a silence is the loaded machine's, not a hang (agents/liveness.py). Looks at the
         Dynamic Agent's process from the second missed beat on; False while the silence is shorter
         than the timeout."""
-        pid = session.process.pid if isinstance(session.process, AgentProcess) else None
+        pid = session.process.agent_pid if isinstance(session.process, AgentProcess) else None
         if pid is None or silence <= MARK_AFTER_S:
             session.silence = None  # a beat (or our own stall) ended the silence: the next starts afresh
             return False  # (a thread or in-process agent: nothing to look at)
@@ -663,8 +681,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                               reason=session.end_reason, exit_code=code)
         self._resume_if_needed()  # supervising again at once; the rest is clean-up
         try:
-            await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),
-                               timeout=5.0)
+            released = await self.request(self.platform, P.ReleaseCloudAgents(token=self.token, owner_jid=session.jid),
+                                          timeout=5.0)
+            for r in getattr(released, "refused", ()):
+                _keep_refusal(session.refusals, {"by": r.by, "what": r.what, "why": r.why, "count": r.count})
         except RequestError as e:
             log.info("no cloud agent to stop for %s: %s", session.jid, e)
         shutil.rmtree(session.workdir / "package", ignore_errors=True)
@@ -672,14 +692,39 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             deletion = asyncio.create_task(self._delete_account(session))
             self._deletions.add(deletion)
             deletion.add_done_callback(self._deletions.discard)
-        if session.state == "Finished":  # told once its Cloud Agents are gone too
-            await self.tell_user(f"{session.rapp} finished.")
+        refused = ""
+        if session.refusals:  # told, not hidden: the owner learns what the RApp tried
+            self.last_refusals = list(session.refusals)
+            self.record_structure("refusals", dynamic=session.jid, rapp=session.rapp, refused=session.refusals)
+            refused = " " + refusal_summary(session.refusals)
         else:
-            await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}")
+            self.last_refusals = []
+        if session.state == "Finished":  # told once its Cloud Agents are gone too
+            await self.tell_user(f"{session.rapp} finished.{refused}")
+        else:
+            await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}{refused}")
+        await self._tell_task_end(TaskRecord(
+            robot_id=self.robot_id, command=session.command, rapp=session.rapp, version=session.version,
+            stage=TaskStage.RUN if session.started is not None else TaskStage.START, state=session.state,
+            ok=session.state == "Finished" and not session.refusals, reason=session.end_reason or session.detail,
+            told=self.told[-1], reports=session.reports, refusals=[RefusalRecord(**r) for r in session.refusals],
+            outputs=str(outputs) if outputs.is_dir() else None, started=session.started, ended=time.time()))
 
     def _resume_if_needed(self) -> None:
         if "user-listener" not in self.active_behaviours():
             self._resume()
+
+    def note_refusal(self, sender: str, action: str, refusal) -> None:
+        trace_refusal(self, sender, action, refusal)
+        d = self.dynamic
+        if d is not None and sender == bare(d.jid):
+            _keep_refusal(d.refusals, {"by": self.address, "what": action, "why": refusal.reason[:200], "count": 1})
+
+    def _sandbox_refused(self, session: DynamicSession, refusal: dict) -> None:
+        self.record_structure("refused", by="sandbox", sender=session.jid, action=refusal["what"],
+                              reason=refusal.get("why", ""), count=refusal["count"], rapp_account=True)
+        _keep_refusal(session.refusals, {"by": "sandbox", "what": refusal["what"], "why": refusal.get("why", ""),
+                                         "count": refusal["count"]})
 
     # -- services to the Dynamic Agent ------------------------------------------------------
     def _from_dynamic(self, ctx) -> DynamicSession:
@@ -699,10 +744,44 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         return Done()
 
     async def _on_report(self, req: C.Report, ctx) -> Done:
-        self._from_dynamic(ctx)
-        # a RApp that has just said the text itself marks it `said`: chat only, not a second time aloud
-        await self.tell_user(req.text, speak=not req.data.get("said", False))
+        d = self._from_dynamic(ctx)
+        report = ReportRecord(text=req.text, data=req.data, stamp=time.time())
+        d.reports.append(report)
+        # a RApp that has just said the text itself marks it `said`: chat only, not a second time aloud.
+        # In the chat its words are labelled as its own: the Core does not vouch for them
+        await self.tell_user(req.text, speak=not req.data.get("said", False), label=d.rapp)
+        await self._tell_watchers(TaskReported(robot_id=self.robot_id, rapp=d.rapp, report=report))
         return Done()
+
+    # -- the owner's task records (ontology/results.py) --------------------------------------
+    async def _on_subscribe_tasks(self, req: SubscribeTasks, ctx) -> Done:
+        if ctx.sender != bare(self.owner):
+            raise Refusal(f"{ctx.sender} is not the owner of {self.robot_id}", ErrorCode.PERMISSION)
+        self.task_watchers.add(ctx.sender)
+        return Done()
+
+    async def _tell_watchers(self, content: TaskReported | TaskEnded) -> None:
+        for jid in list(self.task_watchers):
+            try:
+                await self.notify(jid, content, ontology=content.ontology_name, action=content.action_name)
+            except Exception as e:  # noqa: BLE001 - the owner's client gone: the task and the chat go on
+                log.warning("%s to %s failed: %s", content.action_name, jid, e)
+
+    async def _tell_task_end(self, record: TaskRecord) -> None:
+        self._command_told = None  # this command's end is told
+        await self._tell_watchers(TaskEnded(record=record.fitted()))
+
+    async def _command_failed(self) -> None:
+        """The command in hand ended before a task ran (s4-s6 failed, the owner was told why): its record."""
+        if self._command_told is None:
+            return
+        command, told = self._command_told
+        stage = (TaskStage.START if "package" in self.memory else TaskStage.DOWNLOAD if "rapp" in self.memory
+                 else TaskStage.UNDERSTAND)
+        said = self.told[told:]
+        await self._tell_task_end(TaskRecord(robot_id=self.robot_id, command=command, rapp=self.memory.get("rapp", ""),
+                                             stage=stage, ok=False, reason=said[-1] if said else "not understood",
+                                             told=said[-1] if said else "", ended=time.time()))
 
     async def _on_release_stop(self, req: C.ReleaseStop, ctx) -> Done:
         """The supervising RApp releases a stop its robot's safety latched (never the owner's)."""
@@ -715,17 +794,22 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         return Done()
 
     async def _on_get_state(self, req: C.GetState, ctx) -> C.CoreState:
+        """Told to its supervisor (the running Dynamic Agent), its owner and the Platform only: the
+        current RApp and Dynamic Agent are nobody else's business."""
         d = self.dynamic
+        if ctx.sender not in {bare(self.owner), bare(self.platform)} and not (d is not None and ctx.sender == bare(d.jid)):
+            raise Refusal(f"{ctx.sender} may not read {self.address}'s state", ErrorCode.FORBIDDEN)
         return C.CoreState(state=self.supervisor.behaviour.current or "" if self.supervisor else "",
                            active_behaviours=sorted(self.active_behaviours()),
                            dynamic_agent=d.jid if d else None, rapp=d.rapp if d else None)
 
     # -- talking to the user ----------------------------------------------------------------
-    async def tell_user(self, text: str, speak: bool = True) -> None:
+    async def tell_user(self, text: str, speak: bool = True, label: str = "") -> None:
         """Chat at once; speak beside listening: the Core never waits for its own sentence
-        (utterances queue behind one another, in order)."""
+        (utterances queue behind one another, in order). `label`: whose words these are when they are
+        not the Core's own (a RApp's report), put before them in the chat."""
         self.told.append(text)
-        await self.send(Message(to=self.owner, body=text))
+        await self.send(Message(to=self.owner, body=f"[{label}] {text}" if label else text))
         if self.say_reports and speak:
             self.sentences_begun += 1  # without the loudspeaker's times the listener drops sound made meanwhile
             previous = self._speech
@@ -760,3 +844,22 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}" + (f", waiting for {waiting}" if waiting
                                                                                else "")
                              + "; say \"stop\" to pause it, \"cancel\" to end it.")
+
+
+def _keep_refusal(kept: list[dict], refusal: dict, limit: int = 50) -> None:
+    """One entry per (by, what, why), counted."""
+    same = next((r for r in kept if (r["by"], r["what"], r["why"]) == (refusal["by"], refusal["what"], refusal["why"])),
+                None)
+    if same is not None:
+        same["count"] = max(same["count"] + (refusal["by"] != "sandbox"), refusal["count"])
+    elif len(kept) < limit:
+        kept.append(dict(refusal))
+
+
+def refusal_summary(refusals: list[dict], limit: int = 600) -> str:
+    """What a run was refused, in one sentence for its owner."""
+    n = sum(r["count"] for r in refusals)
+    items = [f"{r['what']} ({r['by'].split('@')[0]}{': ' + r['why'] if r['why'] else ''})"
+             + (f" x{r['count']}" if r["count"] > 1 else "") for r in refusals]
+    text = f"It was refused {n} operation{'s' if n != 1 else ''}: " + "; ".join(items)
+    return (text[:limit - 3] + "...") if len(text) > limit else text + "."

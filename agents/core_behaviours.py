@@ -23,10 +23,10 @@ from spade.template import Template
 
 from ontology import core as C
 from ontology.robot import CaptureAudio
+from hearing.steering import Steering
+from hearing.vad import HeardUtterance, VoiceActivity
+from hearing.wav import decode_wav
 from robots.errors import UnsupportedOperation
-from robots.mic_array import Steering
-from robots.receptors import HeardUtterance, VoiceActivity
-from robots.sound import decode_wav
 
 from .messages import AclInfo, bare
 
@@ -109,7 +109,7 @@ class MicrophoneStream:
         self.observe = observe
         self.chunk_s = chunk_s
         # every microphone of the robot's array, the detector on the first: an utterance it cuts is
-        # heard again with all of them, steered to where it came from (robots/mic_array.py Steering,
+        # heard again with all of them, steered to where it came from (hearing/steering.py Steering,
         # which may outlive the listener, as its detector does)
         self.array, self.steering = array, steering if steering is not None else Steering()
         # a listener's detector may outlive it: what it learnt of the room's noise stays useful

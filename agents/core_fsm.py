@@ -19,7 +19,7 @@ import asyncio
 import logging
 
 from behaviours import FSM, Behaviour, OneShot
-from robots.receptors import HeardUtterance
+from hearing.vad import HeardUtterance
 
 from .errors import RequestError
 

@@ -12,24 +12,17 @@ than real time waits as long in its own seconds.
     continuation.offer(utterance)         # each utterance heard outside s3: True when awaited
     more = await continuation.after()     # in s4b: the next part, or None
 
-A keyword spotted ahead of the cut (s4a for speech, LookAhead):
-
-    ahead = LookAhead()
-    ahead.start(spotter, utterance)       # the utterance the detector is about to cut (VoiceActivity.ending)
-    word, early = await ahead.spot(spotter, utterance)  # the cut: the early answer when it is the same
-
-Also here: whether the Platform's answer is a keyword heard inside a sentence (keyword_in_a_sentence).
+The rest of hearing is in the hearing/ package: the detector (hearing/vad.py), the array
+(hearing/steering.py), and whether a keyword was said, alone or inside a sentence, with the keyword
+spotted ahead of the detector's cut (hearing/keywords.py: KeywordSpotter, keyword_in_a_sentence,
+LookAhead).
 """
 from __future__ import annotations
 
 import asyncio
-import logging
 import time
 
-import numpy as np
-
-from ontology.services.speech import Recognition
-from robots.receptors import HeardUtterance, KeywordSpotter, VoiceActivity, normalize, said_alone
+from hearing.vad import HeardUtterance, VoiceActivity
 
 CONTINUE_WITHIN_S = 0.5  # of sound after the cut: with the detector's 0.3 s, pauses up to 0.8 s
 MAX_WAIT_S = 8.0  # wall clock, for the next part to end (the detector cuts an utterance at 5 s)
@@ -76,47 +69,3 @@ class Continuation:
             return None
         finally:
             self._awaited = None
-
-
-class LookAhead:
-    """The keyword spotter run on the utterance the detector will cut unless the owner goes on, from
-    the moment its audio is fixed (`pad`, 0.2 s, of silence) rather than at the cut (0.3 s): the
-    spotting (50-100 ms of CPU) then overlaps the last 0.1 s of silence, in the keyword path's
-    500 ms. The cut takes the early answer only when it is the same audio, so the answer is the one
-    the cut would get; an owner who goes on costs the early work only."""
-
-    def __init__(self):
-        self._pending: tuple[HeardUtterance, KeywordSpotter, asyncio.Future] | None = None
-
-    def start(self, spotter: KeywordSpotter, utterance: HeardUtterance) -> None:
-        if utterance.too_long or utterance.speech_seconds > spotter.MAX_KEYWORD_SECONDS:
-            return  # a sentence: spot() answers None at once
-        future = asyncio.get_running_loop().run_in_executor(None, spotter.spot, utterance)
-        future.add_done_callback(_quietly)
-        self._pending = (utterance, spotter, future)
-
-    async def spot(self, spotter: KeywordSpotter, utterance: HeardUtterance) -> tuple[str | None, bool]:
-        """(spotter.spot(utterance), whether it was answered early)."""
-        pending, self._pending = self._pending, None
-        if pending is not None and pending[1] is spotter and _same(pending[0], utterance):
-            return await pending[2], True
-        return await asyncio.get_running_loop().run_in_executor(None, spotter.spot, utterance), False
-
-
-def _same(a: HeardUtterance, b: HeardUtterance) -> bool:
-    return a is b or (a.end_sample == b.end_sample and a.speech_seconds == b.speech_seconds
-                      and np.array_equal(a.pcm, b.pcm))
-
-
-def _quietly(future: asyncio.Future) -> None:
-    """An early answer nobody takes: its failure is logged, not left unretrieved."""
-    if not future.cancelled() and future.exception() is not None:
-        logging.getLogger("rapp.core").debug("early keyword spotting failed: %r", future.exception())
-
-
-def keyword_in_a_sentence(reply: Recognition, keywords, utterance: HeardUtterance) -> bool:
-    """Whether the Platform's answer is a bare keyword (one of `keywords`, normalized) that covers too
-    little of the utterance's speech to have been said alone (robots/receptors.py said_alone, the
-    keyword spotter's rule): one word of a sentence, which the general model should hear whole."""
-    words = [(round(w.start * 100), round(w.end * 100) - 1) for w in reply.words]  # its 10 ms frames
-    return normalize(reply.text) in keywords and not said_alone(utterance, words)

@@ -7,8 +7,9 @@ emergency stop (by "safety"): the task pauses, its motion is held. Then, in the 
     wait-for-clear   something (a person crossing, a door swinging) may move away: wait up to
                      `wait_s` for the range sensors to read clear ahead; if they do, release the stop
                      and the held motion goes on where it was going
-    back-off         still blocked: back away `back_off_m` (the Core's own motion, with the base lock
-                     taken from nobody: the task's motion is held), release the stop and fail the
+    back-off         still blocked: back away `back_off_m` (the Core's own motion, acting for the task:
+                     it inherits the task's base lock, paper 003 sec. V-B, and gives it back after;
+                     the base free, it locks it), release the stop and fail the
                      held motion with code `blocked`, so the plan re-plans around what stands there
                      (an obstacle event with the reading just before tells subscribers where it is)
     no-progress      stopped again where it was stopped before (within `progress_m`) after
@@ -78,7 +79,7 @@ class Incident:
 
 class Strategies:
     """Mixed into CoreAgent (needs estop_reason/estop_by, resume_motion, nearest_obstacle, nearest_echo,
-    publish_echo, robot, safety_distance, record_structure, tell_user, dynamic, _in_background)."""
+    publish_echo, robot, locks, safety_distance, record_structure, tell_user, dynamic, _in_background)."""
 
     wait_s = 2.0
     back_off_m = 0.25
@@ -123,13 +124,16 @@ class Strategies:
         return await self._back_off(incident, STRATEGIES[1].name, "the way ahead stayed blocked")
 
     async def _back_off(self, incident: Incident, name: str, why: str) -> str:
-        self._strategy_trace(name, "start", distance_m=self.back_off_m, why=why)
+        heir = f"core:{name}"
         try:
-            await self.robot.handle(ontology.robot.MoveTo(x=-self.back_off_m, y=0.0, theta=0.0))
+            async with self.locks.acting_for("base", heir, timeout=self.wait_s) as giver:
+                self._strategy_trace(name, "start", distance_m=self.back_off_m, why=why,
+                                     base=self.locks.chain("base"))
+                await self.robot.handle(ontology.robot.MoveTo(x=-self.back_off_m, y=0.0, theta=0.0))
             outcome = "backed off"
         except Exception as e:  # noqa: BLE001 - blocked behind too: hand back all the same
-            outcome = f"could not back off: {e}"
-        self._strategy_trace(name, "end", outcome=outcome)
+            giver, outcome = None, f"could not back off: {e}"
+        self._strategy_trace(name, "end", outcome=outcome, base_given_back_to=giver)
         if not self._still_ours():
             return ""
         echo = await self.nearest_echo()  # where it stands: the plan's monitor enters it into the map

@@ -22,6 +22,20 @@ from xmpp_server.probe import LoginError, probe_login, remove_account
 log = logging.getLogger("rapp.identity")
 
 
+RAPP_ACCOUNT_PREFIXES = ("dyn-", "cloud-")  # the accounts of RApp runs (Dynamic, Cloud Agents)
+
+
+def is_rapp_account(jid: str) -> bool:
+    """Whether an (authenticated) sender is a RApp run: its Core or Platform named its account."""
+    return str(jid).split("@")[0].startswith(RAPP_ACCOUNT_PREFIXES)
+
+
+def trace_refusal(agent, sender: str, action: str, refusal) -> None:
+    """The `refused` record of an operation `agent` refused `sender` (told, not hidden)."""
+    agent.record_structure("refused", action=action, sender=sender, reason=str(getattr(refusal, "reason", refusal))[:300],
+                           code=getattr(refusal, "code", None), rapp_account=is_rapp_account(sender))
+
+
 @dataclass(frozen=True)
 class Identity:
     name: str  # the account's local part

@@ -39,7 +39,7 @@ from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spa
 from .runtime import WARM_EXTRA_IMPORTS
 from .responder import Responder
 from .store_client import download_package
-from .identity import EphemeralAccounts, Identity
+from .identity import EphemeralAccounts, Identity, is_rapp_account, trace_refusal
 from .messages import bare
 from .platform_users import DirectoryError, TokenInfo, UserDirectory
 from .sandbox import Sandbox
@@ -98,15 +98,20 @@ class PlatformAgent(RappAgent):
         self._own_workdir = workdir is None  # a temporary one: removed whole at stop
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-platform-"))
         self.services = services
-        # per-user service files (maildirs...) in the Platform's own work directory
-        self.state = services_state or ServiceState(work_dir=self.workdir / "services")
         # users and tokens survive a restart when data_dir is kept (SQLite, 0600)
         self.data_dir = Path(data_dir) if data_dir else None
+        # per-user service data (maps, homes, learned models, history, marks; agents/services/saved.py)
+        # kept in data_dir too; without one, in memory and files in the Platform's own work directory
+        self._own_state = services_state is None
+        self.state = services_state or (ServiceState.keeping(self.data_dir) if self.data_dir
+                                        else ServiceState(work_dir=self.workdir / "services"))
         self.directory = UserDirectory(self.data_dir / "users.db" if self.data_dir else None)
         self._tokens: dict[str, TokenInfo] = {}  # cache of the directory's answers
         self.accounts = EphemeralAccounts(self.settings, owner=name)
         self.sandbox = sandbox or Sandbox()
         self.robots: dict[str, P.RegisterRobot] = {}
+        self._cloud_runs: dict[str, float] = {}  # Dynamic Agents that started their Cloud Agent (one per run)
+        self._refused: dict[str, list[P.Refused]] = {}  # run (Dynamic Agent) -> what was refused it
         self.clouds: dict[str, CloudSession] = {}
         self._cleanups: set[asyncio.Task] = set()  # stopped Cloud Agents' accounts and directories
         self.max_pending, self.pending = max_pending, 0
@@ -182,6 +187,8 @@ class PlatformAgent(RappAgent):
             log.warning("prepared Cloud Agent accounts not all deleted; the next start sweeps them")
         await super().stop()
         self.directory.close()
+        if self._own_state:
+            self.state.close()
         await asyncio.to_thread(sweep_run_dirs, self.workdir, self._own_workdir)
 
     async def _sweep_accounts(self, leftovers: dict[str, str]) -> None:
@@ -270,6 +277,11 @@ class PlatformAgent(RappAgent):
     async def register_robot(self, req: P.RegisterRobot, ctx) -> Done:
         if bare(req.core_jid) != ctx.sender:
             raise Refusal(f"{ctx.sender} cannot register a robot for {req.core_jid}", ErrorCode.FORBIDDEN)
+        if is_rapp_account(ctx.sender):
+            raise Refusal("a RApp run cannot register robots", ErrorCode.FORBIDDEN)
+        known = self.robots.get(req.robot_id)
+        if known is not None and bare(known.core_jid) != ctx.sender:
+            raise Refusal(f"robot {req.robot_id!r} is registered by {bare(known.core_jid)}", ErrorCode.DUPLICATE)
         self.robots[req.robot_id] = req
         self.record_structure("register", robot=req.robot_id, robot_type=req.robot_type,
                               by=ctx.sender, at="platform")
@@ -393,6 +405,15 @@ class PlatformAgent(RappAgent):
         owner = ctx.sender  # a Cloud Agent serves the agent that asked for it, nobody named in content
         if req.owner_jid and bare(req.owner_jid) != owner:
             raise Refusal(f"{owner} cannot start a Cloud Agent for {req.owner_jid}", ErrorCode.FORBIDDEN)
+        cores = {bare(r.core_jid) for r in self.robots.values()}
+        if owner in self.clouds or ctx.token.services is None or ctx.token.issuer not in cores:
+            # a Cloud Agent's own token was issued by its Dynamic Agent, a user's by nobody
+            raise Refusal("only a Dynamic Agent (a token its Core asked for) starts a Cloud Agent", ErrorCode.FORBIDDEN)
+        if owner in self._cloud_runs:
+            raise Refusal(f"{owner} has started its Cloud Agent already: one per run", ErrorCode.FORBIDDEN)
+        self._cloud_runs[owner] = time.monotonic()
+        while len(self._cloud_runs) > 10_000:  # the oldest runs' entries go (their tokens are long dead)
+            self._cloud_runs.pop(next(iter(self._cloud_runs)))
         try:
             info, data = await download_package(self, self.store, req.rapp, req.version)
         except RequestError as e:
@@ -428,9 +449,10 @@ class PlatformAgent(RappAgent):
             if worker is not None:  # not handed its run: let go, its account removed
                 await self.warm_pool.discard(worker)
             raise
+        proc.on_refusal = lambda refusal, s=session: self._sandbox_refused(s, refusal)
         await proc.start(worker=worker)
         self.record_structure("cloud-spawn", cloud=session.jid, rapp=info.name, owner=owner, pid=proc.pid,
-                              sandbox=proc.uid is not None, warm=getattr(proc, "warm", False))
+                              sandbox=proc.sandboxed, warm=getattr(proc, "warm", False))
         waiter = asyncio.create_task(session.ready.wait())
         exited = asyncio.create_task(proc.wait())
         done, _ = await asyncio.wait({waiter, exited}, timeout=self.settings.start_timeout + 10,
@@ -505,9 +527,10 @@ class PlatformAgent(RappAgent):
         session.ready.clear()
         await session.process.end(grace=0.0)  # whatever of its uid left its group dies before the directory is reused
         session.process = self._spawn(spec, workdir)
+        session.process.on_refusal = lambda refusal, s=session: self._sandbox_refused(s, refusal)
         await session.process.start()
         self.record_structure("cloud-spawn", cloud=session.jid, rapp=session.rapp, owner=session.owner,
-                              pid=session.process.pid, sandbox=session.process.uid is not None, restart=True)
+                              pid=session.process.pid, sandbox=session.process.sandboxed, restart=True)
         try:
             await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)
             return True
@@ -537,12 +560,45 @@ class PlatformAgent(RappAgent):
         await self._kill_cloud(session, f"stopped by {ctx.sender}")
         return Done()
 
-    async def release_clouds(self, req: P.ReleaseCloudAgents, ctx) -> Done:
-        for session in [c for c in self.clouds.values() if c.owner == bare(req.owner_jid)]:
+    async def release_clouds(self, req: P.ReleaseCloudAgents, ctx) -> P.Released:
+        run = bare(req.owner_jid)
+        for session in [c for c in self.clouds.values() if c.owner == run]:
             if not self._may_stop(session, ctx.sender):
                 raise Refusal(f"{req.owner_jid}'s Cloud Agents are not {ctx.sender}'s to stop", ErrorCode.FORBIDDEN)
             await self._kill_cloud(session, f"owner {req.owner_jid} ended")
-        return Done()
+        if ctx.token.issuer is None and ctx.token.services is None:  # the Core (a login token): told what was refused
+            return P.Released(refused=self._refused.pop(run, []))
+        return P.Released()
+
+    def _sandbox_refused(self, session: CloudSession, refusal: dict) -> None:
+        """What a Cloud Agent's sandbox refused it: traced, and kept for its run's Core."""
+        self.record_structure("refused", by="sandbox", sender=session.jid, action=refusal["what"],
+                              reason=refusal.get("why", ""), count=refusal["count"], rapp_account=True)
+        kept = self._refused.setdefault(session.owner, [])
+        what = f"{refusal['what']} (its Cloud Agent)"
+        same = next((r for r in kept if r.what == what), None)
+        if same is not None:
+            same.count = max(same.count, refusal["count"])
+        elif len(kept) < 50:
+            kept.append(P.Refused(by="sandbox", what=what, why=refusal.get("why", ""), count=refusal["count"]))
+
+    def note_refusal(self, sender: str, action: str, refusal) -> None:
+        """Traced; kept for the run's Core when the sender is a RApp run (its Cloud Agent's count as its
+        Dynamic Agent's), which `release_cloud_agents` answers with."""
+        trace_refusal(self, sender, action, refusal)
+        if not is_rapp_account(sender):
+            return
+        cloud = self.clouds.get(sender)
+        run = cloud.owner if cloud is not None else sender
+        kept = self._refused.setdefault(run, [])
+        what = f"{action} by {sender.split('@')[0]}" if cloud is not None else action
+        same = next((r for r in kept if r.what == what and r.why == refusal.reason[:200]), None)
+        if same is not None:
+            same.count += 1
+        elif len(kept) < 50:
+            kept.append(P.Refused(by=self.address, what=what, why=refusal.reason[:200]))
+        while len(self._refused) > 1000:
+            self._refused.pop(next(iter(self._refused)))
 
     async def _kill_cloud(self, session: CloudSession, reason: str) -> None:
         if self.clouds.pop(session.jid, None) is None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from ontology.errors import ErrorCode
 
+from .schema import migrate
 from .store_repository import _check_password, hash_password
 
 _USER = re.compile(r"[A-Za-z0-9._@-]{1,64}")
@@ -77,8 +78,8 @@ class UserDirectory:
             # power cut lose only the last tokens (1.1 ms -> 0.05 ms an issue and revoke, more under IO load)
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
-        with self._lock, self._db:
-            self._db.executescript(_SCHEMA)
+        with self._lock:
+            migrate(self._db, (_SCHEMA,), f"the Platform's users database {self.path or ':memory:'}")
         if self.path is not None:  # SQLite gives its journals the database's mode; make sure
             for suffix in _SIDECARS:
                 side = self.path.with_name(self.path.name + suffix)

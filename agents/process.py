@@ -1,16 +1,18 @@
 """Child processes for Dynamic and Cloud Agents (the paper's fork-exec), always reaped.
 
 Each child runs in its own session (so the whole group can be killed), in the sandbox of
-agents/sandbox.py (its own root, uid and working directory), with rlimits, stdout/stderr to files
-in that directory. `stop()` sends SIGTERM, then SIGKILL after a grace period, then waits: no zombie
-is ever left behind. `InProcessAgent` runs the same runtime as a task of the caller: no isolation
+agents/sandbox.py and agents/confine.py (its own namespaces, root, uid, control group and working
+directory), with rlimits, stdout/stderr to files in that directory. `stop()` sends SIGTERM, then
+SIGKILL after a grace period (the sandbox's init with it: its PID namespace dies whole; its control
+group is killed too), then waits: no zombie is ever left behind. `InProcessAgent` runs the same runtime as a task of the caller: no isolation
 at all, for tests and for measuring what the process costs.
 """
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import functools
+import json
+import logging
 import os
 import resource
 import shutil
@@ -18,13 +20,18 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from ontology.spawn import SpawnSpec, WarmLogin
 
-from .priority import set_priority
+from .cgroups import RunGroup, release_if_used
+from .priority import each_thread, set_priority
 from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree, open_run_file
+from .tracing import TraceRelay, tracer_for
+
+log = logging.getLogger("rapp.process")
 
 # a refill handed a run waits this long at most for the worker to confine itself (it does within ~0.1 s
 # of its start, at its parent's priority, before lowering it)
@@ -93,6 +100,36 @@ def _kill_group(pgid: int, sig: int = signal.SIGKILL) -> None:
         pass
 
 
+def kill_uid(uid: int, timeout: float = 2.0) -> bool:
+    """Every process of `uid` killed, /proc scanned again until none is left (one scan misses a
+    process forked meanwhile); False if some were still there after `timeout`."""
+    deadline = time.monotonic() + timeout
+    while True:
+        found = 0
+        for entry in os.scandir("/proc"):
+            if entry.name.isdigit():
+                try:
+                    if entry.stat().st_uid == uid:
+                        found += 1
+                        os.kill(int(entry.name), signal.SIGKILL)
+                except OSError:
+                    pass
+        if not found:
+            return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+
+
+def _widen(fd: int, size: int = 1 << 20) -> None:
+    """A pipe's buffer made larger (a RApp's burst of trace records blocks it less)."""
+    try:
+        import fcntl
+        fcntl.fcntl(fd, 1031, size)  # F_SETPIPE_SZ
+    except OSError:
+        pass
+
+
 def _running(proc: subprocess.Popen) -> bool:
     """Not exited yet, without reaping it (Popen.poll would: exit_future reaps, after before_reap)."""
     if proc.returncode is not None:
@@ -110,6 +147,7 @@ class Limits:
     open_files: int | None = 1024
     processes: int | None = 128  # tasks (threads count); only under a sandbox uid of its own
     file_size_bytes: int | None = 256 * 1024**2
+    cpu_cores: float | None = 1.0  # the run's control group's CPU quota, where there is one
 
     def apply(self, own_uid: bool = True) -> None:  # by the RApp process itself (agents/sandbox.py confine)
         limits = [(resource.RLIMIT_CPU, self.cpu_seconds, 5), (resource.RLIMIT_AS, self.memory_bytes, 0),
@@ -126,6 +164,7 @@ def sweep_run_dirs(workdir: Path, remove_root: bool = False) -> None:
     """Remove the run directories (`NNNN-<rapp>`: package, logs; idle warm workers' `NNNN-.warm`)
     under a Core's or Platform's work directory: at stop, and at start for those a crash left behind."""
     workdir = Path(workdir)
+    release_if_used()  # the sandbox's base control groups, where no run is left in them
     if remove_root:
         shutil.rmtree(workdir, ignore_errors=True)
         return
@@ -175,9 +214,30 @@ class AgentProcess:
         self._gone_r: int | None = None  # that pipe's read end, until start() watches it
         self.warm = False  # this run went to a warm worker (no interpreter start on the hand-off)
         self.returncode: int | None = None
+        self.cgroup: RunGroup | None = None
+        self.runtime_pid: int | None = None  # the runtime's own process inside the sandbox (its P's grandchild)
+        self.refusals: list[dict] = []  # what the sandbox refused the run (agents/confine.py), in order
+        self.on_refusal = None  # called with each refusal as it comes (its Core or Platform traces it)
+        self._report_r: int | None = None  # the sandbox's report pipe, until its end
+        self._trace: TraceRelay | None = None
+
+    @property
+    def sandboxed(self) -> bool:
+        return self.sandbox.enabled
+
+    def identity(self) -> str:
+        """The run's JID (a warm worker not handed a run yet: its login's, or "warm worker")."""
+        name = self.spec.name if self.spec is not None else (self.login.name if self.login else None)
+        return self.settings.jid(name) if name else "warm-worker"
+
+    @property
+    def agent_pid(self) -> int | None:
+        """The runtime's process (what a liveness check looks at): inside the sandbox, its init's
+        child; the process started otherwise."""
+        return self.runtime_pid or self.pid
 
     def _placed(self, spec: SpawnSpec) -> SpawnSpec:
-        package = f"{APP_DIR}/package" if self.uid is not None else str(self.workdir.resolve() / "package")
+        package = f"{APP_DIR}/package" if self.sandboxed else str(self.workdir.resolve() / "package")
         return spec.model_copy(update={"package_dir": package})
 
     async def start(self, worker: "AgentProcess | None" = None) -> None:
@@ -193,9 +253,15 @@ class AgentProcess:
         # Popen + a pidfd, not asyncio subprocesses: SPADE installs uvloop's loop policy,
         # whose child watcher the standard loop cannot use.
         self.proc = await asyncio.to_thread(self._popen)
-        # what is left of its process group (a RApp's children) dies with it, whoever ends it
-        self._waiter = exit_future(self.proc, before_reap=functools.partial(_kill_group, self.proc.pid))
+        # what is left of its process group and control group (a RApp's children) dies with it, whoever ends it
+        self._waiter = exit_future(self.proc, before_reap=self._kill_leftovers)
         self._waiter.add_done_callback(lambda _: self._logged_out.set())
+        self._waiter.add_done_callback(lambda _: self._after_exit())
+        loop = asyncio.get_running_loop()
+        if self._report_r is not None:
+            loop.add_reader(self._report_r, self._sandbox_said)
+        if self._trace is not None:
+            self._trace.start(loop)
         _on_byte(self._gone_r, self._logged_out)
         self._gone_r = None
         if self._ready_r is not None:
@@ -211,6 +277,17 @@ class AgentProcess:
                 await asyncio.wait_for(worker.confined.wait(), CONFINED_WITHIN_S)
         self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
         self._logged_out = worker._logged_out
+        self.cgroup, self.runtime_pid, self.refusals = worker.cgroup, worker.runtime_pid, worker.refusals
+        worker.cgroup = None  # this run's to clean up now
+        self._report_r, worker._report_r = worker._report_r, None
+        if self._report_r is not None:  # the worker's events are this run's now
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(self._report_r)
+            loop.add_reader(self._report_r, self._sandbox_said)
+        self._waiter.add_done_callback(lambda _: self._after_exit())
+        self._trace, worker._trace = worker._trace, None
+        if self._trace is not None:
+            self._trace.who, self._trace.pid = self.identity, lambda: self.pid
         spec_w, worker._spec_w = worker._spec_w, None
         worker._forget_ready()
         self.spec, self.warm = self._placed(self._given), True
@@ -219,7 +296,8 @@ class AgentProcess:
             return True
         except BrokenPipeError:
             await self.stop(grace=0.0)
-            self.proc = self._waiter = self.returncode = None
+            self.proc = self._waiter = self.returncode = self.cgroup = self.runtime_pid = None
+            self.refusals, self._report_r, self._trace = [], None, None
             self._logged_out = asyncio.Event()
             self.uid, self.warm, self.login = self.sandbox.new_uid(), False, None  # a fresh uid for the cold start
             self.spec = self._placed(self._given)
@@ -243,12 +321,6 @@ class AgentProcess:
         finally:
             os.close(spec_w)
 
-    def _at_parents_priority(self) -> None:
-        try:  # in a thread: it may wait out an unprivileged parent's rate limit
-            set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0), retry_s=0.5)
-        except (PermissionError, ProcessLookupError):
-            pass
-
     def _spec_bytes(self) -> bytes:
         data = self.spec.model_dump_json().encode()
         if len(data) > 60_000:  # a pipe holds 64 KiB: the write must not block
@@ -257,6 +329,11 @@ class AgentProcess:
 
     def _popen(self) -> subprocess.Popen:
         self.sandbox.prepare(self.workdir, self.uid)
+        if self.sandboxed:
+            try:
+                self.cgroup = RunGroup.create(self.limits, self.nice)
+            except OSError as e:  # said at start (agents/cgroups.py support): rlimits and the namespace still hold
+                log.warning("no control group for %s: %s", self.name, e)
         spec_r, spec_w = os.pipe()
         gone_r, gone_w = os.pipe()  # "logged out" (agents/runtime.py say_logged_out)
         fds, keep = [spec_r, gone_w], []
@@ -279,25 +356,40 @@ class AgentProcess:
                 extra["RAPP_READY_FD"] = str(ready_w)
                 if self.preload:
                     extra["RAPP_PRELOAD"] = ",".join(self.preload)
-            if self.settings.trace_file:  # append-only: the child can add lines, not read any
-                trace_fd = os.open(self.settings.trace_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
-                fds.append(trace_fd)
-                extra["RAPP_TRACE_FD"] = str(trace_fd)
+            if self.settings.trace_file:  # a pipe this process reads: the child never holds the trace's file
+                trace_r, trace_w = os.pipe2(os.O_CLOEXEC)
+                keep.append(trace_r)
+                fds.append(trace_w)
+                _widen(trace_w)
+                extra["RAPP_TRACE_FD"] = str(trace_w)
+                self._trace = TraceRelay(trace_r, tracer_for(self.settings.trace_file), self.identity,
+                                         lambda: self.pid)
+            child_fds = tuple(fds)
+            report_w = None
+            if self.sandboxed:  # the sandbox's own events (its outer process writes them, never the RApp)
+                self._report_r, report_w = os.pipe2(os.O_CLOEXEC)
+                keep.append(self._report_r)
+                fds.append(report_w)
             with open_run_file(self.workdir / "stdout.log", "ab") as out, open_run_file(self.workdir / "stderr.log", "ab") as err:
                 # no preexec_fn: the runtime confines itself first thing (agents/sandbox.py confine)
-                extra[CONFINE_ENV] = self.sandbox.confinement(self.uid, self.limits, self.nice)
+                extra[CONFINE_ENV] = self.sandbox.confinement(self.uid, self.limits, self.nice, settings=self.settings,
+                                                              cgroup=self.cgroup, report_fd=report_w,
+                                                              child_fds=child_fds)
                 proc = subprocess.Popen(
                     self.argv, cwd=self.workdir, env=self.sandbox.env(self.settings, extra), stdout=out,
                     stderr=err, stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=fds)
         except BaseException:
             for fd in [*keep, gone_r]:
                 os.close(fd)
+            self._report_r = self._trace = None
+            if self.cgroup is not None:
+                self.cgroup.remove()
             raise
         finally:
             for fd in fds:
                 os.close(fd)
-        if keep:
-            self._spec_w, self._ready_r = keep
+        if self.spec is None:  # a warm worker: its spec pipe's write end and its "ready" pipe
+            self._spec_w, self._ready_r = keep[:2]
         self._gone_r = gone_r
         return proc
 
@@ -355,9 +447,8 @@ class AgentProcess:
             self._at_parents_priority()
             self._signal(signal.SIGTERM)
             await self.logged_out(grace)
-        self._signal(signal.SIGKILL)  # leftovers in its group die before it is reaped (exit_future)
-        if self.uid is not None:
-            self._kill_uid()
+        self._signal(signal.SIGKILL)  # its sandbox's init with it: the run's PID namespace dies whole
+        self._kill_leftovers()
         self._forget_ready()
         if self._spec_w is not None:  # an idle warm worker: its spec never comes
             os.close(self._spec_w)
@@ -376,17 +467,22 @@ class AgentProcess:
         (a group write refused for its rate limit leaves the group as it was)."""
         if self.proc is None or not self.alive():
             return
+        nice = os.getpriority(os.PRIO_PROCESS, 0) + by
         try:
-            set_priority(self.proc.pid, os.getpriority(os.PRIO_PROCESS, 0) + by)
-        except OSError:  # gone meanwhile
+            set_priority(self.proc.pid, nice)  # the sandbox's outer process and its session's group
+            if self.runtime_pid:  # the runtime itself, inside the sandbox (its init's child)
+                each_thread(self.runtime_pid, lambda tid: os.setpriority(os.PRIO_PROCESS, tid, nice))
+        except OSError:  # gone meanwhile, or a raise this user may not make
             pass
+        if self.cgroup is not None:  # in a CPU group of its own, the group's weight is what counts
+            self.cgroup.set_nice(by)
 
     def _at_parents_priority(self) -> None:
         """A run that lowered its priority (a Cloud Agent once serving, CLOUD_NICE) logs out and
         exits at its parent's where that is allowed (a fleet's stops at nice +5 took 90-135 ms
         under load, when they waited for the exit)."""
         try:
-            if os.getpriority(os.PRIO_PROCESS, self.proc.pid) > os.getpriority(os.PRIO_PROCESS, 0):
+            if os.getpriority(os.PRIO_PROCESS, self.agent_pid) > os.getpriority(os.PRIO_PROCESS, 0):
                 self.yield_cpu(0)
         except OSError:  # gone already
             pass
@@ -396,15 +492,67 @@ class AgentProcess:
             return  # reaped: its pid may be another process's by now
         _kill_group(self.proc.pid, sig)
 
-    def _kill_uid(self) -> None:
-        """Processes of this run's uid that left the process group (setsid) die too."""
-        for entry in os.scandir("/proc"):
-            if entry.name.isdigit():
-                try:
-                    if entry.stat().st_uid == self.uid:
-                        os.kill(int(entry.name), signal.SIGKILL)
-                except OSError:
-                    pass
+    def _kill_leftovers(self) -> None:
+        """Whatever of the run is left: its process group, its control group (`cgroup.kill`), and,
+        without a control group, every process of its uid, scanned again until none is left."""
+        if self.proc is not None and not (self._waiter is not None and self._waiter.done()):
+            _kill_group(self.proc.pid, signal.SIGKILL)
+        if self.cgroup is not None:
+            self.cgroup.kill(timeout=0.5)
+        elif self.uid is not None:
+            kill_uid(self.uid)
+
+    def _after_exit(self) -> None:
+        """Reaped: the sandbox's last words read, what its control group was refused kept, the group gone."""
+        if self._report_r is not None:
+            self._sandbox_said()
+        if self.cgroup is not None:
+            for what, n in self.cgroup.refusals().items():
+                self._refused({"event": "refused", "what": {"oom_kill": "memory (killed for its limit)",
+                                                            "pids_max": "a new process (its process limit)"}[what],
+                               "count": n})
+            self.cgroup.kill(timeout=0.5)
+            if not self.cgroup.remove():
+                asyncio.get_running_loop().call_later(1.0, self.cgroup.remove)
+
+    def _sandbox_said(self) -> None:
+        fd = self._report_r
+        try:
+            data = os.read(fd, 65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            asyncio.get_running_loop().remove_reader(fd)
+            os.close(fd)
+            self._report_r = None
+            return
+        for line in data.splitlines():
+            try:
+                event = json.loads(line)
+            except ValueError:
+                continue
+            if event.get("event") == "runtime":
+                self.runtime_pid = int(event["pid"])
+            elif event.get("event") == "refused":
+                self._refused(event)
+            elif event.get("event") == "upstream":
+                log.warning("%s: the sandbox could not reach the XMPP server: %s", self.identity(), event.get("error"))
+
+    def _refused(self, event: dict) -> None:
+        entry = {"by": "sandbox", "what": str(event.get("what", ""))[:200], "count": int(event.get("count", 1)),
+                 **({"why": str(event["why"])[:200]} if event.get("why") else {})}
+        same = next((r for r in self.refusals if r["what"] == entry["what"]), None)
+        if same is not None:
+            same["count"] = max(same["count"], entry["count"])
+        else:
+            self.refusals.append(entry)
+        if self.on_refusal is not None:
+            try:
+                self.on_refusal(entry)
+            except Exception:  # noqa: BLE001 - a caller's error never stops the sandbox's reading
+                log.exception("on_refusal")
 
     def stderr_tail(self, n: int = 2000) -> str:
         """The last ~n characters of its stderr.log: only those are read (a RApp may log megabytes)."""
@@ -445,6 +593,9 @@ class InProcessAgent:
     For fast tests and for measuring what the process costs."""
 
     uid = None  # never sandboxed
+    sandboxed = False
+    runtime_pid = None
+    on_refusal = None
 
     def __init__(self, name: str, spec: SpawnSpec, workdir: Path, settings):
         self.name, self.workdir, self.settings = name, Path(workdir), settings
@@ -452,6 +603,11 @@ class InProcessAgent:
         self.task: asyncio.Task | None = None
         self.agent = None
         self.returncode: int | None = None
+        self.refusals: list[dict] = []
+
+    @property
+    def agent_pid(self) -> int:
+        return os.getpid()
 
     def yield_cpu(self, by: int) -> None:  # its host's priority is not the RApp's to change
         pass

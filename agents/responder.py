@@ -146,6 +146,9 @@ class Responder(CyclicBehaviour):
                 await self._answer(msg, Performative.AGREE, None)
             result = await handler(request, ctx)
         except Refusal as e:
+            note = getattr(self.agent, "note_refusal", None)  # told, not hidden (Core, Platform, Store)
+            if note is not None:
+                note(ctx.sender, info.action, e)
             await self._answer(msg, Performative.REFUSE, Reason(reason=e.reason, code=e.code))
             return
         except Failure as e:

@@ -19,9 +19,10 @@ import os
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ontology.spawn import SpawnSpec, WarmLogin
-from ontology.manifest import load_manifest
+if TYPE_CHECKING:  # imported where used: the sandbox's outer process (agents/confine.py) stays small
+    from ontology.spawn import SpawnSpec, WarmLogin
 
 
 class EntryPointError(RuntimeError):
@@ -58,6 +59,7 @@ def _forget_other_copies(top: str, root: str) -> None:
 def build_agent(spec: SpawnSpec, settings=None):
     """The Dynamic or Cloud Agent a spec describes (not started), logging in with the run's own
     account."""
+    from ontology.manifest import load_manifest
     from xmpp_server.settings import XmppSettings
 
     settings = settings or XmppSettings.from_env()
@@ -112,6 +114,8 @@ async def run_spec(spec: SpawnSpec | None, login: WarmLogin | None = None, pipe:
 
 async def _logged_in_first(login: WarmLogin, pipe: tuple[int, bytes]):
     """(the logged-in Cloud Agent, its run's spec), or (None, None) when the pool let it go idle."""
+    from ontology.manifest import load_manifest
+    from ontology.spawn import SpawnSpec
     from xmpp_server.settings import XmppSettings
 
     from .cloud_agent import CloudAgent
@@ -159,6 +163,8 @@ async def _read_to_end(fd: int, first: bytes) -> bytes:
 def read_login() -> tuple[WarmLogin, tuple[int, bytes]]:
     """A warm Cloud worker's account: the spec pipe's first line (the spec follows at the hand-off);
     with the descriptor and what was read past the line."""
+    from ontology.spawn import WarmLogin
+
     fd, data = spec_fd(), b""
     while b"\n" not in data:
         chunk = os.read(fd, 65536)
@@ -177,6 +183,8 @@ def spec_fd() -> int:
 
 def read_spec() -> SpawnSpec:
     """The spec from the spec pipe, read once; the descriptor is closed."""
+    from ontology.spawn import SpawnSpec
+
     with os.fdopen(spec_fd(), "rb") as f:
         return SpawnSpec.model_validate_json(f.read())
 
@@ -271,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
               "spec on the descriptor named by RAPP_SPEC_FD)", file=sys.stderr)
         return 2
     from .sandbox import confine
-    confine()  # first: rlimits, mounts, uid, as the Core or Platform asked (it never forks with a preexec_fn)
+    confine()  # first: the sandbox, as the Core or Platform asked (it never forks with a preexec_fn)
     say_confined()
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # a crash in native code (a Cloud Agent's OpenCV work, 2026-11-26) leaves its Python stack in stderr.log,

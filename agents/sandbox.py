@@ -1,40 +1,41 @@
-"""The sandbox a RApp process (Dynamic or Cloud Agent) runs in: defence in depth around untrusted code.
+"""The sandbox a RApp process (Dynamic or Cloud Agent) runs in, from the outside: what is asked for
+each run, what this machine offers, and the files of a run a trusted process touches.
 
-Layers, each applied by the runtime to its own process first thing, before it reads its spec or
-imports anything of a RApp (`confine`, from what `Sandbox.confinement` put in its environment), in
-this order:
-1. rlimits (agents/process.py `Limits`): CPU, address space, processes, open files, file size;
-2. a private mount namespace whose root is a fresh tmpfs holding only read-only binds of the
-   system (/usr, /etc, the shared-library symlinks), the Python installation and virtualenv, the
-   project's own packages, a minimal /dev (null, zero, random, urandom) and the run's directory
-   (read-write, as /app); nothing else of the machine is there: no /proc (so no parent's environ),
-   no /tmp, no /root, no data directory of any agent, no credentials file;
-3. a user id of its own (one per run, never an account of the machine): the RApp cannot read what
-   its own uid does not own, signal other processes, undo the mounts, or get privileges back
-   (no_new_privs); rlimits on processes count this run's processes only.
+A RApp process confines itself first thing, before it reads its spec or imports anything of a RApp
+(agents/confine.py, from what `Sandbox.confinement` put in its environment):
+1. rlimits (agents/process.py `Limits`) and a control group of the run's own (agents/cgroups.py:
+   memory, processes, CPU; `cgroup.kill` at its end) where the machine offers one;
+2. user, PID, mount, network, IPC and UTS namespaces of its own: the run's root is a tmpfs holding
+   only read-only binds of the system (/usr, /etc, the shared-library symlinks), the Python
+   installation and virtualenv, the project's own packages, a minimal /dev and the run's directory
+   (read-write, as /app); no /proc, no /tmp of the machine, no agent's data or credentials; its
+   only network is loopback, where its Core's or Platform's side of the sandbox forwards the XMPP
+   server's port (one connection at a time), nothing else;
+3. its own uid (root: a fresh one per run, never an account of the machine; no root: the user's,
+   mapped into the user namespace), no capability, no_new_privs, and a seccomp filter whose
+   refusals (ptrace, mount, namespaces, bpf, keyrings, perf, kexec, modules...) are told to the
+   Core or Platform; the run's PID namespace dies with its init, whatever its processes did.
 
-This needs root (CAP_SYS_ADMIN, CAP_SETUID), as a robot's Core service has. Without it the
-sandbox is "off": rlimits and the scrubbed environment only, which a deployment must not accept
-(`rapp agent core` refuses unless --allow-unsandboxed). Network: the process shares the host's
-network; a deployment restricts the sandbox uids to the XMPP server with a firewall rule
-(docs/deployment.md), since a private network namespace would cut the XMPP connection too.
+Modes: "root" (the Core or Platform runs as root, as a robot's service does), "user" (no root: the
+same through user namespaces, so a developer's `rapp run rapp` runs as it will in deployment), and
+"off" (the kernel allows no user namespace: rlimits and the scrubbed environment only, which needs
+--allow-unsandboxed, with the reason printed). `probe()` finds the mode once.
 """
 from __future__ import annotations
 
-import ctypes
 import dataclasses
 import functools
 import json
+import logging
 import os
 import secrets
-import signal
 import stat
 import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from xmpp_server.process import PR_SET_PDEATHSIG, libc
+log = logging.getLogger("rapp.sandbox")
 
 UID_BASE = 0x5AF0_0000  # sandbox uids: UID_BASE .. UID_BASE + 2**20, no account of the machine
 APP_DIR = "/app"
@@ -42,36 +43,153 @@ DEVICES = ("null", "zero", "random", "urandom")
 SYSTEM = ("/usr", "/etc")
 PROJECT_PACKAGES = ("agents", "behaviours", "ontology", "robots", "rapps", "xmpp_server")
 ENV_ALLOWED = ("PATH", "LANG", "LC_ALL", "LC_CTYPE", "TZ")
-
-_CLONE_NEWNS = 0x00020000
-_MS_RDONLY, _MS_NOSUID, _MS_NODEV, _MS_REMOUNT = 0x1, 0x2, 0x4, 0x20
-_MS_BIND, _MS_REC, _MS_PRIVATE = 0x1000, 0x4000, 0x40000
-_PR_SET_NO_NEW_PRIVS = 38
+INNER_HOST = "127.0.0.1"  # where the run's XMPP server is, inside its network namespace
+MODES = ("root", "user", "off")
+ALLOW_UNSANDBOXED_ENV = "RAPP_ALLOW_UNSANDBOXED"
 
 
 class SandboxError(RuntimeError):
     pass
 
 
-@functools.lru_cache(maxsize=1)
-def available() -> bool:
-    """Can this process build the sandbox? Root on Linux, and a mount namespace can really be made
-    (a root without CAP_SYS_ADMIN, as in an unprivileged container, cannot): tried once, in a
-    throwaway child."""
-    if not (sys.platform.startswith("linux") and os.geteuid() == 0 and libc() is not None):
-        return False
-    probe = ("import ctypes, ctypes.util, sys; libc = ctypes.CDLL(ctypes.util.find_library('c')); "
-             f"sys.exit(0 if libc.unshare({_CLONE_NEWNS}) == 0 else 1)")
+class SandboxUnavailable(SandboxError):
+    pass
+
+
+@dataclass(frozen=True)
+class Probe:
+    mode: str  # "root", "user" or "off"
+    userns: bool  # the sandbox goes through a user namespace ("user"; root builds the namespaces itself)
+    reason: str  # why "off"
+
+
+_PROBE = r"""
+import ctypes, os, sys
+lib = ctypes.CDLL(None, use_errno=True)
+def fail(what):
+    e = ctypes.get_errno(); print(f"{what}: {os.strerror(e)}", end=""); sys.exit(1)
+try:
+    import pyseccomp
+except Exception as e:
+    print(f"no seccomp library: {type(e).__name__}: {e}", end=""); sys.exit(1)
+userns = sys.argv[1] == "1"
+if userns:
+    uid, gid = os.geteuid(), os.getegid()
+    if lib.unshare(0x10000000 | 0x20000000): fail("unshare(user, pid namespaces)")
+    for name, text in (("setgroups", "deny"), ("uid_map", f"{uid} {uid} 1"), ("gid_map", f"{gid} {gid} 1")):
+        with open(f"/proc/self/{name}", "w") as f: f.write(text)
+elif lib.unshare(0x20000000): fail("unshare(pid namespace)")
+pid = os.fork()
+if pid == 0:
+    if lib.unshare(0x20000 | 0x40000000 | 0x08000000 | 0x04000000): fail("unshare(mount, network, ipc, uts)")
+    if lib.mount(b"none", b"/", None, 0x4000 | 0x40000, None): fail("private mounts")
+    if lib.mount(b"tmpfs", b"/tmp", b"tmpfs", 0, b"size=1m"): fail("tmpfs")
+    os._exit(0)
+sys.exit(os.waitpid(pid, 0)[1] >> 8)
+"""
+
+
+def _try_probe(userns: bool) -> tuple[bool, str]:
     try:
-        return subprocess.run([sys.executable, "-c", probe], timeout=20, capture_output=True).returncode == 0
-    except (OSError, subprocess.TimeoutExpired):
+        run = subprocess.run([sys.executable, "-c", _PROBE, "1" if userns else "0"], timeout=20,
+                             capture_output=True, text=True, env={"PATH": os.environ.get("PATH", "/usr/bin:/bin")})
+    except (OSError, subprocess.TimeoutExpired) as e:
+        return False, f"{type(e).__name__}: {e}"
+    return run.returncode == 0, (run.stdout or run.stderr).strip()[-300:]
+
+
+def _userns_hint() -> str:
+    for path, bad, why in (("/proc/sys/user/max_user_namespaces", "0", "user.max_user_namespaces is 0"),
+                           ("/proc/sys/kernel/unprivileged_userns_clone", "0", "kernel.unprivileged_userns_clone is 0"),
+                           ("/proc/sys/kernel/apparmor_restrict_unprivileged_userns", "1",
+                            "AppArmor restricts unprivileged user namespaces")):
+        try:
+            if Path(path).read_text().strip() == bad:
+                return f" ({why})"
+        except OSError:
+            pass
+    return ""
+
+
+@functools.lru_cache(maxsize=1)
+def probe() -> Probe:
+    """What sandbox this process can build, tried once in throwaway children."""
+    if not sys.platform.startswith("linux"):
+        return Probe("off", False, f"namespaces are Linux's; this is {sys.platform}")
+    if os.geteuid() == 0:
+        ok, why = _try_probe(userns=False)
+        return Probe("root", False, "") if ok else Probe("off", False, f"the kernel refused the sandbox's namespaces: {why}")
+    ok, why = _try_probe(userns=True)
+    if ok:
+        return Probe("user", True, "")
+    return Probe("off", False, f"the kernel refused a user namespace to this user: {why}{_userns_hint()}")
+
+
+def available() -> bool:
+    """Whether this process can sandbox RApps (as root, or through user namespaces)."""
+    return probe().mode != "off"
+
+
+def default_mode() -> str:
+    """The best sandbox here; "off" only where the kernel allows none AND the user allowed running
+    RApps unsandboxed (RAPP_ALLOW_UNSANDBOXED=1, `--allow-unsandboxed`): SandboxUnavailable else."""
+    found = probe()
+    if found.mode == "off" and os.environ.get(ALLOW_UNSANDBOXED_ENV) != "1":
+        raise SandboxUnavailable(f"RApps cannot be sandboxed here: {found.reason}; "
+                                 "--allow-unsandboxed runs them with this user's rights (development only)")
+    return found.mode
+
+
+@functools.lru_cache(maxsize=1)
+def describe() -> str:
+    """One line: the sandbox this machine gives RApps, and what is missing (said once at start)."""
+    from .cgroups import support
+
+    found = probe()
+    if found.mode == "off":
+        return f"RApp sandbox: OFF ({found.reason})"
+    who = "a fresh uid per run" if found.mode == "root" else "the user's uid"
+    ns = "user, pid, mount, network, ipc, uts namespaces" if found.userns else "pid, mount, network, ipc, uts namespaces"
+    text = f"RApp sandbox: {found.mode} ({who}; {ns}; seccomp); {support().describe()}"
+    if found.reason:
+        text += f"; {found.reason}"
+    return text
+
+
+def allow_unsandboxed(asked: bool, prog: str) -> bool:
+    """A command's --allow-unsandboxed: the sandbox is used wherever the kernel allows one (the flag
+    then changes nothing); where it allows none, the run goes on unsandboxed only if asked, with the
+    reason printed either way. False: refused (the caller exits)."""
+    found = probe()
+    if found.mode != "off":
+        if asked:
+            print(f"{prog}: --allow-unsandboxed ignored: RApps are sandboxed here ({found.mode} mode)",
+                  file=sys.stderr, flush=True)
+        return True
+    if not asked:
+        print(f"{prog}: RApps cannot be sandboxed on this machine: {found.reason}. --allow-unsandboxed runs "
+              "them with this user's rights (development only)", file=sys.stderr, flush=True)
         return False
+    os.environ[ALLOW_UNSANDBOXED_ENV] = "1"
+    print(f"WARNING: {prog}: RApps run UNSANDBOXED, with this user's rights: {found.reason}", file=sys.stderr, flush=True)
+    return True
 
 
-def _check(ret: int, what: str) -> None:
-    if ret != 0:
-        err = ctypes.get_errno()
-        raise OSError(err, f"{what}: {os.strerror(err)}")
+def say_once() -> None:
+    """Log the sandbox's line once per process, as a warning when something is missing."""
+    if getattr(say_once, "done", False):
+        return
+    say_once.done = True
+    from .cgroups import support
+
+    line = describe()
+    (log.warning if (probe().mode == "off" or support().missing or probe().reason) else log.info)(line)
+
+
+@functools.lru_cache(maxsize=1)
+def _libseccomp() -> str | None:
+    from .confine import library_path
+    return library_path()
 
 
 def _project_root() -> Path:
@@ -92,27 +210,60 @@ def _python_dirs() -> list[str]:
 
 @dataclass
 class Sandbox:
-    """How RApp processes are confined: `enabled=False` keeps only rlimits and the scrubbed
-    environment (development machines without root)."""
+    """How RApp processes are confined (`mode`: "root", "user" or "off", agents/confine.py); by
+    default the best this machine allows (`default_mode`)."""
 
-    enabled: bool = field(default_factory=available)
+    mode: str = field(default_factory=default_mode)
     tmpfs_mb: int = 256  # /app/tmp and the sandbox root live in RAM: capped
+    max_connections: int = 1  # XMPP connections a RApp process may hold at once (its agent's)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"sandbox mode must be one of {MODES}, not {self.mode!r}")
+        if self.enabled:
+            say_once()
+
+    @property
+    def enabled(self) -> bool:
+        return self.mode != "off"
+
+    @property
+    def userns(self) -> bool:
+        return self.mode == "user"
+
+    def xmpp_routes(self, settings) -> list[tuple[str, int, str, int]]:
+        """(host, port inside the sandbox, the server's host, port) for the server and each fallback."""
+        out, taken = [], set()
+        for host, port in settings.addresses():
+            inner, n = INNER_HOST, 1
+            while (inner, port) in taken:
+                n += 1
+                inner = f"127.0.0.{n}"
+            taken.add((inner, port))
+            out.append((inner, port, host, port))
+        return out
 
     def env(self, settings, extra: dict[str, str] | None = None) -> dict[str, str]:
-        """The child's whole environment: an allow-list, never a copy of the parent's."""
+        """The child's whole environment: an allow-list, never a copy of the parent's. Sandboxed,
+        the XMPP server is reached on loopback inside the run's network namespace."""
         env = {k: os.environ[k] for k in ENV_ALLOWED if k in os.environ}
         env.setdefault("PATH", "/usr/local/bin:/usr/bin:/bin")
-        home = APP_DIR if self.enabled else None
         env.update(PYTHONPATH=str(_project_root()), PYTHONDONTWRITEBYTECODE="1", PYTHONNOUSERSITE="1")
-        if home:
-            env.update(HOME=home, TMPDIR=f"{home}/tmp", MPLCONFIGDIR=f"{home}/tmp")
+        if self.enabled:
+            env.update(HOME=APP_DIR, TMPDIR=f"{APP_DIR}/tmp", MPLCONFIGDIR=f"{APP_DIR}/tmp")
         env.update(settings.to_env(fields=("host", "port", "fallback", "domain", "auto_register",
                                             "verify_tls", "force_xmpp", "start_timeout")))
+        if self.enabled:
+            routes = self.xmpp_routes(settings)
+            env.update(RAPP_XMPP_HOST=routes[0][0], RAPP_XMPP_PORT=str(routes[0][1]))
+            if len(routes) > 1:
+                env["RAPP_XMPP_FALLBACK"] = ",".join(f"{h}:{p}" for h, p, _, _ in routes[1:])
         env.update(extra or {})
         return env
 
     def new_uid(self) -> int | None:
-        return UID_BASE + secrets.randbelow(1 << 20) if self.enabled else None
+        """A fresh uid for a run (root mode); None where runs keep the user's own."""
+        return UID_BASE + secrets.randbelow(1 << 20) if self.mode == "root" else None
 
     def prepare(self, workdir: Path, uid: int | None) -> None:
         """Give the run's directory to its uid (0700): no other run can read it."""
@@ -122,20 +273,23 @@ class Sandbox:
             return
         give_tree(workdir, uid)
         os.chmod(workdir, 0o700)
-        root = workdir / ".root"  # mount point of the sandbox's root
-        if root.is_symlink() or (root.exists() and not root.is_dir()):
-            root.unlink()  # left by the run's last process (a Cloud Agent restarts in its directory)
-        root.mkdir(exist_ok=True)
-        os.lchown(root, 0, 0)
 
-    def confinement(self, uid: int | None, limits, nice: int = 0) -> str:
-        """What a RApp process applies to itself at its start (`confine`), for its environment
-        (CONFINE_ENV). Not a `preexec_fn`: with one, CPython cannot vfork, and the fork of a large
-        Core or Platform (50 ms for a Platform's 220 MB) holds the GIL, and the logging modules'
-        at-fork locks, all along: the parent's event loop stood still for each spawn."""
-        return json.dumps({"uid": uid, "tmpfs_mb": self.tmpfs_mb, "nice": nice,
-                           "binds": self._binds() if uid is not None else [],
-                           "limits": dataclasses.asdict(limits), "parent": os.getpid()})
+    def confinement(self, uid: int | None, limits, nice: int = 0, *, settings=None, cgroup=None,
+                    report_fd: int | None = None, child_fds: tuple[int, ...] = ()) -> str:
+        """What a RApp process applies to itself at its start (agents/confine.py), for its
+        environment (CONFINE_ENV). Not a `preexec_fn`: with one, CPython cannot vfork, and the fork of
+        a large Core or Platform (50 ms for a Platform's 220 MB) holds the GIL, and the logging
+        modules' at-fork locks, all along: the parent's event loop stood still for each spawn.
+        `report_fd`: the sandbox's events for its Core/Platform; `child_fds`: the runtime's pipes
+        (the sandbox's outer process closes its copies)."""
+        asked = {"mode": self.mode, "uid": uid, "tmpfs_mb": self.tmpfs_mb, "nice": nice,
+                 "limits": dataclasses.asdict(limits), "parent": os.getpid()}
+        if self.enabled:
+            asked.update(userns=self.userns, binds=self._binds(), libseccomp=_libseccomp(), report_fd=report_fd, child_fds=list(child_fds),
+                         xmpp=self.xmpp_routes(settings) if settings is not None else [],
+                         max_connections=self.max_connections,
+                         cgroup_procs=cgroup.procs_files() if cgroup is not None else [])
+        return json.dumps(asked)
 
     def _binds(self) -> list[tuple[str, str, bool]]:
         """(source, target inside the sandbox, writable) for every bind of the sandbox's root."""
@@ -144,7 +298,7 @@ class Sandbox:
         out += [(p, p, False) for p in _python_dirs() if not any(p.startswith(s + "/") for s in SYSTEM)]
         out += [(str(root / pkg), str(root / pkg), False) for pkg in PROJECT_PACKAGES if (root / pkg).is_dir()]
         out += [(f"/dev/{d}", f"/dev/{d}", True) for d in DEVICES if os.path.exists(f"/dev/{d}")]
-        return out  # and the run's directory as /app: the process's cwd (`confine`)
+        return out  # and the run's directory as /app: the process's cwd (agents/confine.py)
 
 
 def open_run_file(path: Path, mode: str):
@@ -175,63 +329,123 @@ CONFINE_ENV = "RAPP_CONFINE"
 
 def confine() -> None:
     """Confine this process as its Core or Platform asked (CONFINE_ENV; nothing asked, nothing
-    done): rlimits, then (a sandbox uid) the mount namespace and its root, the uid, no_new_privs;
-    then the parent-death signal (the uid change clears it) and the priority. As root, before any
-    RApp code: the runtime calls it first thing. Any failure ends the process (126), with the reason
-    in its stderr.log: it never goes on unconfined."""
+    done): rlimits and the priority, then the sandbox (agents/confine.py), which returns in the
+    runtime's own process only. Before any RApp code: the runtime calls it first thing. Any failure
+    ends the process (126), with the reason in its stderr.log: it never goes on unconfined."""
     raw = os.environ.pop(CONFINE_ENV, None)
     if raw is None:
         return
     try:
+        from . import confine as inside
         from .process import Limits
         from .priority import set_group_nice
 
         asked = json.loads(raw)
-        uid, lib = asked["uid"], libc()
-        if asked["nice"]:  # its session's group, while root (no rate limit); its threads' below
+        if asked["nice"]:  # its session's group, while it may (no rate limit as root); its threads' later
             set_group_nice(os.getpid(), os.getpriority(os.PRIO_PROCESS, 0) + asked["nice"])
-        Limits(**asked["limits"]).apply(own_uid=uid is not None)
-        if uid is not None:
-            # the run's directory as the cwd Popen gave (relative paths), not by its name: a warm
-            # worker's directory is renamed at its hand-off, which may come before it got this far
-            _enter(lib, Path(".root"), [*asked["binds"], (".", APP_DIR, True)], asked["tmpfs_mb"])
-            os.setgroups([])
-            os.setresgid(uid, uid, uid)
-            os.setresuid(uid, uid, uid)
-            _check(lib.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")
-        if lib is not None:  # after the uid change, which clears it: dies with its Core/Platform
-            _check(lib.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0), "parent-death signal")
-            if os.getppid() != asked["parent"]:
-                os._exit(125)  # the parent died before the signal was armed
-        if asked["nice"]:
-            os.nice(asked["nice"])  # lowering needs no privilege; after the uid change: the run's own
+        Limits(**asked["limits"]).apply(own_uid=asked["mode"] != "off")
+        if asked["mode"] == "off":
+            inside.unconfined(asked)
+        else:
+            inside.sandboxed(asked)
     except BaseException as e:  # noqa: BLE001 - say why in stderr.log, never go on unconfined
         os.write(2, f"rapp sandbox: {type(e).__name__}: {e}\n".encode())
         os._exit(126)
 
 
-def _enter(libc, new_root: Path, binds, tmpfs_mb: int) -> None:
-    """Private mount namespace, a tmpfs root with the binds, chroot into it, cwd /app."""
-    _check(libc.unshare(_CLONE_NEWNS), "unshare(mount namespace)")
-    _check(libc.mount(b"none", b"/", None, _MS_REC | _MS_PRIVATE, None), "make mounts private")
-    root = str(new_root).encode()
-    _check(libc.mount(b"tmpfs", root, b"tmpfs", _MS_NOSUID | _MS_NODEV,
-                      f"size={tmpfs_mb}m,mode=0755".encode()), "tmpfs root")
-    for link in ("bin", "sbin", "lib", "lib64", "lib32", "libx32"):  # merged-/usr symlinks
-        if os.path.islink(f"/{link}"):
-            os.symlink(os.readlink(f"/{link}"), f"{new_root}/{link}")
-    for src, target, writable in binds:
-        dest = f"{new_root}{target}"
-        if os.path.isdir(src):
-            os.makedirs(dest, exist_ok=True)
-        else:
-            os.makedirs(os.path.dirname(dest), exist_ok=True)
-            open(dest, "a").close()
-        _check(libc.mount(src.encode(), dest.encode(), None, _MS_BIND | _MS_REC, None), f"bind {src}")
-        flags = _MS_BIND | _MS_REMOUNT | _MS_NOSUID | (0 if writable else _MS_RDONLY)
-        _check(libc.mount(None, dest.encode(), None, flags, None), f"remount {target}")
-    tmp = f"{new_root}/tmp"
-    os.makedirs(tmp, exist_ok=True)
-    os.chmod(tmp, 0o1777)
-    os.chroot(root)
-    os.chdir(APP_DIR)
+# -- what a trusted process copies out of a run --------------------------------------------------
+MAX_COPY_FILE = 64 * 1024**2
+MAX_COPY_TOTAL = 256 * 1024**2
+MAX_COPY_FILES = 10_000
+
+
+def copy_outputs(src: str | Path, dest: str | Path, *, owner: int | None = None, max_file: int = MAX_COPY_FILE,
+                 max_total: int = MAX_COPY_TOTAL, max_files: int = MAX_COPY_FILES) -> tuple[list[str], list[str]]:
+    """A run's output directory (the RApp's to fill) copied by a trusted process: regular files only,
+    opened without following any link (O_NOFOLLOW, and by directory descriptors: a directory swapped
+    for a link is not walked), one link only (a hard link to a file elsewhere is not copied), owned
+    by the run's uid where it had one, each and all size-capped. Never raises: (copied, skipped with
+    why), paths relative to dest."""
+    copied: list[str] = []
+    skipped: list[str] = []
+    total = 0
+    dest = Path(dest)
+    try:
+        top = os.open(src, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    except OSError as e:
+        return [], [f".: {e.strerror or e}"]
+    try:
+        stack = [(top, "")]
+        while stack:
+            dirfd, rel = stack.pop()
+            try:
+                names = sorted(os.listdir(dirfd))
+            except OSError as e:
+                skipped.append(f"{rel or '.'}: {e.strerror}")
+                names = []
+            for name in names:
+                path = f"{rel}{name}"
+                if len(copied) + len(skipped) >= max_files:
+                    skipped.append(f"{path}: more than {max_files} entries")
+                    break
+                try:
+                    st = os.stat(name, dir_fd=dirfd, follow_symlinks=False)
+                    if stat.S_ISDIR(st.st_mode):
+                        if owner is not None and st.st_uid != owner:
+                            raise _Skip("not the run's")
+                        sub = os.open(name, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=dirfd)
+                        stack.append((sub, path + "/"))
+                        continue
+                    total += _copy_one(dirfd, name, dest / path, st, owner, max_file, max_total - total)
+                    copied.append(path)
+                except _Skip as e:
+                    skipped.append(f"{path}: {e}")
+                except OSError as e:
+                    skipped.append(f"{path}: {e.strerror or e}")
+            if dirfd != top:
+                os.close(dirfd)
+    except Exception as e:  # noqa: BLE001 - the copy never brings its caller down
+        skipped.append(f"copy stopped: {type(e).__name__}: {e}")
+    finally:
+        os.close(top)
+    return copied, skipped
+
+
+class _Skip(Exception):
+    pass
+
+
+def _copy_one(dirfd: int, name: str, to: Path, st, owner: int | None, max_file: int, room: int) -> int:
+    if stat.S_ISLNK(st.st_mode):
+        raise _Skip("a symbolic link")
+    if not stat.S_ISREG(st.st_mode):
+        raise _Skip("not a regular file")
+    if st.st_nlink != 1:
+        raise _Skip("a hard link")
+    if owner is not None and st.st_uid != owner:
+        raise _Skip("not the run's")
+    if st.st_size > min(max_file, room):
+        raise _Skip(f"{st.st_size} bytes: over the cap of {min(max_file, room)}")
+    fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK, dir_fd=dirfd)
+    try:
+        again = os.fstat(fd)
+        if (again.st_ino, again.st_dev) != (st.st_ino, st.st_dev) or not stat.S_ISREG(again.st_mode):
+            raise _Skip("changed while copied")
+        to.parent.mkdir(parents=True, exist_ok=True)
+        out = os.open(to, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o644)
+        n = 0
+        try:
+            while n <= max_file:
+                chunk = os.read(fd, 1 << 20)
+                if not chunk:
+                    break
+                os.write(out, chunk)
+                n += len(chunk)
+        finally:
+            os.close(out)
+        if n > min(max_file, room):
+            os.unlink(to)
+            raise _Skip("grew over the cap while copied")
+        return n
+    finally:
+        os.close(fd)

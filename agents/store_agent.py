@@ -19,6 +19,7 @@ from ontology.errors import ErrorCode
 
 from .base import RappAgent
 from .errors import Failure, Refusal, RequestError
+from .identity import is_rapp_account, trace_refusal
 from .responder import Responder
 from .store_repository import StoreError, StoreRepository
 
@@ -82,8 +83,13 @@ class StoreAgent(RappAgent):
     async def _repo(self, fn, *args, **kw):
         return await asyncio.to_thread(fn, *args, **kw)
 
+    def note_refusal(self, sender: str, action: str, refusal) -> None:
+        trace_refusal(self, sender, action, refusal)
+
     # -- owners and robots --------------------------------------------------------------------
     async def register_owner(self, req: S.RegisterOwner, ctx) -> Done:
+        if is_rapp_account(ctx.sender):
+            raise Refusal("a RApp run cannot register Store owners", ErrorCode.FORBIDDEN)
         try:
             await self._repo(self.repo.register_owner, req.owner, password=req.password,
                              public_key=req.public_key)
@@ -93,6 +99,18 @@ class StoreAgent(RappAgent):
         return Done()
 
     async def register_robot(self, req: S.RegisterRobot, ctx) -> Done:
+        """Only the owner's own agent registers a robot: a sender holding the owner's Platform login
+        token (a Core logged in as its owner; never a RApp, whose token is a RApp's)."""
+        if is_rapp_account(ctx.sender):
+            raise Refusal("a RApp run cannot register robots", ErrorCode.FORBIDDEN)
+        if not req.token:
+            raise Refusal("registering a robot needs the owner's Platform login token", ErrorCode.NO_TOKEN)
+        try:
+            holder = await self.request(self.platform, VerifyToken(token=req.token), timeout=10.0)
+        except RequestError as e:
+            raise Refusal(f"robot registration refused: {e.reason}", ErrorCode.BAD_TOKEN) from None
+        if holder.holder != ctx.sender or holder.rapp is not None or holder.user != req.owner:
+            raise Refusal(f"{ctx.sender} is not logged in to the Platform as {req.owner}", ErrorCode.FORBIDDEN)
         await self._repo(self.repo.register_robot, req.robot_id, req.robot_type, req.owner)
         self.record_structure("register", robot=req.robot_id, robot_type=req.robot_type,
                               by=ctx.sender, at="store")

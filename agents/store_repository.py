@@ -31,6 +31,8 @@ from ontology.package import (DEFAULT_MAX_SIZE, Package, PackageError, load_publ
                            read_package, sha256_hex)
 from ontology.errors import ErrorCode
 
+from .schema import migrate
+
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS owners (
     name TEXT PRIMARY KEY,
@@ -73,6 +75,8 @@ CREATE TABLE IF NOT EXISTS owner_jids (
     jid TEXT NOT NULL
 );
 """
+# schema versions (agents/schema.py): step 1 is the layout from before versions were kept
+MIGRATIONS: tuple = (_SCHEMA,)
 _VERSION_COLS = ("name, version, description, robot_types, keywords, phrases, manifest, sha256, size, "
                  "signer_key_id, signer_public_key, published_by, published_at, downloads")
 _ORDER = "major DESC, minor DESC, patch DESC"
@@ -169,10 +173,12 @@ class StoreRepository:
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.execute("PRAGMA foreign_keys=ON")
-        with self._tx() as db:
-            for statement in _SCHEMA.split(";"):
-                if statement.strip():
-                    db.execute(statement)
+        with self._lock:
+            try:
+                migrate(self._db, MIGRATIONS, f"the Store's database {self.data_dir / 'store.db'}")
+            except BaseException:
+                self._db.close()
+                raise
 
     # ------------------------------------------------------------------ plumbing
     def close(self) -> None:

@@ -1,7 +1,12 @@
-"""Message and structure traces: one JSON object per line, appended by every agent of a run.
+"""Message and structure traces: one JSON object per line, appended by every trusted agent of a run.
 
-Agents of several processes (Core, Dynamic, Cloud) append to the same file; each line is written
-with one write() on a file opened in append mode, so lines from different processes do not mix.
+Trusted agents of several processes (Core, Platform, Store) append to the same file; each line is
+written with one write() on a file opened in append mode, so lines from different processes do not
+mix. A RApp process (Dynamic, Cloud Agent) holds no descriptor of the file: its records go down a
+pipe its Core or Platform reads (`TraceRelay`), which writes each one itself, stamped with the
+RApp's identity (`origin`: its JID; `agent` forced to it, what the line claimed kept as
+`claimed_agent`; `pid` and `t` its own): a RApp's line can never pass as another agent's, and a
+reader tells untrusted records by their `origin`.
 
 The records (their kinds, fields and event names: ontology.trace.RecordKind, StructureEvent...) are
 typed in ontology/trace.py. Writing does not validate them (a record is written for every
@@ -93,8 +98,8 @@ _inherited: TraceWriter | None = None
 
 
 def inherit_trace_fd(fd: int) -> None:
-    """A sandboxed RApp process writes the run's trace through a descriptor its parent opened
-    (append-only): its agents use it where they name no trace file."""
+    """A RApp process writes its trace records down the pipe its Core or Platform reads
+    (`TraceRelay`): its agents use it where they name no trace file."""
     global _inherited
     _inherited = TraceWriter(None, fd)
 
@@ -110,6 +115,80 @@ def tracer_for(path: str | Path | None) -> TraceWriter:
         if w is None or not w.enabled:
             w = _writers[key] = TraceWriter(key)
         return w
+
+
+class TraceRelay:
+    """The trusted end of a RApp process's trace pipe: each line read becomes a record written by
+    `writer` (the Core's or Platform's), stamped with `who()` (the RApp's JID now: a warm worker
+    takes its run's at the hand-off) and `pid()`. What cannot be a record is kept as a `log` record
+    saying so; a line over MAX_LINE is cut; past MAX_BYTES a run's records are dropped, once said."""
+
+    MAX_LINE = 256 * 1024
+    MAX_BYTES = 64 * 1024**2
+
+    def __init__(self, fd: int, writer: TraceWriter, who, pid):
+        self.fd, self.writer, self.who, self.pid = fd, writer, who, pid
+        self._buf = b""
+        self._bytes = 0
+        self._loop = None
+
+    def start(self, loop) -> None:
+        os.set_blocking(self.fd, False)
+        self._loop = loop
+        loop.add_reader(self.fd, self._readable)
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self.fd, 262144)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self.close()
+            return
+        self._buf += data
+        *lines, self._buf = self._buf.split(b"\n")
+        if len(self._buf) > self.MAX_LINE:
+            lines.append(self._buf[:self.MAX_LINE])
+            self._buf = b""
+        for line in lines:
+            if line.strip():
+                self._one(line[:self.MAX_LINE])
+
+    def close(self) -> None:
+        if self._loop is None:
+            return
+        self._loop.remove_reader(self.fd)
+        self._loop = None
+        if self._buf.strip():
+            self._one(self._buf[:self.MAX_LINE])
+        self._buf = b""
+        os.close(self.fd)
+
+    def _one(self, line: bytes) -> None:
+        self._bytes += len(line)
+        if self._bytes > self.MAX_BYTES:
+            if self._bytes - len(line) <= self.MAX_BYTES:
+                self.writer.record(RecordKind.LOG, agent=self.who(), origin=self.who(), level="WARNING",
+                                   message=f"trace records past {self.MAX_BYTES} bytes dropped")
+            return
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            rec = None
+        if not isinstance(rec, dict):
+            rec = {"kind": RecordKind.LOG, "level": "WARNING",
+                   "message": "not a trace record: " + line[:300].decode(errors="replace")}
+        who = self.who()
+        if rec.get("agent") not in (None, who):
+            rec["claimed_agent"] = rec["agent"]
+        rec.pop("origin", None)
+        rec.update(t=round(time.time(), 6), pid=self.pid(), agent=who, origin=who)
+        try:
+            self.writer._write((_ENCODE(rec) + "\n").encode())  # noqa: SLF001 - one line, one write
+        except (TypeError, ValueError, OSError):
+            pass
 
 
 _SECRET = re.compile(r'("(?:password|token)"\s*:\s*")[^"]*(")')

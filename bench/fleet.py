@@ -165,8 +165,8 @@ class HazardFleet:
 
     async def add_robots(self, count: int) -> None:
         from robots import OdometryNoise, RobotAPI, World
-        from scenarios.hazard import core_listening
         from scenarios.home_setup import hazard_overrides, home_description, upload_home, upload_home_over_xmpp
+        from scenarios.runner import listening
         from scenarios.system import wait_until
 
         new = []
@@ -187,29 +187,30 @@ class HazardFleet:
                 upload_home(self.state, user, *self.home)
             new.append(await self.system.add_robot(kind, api=RobotAPI(robot), robot_id=f"{kind}{i + 1}", user=user))
         for h in new:
-            await wait_until(lambda h=h: core_listening(h.core), 60, f"{h.robot_id} listening")
+            await h.user.watch_tasks(h.core.address)  # the Core's task records (ontology/results.py)
+            await wait_until(lambda h=h: listening(h.core), 60, f"{h.robot_id} listening")
             if self.apart:  # as the owner's app does it: over XMPP, with the owner's token
                 await upload_home_over_xmpp(h.core, h.core.platform, await h.core.fresh_token(), *self.home)
         self.robots.extend(new)
 
     async def check_hazards(self, i: int, timeout: float) -> dict:
-        """Robot i's owner says "check the hazards"; how the task ended."""
-        from scenarios.hazard import COMMAND, FINISHED, core_listening
+        """Robot i's owner says "check the hazards"; how the task ended (its TaskRecord's state and reports)."""
+        from scenarios.hazard import COMMAND
+        from scenarios.runner import listening
         from scenarios.system import wait_until
 
         h = self.robots[i]
-        start = len(h.user.received)
+        start = len(h.user.ended)
         await h.user.say(h.core.address, COMMAND)
-        end = await h.user.wait_for(lambda t: t.startswith(FINISHED) or "did not understand" in t,
-                                    timeout=timeout, start=start)
-        await wait_until(lambda: core_listening(h.core) and h.core.dynamic is None, 60, f"{h.robot_id} listening again")
-        return {"finished": end.startswith("hazard-detection finished"), "end": end}
+        record = await h.user.task_end(timeout, start)
+        await wait_until(lambda: listening(h.core) and h.core.dynamic is None, 60, f"{h.robot_id} listening again")
+        return {"finished": record.state == "Finished", "end": record.told or record.reason, "reports": record.reports}
 
-    def all_correct(self, i: int, records: list[dict]) -> bool:
-        """Robot i's reports in `records` (this round's trace) against its world's truth."""
+    def all_correct(self, i: int, run: dict) -> bool:
+        """Robot i's reports of this round against its world's truth."""
         from scenarios.hazard import hazard_reports, reported, score_hazards
 
-        reports = hazard_reports(records, self.robots[i].core.address)
+        reports = hazard_reports(run["reports"])
         rows = score_hazards(self.home[0].hazards, self.worlds[i].ground_truth(), reported(reports))
         return all(r["true_state"] == r["reported_state"] for r in rows)
 
@@ -240,7 +241,7 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
               if isinstance(r, BaseException) or not r["finished"]]
     records = [r for r in await asyncio.to_thread(read_trace, fleet.trace_file) if r["t"] >= since]  # this round
     wrong = [fleet.robots[i].robot_id for i, r in enumerate(runs)
-             if isinstance(r, dict) and not fleet.all_correct(i, records)]
+             if isinstance(r, dict) and not fleet.all_correct(i, r)]
     lat, missing = request_latencies(records, since, fleet.system.platform_address)
     ok = not failed and not missing and len(lat["platform"]) >= n
     # silences of live Dynamic Agents the Core waited out instead of ending them (agents/liveness.py)

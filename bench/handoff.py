@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import socket
 import subprocess
 import sys
 import tempfile
@@ -140,6 +141,74 @@ async def measure(n: int) -> tuple[dict[str, list[dict]], list[float]]:
     return measured, floors
 
 
+# what the sandbox's own start costs (agents/confine.py: namespaces, root, control group, filter, the
+# XMPP forwarding), with nothing else: a process that confines itself and connects once to a listener
+# standing for the server, against the same process unsandboxed (mode "off"), alternating
+SANDBOX_PROBE = (
+    "import os, socket, sys, time\n"
+    "from agents.sandbox import confine\n"
+    "confine()\n"
+    "t = time.time()\n"
+    "s = socket.create_connection((os.environ['RAPP_XMPP_HOST'], int(os.environ['RAPP_XMPP_PORT'])))\n"
+    "s.sendall(b'x'); s.recv(1)\n"
+    "print(t, time.time() - t, flush=True)\n")
+
+
+async def measure_sandbox(n: int) -> tuple[str, dict[str, list[float]]]:
+    """(the sandbox's mode, {mode: [ms from Popen to confined], "connect_<mode>": [ms of a connection
+    and one round trip to the server]}): what confinement and the forwarding add to a cold start."""
+    from agents.process import AgentProcess
+    from agents.sandbox import Sandbox, probe
+    from ontology.spawn import SpawnSpec
+    from xmpp_server.settings import XmppSettings
+
+    mode = probe().mode
+    if mode == "off":
+        return mode, {}
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(64)
+    server.setblocking(False)
+    loop = asyncio.get_running_loop()
+
+    async def echo():
+        while True:
+            conn, _ = await loop.sock_accept(server)
+            loop.create_task(_echo_once(loop, conn))
+
+    echoer = loop.create_task(echo())
+    settings = XmppSettings(host="127.0.0.1", port=server.getsockname()[1])
+    out: dict[str, list[float]] = {}
+    with tempfile.TemporaryDirectory(prefix="rapp-bench-sandbox-") as tmp:
+        for i in range(n):
+            for m in (mode, "off"):
+                work = Path(tmp) / f"{i:03d}-{m}"
+                (work / "package").mkdir(parents=True)
+                spec = SpawnSpec(kind="dynamic", name="dyn-bench", password="x", package_dir="",
+                                 core="core@localhost", platform="platform@localhost", token="t")
+                proc = AgentProcess("bench", spec, work, settings, sandbox=Sandbox(mode=m))
+                proc.argv = [sys.executable, "-P", "-c", SANDBOX_PROBE]
+                t0 = time.time()
+                await proc.start()
+                await proc.wait()
+                line = (work / "stdout.log").read_text().split()
+                if len(line) == 2:
+                    out.setdefault(m, []).append((float(line[0]) - t0) * 1e3)
+                    out.setdefault(f"connect_{m}", []).append(float(line[1]) * 1e3)
+    echoer.cancel()
+    server.close()
+    return mode, out
+
+
+async def _echo_once(loop, conn) -> None:
+    try:
+        data = await loop.sock_recv(conn, 16)
+        await loop.sock_sendall(conn, data)
+    except OSError:
+        pass
+    conn.close()
+
+
 def totals_ms(ph: list[dict]) -> list[float]:
     return [(p["state"] - p["command"]) * 1e3 for p in ph]
 
@@ -154,7 +223,17 @@ async def run(quick: bool = True, n: int | None = None) -> list[dict]:
         f"goal <= {GOAL_MS:.0f} ms and <= {GOAL_RATIO:g}x); phases {wx}")
     log(f"handoff_inprocess median {imed:.1f} ms (goal <= {INPROCESS_GOAL_MS:.0f} ms); phases {ix}")
     log(f"handoff_cold median {cmed:.0f} ms, floor (python + SPADE + login) {fmed:.0f} ms; phases {cx}")
-    return [metric("handoff", wmed, "ms", imed, ratio(wmed, imed), n, samples=warm, goal_ratio=GOAL_RATIO,
+    mode, box = await measure_sandbox(n)
+    extra = []
+    if box.get(mode) and box.get("off"):
+        smed, omed = median(box[mode]), median(box["off"])
+        cs, co = median(box[f"connect_{mode}"]), median(box["connect_off"])
+        log(f"sandbox_start ({mode}) median {smed:.1f} ms from Popen to confined, unsandboxed {omed:.1f} ms; "
+            f"a connection and one round trip to the server {cs:.2f} ms through the sandbox, {co:.2f} ms without")
+        extra = [metric("sandbox_start", smed, "ms", omed, ratio(smed, omed), n, samples=box[mode], mode=mode,
+                        connect_ms=cs, connect_unsandboxed_ms=co, samples_unsandboxed=box["off"],
+                        note="context: a cold start's confinement (warm workers pay it ahead of the hand-off)")]
+    return extra + [metric("handoff", wmed, "ms", imed, ratio(wmed, imed), n, samples=warm, goal_ratio=GOAL_RATIO,
                    goal_ms=GOAL_MS, floor_is="in-process hand-off, same run", **wx),
             metric("handoff_inprocess", imed, "ms", INPROCESS_GOAL_MS, ratio(imed, INPROCESS_GOAL_MS), n,
                    samples=inproc, goal_ratio=1.0, **ix),

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import yaml
 
+from agents.sandbox import Sandbox
+
 from .common import RTT_PROBE, RobotSystem, log, median, metric, ms, percentile, ratio
 
 
@@ -43,7 +45,8 @@ async def run(quick: bool = True, calls: int | None = None) -> list[dict]:
         echo_name = f"floor-echo-{int(time.time() * 1000) % 10**8}"
         manifest["params"].update(calls=calls, echo=echo_name)
         (app / "manifest.yaml").write_text(yaml.safe_dump(manifest))
-        async with RobotSystem(Path(tmp) / "run", [app], trace=False) as rs:
+        # the probe RApp measures its floor with a plain client of its own: a second XMPP connection
+        async with RobotSystem(Path(tmp) / "run", [app], trace=False, sandbox=Sandbox(max_connections=2)) as rs:
             h = rs.robots[0]
             echo = await echo_client(rs.system.settings, echo_name)
             try:

@@ -16,7 +16,7 @@ import json
 import math
 import time
 
-import pybullet as p
+from robots.pybullet_quiet import p
 
 from ontology.robot import MoveVel
 from robots import RobotAPI, World

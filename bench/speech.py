@@ -86,7 +86,8 @@ def commands(path: str, n: int, seed: int) -> list[tuple[str, str, str, int, flo
 async def run(quick: bool, per_condition: int | None = None, noises: list[str] | None = None) -> list[dict]:
     import tempfile
 
-    from robots import RobotAPI, World, tts
+    from hearing import tts
+    from robots import RobotAPI, World
     from robots.sound import NoiseSource, house_sound, talker_at
     from scenarios.system import RappSystem, wait_until
 

@@ -6,6 +6,14 @@ more recordings per cell, so a change to a recogniser is judged on more than 10 
 
     python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong] [--rt60 S]
 
+Two more keyword paths, measured on request (--only): `supervision`, the Core's supervision words
+("stop", "cancel", "resume", ...) said alone, spotted as the Core spots them during a task, and
+everything else the owner says, which must not be taken for one; `words`, the cognitive game's
+answers said alone, found as the robot's word_spotting finds them (robots/microphones.py
+spot_in_audio: the recording cut by level, each piece decoded with the game's words), and the
+other sentences. `--accept X` puts every keyword spotter's threshold (hearing/keywords.py ACCEPT)
+under test.
+
 Recordings are cached in /tmp (keyed by the conditions, the synthesiser's output and the source of
 what renders and cuts them) so a second run decodes only. Not part of `python -m bench`: it measures
 recognisers, not the system."""
@@ -36,13 +44,31 @@ CACHE = Path("/tmp/rapp-speech-offline")
 VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
 ACOUSTICS: dict[str, float] = {}  # the house's reverberation under test (--rt60 0.5: rt60_s; --equal-tv: tv_db)
 ARRAY: dict = {}  # the NAO's four microphones and a beamformer under test (--beam mvdr|das, --loading)
-MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/receptors.py AudioInput)
+ACCEPT: dict[str, float] = {}  # the keyword threshold under test (--accept -0.02: accept)
+PATHS = ("keyword", "platform", "supervision", "words")
+# the cognitive game's answers said alone (its word_spotting hears numbers 0-300 as words or digits)
+ANSWERS = ("five", "six", "nine", "twelve", "twenty", "thirty five", "sixty", "one hundred", "pass")
+MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/microphones.py AudioInput)
 
 
 def items(path: str) -> list[tuple[str, str | None]]:
-    """(text, expected RApp) of one path; the other sentences for both."""
+    """(text, expected answer: a RApp, a supervision word's action, a number) of one path; the other
+    sentences for every path, and for the supervision words every command too."""
+    if path == "supervision":
+        from agents.core_agent import SUPERVISION_WORDS
+        commands = [(t, None) for ws, ps in VOCABULARY.values() for t in (*ws, *ps)]
+        return sorted(SUPERVISION_WORDS.items()) + commands + [(t, None) for t in OTHER]
+    if path == "words":
+        meaning = _answer_words()
+        return [(a, meaning[a]) for a in ANSWERS] + [(t, None) for t in OTHER]
     said = [(w, rapp) for rapp, (ws, ps) in VOCABULARY.items() for w in (ws if path == "keyword" else ps)]
     return said + [(t, None) for t in OTHER]
+
+
+def _answer_words() -> dict[str, str]:
+    """What the cognitive game listens for -> the answer it means (its own table)."""
+    from rapps.cognitive_game.cognitive_game.task import answer_words
+    return answer_words([])
 
 
 def conditions(path: str, quick: bool) -> list[tuple]:
@@ -75,10 +101,10 @@ def heard_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
     return [u for u, _, _ in timed_utterances(pcm, distance, noise_db)]
 
 
-def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
-    """heard_utterances, each as (HeardUtterance, the detector's time it started, its time it was cut)."""
+def _owner_in_the_house(pcm: np.ndarray | None, distance: float, noise_db: float | None):
+    """(the house with the owner saying `pcm` from 4 s on, the TV at `noise_db` or off, the seconds to
+    record, when the owner starts)."""
     from robots.floorplan import load_plan
-    from robots.receptors import VoiceActivity
     from robots.sound import HouseSound, NoiseSource, talker_at
     from robots.world import HOUSES
 
@@ -92,7 +118,21 @@ def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | 
         pcm = np.zeros(20 * 16000, np.int16)
     else:
         house.play("owner", talker_at(ROBOT_AT, distance, MIC_Z), pcm, at=at, level_db=60)
-    seconds = at + len(pcm) / 16000 + 1.5
+    return house, at + len(pcm) / 16000 + 1.5, at
+
+
+def recording(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> np.ndarray:
+    """The NAO's one microphone (as its word_spotting hears it) over the whole of heard_utterances' scene."""
+    house, seconds, _ = _owner_in_the_house(pcm, distance, noise_db)
+    return house.receive((*ROBOT_AT, MIC_Z), 0.0, seconds, mic="nao")
+
+
+def timed_utterances(pcm: np.ndarray | None, distance: float, noise_db: float | None = None) -> list:
+    """heard_utterances, each as (HeardUtterance, the detector's time it started, its time it was cut)."""
+    from hearing.vad import VoiceActivity
+    from robots.sound import talker_at
+
+    house, seconds, at = _owner_in_the_house(pcm, distance, noise_db)
     if ARRAY.get("beam") == "located":
         return _located(house, seconds)
     if ARRAY:
@@ -110,7 +150,8 @@ def _beamformed(house, owner, seconds: float, quiet_until: float) -> np.ndarray:
     """The NAO's four microphones (robots/mic_array.py), facing +x, steered to where the owner's mouth
     is (known here, as a sound localisation would estimate it), the noise estimated from the room
     before the owner speaks."""
-    from robots.mic_array import NAO_MICS, arrival_delays, heads_mics, mvdr
+    from hearing.steering import mvdr
+    from robots.mic_array import NAO_MICS, arrival_delays, heads_mics
 
     mics = heads_mics(NAO_MICS, 0.0) + np.array([*ROBOT_AT, MIC_Z])[None]
     channels = house.receive_array(mics, 0.0, seconds, mic="nao").astype(np.float64)
@@ -125,10 +166,11 @@ def _beamformed(house, owner, seconds: float, quiet_until: float) -> np.ndarray:
 def _located(house, seconds: float) -> list:
     """timed_utterances as the Core hears them with four microphones (agents/core_behaviours.py
     MicrophoneStream): the detector on the first, the room's dominant sound taken out, cuts the
-    utterance, which robots/mic_array.py Steering hears again with all four, steered to where it came
+    utterance, which hearing/steering.py Steering hears again with all four, steered to where it came
     from."""
-    from robots.mic_array import NAO_MICS, Steering, heads_mics
-    from robots.receptors import VoiceActivity
+    from hearing.steering import Steering
+    from hearing.vad import VoiceActivity
+    from robots.mic_array import NAO_MICS, heads_mics
 
     channels = house.receive_array(heads_mics(NAO_MICS, 0.0) + np.array([*ROBOT_AT, MIC_Z])[None], 0.0, seconds,
                                    mic="nao")
@@ -143,37 +185,46 @@ def _located(house, seconds: float) -> list:
 
 
 def _hearing_code() -> bytes:
-    """The source of what renders and cuts a recording (robots' and this harness's): a change to it makes
-    new recordings (the options under test alone missed a change of code with the same options)."""
+    """The source of what renders and cuts a recording (the house's sound, the detector and the array's
+    processing, this harness): a change to it makes new recordings (the options under test alone
+    missed a change of code with the same options)."""
+    import hearing.bands
+    import hearing.steering
+    import hearing.vad
     import robots.mic_array
-    import robots.receptors
     import robots.reverb
     import robots.sound
-    files = [Path(m.__file__) for m in (robots.mic_array, robots.receptors, robots.reverb, robots.sound)]
+    files = [Path(m.__file__) for m in (hearing.bands, hearing.steering, hearing.vad, robots.mic_array, robots.reverb,
+                                        robots.sound)]
     return hashlib.sha1(b"".join(f.read_bytes() for f in [*files, Path(__file__)])).digest()  # and this harness
 
 
 _HEARING_CODE = _hearing_code()
 
 
-def _record(cond: tuple) -> list:
-    """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut, loud frames), cached."""
-    from robots import tts
+def _record(cond: tuple, whole: bool = False):
+    """heard_utterances of one condition, as (pcm, speech seconds, too long, started, cut, loud frames),
+    or with `whole` its one microphone's whole recording; cached."""
+    from hearing import tts
 
     text, _, voice, speed, dist, noise = cond
     pcm = tts.synthesize(text, voice, speed) if text else None
     # keyed by the speech too: a change to the synthesiser makes new recordings
     # (and by the detector's options and the room under test, if any)
     under_test = tuple(tuple(sorted(opts.items())) for opts in (VAD, ACOUSTICS, ARRAY) if opts)
-    said = _HEARING_CODE + repr((cond[0],) + cond[2:] + under_test).encode()
+    said = _HEARING_CODE + repr((cond[0],) + cond[2:] + under_test + (("whole",) if whole else ())).encode()
     key = hashlib.sha1(said + (b"" if pcm is None else pcm.tobytes())).hexdigest()[:16]
     f = CACHE / f"{key}.pkl"
     if f.exists():
         return pickle.loads(f.read_bytes())
-    utts = [(u.pcm, u.speech_seconds, u.too_long, t0, t1, u.loud) for u, t0, t1 in timed_utterances(pcm, dist, NOISE[noise])]
+    if whole:
+        got = recording(pcm, dist, NOISE[noise])
+    else:
+        got = [(u.pcm, u.speech_seconds, u.too_long, t0, t1, u.loud)
+               for u, t0, t1 in timed_utterances(pcm, dist, NOISE[noise])]
     CACHE.mkdir(exist_ok=True)
-    f.write_bytes(pickle.dumps(utts))
-    return utts
+    f.write_bytes(pickle.dumps(got))
+    return got
 
 
 def _rapps():
@@ -191,16 +242,55 @@ _SPOTTER = None
 def decide_keyword(utts: list) -> str | None:
     """s4a as the Core runs it, then s4b for an utterance not spotted: the first RApp decided."""
     global _SPOTTER
-    from robots.receptors import HeardUtterance, KeywordSpotter
+    from hearing.keywords import KeywordSpotter
+    from hearing.vad import HeardUtterance
     vocab = _vocabulary()
     if _SPOTTER is None:
-        _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab)
+        _SPOTTER = KeywordSpotter(sorted(vocab), [p for _, ps in VOCABULARY.values() for p in ps], groups=vocab,
+                                  **ACCEPT)
     for k, (pcm, speech, too_long, _, _, loud) in enumerate(utts):
         word = _SPOTTER.spot(HeardUtterance(pcm, speech, too_long, loud=loud))
         rapp = vocab.get(word.lower()) if word else _sentence(utts, k)
         if rapp:
             return rapp
     return None
+
+
+def decide_supervision(utts: list) -> str | None:
+    """The Core's supervision words during a task, spotted as agents/core_agent.py set_catalogue builds
+    its spotter (the Store's words compete; any share of the speech will do): the first word's action."""
+    global _SUPERVISION
+    from agents.core_agent import SUPERVISION_WORDS
+    from hearing.keywords import KeywordSpotter
+    from hearing.vad import HeardUtterance
+    if _SUPERVISION is None:
+        _SUPERVISION = KeywordSpotter(sorted(SUPERVISION_WORDS), sorted(_vocabulary()) + [
+            p for _, ps in VOCABULARY.values() for p in ps], groups=SUPERVISION_WORDS, min_cover=0.0, **ACCEPT)
+    for pcm, speech, too_long, _, _, loud in utts:
+        word = _SUPERVISION.spot(HeardUtterance(pcm, speech, too_long, loud=loud))
+        if word:
+            return SUPERVISION_WORDS[word]
+    return None
+
+
+def decide_words(heard: np.ndarray) -> str | None:
+    """The cognitive game's word_spotting on one microphone's recording, as robots/microphones.py
+    spot_in_audio does it (the pieces speech_segments cuts, in order, each decoded with the game's
+    words, longest first as the game asks, its last 8 s at most): the answer the first word found means."""
+    global _WORDS
+    from hearing.keywords import WordSpotter
+    from hearing.vad import speech_segments
+    meaning = _answer_words()
+    if _WORDS is None:
+        _WORDS = WordSpotter(sorted(meaning, key=lambda w: (-len(w), w)), **ACCEPT)
+    for s, e in speech_segments(heard):
+        word, _ = _WORDS.spot(heard[max(s, e - 8 * 16000):e])
+        if word is not None:
+            return meaning.get(word.lower())
+    return None
+
+
+_SUPERVISION = _WORDS = None
 
 
 def decide_platform(utts: list) -> str | None:
@@ -217,7 +307,7 @@ def _sentence(utts: list, k: int) -> str | None:
     """s4b on utterance k, joined with the next when the owner went on within the Core's pause
     (agents/core_hearing.py), the first part alone if the whole is not understood."""
     from agents.core_hearing import CONTINUE_WITHIN_S
-    from robots.receptors import HeardUtterance
+    from hearing.vad import HeardUtterance
 
     pcm, speech, too_long, _, cut, loud = utts[k]
     heard = HeardUtterance(pcm, speech, too_long, loud=loud)
@@ -234,9 +324,9 @@ def _platform(heard) -> str | None:
     from agents.services.context import ServiceContext, ServiceState
     from agents.services.interpretation import interpret
     from ontology.services.speech import SpeechRecognition
-    from agents.core_hearing import keyword_in_a_sentence
-    from robots.receptors import normalize
-    from robots.sound import encode_wav
+    from hearing.decoder import normalize
+    from hearing.keywords import keyword_in_a_sentence
+    from hearing.wav import encode_wav
 
     ctx = ServiceContext(user="bench", state=ServiceState(work_dir=Path("/tmp")))
     keywords = {normalize(k) for k in _vocabulary()}
@@ -263,16 +353,20 @@ def _platform(heard) -> str | None:
 def _one(args: tuple) -> dict:
     path, cond = args
     t0 = time.perf_counter()
-    utts = _record(cond)
+    heard = _record(cond, whole=path == "words")
     t1 = time.perf_counter()
-    got = (decide_keyword if path == "keyword" else decide_platform)(utts)
+    got = {"keyword": decide_keyword, "platform": decide_platform, "supervision": decide_supervision,
+           "words": decide_words}[path](heard)
+    if path == "words":
+        from hearing.vad import speech_segments
+        heard = speech_segments(heard)
     return dict(path=path, text=cond[0], expected=cond[1], voice=cond[2], speed=cond[3], distance=cond[4],
-                noise=cond[5], got=got, utterances=len(utts), decode_ms=(time.perf_counter() - t1) * 1e3,
+                noise=cond[5], got=got, utterances=len(heard), decode_ms=(time.perf_counter() - t1) * 1e3,
                 record_ms=(t1 - t0) * 1e3)
 
 
 def report(rows: list[dict], show_wrong: bool) -> None:
-    for path in ("keyword", "platform"):
+    for path in PATHS:
         mine = [r for r in rows if r["path"] == path]
         if not mine:
             continue
@@ -300,7 +394,7 @@ def report(rows: list[dict], show_wrong: bool) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.speech_offline", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="2 recordings per sentence and noise instead of 6")
-    ap.add_argument("--only", choices=("keyword", "platform"))
+    ap.add_argument("--only", choices=PATHS, help="one path (default: keyword and platform)")
     ap.add_argument("--show-wrong", action="store_true")
     ap.add_argument("--vad", action="append", default=[], metavar="NAME=VALUE",
                     help="a VoiceActivity option under test (recorded apart in the cache)")
@@ -313,6 +407,8 @@ def main(argv=None) -> int:
                          "on the room's noise), or as the Core hears them: the detector on the first with the room's dominant "
                          "sound taken out, each utterance located and beamformed (located)")
     ap.add_argument("--loading", type=float, default=1e-2, help="with --beam mvdr: its diagonal loading")
+    ap.add_argument("--accept", type=float, metavar="X",
+                    help="every keyword spotter's threshold (log-score per second against the phone loop) under test")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     a = ap.parse_args(argv)
     # the workers fork after this; counts (start_frames) stay whole numbers
@@ -325,7 +421,10 @@ def main(argv=None) -> int:
                   file=sys.stderr)
     if a.beam:
         ARRAY.update(beam=a.beam, **({"loading": a.loading} if a.beam == "mvdr" else {}))
-    jobs = [(p, c) for p in ("keyword", "platform") if a.only in (None, p) for c in conditions(p, a.quick)]
+    if a.accept is not None:
+        ACCEPT["accept"] = a.accept
+    paths = [a.only] if a.only else ["keyword", "platform"]
+    jobs = [(p, c) for p in paths for c in conditions(p, a.quick)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:
         rows = list(pool.map(_one, jobs, chunksize=4))

@@ -3,13 +3,14 @@
     rapp server [--host H] [--port P] [--domain D] [--db FILE | --memory]
     rapp agent store|platform|core [...]       (one agent on this machine, for deployments)
     rapp new NAME [DIR] [--cloud]              (a RApp package to start from)
-    rapp run demo | hazard-detection --robot nao|elektron --seed N [--json FILE] | two-robots
+    rapp run SCENARIO [...]                    (rapp run --help lists them; rapp run SCENARIO --help)
     rapp run rapp DIR_OR_PACKAGE --robot nao|elektron --house NAME [--say TEXT] [--speak] [--scenario FILE]
+    rapp test DIR                              (a RApp's tests, with what `pip install -e .` installs)
     rapp say TEXT [--run DIR] [--distance M] [--voice V]   (the owner speaks into a running `rapp run`)
     rapp package build DIR [-o OUT] [--key KEY.pem] | rapp package keygen KEY.pem
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
     rapp platform upload-home --house H --user U --password P
-    rapp trace show|export|html FILE [...]      (rapp trace FILE = show)
+    rapp trace show|export|html FILE [...]      (rapp trace FILE = show: a summary; --view, --limit)
     rapp bench [--quick] [--json FILE]
     rapp doctor
 """
@@ -53,27 +54,51 @@ def _scratch_db(stack) -> str:
 
 
 # -- run --------------------------------------------------------------------------------------
+SCENARIOS = {  # name: (module with main(argv), what it runs)
+    "rapp": ("scenarios.run_rapp", "your own RApp on a simulated robot: rapp run rapp DIR --robot nao --house small"),
+    "hazard-detection": ("scenarios.hazard", "the paper's experiment: a robot checks a home's doors and lamps, "
+                                             "scored against the truth"),
+    "hazard-table": ("scenarios.hazard_table", "the experiment over houses, seeds and both robots, judged against "
+                                               "the paper's figures"),
+    "two-robots": ("scenarios.two_robots", "a NAO and an Elektron in one house, one Platform and Store"),
+    "disturbances": ("scenarios.disturbance_suite", "the hazard RApp against people, doors and boxes in its way"),
+    "demo": ("scenarios.demo", "two agents on the embedded XMPP server, three requests and their trace"),
+}
+
+
 def cmd_run(a, rest: list[str]) -> int:
-    if a.scenario == "demo":
-        from scenarios.demo import main as demo_main
-        return demo_main(rest)
-    if a.scenario == "hazard-detection":
-        from scenarios.hazard import main as hazard_main
-        return hazard_main(rest)
-    if a.scenario == "hazard-table":
-        from scenarios.hazard_table import main as table_main
-        return table_main(rest)
-    if a.scenario == "two-robots":
-        from scenarios.two_robots import main as two_main
-        return two_main(rest)
-    if a.scenario == "rapp":
-        from scenarios.run_rapp import main as rapp_main
-        return rapp_main(rest)
-    if a.scenario == "disturbances":
-        from scenarios.disturbance_suite import main as suite_main
-        return suite_main(rest)
-    raise CliError(f"unknown scenario {a.scenario!r} (known: demo, hazard-detection, hazard-table, two-robots, "
-                   "rapp, disturbances)")
+    if a.scenario not in SCENARIOS:
+        raise CliError(f"unknown scenario {a.scenario!r} (known: {', '.join(SCENARIOS)})")
+    import importlib
+    return importlib.import_module(SCENARIOS[a.scenario][0]).main(rest)
+
+
+def _scenario_list() -> str:
+    width = max(map(len, SCENARIOS))
+    return "scenarios (rapp run SCENARIO --help for each one's options):\n" + "\n".join(
+        f"  {name:{width}}  {what}" for name, (_, what) in SCENARIOS.items()) + (
+        "\n\nA run of rapp, hazard-detection, two-robots or disturbances writes result.json (ok, reason, what "
+        "happened, the world's truth),\nchat, trace and a plot in its --out folder; Ctrl-C or SIGTERM ends it with "
+        "those files written (ok: false)\nand exit code 128 + the signal.")
+
+
+# -- test -------------------------------------------------------------------------------------
+def cmd_test(a, rest: list[str]) -> int:
+    """A RApp's tests with the base install (pytest and pytest-asyncio are dependencies of the
+    project): its own rootdir, no configuration of the checkout it may sit in, async tests run
+    without marks, nothing cached into the RApp's folder."""
+    import os
+
+    import pytest
+
+    target = Path(a.dir)
+    if not target.exists():
+        raise CliError(f"no RApp folder {target}")
+    tests = target / "tests" if (target / "tests").is_dir() else target
+    args = [str(tests), "--rootdir", str(target if target.is_dir() else target.parent), "-c", os.devnull,
+            "-p", "no:cacheprovider", "-o", "asyncio_mode=auto", "-o", "asyncio_default_fixture_loop_scope=function",
+            "-o", "asyncio_default_test_loop_scope=function", *rest]
+    return int(pytest.main(args))
 
 
 # -- package ----------------------------------------------------------------------------------
@@ -113,7 +138,7 @@ def cmd_new(a) -> int:
         dest = create(a.name, a.dir, cloud=a.cloud)
     except (ValueError, FileExistsError) as e:
         raise CliError(str(e)) from None
-    print(f"created {dest}: try  rapp run rapp {dest}  and  pytest {dest}/tests")
+    print(f"created {dest}: try  rapp run rapp {dest}  and  rapp test {dest}")
     return 0
 
 
@@ -229,28 +254,43 @@ def cmd_trace(argv: list[str]) -> int:
     action = argv[0] if argv and argv[0] in actions else "show"
     if argv and argv[0] in actions:
         argv = argv[1:]
-    p = argparse.ArgumentParser(prog=f"rapp trace {action}")
-    p.add_argument("file")
-    p.add_argument("--agent", action="append", help="only messages to/from this agent (repeatable)")
+    from scenarios import trace_report as tr
+
+    what = {"show": "a run's trace: a summary (agents by role, messages, structure changes, task ends, "
+                    "problems), or its messages as a table or a sequence diagram",
+            "export": "a run's trace as a Mermaid sequence diagram, JSON or text",
+            "html": "a run's trace as one self-contained HTML page"}[action]
+    p = argparse.ArgumentParser(prog=f"rapp trace {action}", description=f"{what} (rapp trace show|export|html FILE)")
+    p.add_argument("file", help="a trace.jsonl (every `rapp run` writes one in its --out folder)")
+    p.add_argument("--agent", action="append", help="only records of this agent (repeatable): a role ("
+                   f"{', '.join(tr.ROLES)}), a name (core-nao1) or a JID")
     p.add_argument("--conversation", action="append", help="only this conversation id (prefix ok)")
     if action == "show":
-        p.add_argument("--view", choices=["table", "sequence", "both"], default="both")
+        p.add_argument("--view", choices=["summary", "table", "sequence", "both"], default="summary",
+                       help="summary (default), the messages as a table, as a sequence diagram, or both")
+        p.add_argument("--limit", type=int, default=200, metavar="N",
+                       help="table and sequence: the first N messages and records (default 200; 0: all)")
     if action == "export":
         p.add_argument("--format", choices=["mermaid", "json", "text"], default="mermaid")
     if action in ("export", "html"):
-        p.add_argument("-o", "--output", help="output file (default: stdout / FILE.html)")
+        p.add_argument("-o", "--output", help="output file (default: stdout for export, FILE.html for html)")
     a = p.parse_args(argv)
     from agents.tracing import read_trace
-    from scenarios import trace_report as tr
 
     if not Path(a.file).exists():
         raise CliError(f"no trace file {a.file}")
     records = tr.filter_records(read_trace(a.file), agents=a.agent, conversations=a.conversation)
     if action == "show":
+        if a.view == "summary":
+            print(tr.summary_text(records, Path(a.file).name))
+            return 0
+        shown, more = tr.limit_items(records, a.limit)
         if a.view in ("table", "both"):
-            print(tr.table(records))
+            print(tr.table(shown))
         if a.view in ("sequence", "both"):
-            print(tr.sequence_text(records))
+            print(tr.sequence_text(shown))
+        if more:
+            print(f"... {more} more records (--limit N, or --limit 0 for all)")
         return 0
     if action == "export":
         import json
@@ -288,13 +328,13 @@ def cmd_say(a) -> int:
 
 def _check_voice(voice: str) -> None:
     """An unknown voice is refused here, not only in the run's own output (where the line is dropped)."""
-    from robots import tts
-    from robots.errors import InvalidArgument, UnsupportedOperation
+    from hearing import tts
+    from hearing.errors import InvalidArgument, SpeechUnavailable
     try:
         tts.check_voice(voice)
     except InvalidArgument as e:
         raise CliError(f"rapp say: {e}") from None
-    except UnsupportedOperation:
+    except SpeechUnavailable:
         pass  # no eSpeak NG here: the run says whether it can speak
 
 
@@ -309,42 +349,60 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", required=True)
 
-    s = sub.add_parser("server", help="run the embedded XMPP server (pyjabber) on this machine")
-    s.add_argument("--host", default="127.0.0.1")
-    s.add_argument("--port", type=int, default=5222)
-    s.add_argument("--domain", default="localhost")
+    s = sub.add_parser("server", help="run the embedded XMPP server (pyjabber) on this machine",
+                       description="Run the embedded XMPP server (pyjabber) until Ctrl-C, for agents started with "
+                                   "`rapp agent` (a `rapp run` starts its own).")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    s.add_argument("--port", type=int, default=5222, help="client port (default 5222)")
+    s.add_argument("--domain", default="localhost", help="the XMPP domain of the agents' JIDs (default localhost)")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--db", help="SQLite file for accounts (default: a fresh file per run)")
     g.add_argument("--memory", action="store_true", help="in-memory database (pyjabber loses it on some disconnects)")
-    s.add_argument("--verbose", action="store_true")
+    s.add_argument("--verbose", action="store_true", help="log the server's connections and stanzas")
 
-    r = sub.add_parser("run", help="run a scenario (demo, hazard-detection, hazard-table, two-robots, rapp, "
-                                   "disturbances)")
-    r.add_argument("scenario")
+    r = sub.add_parser("run", help=f"run a scenario ({', '.join(SCENARIOS)})", epilog=_scenario_list(),
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description="Run a scenario on simulated robots with its own XMPP server, Store and Platform.")
+    r.add_argument("scenario", choices=list(SCENARIOS), metavar="SCENARIO", help="one of the scenarios below")
 
-    n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)")
+    t = sub.add_parser("test", help="run a RApp's tests (with what `pip install -e .` installs)",
+                       description="Run the tests of a RApp folder (its tests/ folder, else the folder) with pytest, "
+                                   "as `pip install -e .` installed it: async tests need no mark, the checkout's "
+                                   "pytest configuration is not used. Options after DIR go to pytest (-k, -x, -q).")
+    t.add_argument("dir", help="the RApp's folder (as `rapp new` made it)")
+
+    n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)",
+                       description="Create a RApp folder to start from: a manifest, a task with a two-state FSM, "
+                                   "a test (and with --cloud a Cloud Agent part); docs/sdk.md walks through one.")
     n.add_argument("name", help="the RApp's name (lower case, dashes)")
     n.add_argument("dir", nargs="?", help="where to create it (default: ./NAME)")
     n.add_argument("--cloud", action="store_true", help="with a Cloud Agent part")
 
-    k = sub.add_parser("package", help="build a RApp package or a signing key; print the manifest's JSON Schema")
-    k.add_argument("action", choices=["build", "keygen", "schema"])
+    k = sub.add_parser("package", help="build a RApp package or a signing key; print the manifest's JSON Schema",
+                       description="build: a .rapp package of a RApp folder (signed with --key); keygen: an ed25519 "
+                                   "signing key; schema: the manifest's JSON Schema.")
+    k.add_argument("action", choices=["build", "keygen", "schema"], help="what to do")
     k.add_argument("dir", nargs="?", help="RApp source directory (build), key file to write (keygen), "
                                           "schema file to write (schema; default: stdout)")
-    k.add_argument("-o", "--output")
+    k.add_argument("-o", "--output", help="build: the package file or a folder for it (default: the current "
+                                          "folder); schema: the file to write")
     k.add_argument("--key", help="ed25519 private key (PEM) to sign with")
 
-    st = sub.add_parser("store", help="talk to the Store Agent on the configured XMPP server")
-    st.add_argument("action", choices=["publish", "list", "info", "remove"])
+    st = sub.add_parser("store", help="talk to the Store Agent on the configured XMPP server",
+                        description="Publish, list, describe or remove RApp packages in the Store Agent on the "
+                                    "configured XMPP server (RAPP_XMPP_*; docs/deployment.md).")
+    st.add_argument("action", choices=["publish", "list", "info", "remove"], help="what to do")
     st.add_argument("target", nargs="?", help="package file (publish) or package name")
-    st.add_argument("--owner")
-    st.add_argument("--password")
-    st.add_argument("--version")
-    st.add_argument("--robot-type")
+    st.add_argument("--owner", help="publish, remove: the Store owner's name (their own XMPP account)")
+    st.add_argument("--password", help="publish, remove: the owner's password")
+    st.add_argument("--version", help="remove: only this version (default: every version)")
+    st.add_argument("--robot-type", help="list: only packages for this robot type")
     st.add_argument("--store", default="store", help="the Store Agent's name or JID")
 
-    pl = sub.add_parser("platform", help="talk to the Platform Agent as a robot owner")
-    pl.add_argument("action", choices=["upload-home"])
+    pl = sub.add_parser("platform", help="talk to the Platform Agent as a robot owner",
+                        description="upload-home: the home description and map of a house, as the robot owner "
+                                    "uploads them once before asking for hazard checks.")
+    pl.add_argument("action", choices=["upload-home"], help="what to do")
     pl.add_argument("--house", default="small", help="house whose home description and map to upload "
                                                       "(small, house, or generated with --seed)")
     pl.add_argument("--seed", type=int, default=0, help="the generated house's seed")
@@ -352,8 +410,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--password", help="the owner's Platform password")
     pl.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
 
-    sy = sub.add_parser("say", help="the owner speaks into a running `rapp run` (the robot hears it)")
-    sy.add_argument("text")
+    sy = sub.add_parser("say", help="the owner speaks into a running `rapp run` (the robot hears it)",
+                        description="The owner says TEXT aloud in the house of a running `rapp run` (started with "
+                                    "--listen or --speak): the robot hears it through its microphone.")
+    sy.add_argument("text", help="what the owner says")
     sy.add_argument("--run", help="the run's --out folder (default: the newest running `rapp run`)")
     sy.add_argument("--distance", type=float, default=1.0, help="metres from the robot (0.3-8)")
     sy.add_argument("--voice", default="en-us", help="eSpeak NG voice (en-us, en, en-gb-x-rp, ...)")
@@ -364,7 +424,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("bench", help="run the benchmarks (rapp bench --help)", add_help=False)
     sub.add_parser("agent", help="run one Store, Platform or Core agent here (rapp agent --help)",
                    add_help=False)
-    sub.add_parser("doctor", help="check the installation and the configured XMPP server")
+    sub.add_parser("doctor", help="check the installation and the configured XMPP server",
+                   description="Check the pinned versions, PyBullet, OpenCV, speech and the configured XMPP server, "
+                               "one line each.")
     return p
 
 
@@ -393,6 +455,8 @@ def main(argv: list[str] | None = None) -> int:
         a, rest = parser.parse_known_args(argv)
         if a.command == "run":
             return cmd_run(a, rest)
+        if a.command == "test":
+            return cmd_test(a, rest)
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return {"server": cmd_server, "package": cmd_package, "store": cmd_store,
@@ -406,6 +470,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"rapp: error: {_one_line(e)}", file=sys.stderr)
         return 1
+    except BaseException as e:  # scenarios.runner.RunInterrupted (its run's files are written): not a crash
+        if type(e).__name__ != "RunInterrupted":
+            raise
+        print(f"rapp: {e}", file=sys.stderr)
+        return 128 + e.signum
 
 
 def _one_line(e: BaseException) -> str:

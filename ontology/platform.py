@@ -95,9 +95,26 @@ class StopCloudAgent(ServiceRequest):
     jid: str
 
 
-@action("release_cloud_agents", ontology=ONTOLOGY, reply=Done, group="cloud")
+class Refused(Content):
+    """One operation an agent refused a RApp run (told to its Core at the run's end)."""
+
+    by: str  # the agent (or "sandbox") that refused it
+    what: str  # the action or system call
+    why: str = ""
+    count: int = 1
+
+
+class Released(Content):
+    """The Cloud Agents are stopped; what the Platform refused the run (its Dynamic Agent and Cloud Agents)."""
+
+    ok: bool = True
+    refused: list[Refused] = Field(default_factory=list)
+
+
+@action("release_cloud_agents", ontology=ONTOLOGY, reply=Released, group="cloud")
 class ReleaseCloudAgents(ServiceRequest):
-    """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy)."""
+    """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy); the
+    reply lists what the Platform refused that run."""
 
     owner_jid: str
 

@@ -77,6 +77,7 @@ class RegisterRobot(Action):
     robot_id: str = Field(min_length=1, max_length=128)
     robot_type: str
     owner: str
+    token: str = ""  # the sender's Platform login token, as `owner` (a RApp's is refused)
 
 
 @action("list_packages", ontology=ONTOLOGY, reply=PackageList, group="catalogue", idempotent=True)

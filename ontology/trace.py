@@ -19,6 +19,10 @@ records of no agent, `agent` (the writer's address). The kinds:
   log        level, message, state (a RApp's log record, with the FSM state it was in: Task.log)
   blackboard key, value, writer (a write to a RApp's typed blackboard: rapps.sdk Blackboard)
 
+A record a RApp process wrote (through its Core's or Platform's relay, agents/tracing.py
+TraceRelay) carries `origin` (the RApp's JID, which its `agent` is forced to; what it claimed is kept
+as `claimed_agent`): untrusted, never another agent's.
+
 Writing is not validated (a record is written for every message); `parse_record` validates a
 record when a trace is read (agents.tracing.read_trace(..., validate=True)).
 """
@@ -88,7 +92,11 @@ class StructureEvent(StrEnum):
     OBSTACLE_CLEARED = "obstacle-cleared"  # ... and taken out, seen free again
     # the Store
     PUBLISH = "publish"  # a package published
-    REFUSED = "refused"  # an operation refused to a caller without the right (Store, Platform)
+    REFUSED = "refused"  # an operation refused to a caller without the right (Core, Store, Platform, a sandbox)
+    REFUSALS = "refusals"  # what a RApp run was refused, told to its owner at its end (the Core)
+    LOGIN_FAILED = "login-failed"  # a failed SASL login (the embedded server)
+    REGISTERED = "registered"  # an account made by in-band registration (the embedded server)
+    REGISTRATION_REFUSED = "registration-refused"  # ... or refused (the name was taken)
     # the Platform
     CLOUD_SPAWN = "cloud-spawn"  # a Cloud Agent started (or restarted)
     CLOUD_LOST = "cloud-lost"  # a Cloud Agent's process died

@@ -78,7 +78,7 @@ class {cls}Cloud(CloudService):
 '''
 
 TEST = '''\
-"""Runs {name} on the simulated robot: `pytest {rel}` from the project's checkout."""
+"""Runs {name} on the simulated robot: `rapp test` on its folder, or `pytest {rel}`."""
 import json
 from pathlib import Path
 
@@ -87,7 +87,7 @@ import pytest
 from scenarios.run_rapp import run_rapp
 
 HERE = Path(__file__).resolve().parent.parent
-pytestmark = pytest.mark.asyncio  # pytest-asyncio, installed with the project's test extras
+pytestmark = pytest.mark.asyncio  # pytest-asyncio runs it (`rapp test DIR` needs no mark)
 
 
 async def test_{pkg}_runs_on_a_simulated_nao(tmp_path):

@@ -26,15 +26,27 @@ Camera optical frame: x right, y down, z forward; get_camera_info gives K consis
 get_transform("camera") the optical frame in the robot base frame (base frame at the floor, x forward).
 Maps: world.export_grid_map(dir) (ROS map_server PNG + YAML), world.write_landmark_map(path).
 """
-from .blas import one_blas_thread
+import importlib
 
-one_blas_thread()  # before numpy is used from several threads (robots/blas.py)
+from hearing.blas import one_blas_thread
 
-from .api import RobotAPI  # noqa: E402
 from .errors import InvalidArgument, MotionBlocked, MotionInterrupted, RobotError, UnsupportedOperation
-from .odometry import OdometryNoise
-from .robot import Robot
-from .world import HOUSES, ROBOT_SPECS, GroundTruth, World
+
+one_blas_thread()  # before numpy is used from several threads (hearing/blas.py)
+
+# the simulator (pybullet) loads when one of these is first used, not with the package: what a Core
+# needs of any robot (robots.interface, robots.errors) imports without it
+_SIMULATOR = {"RobotAPI": ".api", "OdometryNoise": ".odometry", "Robot": ".robot", "HOUSES": ".world",
+              "ROBOT_SPECS": ".world", "GroundTruth": ".world", "World": ".world"}
+
+
+def __getattr__(name: str):
+    if name not in _SIMULATOR:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_SIMULATOR[name], __name__), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = ["World", "Robot", "RobotAPI", "OdometryNoise", "GroundTruth", "HOUSES", "ROBOT_SPECS", "RobotError",
            "UnsupportedOperation", "InvalidArgument", "MotionBlocked", "MotionInterrupted"]

@@ -14,6 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from hearing import tts
+from hearing.errors import BadAudio
+from hearing.wav import decode_wav, encode_wav, level_dbfs
 from ontology.errors import ErrorCode
 from ontology.registry import Done
 from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, MAX_MICROPHONES, Audio, CameraInfo, CameraParams,
@@ -22,13 +25,13 @@ from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, MAX_MICROPHONES, 
                             LookAtPoint, MicrophoneEnergy, MicrophoneLevel, MoveAlongPath, MoveJoint, MoveStop, MoveTo,
                             MoveVel, PlayAudio, Pose2D, Rest, Say, SetCameraParam, SetCameraParams, SetGlobalPose,
                             SonarReading, TakePredefinedPosture, Transform, WordSpotted, WordSpotting)
-from . import tts
 from .controllers import GoToPose, JointMotion, LookAt, PathFollower, VelocityController
-from .effectors import check_speech
 from .errors import InvalidArgument, MotionInterrupted, UnsupportedOperation
-from .receptors import AudioInput, Camera, encode_frame, parse_resolution, spot_in_audio
+from .loudspeaker import check_speech
+from .microphones import AudioInput, spot_in_audio
+from .receptors import Camera, encode_frame, parse_resolution
 from .robot import Robot
-from .sound import BadAudio, decode_wav, encode_wav, house_sound, level_dbfs
+from .sound import house_sound
 
 CAMERA_PARAM_NAMES = ("brightness", "contrast", "gain", "exposure", "auto_exposure")
 

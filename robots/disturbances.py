@@ -34,8 +34,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 
 import numpy as np
-import pybullet as p
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from .pybullet_quiet import p
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import InvalidArgument
 from .robot import yaw_quat
@@ -110,6 +110,15 @@ class PersonSpec(BaseModel):
     width: float = Field(default=0.35, gt=0.1, le=1.0)
     height: float = Field(default=1.7, gt=0.3, le=2.5)
     color: Color = PERSON_COLOR
+    face: str | None = Field(default=None, description="an image file (PNG/JPEG) of the person's face, worn on "
+                                                        "the front of their head (face recognition)")
+
+    @field_validator("face")
+    @classmethod
+    def _face_file(cls, v: str | None) -> str | None:
+        if v is not None and not Path(v).is_file():
+            raise ValueError(f"no face image {v!r}")
+        return None if v is None else str(Path(v).resolve())
 
     @model_validator(mode="after")
     def _walkable(self) -> PersonSpec:
@@ -255,6 +264,7 @@ class BodyShape(NamedTuple):
     kind: str  # "person" | "box"
     size: tuple[float, float, float]  # person: (width, width, height); box: (sx, sy, sz)
     color: tuple[float, float, float]  # person: the shirt
+    face: str = ""  # person: an image file shown on a plate in front of the head ("": none)
 
 
 TROUSERS_COLOR = (0.12, 0.13, 0.17)  # darker than the default shirt: the legs stand out from the torso
@@ -305,11 +315,16 @@ def create_body(cid: int, shape: BodyShape, collision: bool = True) -> int:
     if shape.kind == "person":
         col = p.createCollisionShape(p.GEOM_CYLINDER, radius=sx / 2, height=sz, physicsClientId=cid) if collision else -1
         parts = person_parts(sx, sz, shape.color)
+        face = _face_plate(sx, sz, shape.face) if shape.face else None
+        meshes = [("", [1.0, 1.0, 1.0])] * len(parts) + ([face[:2]] if face else [])
+        if face:
+            parts = parts + [face[2]]
         vis = p.createVisualShapeArray(
             shapeTypes=[t for t, *_ in parts],
-            radii=[0.0 if t == p.GEOM_BOX else dims[0] for t, dims, *_ in parts],
+            radii=[0.0 if t in (p.GEOM_BOX, p.GEOM_MESH) else dims[0] for t, dims, *_ in parts],
             lengths=[dims[1] if t == p.GEOM_CYLINDER else 0.0 for t, dims, *_ in parts],
             halfExtents=[list(dims) if t == p.GEOM_BOX else [0.0, 0.0, 0.0] for t, dims, *_ in parts],
+            fileNames=[m for m, _ in meshes], meshScales=[s for _, s in meshes],
             visualFramePositions=[list(pos) for _, _, pos, _, _ in parts],
             visualFrameOrientations=[list(q) for *_, q, _ in parts],
             rgbaColors=[[*color, 1] for *_, color in parts], physicsClientId=cid)
@@ -317,7 +332,30 @@ def create_body(cid: int, shape: BodyShape, collision: bool = True) -> int:
         half = [sx / 2, sy / 2, sz / 2]
         col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid) if collision else -1
         vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[*shape.color, 1], physicsClientId=cid)
-    return p.createMultiBody(0, col, vis, list(PARKED), physicsClientId=cid)
+    body = p.createMultiBody(0, col, vis, list(PARKED), physicsClientId=cid)
+    if shape.kind == "person" and shape.face:
+        texture = p.loadTexture(shape.face, physicsClientId=cid)
+        p.changeVisualShape(body, -1, shapeIndex=len(parts) - 1, textureUniqueId=texture, physicsClientId=cid)
+    return body
+
+
+FACE_QUAD = Path(__file__).resolve().parent / "data" / "face_quad.obj"  # a unit square facing +x, UV 0..1
+
+
+def _face_plate(width: float, height: float, image: str) -> tuple[str, list[float], tuple]:
+    """(mesh file, scale, visual part) of a plate showing `image` in front of the head of person_parts:
+    as high as the head and a little more, as wide as the image's proportions make it."""
+    import cv2
+
+    img = cv2.imread(image)
+    if img is None:
+        raise InvalidArgument(f"the face image {image} cannot be read")
+    head_r = 0.065 * height
+    side_z = 2.4 * head_r
+    side_y = side_z * img.shape[1] / img.shape[0]
+    centre = (head_r + 0.004, 0.0, -height / 2 + height - head_r)  # just in front of the head's sphere
+    return str(FACE_QUAD), [1.0, side_y, side_z], (p.GEOM_MESH, (0.0, 0.0), centre, (0.0, 0.0, 0.0, 1.0),
+                                                    (1.0, 1.0, 1.0))
 
 
 class Mover:
@@ -343,7 +381,7 @@ class Person(Mover):
         super().__init__(spec.id)
         self.speed, self.start = _draw(spec.speed, rng), _draw(spec.start, rng)
         self.route = Route([(w.x, w.y, w.pause) for w in spec.route], self.speed, self.start, spec.loop)
-        self.shape = BodyShape("person", (spec.width, spec.width, spec.height), tuple(spec.color))
+        self.shape = BodyShape("person", (spec.width, spec.width, spec.height), tuple(spec.color), spec.face or "")
         self.radius = spec.width / 2
         self.yields = spec.yields
         self.delay = 0.0  # time spent waiting for robots to get out of the way (the route runs this late)

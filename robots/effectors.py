@@ -1,12 +1,13 @@
-"""Virtual effectors: mobile base, joints (incl. postures), head (look-at solver), loudspeaker.
-Methods touching pybullet run in the world's pybullet thread (controllers call them)."""
+"""Virtual effectors: mobile base, joints (incl. postures), head (look-at solver); the loudspeaker is
+robots/loudspeaker.py. Methods touching pybullet run in the world's pybullet thread (controllers call
+them)."""
 from __future__ import annotations
 
 import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pybullet as p
+from .pybullet_quiet import p
 
 from .errors import InvalidArgument, UnsupportedOperation
 from .odometry import wrap
@@ -113,66 +114,6 @@ class HeadEffector:
         lo_y, hi_y = r.limits[s.head_yaw]
         lo_p, hi_p = r.limits[s.head_pitch]
         return {s.head_yaw: float(np.clip(yaw, lo_y, hi_y)), s.head_pitch: float(np.clip(pitch, lo_p, hi_p))}
-
-
-class Loudspeaker:
-    """The robot's loudspeaker: what was said (text, with simulation time) and the audio it played,
-    which also sounds in the house (a source at the robot's head, heard by every microphone)."""
-
-    SECONDS_PER_WORD = 0.35
-    FULL_SCALE_DB_SPL = 88.0  # at 1 m, a full-scale sine: eSpeak's speech comes out near 66 dB
-    KEEP = 32  # recent clips kept for inspection
-
-    def __init__(self, robot: "Robot"):
-        self.robot = robot
-        self.spoken: list[tuple[float, str]] = []
-        self.played: list[tuple[float, str | None, np.ndarray]] = []
-
-    def duration(self, text: str) -> float:
-        """An estimate without audio (a robot whose speech is not synthesised)."""
-        return 0.3 + self.SECONDS_PER_WORD * len(text.split())
-
-    def say(self, text: str, t: float) -> None:
-        self.spoken.append((t, text))
-
-    def position(self) -> tuple[float, float, float]:
-        x, y, _ = self.robot.pose
-        return x, y, self.robot.spec.collision_height + 0.05
-
-    def play(self, pcm: np.ndarray, t: float, text: str | None = None) -> float:
-        """Play 16 kHz int16 audio from simulation time `t` into the house; its duration in seconds."""
-        from .sound import SAMPLE_RATE, house_sound
-        if text is not None:
-            self.say(text, t)
-        self.played = (self.played + [(t, text, pcm)])[-self.KEEP:]
-        house = house_sound(self.robot.world)
-        house.prune(t - 60.0)
-        house.play(f"loudspeaker:{self.robot.name}:{len(self.spoken)}:{t:.3f}", self.position(), pcm, t,
-                   level_db=None, full_scale_db=self.FULL_SCALE_DB_SPL)
-        return len(pcm) / SAMPLE_RATE
-
-    def sounding_until(self, t0: float, t1: float, tail: float = 0.0) -> float | None:
-        """When the sound it played within [t0, t1] of simulation time ends (+ `tail`, e.g. its way to a
-        microphone), or None: silent then."""
-        from .sound import SAMPLE_RATE
-        recent = [(start, start + len(pcm) / SAMPLE_RATE + tail) for start, _, pcm in self.played[-8:]]
-        ends = [end for start, end in recent if start <= t1 and end > t0]
-        return max(ends) if ends else None
-
-    def silence(self, t: float) -> None:
-        """Cut off what is still playing at simulation time `t` (the emergency stop)."""
-        from .sound import house_sound
-        house = house_sound(self.robot.world)
-        prefix = f"loudspeaker:{self.robot.name}:"
-        for source_id, source in list(house.sources.items()):
-            if source_id.startswith(prefix) and (source.end() or math.inf) > t:
-                house.remove(source_id)
-
-
-def check_speech(robot: "Robot") -> Loudspeaker:
-    if robot.loudspeaker is None:
-        raise UnsupportedOperation(f"{robot.spec.kind} has no speech synthesis (no loudspeaker); say is not available")
-    return robot.loudspeaker
 
 
 _ = p  # pybullet used by callers through robot helpers

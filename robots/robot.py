@@ -7,12 +7,14 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pybullet as p
+from .pybullet_quiet import p
 
-from .effectors import BaseEffector, HeadEffector, JointsEffector, Loudspeaker
+from .effectors import BaseEffector, HeadEffector, JointsEffector
 from .failure_modes import Locomotion, defaults_for, make_locomotion
+from .loudspeaker import Loudspeaker
 from .odometry import Odometry, OdometryNoise
-from .receptors import Camera, Microphone, RangeSensor, pose_matrix
+from .microphones import Microphone
+from .receptors import Camera, RangeSensor, pose_matrix
 
 AHEAD_RAD = 0.52  # "ahead" for the collision protection: readings within ±30° of the heading
 from .spec import RobotSpec

@@ -16,14 +16,12 @@ and the room), so a recording depends only on the seed and the schedule, not on 
     house.add(NoiseSource("tv", (0.3, 0.3, 0.8), kind="tv", level_db=65, seed=house.seed))
     pcm = house.receive((2.0, 2.4, 0.45), t0, seconds=2.0, mic="nao")   # int16, 16 kHz
 
-WAV helpers (encode_wav, decode_wav) are here too: the robot API and the Platform's speech services
-exchange audio as WAV."""
+What the robots and the Platform do with the sound they hear is hearing's (hearing/), and so are the
+WAV helpers the robot API sends it with (hearing/wav.py)."""
 from __future__ import annotations
 
-import io
 import math
 import threading
-import wave
 import weakref
 import zlib
 from dataclasses import dataclass, field
@@ -32,16 +30,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.signal import fftconvolve, resample_poly
 
+from hearing.errors import BadAudio
+from hearing.wav import SAMPLE_RATE
 from ontology.errors import ErrorCode
 
-from .errors import RobotError
 from .mic_array import diffuse
 from .reverb import tail
 
 if TYPE_CHECKING:
     from .floorplan import Box, Plan
 
-SAMPLE_RATE = 16000
 SPEED_OF_SOUND = 343.0  # m/s
 REF_PA = 20e-6  # 0 dB SPL
 FULL_SCALE_DB_SPL = 100.0  # the microphone's int16 full scale (a close shout; speech at 1 m is ~60)
@@ -58,14 +56,6 @@ def db_spl_to_pa(db: float) -> float:
 
 
 PA_PER_DIGIT = db_spl_to_pa(FULL_SCALE_DB_SPL) * math.sqrt(2) / 32767  # full-scale sine = FULL_SCALE dB
-
-
-class BadAudio(RobotError):
-    """Audio that cannot be used: `code` says why (malformed, unsupported, too-large, invalid)."""
-
-    def __init__(self, message: str, code: str = ErrorCode.INVALID):
-        super().__init__(message)
-        self.code = code
 
 
 def _rng(seed: int, name: str, block: int) -> np.random.Generator:
@@ -417,57 +407,3 @@ def house_sound(world) -> HouseSound:
         if house is None:
             house = _HOUSES[world] = HouseSound(world.plan)
         return house
-
-
-# ---------------------------------------------------------------------------------------- levels, WAV
-def level_dbfs(pcm: np.ndarray) -> tuple[float, float]:
-    """(rms, peak) of int16 samples in dB relative to full scale (-120 for digital silence)."""
-    x = np.asarray(pcm, np.float64) / 32768.0
-    if x.size == 0:
-        return -120.0, -120.0
-    rms, peak = math.sqrt(float(np.mean(x ** 2))), float(np.abs(x).max())
-    return max(20 * math.log10(rms + 1e-12), -120.0), max(20 * math.log10(peak + 1e-12), -120.0)
-
-
-def encode_wav(pcm: np.ndarray, rate: int = SAMPLE_RATE) -> bytes:
-    """A 16-bit PCM WAV of int16 samples: (n,) mono, or (channels, n), interleaved."""
-    pcm = np.asarray(pcm)
-    channels = 1 if pcm.ndim == 1 else pcm.shape[0]
-    if pcm.ndim == 2:
-        pcm = pcm.T.ravel()
-    buf = io.BytesIO()
-    with wave.open(buf, "wb") as w:
-        w.setnchannels(channels)
-        w.setsampwidth(2)
-        w.setframerate(rate)
-        w.writeframes(np.asarray(pcm, "<i2").tobytes())
-    return buf.getvalue()
-
-
-def decode_wav(data: bytes, rates: tuple[int, ...] = (SAMPLE_RATE,), max_seconds: float = 60.0,
-               channels: int = 1) -> tuple[np.ndarray, int]:
-    """(int16 samples, rate) of a mono 16-bit PCM WAV, or with `channels` > 1 one of that many channels
-    ((channels, n) samples); BadAudio for anything else. The header is checked before any sample is
-    read, so an over-long recording costs nothing."""
-    try:
-        with wave.open(io.BytesIO(data), "rb") as w:
-            got, width, rate, frames = w.getnchannels(), w.getsampwidth(), w.getframerate(), w.getnframes()
-            if got != channels or width != 2:
-                kind = "mono" if channels == 1 else f"{channels}-channel"
-                raise BadAudio(f"need {kind} 16-bit PCM, got {got} channel(s) of {8 * width} bit",
-                               ErrorCode.UNSUPPORTED)
-            if rate not in rates:
-                raise BadAudio(f"sample rate {rate} Hz not supported (use {' or '.join(map(str, rates))})",
-                               ErrorCode.UNSUPPORTED)
-            if frames / rate > max_seconds:
-                raise BadAudio(f"recording of {frames / rate:.1f} s exceeds the limit of {max_seconds:g} s",
-                               ErrorCode.TOO_LARGE)
-            raw = w.readframes(frames)
-    except (wave.Error, EOFError) as e:
-        raise BadAudio(f"not a WAV file: {e}", ErrorCode.MALFORMED) from None
-    if len(raw) % 2:
-        raw = raw[:-1]
-    pcm = np.frombuffer(raw, "<i2").astype(np.int16)
-    if channels > 1:
-        pcm = pcm[:len(pcm) // channels * channels].reshape(-1, channels).T.copy()
-    return pcm, rate

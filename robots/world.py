@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
-import pybullet as p
+from .pybullet_quiet import p
 import yaml
 
 from . import elektron, nao

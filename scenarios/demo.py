@@ -48,7 +48,8 @@ async def run_demo(out_dir: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="rapp run demo")
+    p = argparse.ArgumentParser(prog="rapp run demo", description=__doc__.split("\n\n")[0].split(": ", 1)[1],
+                                epilog=__doc__.split("\n\n")[1])
     p.add_argument("--out", default=None, help="directory for the trace (default: a new temp dir)")
     a = p.parse_args(argv)
     out = Path(a.out or tempfile.mkdtemp(prefix="rapp-demo-"))

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Awaitable, Callable
 
 from .hazard import run_hazard_detection
+from .runner import RunInterrupted, main_loop
 
 HOUSE = "twodoors"
 ROBOTS = ("nao", "elektron")
@@ -104,19 +105,29 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rapp run disturbances", description=__doc__.splitlines()[0])
-    ap.add_argument("--robot", choices=ROBOTS, action="append", help="a robot (default: both)")
-    ap.add_argument("--case", choices=list(CASES), action="append", help="a case (default: all)")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--json", dest="json_path", help="write the rows here")
-    ap.add_argument("--out", help="folder for each run's trace, plot and frames (default: temporary)")
+    ap = argparse.ArgumentParser(prog="rapp run disturbances", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--robot", choices=ROBOTS, action="append", help="a robot (repeatable; default: both)")
+    ap.add_argument("--case", choices=list(CASES), action="append", help="a case (repeatable; default: all)")
+    ap.add_argument("--seed", type=int, default=1, help="draws the world (as in every scenario)")
+    ap.add_argument("--json", dest="json_path", help="write the rows here (after every case)")
+    ap.add_argument("--out", help="folder for each run's result, trace, plot and frames (default: temporary)")
     a = ap.parse_args(argv)
     rows = []
     for name in a.case or list(CASES):
         for robot in a.robot or ROBOTS:
             out = Path(a.out) / f"{name}-{robot}" if a.out else None
             print(f"[disturbances] {name} on {robot} ...", flush=True)
-            row = asyncio.run(run_case(CASES[name], robot, a.seed, out))
+            try:
+                row = main_loop(run_case(CASES[name], robot, a.seed, out))
+            except RunInterrupted as stop:  # the interrupted case is a row too (not passed), then the table
+                if stop.result:
+                    rows.append(judge(CASES[name], stop.result))
+                if a.json_path:
+                    Path(a.json_path).write_text(json.dumps(rows, indent=1))
+                print(table(rows))
+                print(f"[disturbances] {stop}", flush=True)
+                return 128 + stop.signum
             rows.append(row)
             print(f"[disturbances] {name} on {robot}: {'passed' if row['passed'] else 'FAILED'} "
                   f"(finished {row['finished']}, correct {row['hazards_correct']}, collisions {row['collisions']}, "
@@ -125,6 +136,10 @@ def main(argv: list[str] | None = None) -> int:
             if a.json_path:  # after every case: a long run interrupted keeps what it measured
                 Path(a.json_path).write_text(json.dumps(rows, indent=1))
     print(table(rows))
+    for r in rows:  # each run's result.json, plot, frames, chat and trace
+        print(f"  {r['case']} on {r['robot']}: {Path(r['trace']).parent}")
+    if a.json_path:
+        print(f"  rows: {a.json_path}")
     return 0 if all(r["passed"] for r in rows) else 1
 
 

@@ -42,7 +42,7 @@ def _versions() -> str:
 
 
 def _pybullet() -> str:
-    import pybullet as p
+    from robots.pybullet_quiet import p
     cid = p.connect(p.DIRECT)
     try:
         w, h, *_ = p.getCameraImage(32, 24, renderer=p.ER_TINY_RENDERER)
@@ -75,7 +75,7 @@ class NoServer(Note):
 def _recognition() -> str:
     from importlib.metadata import version
 
-    from robots.receptors import PhraseDecoder
+    from hearing.decoder import PhraseDecoder
     dec = PhraseDecoder(["check the hazards"])
     if not dec.phrases:
         raise RuntimeError("pocketsphinx's US English dictionary lacks common words: reinstall pocketsphinx")
@@ -83,11 +83,11 @@ def _recognition() -> str:
 
 
 def _synthesis() -> str:
-    from robots import tts
-    from robots.errors import UnsupportedOperation
+    from hearing import tts
+    from hearing.errors import SpeechUnavailable
     try:
         pcm = tts.synthesize("hello")
-    except UnsupportedOperation:
+    except SpeechUnavailable:
         raise Note("eSpeak NG is not installed (the speech extra: pip install -e '.[speech]'). The NAO's "
                    "`say` refuses, `rapp run --speak` cannot speak for the owner, and keywords outside "
                    "pocketsphinx's dictionary cannot be heard") from None

@@ -5,59 +5,42 @@ Cloud Agent) walk the robot to each door and lamp and report; the run is scored 
     result = await run_hazard_detection("nao", seed=1, house="house", out_dir="out/")
     python -m scenarios.hazard --robot elektron --seed 3 --house small --json result.json
     python -m scenarios.hazard --robot nao --house generated --seed 5   # the house generated from seed 5
+
+The RApp's findings come as data: each hazard's report carries a HazardReport (`data["hazard"]`), and
+the Core tells the owner's client every report and the task's end as typed records
+(ontology/results.py, scenarios/runner.py). Ctrl-C (or SIGTERM) writes result.json (`ok: false`),
+the plot, chat and trace with what is known, and exits 128 + the signal.
 """
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import math
-import re
-import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from agents.services.context import ServiceState
 from agents.tracing import read_trace
-from ontology import core as C
-from ontology.trace import Direction, RecordKind, StructureEvent
+from ontology.results import ReportRecord, TaskStage
+from ontology.trace import RecordKind, StructureEvent
 from rapps.hazard_detection.hazard_detection.models import HazardReport
-from robots import OdometryNoise, RobotAPI, World
+from robots import OdometryNoise, RobotAPI
 
-from .home_setup import DOOR_OPEN_DEG, HOUSES, home_description, home_map, hazard_overrides, upload_home
+from .home_setup import DOOR_OPEN_DEG, HOUSES, home_description, home_map, scenario_world
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
-from .progress import follow
-from .system import RappSystem, wait_until
+from .runner import Owner, Run, RunInterrupted, check_interrupted, files_written, main_loop, saving
 
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
 COMMAND = "check the hazards"
-FINISHED = ("hazard-detection finished", "hazard-detection ended")  # how the Core ends the task
-REPORT_RE = re.compile(r"Hazard (\S+) \((door|lamp)\): (\w+)(?:, ([\d.]+) degrees)?")  # the chat text
-CAPPED = re.compile(r"\.\.\.\[\+\d+ chars\]$")  # agents.tracing.cap's mark on a long content
+ROBOTS = ("nao", "elektron")
 
 
-def core_listening(core) -> bool:
-    sup = core.supervisor
-    return bool(core.vocabulary) and sup is not None and sup.behaviour.current == "s3_listen"
-
-
-def hazard_reports(records: list[dict], core: str) -> list[HazardReport]:
-    """What the RApp found at each hazard, in the order it reported: the data of its reports to
-    the Core (`data["hazard"]`, a HazardReport), from the Core's side of the run's trace."""
-    out = []
-    for r in records:
-        if (r["kind"] == RecordKind.MESSAGE and r["dir"] == Direction.RECV and r["agent"] == core
-                and r["ontology"] == C.ONTOLOGY and r["action"] == C.Report.action_name
-                and r["performative"] == "request"):
-            if CAPPED.search(r["content"]):  # the long final summary; a hazard's report is short
-                continue
-            data = C.Report.model_validate_json(r["content"]).data
-            if "hazard" in data:
-                out.append(HazardReport.model_validate(data["hazard"]))
-    return out
+def hazard_reports(reports: list[ReportRecord]) -> list[HazardReport]:
+    """What the RApp found at each hazard, in the order it reported: the data of its reports
+    (`data["hazard"]`, a HazardReport); its other reports (the closing summary) carry none."""
+    return [HazardReport.model_validate(r.data["hazard"]) for r in reports if "hazard" in r.data]
 
 
 def reported(reports: list[HazardReport]) -> dict[str, dict]:
@@ -65,16 +48,6 @@ def reported(reports: list[HazardReport]) -> dict[str, dict]:
     degree the user was told."""
     return {r.id: {"state": r.state, "angle": None if r.angle_deg is None else round(r.angle_deg, 1)}
             for r in reports}
-
-
-def parse_reports(texts: list[str]) -> dict[str, dict]:
-    """Per hazard, what the user was told in the chat: state and (doors) the estimated angle."""
-    out = {}
-    for text in texts:
-        m = REPORT_RE.search(text)
-        if m:
-            out[m.group(1)] = {"state": m.group(3), "angle": float(m.group(4)) if m.group(4) else None}
-    return out
 
 
 def score_hazards(specs, truth, reports: dict) -> list[dict]:
@@ -92,78 +65,75 @@ def score_hazards(specs, truth, reports: dict) -> list[dict]:
     return rows
 
 
+def score_owner(run: Run, owner: Owner, specs) -> tuple[list[dict], list[HazardReport]]:
+    """The owner's hazards scored against the world's truth (at the end), and the RApp's findings;
+    the frames of the checks renamed after their hazards (<id>, <id>-lookN for a door looked at again)."""
+    found = hazard_reports(owner.reports)
+    rows = score_hazards(specs, run.world.ground_truth(), reported(found))
+    frames = iter(owner.api.frames)  # one per look: a door looked at again has more (HazardReport.looks)
+    for report in (r for r in found if r.type != "route" and r.state != "unknown"):
+        shots = [f for f in (next(frames, None) for _ in range(report.looks)) if f is not None]
+        for k, frame in enumerate(shots, 1):  # .jpg from a noisy camera
+            frame.rename(frame.with_name(f"{report.id}{'' if k == len(shots) else f'-look{k}'}{frame.suffix}"))
+    return rows, found
+
+
+def finished(run: Run, owner: Owner) -> bool:
+    rec = owner.record
+    return rec is not None and rec.stage == TaskStage.RUN and rec.state == "Finished" and not run.signum
+
+
 async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "house", json_path=None,
                                out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0,
-                               progress: bool = False, disturbances=None, during=None) -> dict:
+                               progress: bool = False, disturbances=None, during=None,
+                               live: bool | None = None) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
-    owner's stop and resume. The result also counts the robot's contacts with people and objects and,
-    from the trace, the Core's reactive strategies and the plan monitor's failed plans (replans)."""
+    owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
+    result also counts the robot's contacts with people and objects and, from the trace's structure
+    records, the Core's reactive strategies and the plan monitor's failed plans (replans)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
-    world = World.from_file(house, seed=seed, overrides=hazard_overrides(house, seed), rtf=rtf,
-                            disturbances=disturbances)
+    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances)
     try:
         recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
                                 frames_dir=out / "frames")
-        user = f"owner-{robot}-{seed}"
-        info, png, yaml_text = home_description(world, house, out)
-        state = ServiceState(work_dir=out / "services")
-        upload_home(state, user, info, png, yaml_text)
-        trace = out / "trace.jsonl"
-        trace.unlink(missing_ok=True)
-        shutil.rmtree(out / "system", ignore_errors=True)  # a fresh Store and XMPP accounts
-        async with RappSystem(out / "system", settings=settings, trace_file=trace,
-                              platform_kw={"services_state": state}) as system:
-            await system.publish(RAPP_DIR)
-            if progress:  # live lines from the trace: Core and RApp states, chat, the robot's pose
-                follower = asyncio.create_task(follow(trace, pose=lambda: recorder.robot.pose))
-                system.on_stop(follower.cancel)
-            handle = await system.add_robot(robot, api=recorder, user=user)
-            await wait_until(lambda: core_listening(handle.core), 30, "Core listening", interval=0.05)
-            sim0, wall0 = world.time, time.monotonic()
-            await handle.user.say(handle.core.address, COMMAND)
-            side = asyncio.create_task(during(handle, world, recorder)) if during is not None else None
-            try:
-                end = await handle.user.wait_for(lambda t: t.startswith(FINISHED)
-                                                 or "did not understand" in t, timeout=timeout_s)
-            finally:
-                if side is not None:
-                    side.cancel()
-            if "did not understand" in end:
-                raise RuntimeError(f"the Core did not start the RApp: {end}")
-            sim_s, wall_s = world.time - sim0, time.monotonic() - wall0
-            texts = handle.user.texts()
-        records = read_trace(trace, validate=True)
-        reports = hazard_reports(records, handle.core.address)
-        rows = score_hazards(info.hazards, world.ground_truth(), reported(reports))
-        frames = iter(recorder.frames)  # one per look: a door looked at again has more (HazardReport.looks)
-        for report in (r for r in reports if r.type != "route" and r.state != "unknown"):
-            shots = [f for f in (next(frames, None) for _ in range(report.looks)) if f is not None]
-            for k, frame in enumerate(shots, 1):  # .jpg from a noisy camera
-                frame.rename(frame.with_name(f"{report.id}{'' if k == len(shots) else f'-look{k}'}{frame.suffix}"))
-        result = {
-            "robot": robot, "seed": seed, "hazards": rows,
-            "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),
-            "localization_error_m": finite(recorder.localization_error()),
-            "max_tracking_error_m": finite(recorder.tracking_error()),
-            "duration_sim_s": round(sim_s, 2), "duration_wall_s": round(wall_s, 2),
-            "finished": end.startswith(FINISHED[0]), "end": end,
-            "routes_blocked": [r.model_dump() for r in reports if r.type == "route"],
-            "person_contacts": world.person_contacts(), "object_contacts": world.object_contacts(),
-            **monitoring(records),
-            "trace": str(trace), "plot": str(out / "hazard_run.png"),
-        }
-        plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
-                        info.landmarks, rows, info.hazards,
-                        title=f"{robot} seed {seed} ({house}): localization {cm(result['localization_error_m'])},"
-                              f" tracking {cm(result['max_tracking_error_m'])}")
-        (out / "chat.txt").write_text("\n".join(texts) + "\n")
-        (out / "recording.json").write_text(json.dumps({"localizations": recorder.localizations,
-                                                        "paths": recorder.paths}))
+        home = home_description(world, house, out)
+        owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home)
+        run = Run(out, world, RAPP_DIR, [owner], settings=settings,
+                  platform_kw={"services_state": ServiceState(work_dir=out / "services")})
+        side = None if during is None else (lambda run: during(owner.handle, world, recorder))
+        await run.run(timeout_s, during=side,
+                      show=dict(pose=lambda: recorder.robot.pose, live=live) if progress else None)
+        with saving():
+            info = home[0]
+            rows, found = score_owner(run, owner, info.hazards)
+            result = {
+                "robot": robot, "seed": seed, "hazards": rows,
+                "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),
+                "localization_error_m": finite(recorder.localization_error()),
+                "max_tracking_error_m": finite(recorder.tracking_error()),
+                "duration_sim_s": round(run.sim_s, 2), "duration_wall_s": round(run.wall_s, 2),
+                "finished": finished(run, owner), "end": run.end_text(owner),
+                "ok": run.ok(owner), "reason": run.reason(owner),
+                "routes_blocked": [r.model_dump() for r in found if r.type == "route"],
+                "person_contacts": world.person_contacts(), "object_contacts": world.object_contacts(),
+                **monitoring(read_trace(run.trace, validate=True)),
+                "trace": str(run.trace), "plot": str(out / "hazard_run.png"),
+            }
+            plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
+                            info.landmarks, rows, info.hazards,
+                            title=f"{robot} seed {seed} ({house}): localization {cm(result['localization_error_m'])},"
+                                  f" tracking {cm(result['max_tracking_error_m'])}"
+                                  + (f" ({run.interrupted})" if run.signum else ""),
+                            trajectory=[p[1:3] for p in run.trajectories[robot]])
+            (out / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
+            (out / "recording.json").write_text(json.dumps({"localizations": recorder.localizations,
+                                                            "paths": recorder.paths}))
+            Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
     finally:
         world.close()
-    Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
+    check_interrupted(result)
     return result
 
 
@@ -182,49 +152,55 @@ def finite(value: float, digits: int = 4) -> float | None:
     return round(value, digits) if math.isfinite(value) else None
 
 
-def rows_in_order(rows: list[dict], ids: list[str]) -> list[dict]:
-    """Rows in the order of `ids`: the order the hazards were checked (= order of the saved frames)."""
-    by_id = {r["id"]: r for r in rows}
-    return [by_id[i] for i in ids if i in by_id]
-
-
-def rows_in_report_order(rows: list[dict], texts: list[str]) -> list[dict]:
-    """Rows in the order the chat reported the hazards."""
-    return rows_in_order(rows, [m.group(1) for m in map(REPORT_RE.search, texts) if m])
-
-
 def cm(value: float | None) -> str:
     return "n/a" if value is None else f"{value * 100:.1f} cm"
 
 
 def summary(result: dict) -> str:
-    lines = [f"hazard detection: robot {result['robot']} seed {result['seed']}: "
-             f"{'all correct' if result['all_correct'] else 'MISCLASSIFIED'}, "
+    verdict = ("INTERRUPTED" if "interrupted" in result["reason"] else "all correct" if result["all_correct"]
+               else "MISCLASSIFIED" if result["finished"] else "DID NOT FINISH")
+    lines = [f"hazard detection: robot {result['robot']} seed {result['seed']}: {verdict}, "
              f"localization {cm(result['localization_error_m'])}, "
              f"tracking {cm(result['max_tracking_error_m'])}, "
              f"{result['duration_sim_s']:.0f} s sim / {result['duration_wall_s']:.0f} s wall"]
+    if not result["ok"]:
+        lines.append(f"  {result['reason']}")
     for h in result["hazards"]:
         extra = (f" (true {h['true_angle']:.0f} deg, estimated {h['estimated_angle']})" if h["type"] == "door" else "")
         lines.append(f"  {h['type']:4s} {h['id']:10s} true {h['true_state']:6s} reported {h['reported_state']}{extra}")
-    lines.append(f"  plot {result['plot']}\n  trace {result['trace']}")
+    if result["strategies"] or result["replans"] or result["estops"]:
+        lines.append(f"  safety: {result['estops']} stops, strategies {', '.join(sorted(set(result['strategies']))) or '-'}"
+                     f", {result['replans']} replans, {result['obstacles_marked']} obstacles marked")
+    out = Path(result["trace"]).parent
+    lines.append(f"  wrote in {out}: {files_written(out)}")
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="hazard-detection", description=__doc__.splitlines()[0])
-    ap.add_argument("--robot", choices=["nao", "elektron"], default="nao")
-    ap.add_argument("--seed", type=int, default=1)
+    ap = argparse.ArgumentParser(prog="rapp run hazard-detection", description=__doc__.split("\n\n")[0].replace("\n", " "))
+    ap.add_argument("--robot", choices=ROBOTS, default="nao")
+    ap.add_argument("--seed", type=int, default=1, help="draws the world: door angles, lamps, a generated house "
+                                                        "(docs/sdk.md 'Scoring against the truth')")
     ap.add_argument("--house", choices=HOUSES, default="house",
                     help="a hand-made house, or 'generated': the house generated from --seed")
-    ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here")
-    ap.add_argument("--out", dest="out_dir", default=None, help="directory for plot, frames and trace")
+    ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here (default: OUT/result.json)")
+    ap.add_argument("--out", dest="out_dir", default=None, help="directory for result, plot, frames, chat and trace "
+                                                                 "(default: a new temporary directory)")
     ap.add_argument("--rtf", type=float, default=0.0, help="real-time factor (0 = as fast as possible)")
-    ap.add_argument("--quiet", action="store_true", help="no progress lines while it runs, only the summary")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for the RApp's end")
+    ap.add_argument("--quiet", action="store_true", help="no progress while it runs, only the closing summary")
+    ap.add_argument("--plain", action="store_true", help="progress as plain lines, even on a terminal")
     args = ap.parse_args(argv)
-    result = asyncio.run(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
-                                              args.rtf, progress=not args.quiet))
+    try:
+        result = main_loop(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
+                                                args.rtf, timeout_s=args.timeout, progress=not args.quiet,
+                                                live=False if args.plain else None))
+    except RunInterrupted as stop:
+        if stop.result:
+            print(summary(stop.result))
+        return 128 + stop.signum
     print(summary(result))
-    return 0 if result["all_correct"] else 1
+    return 0 if result["all_correct"] and result["finished"] else 1
 
 
 if __name__ == "__main__":

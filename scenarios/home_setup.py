@@ -89,6 +89,22 @@ def hazard_overrides(house: str, seed: int) -> dict:
     return {"doors": doors, "lamps": lamps}
 
 
+def scenario_world(house: str, seed: int, **world_kw):
+    """The world of `house` at `seed`, the same in every scenario (`rapp run rapp`, hazard-detection,
+    two-robots, the disturbance suite): where the house has a hazard layout (small, house, generated,
+    or a file with a `hazards:` section) its hazard doors, passages and lamps are drawn by
+    hazard_overrides; every other door and lamp from the house file's own ranges (robots/floorplan.py),
+    also from `seed`. `world_kw`: World.from_file's (rtf, disturbances, ...)."""
+    from robots import World
+
+    name = Path(house).stem if Path(house).stem in LAYOUTS else house  # robots/houses/small.yaml is "small"
+    try:
+        overrides = hazard_overrides(name, seed)
+    except KeyError:  # no hazard layout: the house file alone draws the world
+        overrides = None
+    return World.from_file(house, seed=seed, overrides=overrides, **world_kw)
+
+
 def door_hazard(door, side: str) -> HazardSpec:
     """Stand so that every leaf position is seen obliquely (robots.house_gen.door_check_pose); look at
     the floor near the hinge."""

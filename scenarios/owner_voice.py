@@ -1,7 +1,7 @@
 """The owner's voice in a simulated run: spoken lines from the command line (`rapp say TEXT`), from a
 scenario file (`speech:` lines with a time) or as the run's first command (`rapp run rapp ... --speak`).
 
-A line is synthesised by eSpeak NG (robots/tts.py, the `speech` extra) and played into the house's
+A line is synthesised by eSpeak NG (hearing/tts.py, the `speech` extra) and played into the house's
 sound (robots/sound.py) where the owner stands: `distance` m from the robot's microphone, at the
 robot's position when the line starts. The robot hears it only through its microphone, as a real
 one would (distance, walls, the TV). `rapp say` reaches a running `rapp run` through the run's inbox
@@ -144,17 +144,18 @@ class OwnerVoice:
         """Fail early and clearly when the owner cannot be heard: no microphone, or no synthesiser."""
         if "microphone" not in self.api.capabilities():
             raise ScriptError(f"the {self.api.robot.kind} has no microphone: speak to it by chat (--say)")
-        from robots import tts
-        from robots.errors import UnsupportedOperation
+        from hearing import tts
+        from hearing.errors import SpeechUnavailable
         try:
             tts.data_path()
-        except (ImportError, UnsupportedOperation):
+        except (ImportError, SpeechUnavailable):
             raise ScriptError("speaking needs eSpeak NG: pip install -e '.[speech]'") from None
 
     async def speak(self, line: SpokenLine) -> float:
         """Play `line` at the owner's place; returns the simulation time its last sample reaches the robot."""
-        from robots import tts
-        from robots.sound import SAMPLE_RATE, house_sound, talker_at
+        from hearing import tts
+        from hearing.wav import SAMPLE_RATE
+        from robots.sound import house_sound, talker_at
 
         pcm = await asyncio.to_thread(tts.synthesize, line.say, line.voice, line.speed)
         mic = self.api.audio_in.position()

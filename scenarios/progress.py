@@ -3,7 +3,10 @@ states, structure changes (spawn, hand-off, cloud agents, resume), every chat li
 progress records and the robot's pose.
 
 On a terminal it is a compact `rich` panel redrawn in place; otherwise (a log, CI, a pipe) or with
-`live=False` plain lines, one per event, the pose every few seconds.
+`live=False` plain lines (PlainLines): the Core's states, the RApp's own FSM states, structure changes,
+chat and the RApp's progress as it moves on; the RApp's nested steps (a walk's re-localizations) and
+repeated progress of one step are folded into a status line every half minute, and their totals
+are printed at the end.
 
     view = RunView()                  # optional: the same state feeds scenarios.watch's page
     follower = asyncio.create_task(follow(trace_path, pose=lambda: robot.pose, view=view))
@@ -17,7 +20,7 @@ import json
 import math
 import sys
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -177,40 +180,117 @@ class TraceTail:
         return out
 
 
+class PlainLines:
+    """A run's progress as plain lines (a log, a pipe), folded so that a long run stays readable:
+    states the Core enters within one read are one line ("core: s4a_keyword -> s5_download"); of a
+    RApp only its own FSM's states are lines (the first FSM it enters after a spawn), its nested FSMs'
+    steps are counted; a progress record is a line when its fraction or its subject (the text before
+    ':') changes, else it is folded. `status()` is a line with the pose, the latest progress and what
+    was folded since the last one; `totals()` the folded steps of the whole run."""
+
+    def __init__(self, print_line, status_every: float = 30.0):
+        self.print, self.status_every = print_line, status_every
+        self.top: str | None = None  # the RApp's own FSM
+        self.steps: Counter = Counter()  # (fsm, state) of nested FSMs, whole run
+        self.folded = 0  # records folded since the last status line
+        self.progress: tuple[float | None, str] | None = None  # the last progress shown
+        self.latest = ""  # the latest progress text (shown or folded)
+        self.core_chain: list[str] = []
+        self.last_status = -math.inf
+
+    def batch(self, records: list[dict], now: float) -> None:
+        for rec in records:
+            if rec.get("kind") == RecordKind.STATE and rec.get("event") == "enter" and rec.get("fsm") == "core":
+                self.core_chain.append(str(rec.get("state")))
+                continue
+            self._flush_core()
+            self._one(rec)
+        self._flush_core()
+
+    def _flush_core(self) -> None:
+        if self.core_chain:
+            self.print(f"core: {' -> '.join(self.core_chain)}")
+            self.core_chain = []
+
+    def _one(self, rec: dict) -> None:
+        kind = rec.get("kind")
+        if kind == RecordKind.STRUCTURE and rec.get("event") == _E.SPAWN:
+            self.top, self.progress = None, None
+        if kind == RecordKind.STATE and rec.get("event") == "enter":
+            fsm = str(rec.get("fsm"))
+            self.top = self.top or fsm
+            if fsm != self.top:
+                self.steps[(fsm, str(rec.get("state")))] += 1
+                self.folded += 1
+                return
+        progress = progress_of(rec)
+        if progress is not None:
+            fraction, text = progress
+            self.latest = text
+            shown = self.progress
+            if shown is not None and shown[0] == fraction and shown[1].split(":")[0] == text.split(":")[0]:
+                self.folded += 1
+                return
+            self.progress = progress
+        text = describe(rec)
+        if text:
+            self.print(text)
+
+    def status(self, now: float, pose) -> None:
+        """The status line, every `status_every` seconds once something was folded (and at the start)."""
+        if now - self.last_status < self.status_every or (self.folded == 0 and self.last_status > -math.inf):
+            return
+        self.last_status = now
+        parts = [] if pose is None else [f"robot at x={pose[0]:.2f} y={pose[1]:.2f} theta={pose[2]:.2f}"]
+        if self.folded:
+            parts.append(f"{self.folded} steps folded" + (f", latest: {self.latest}" if self.latest else ""))
+        self.folded = 0
+        if parts:
+            self.print("; ".join(parts))
+
+    def totals(self) -> list[str]:
+        """The nested FSMs' steps of the whole run: "n3_relocalize 1117 (l2_turn_head 380, ...)"."""
+        by_fsm: dict[str, Counter] = {}
+        for (fsm, state), n in self.steps.items():
+            by_fsm.setdefault(fsm, Counter())[state] = n
+        return [f"{fsm} {sum(c.values())} ({', '.join(f'{st} {n}' for st, n in c.most_common())})"
+                for fsm, c in sorted(by_fsm.items(), key=lambda kv: -sum(kv[1].values()))]
+
+
 def wants_live(out=None) -> bool:
     """The live panel only on a terminal (a log or CI gets plain lines)."""
     stream = out or sys.stdout
     return bool(getattr(stream, "isatty", lambda: False)())
 
 
-async def follow(trace: str | Path, pose=None, out=None, pose_every: float = 5.0, period: float = 0.3,
+async def follow(trace: str | Path, pose=None, out=None, pose_every: float = 30.0, period: float = 0.3,
                  live: bool | None = None, view: RunView | None = None, title: str = "rapp run",
                  silent: bool = False) -> None:
-    """Show progress until cancelled (then what was written so far, once more); `pose()` ->
-    (x, y, theta) or None. `live`: the rich panel (None: when `out`, default stdout, is a
-    terminal), else plain lines; `silent`: neither. `view` is kept up to date in every case."""
+    """Show progress until cancelled (then what was written so far, once more, and in plain lines
+    the totals of what was folded); `pose()` -> (x, y, theta) or None. `live`: the rich panel (None:
+    when `out`, default stdout, is a terminal), else plain lines (PlainLines; `pose_every`: seconds
+    between status lines); `silent`: neither. `view` is kept up to date in every case."""
     out = out or sys.stdout
     view = view if view is not None else RunView()
-    tail, t0, last_pose = TraceTail(trace), time.monotonic(), -math.inf
+    tail, t0 = TraceTail(trace), time.monotonic()
     use_live = not silent and (wants_live(out) if live is None else live)
     lines = not silent and not use_live
+    plain = PlainLines(lambda text: print(f"[{time.monotonic() - t0:6.1f}s] {text}", file=out, flush=True),
+                       status_every=pose_every)
 
     def read_new() -> None:
-        for rec in tail.read():
+        records = tail.read()
+        for rec in records:
             view.apply(rec)
-            if lines and (text := describe(rec)):
-                print(f"[{time.monotonic() - t0:6.1f}s] {text}", file=out, flush=True)
+        if lines:
+            plain.batch(records, time.monotonic())
 
     def sample_pose(now: float) -> None:
-        nonlocal last_pose
-        if pose is None:
-            return
-        p = pose()
+        p = pose() if pose is not None else None
         if p is not None:
             view.pose = tuple(float(v) for v in p[:3])
-        if lines and p is not None and now - last_pose >= pose_every:
-            last_pose = now
-            print(f"[{now - t0:6.1f}s] robot at x={p[0]:.2f} y={p[1]:.2f} theta={p[2]:.2f}", file=out, flush=True)
+        if lines:
+            plain.status(now - t0, p)
 
     display = None
     if use_live:  # redrawn by this task only (no refresh thread reading the view meanwhile)
@@ -225,6 +305,8 @@ async def follow(trace: str | Path, pose=None, out=None, pose_every: float = 5.0
             await asyncio.sleep(period)
     except asyncio.CancelledError:
         read_new()  # the run's last lines (destroy, resume) before it stops
+        if lines and (totals := plain.totals()):
+            plain.print("steps folded above, whole run: " + "; ".join(totals))
     finally:
         if display is not None:
             display.update(render(view, title), refresh=True)

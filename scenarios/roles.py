@@ -63,7 +63,9 @@ async def _platform(a, settings) -> None:
 
     # a second Platform on the same machine (a replica) must not share the first one's files
     home = data_dir(a.name or "platform", a.data)
-    state = ServiceState(work_dir=home / "services")  # per-user files (maildirs)
+    # every per-user datum (maps, homes, learned objects, faces and scenes, history, marks: SQLite and
+    # blob files, agents/services/saved.py) and per-user files (maildirs) survive a restart
+    state = ServiceState.keeping(home)
     if a.maps:
         print(f"maps preloaded: {', '.join(state.preload_maps(a.maps)) or 'none'}")
     platform = PlatformAgent(a.name or "platform", store=a.store, settings=settings, services_state=state,
@@ -117,15 +119,12 @@ def trust(a) -> dict:
 
 
 def sandbox(a):
-    from agents.sandbox import Sandbox
+    from agents.sandbox import Sandbox, allow_unsandboxed, describe
 
+    if not allow_unsandboxed(a.allow_unsandboxed, f"rapp agent {a.role}"):
+        raise SystemExit(2)
     box = Sandbox()
-    if not box.enabled:
-        if not a.allow_unsandboxed:
-            raise SystemExit(f"rapp agent {a.role}: RApps can only be sandboxed when the Core runs as root "
-                             "(agents/sandbox.py); use --allow-unsandboxed for development only")
-        print("WARNING: --allow-unsandboxed: RApp processes run with this user's rights",
-              file=sys.stderr, flush=True)
+    print(describe(), file=sys.stderr, flush=True)  # what this machine gives RApps, and what it lacks
     return box
 
 
@@ -187,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="core: DEVELOPMENT ONLY: run unsigned RApps from any Store owner")
     p.add_argument("--allow-unsandboxed", action="store_true",
                    help="core, platform: DEVELOPMENT ONLY: run RApps (Cloud Agents) without the "
-                        "sandbox when not root")
+                        "sandbox where the kernel allows none (no user namespaces; the reason is printed)")
     p.add_argument("--house", default="small", help="core: simulated house (name or YAML file)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rtf", type=float, default=1.0, help="core: simulation real-time factor")

@@ -25,7 +25,7 @@ from ontology.package import build_package_bytes, generate_keypair
 from xmpp_server import EmbeddedServer, XmppSettings
 from xmpp_server.credentials import generate_password
 
-from .user import ChatUser
+from .owner import OwnerClient
 
 # what warm workers import ahead besides the runtime: the SDK every RApp imports (~9 ms of a hand-off)
 # with its pose filter (numpy: 85 ms and 134 ms of CPU at a hazard-detection hand-off, 20 of them
@@ -51,7 +51,7 @@ class RobotHandle:
     robot_id: str
     robot_type: str
     core: CoreAgent
-    user: ChatUser
+    user: OwnerClient  # a plain chat client that also takes the Core's task records
     api: object
 
 
@@ -88,7 +88,7 @@ class RappSystem:
             # every agent of this run has its own password, in a directory of this run
             overrides["credentials_dir"] = self.workdir / "credentials"
         if self._given_settings is None:
-            self.server = EmbeddedServer(db=self.workdir / "xmpp.db")
+            self.server = EmbeddedServer(db=self.workdir / "xmpp.db", trace_file=self._trace_file)
             await self.server.astart()
             self.settings = self.server.settings(**overrides)
         else:
@@ -132,7 +132,7 @@ class RappSystem:
         n = len(self.robots) + 1
         robot_id = robot_id or f"{robot_type}{n}"
         user_name = user or f"owner-{robot_id}"
-        chat = ChatUser(user_name, self.settings)
+        chat = OwnerClient(user_name, self.settings)
         await chat.start()
         core_kw.setdefault("trusted_keys", [self.public_key])
         core_kw.setdefault("require_signature", True)

@@ -31,12 +31,25 @@ def local(jid: str | None) -> str:
     return bare(jid).split("@", 1)[0]
 
 
+# the agents' roles, by the account names they run under (a Dynamic or Cloud Agent's name is random)
+ROLES = {"core": "core-", "dyn": "dyn-", "cloud": "cloud-", "platform": "platform", "store": "store",
+         "owner": "owner-"}
+
+
+def role(jid: str | None) -> str:
+    """The role of an agent ('core', 'dyn', ...), or '' when its name is none of ROLES'."""
+    name = local(jid)
+    return next((r for r, prefix in ROLES.items()
+                 if name == prefix.rstrip("-") or (prefix.endswith("-") and name.startswith(prefix))), "")
+
+
 def agent_matches(jid: str | None, wanted: str) -> bool:
-    """True when `jid` is the agent `wanted`, given as full JID, bare JID or local part."""
+    """True when `jid` is the agent `wanted`, given as full JID, bare JID, local part or role (ROLES:
+    "dyn" is every Dynamic Agent of the trace)."""
     if not jid or not wanted:
         return False
     b, w = bare(jid), bare(wanted)
-    return b == w or ("@" not in w and local(b) == w)
+    return b == w or ("@" not in w and (local(b) == w or (w in ROLES and role(b) == w)))
 
 
 def short_conv(conversation_id: str | None, n: int = 8) -> str:
@@ -347,6 +360,58 @@ def summary(records: Iterable[dict]) -> dict:
         "timeouts": sum(r.get("kind") == RecordKind.TIMEOUT for r in records),
         "dropped": sum(r.get("kind") == RecordKind.DROPPED for r in records),
     }
+
+
+def limit_items(records: list[dict], limit: int) -> tuple[list[dict], int]:
+    """The records of the first `limit` timeline items (messages and notes; 0: all), and how many
+    timeline items are left out."""
+    items = timeline(records)
+    if not limit or len(items) <= limit:
+        return records, 0
+    last_t = items[limit - 1].get("t", 0)
+    return [r for r in records if r.get("t", 0) <= last_t], len(items) - limit
+
+
+SUMMARY_EVENTS = {"spawn", "handoff", "ended", "destroy", "resume", "cloud-spawn", "cloud-destroy", "cloud-lost",
+                  "estop", "strategy", "plan-failed", "heartbeat-late", "catalogue-changed"}
+
+
+def summary_text(records: list[dict], title: str = "trace", events_shown: int = 40) -> str:
+    """What `rapp trace show` prints by default: the agents (role, messages sent and received), the
+    messages per performative, the task's structure changes in time order (repeated ones counted),
+    the tasks' ends, and what went wrong (unanswered requests, timeouts, dropped messages)."""
+    records = list(records)
+    if not records:
+        return f"{title}: no records"
+    s = summary(records)
+    t0 = min(r.get("t", 0) for r in records)
+    span = max(r.get("t", 0) for r in records) - t0
+    lines = [f"{title}: {len(records)} records over {span:.1f} s, {s['messages']} messages "
+             f"({', '.join(f'{n} {p}' for p, n in sorted(s['per_performative'].items(), key=lambda kv: -kv[1]))})",
+             "", "agents (--agent ROLE, NAME or JID):"]
+    agents = sorted({bare(r["agent"]) for r in records if r.get("agent")} | set(s["per_agent"]),
+                    key=lambda j: (list(ROLES).index(role(j)) if role(j) else len(ROLES), j))
+    width = max(len(local(j)) for j in agents)
+    for j in agents:
+        n = s["per_agent"].get(j, {"sent": 0, "received": 0})
+        lines.append(f"  {role(j) or '-':8s} {local(j):{width}s}  sent {n['sent']:6d}  received {n['received']:6d}")
+    events = [r for r in records if r.get("kind") == RecordKind.STRUCTURE and r.get("event") in SUMMARY_EVENTS]
+    counts = Counter(r["event"] for r in events)
+    lines += ["", f"structure ({', '.join(f'{n} {e}' for e, n in counts.most_common()) or 'none'}):"]
+    shown = [r for r in events if r["event"] not in ("strategy", "plan-failed")]  # counted above, often many
+    for r in shown[:events_shown]:
+        lines.append(f"  {r.get('t', 0) - t0:8.1f} s  {note_label(r)[:150]}")
+    if len(shown) > events_shown:
+        lines.append(f"  ... {len(shown) - events_shown} more (--view table)")
+    ends = [r for r in records if r.get("kind") == RecordKind.STRUCTURE and r.get("event") == "ended"]
+    if ends:
+        lines += ["", "tasks:"]
+        lines += [f"  {local(r.get('dynamic'))}: {r.get('state', '')} ({str(r.get('reason', ''))[:120]})" for r in ends]
+    lines += ["", f"problems: {len(s['unanswered'])} unanswered requests, {s['timeouts']} timeouts, "
+                  f"{s['dropped']} dropped messages, {s['one_sided']} messages seen by one side only",
+              "", "messages: --view table|sequence|both (the first --limit N, default 200); rapp trace html FILE "
+                  "for a page"]
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> None:

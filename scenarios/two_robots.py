@@ -12,27 +12,20 @@ both owners the full list (then both robots check every hazard and may block eac
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
-import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from agents.services.context import ServiceState
-from robots import OdometryNoise, RobotAPI, World
+from robots import OdometryNoise, RobotAPI
 
-from agents.tracing import read_trace
-
-from .hazard import (COMMAND, FINISHED, RAPP_DIR, cm, core_listening, finite, hazard_reports, reported,
-                     rows_in_order, score_hazards, wait_until)
-from .home_setup import HOUSES, hazard_overrides, home_description, home_map, upload_home
+from .hazard import COMMAND, RAPP_DIR, ROBOTS, cm, finished, finite, score_owner
+from .home_setup import HOUSES, home_description, home_map, scenario_world
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
-from .system import RappSystem
+from .runner import Owner, Run, RunInterrupted, check_interrupted, files_written, main_loop, saving
 
-ROBOTS = ("nao", "elektron")
 # which hazards each robot's owner lists (split mode), per house
 SPLIT = {
     "house": {"nao": {"d_bedroom", "l_office"}, "elektron": {"d_kitchen", "l_living"}},
@@ -47,98 +40,88 @@ def split(house: str, hazards) -> dict[str, set[str]]:
     return {kind: {h.id for h in hazards[i::len(ROBOTS)]} for i, kind in enumerate(ROBOTS)}
 
 
-async def _run_one(handle, timeout_s: float) -> tuple[str, list[str], float]:
-    """Ask this robot's Core to check the hazards; wait for the end; (last text, chat texts, wall s)."""
-    t0 = time.monotonic()
-    await handle.user.say(handle.core.address, COMMAND)
-    end = await handle.user.wait_for(lambda t: t.startswith(FINISHED) or "did not understand" in t,
-                                     timeout=timeout_s)
-    return end, handle.user.texts(), time.monotonic() - t0
-
-
 async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json_path=None, shared: bool = False,
                          rtf: float = 0.0, settings=None, timeout_s: float = 1800.0) -> dict:
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"two-robots-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
-    world = World.from_file(house, seed=seed, overrides=hazard_overrides(house, seed), rtf=rtf)
+    world = scenario_world(house, seed, rtf=rtf)
     try:
         recorders = {kind: RecordingAPI(RobotAPI(world.add_robot(kind, odometry_noise=OdometryNoise.typical())),
                                         frames_dir=out / kind / "frames") for kind in ROBOTS}
         info, png, yaml_text = home_description(world, house, out)
-        state = ServiceState(work_dir=out / "services")
         homes = {}
         for kind in ROBOTS:
             hazards = info.hazards if shared else [h for h in info.hazards if h.id in split(house, info.hazards)[kind]]
             homes[kind] = info.model_copy(update={"hazards": hazards})
-            upload_home(state, f"owner-{kind}-{seed}", homes[kind], png, yaml_text)
-        trace = out / "trace.jsonl"
-        trace.unlink(missing_ok=True)
-        shutil.rmtree(out / "system", ignore_errors=True)
-        async with RappSystem(out / "system", settings=settings, trace_file=trace,
-                              platform_kw={"services_state": state}) as system:
-            await system.publish(RAPP_DIR)
-            handles = {kind: await system.add_robot(kind, api=recorders[kind], user=f"owner-{kind}-{seed}")
-                       for kind in ROBOTS}
-            for kind, h in handles.items():
-                await wait_until(lambda h=h: core_listening(h.core), 30, f"Core of {kind} listening")
-            sim0 = world.time
-            runs = await asyncio.gather(*(_run_one(handles[k], timeout_s) for k in ROBOTS))
-            sim_s = world.time - sim0
-        truth = world.ground_truth()
-        records = read_trace(trace, validate=True)
-        result = {"seed": seed, "house": house, "shared": shared, "duration_sim_s": round(sim_s, 2),
-                  "trace": str(trace), "robots": {}}
-        for kind, (end, texts, wall_s) in zip(ROBOTS, runs):
-            if "did not understand" in end:
-                raise RuntimeError(f"the Core of {kind} did not start the RApp: {end}")
-            rec = recorders[kind]
-            reports = hazard_reports(records, handles[kind].core.address)  # this robot's Core only
-            rows = score_hazards(homes[kind].hazards, truth, reported(reports))
-            for row, frame in zip(rows_in_order(rows, [r.id for r in reports]), rec.frames):
-                frame.rename(frame.with_name(f"{row['id']}.png"))
-            r = {"robot": kind, "user": f"owner-{kind}-{seed}", "hazards": rows,
-                 "all_correct": all(x["true_state"] == x["reported_state"] for x in rows),
-                 "localization_error_m": finite(rec.localization_error()),
-                 "max_tracking_error_m": finite(rec.tracking_error()),
-                 "duration_wall_s": round(wall_s, 2), "plot": str(out / kind / "hazard_run.png")}
-            plot_hazard_run(out / kind / "hazard_run.png", home_map(world, house), rec.paths, rec.localizations,
-                            info.landmarks, rows, homes[kind].hazards,
-                            title=f"{kind} (with another robot) seed {seed} ({house}): localization "
-                                  f"{cm(r['localization_error_m'])}, tracking {cm(r['max_tracking_error_m'])}")
-            (out / kind / "chat.txt").write_text("\n".join(texts) + "\n")
-            result["robots"][kind] = r
-        result["all_correct"] = all(r["all_correct"] for r in result["robots"].values())
+        owners = [Owner(kind, recorders[kind], f"owner-{kind}-{seed}", COMMAND, home=(homes[kind], png, yaml_text))
+                  for kind in ROBOTS]
+        run = Run(out, world, RAPP_DIR, owners, settings=settings,
+                  platform_kw={"services_state": ServiceState(work_dir=out / "services")})
+        await run.run(timeout_s)
+        with saving():
+            result = {"seed": seed, "house": house, "shared": shared, "duration_sim_s": round(run.sim_s, 2),
+                      "ok": all(run.ok(o) for o in owners), "reason": run.failure or "",
+                      "trace": str(run.trace), "robots": {}, "truth": run.truth()}
+            for owner in owners:
+                kind, rec = owner.kind, owner.api
+                rows, _ = score_owner(run, owner, homes[kind].hazards)
+                r = {"robot": kind, "user": owner.user, "hazards": rows,
+                     "all_correct": all(x["true_state"] == x["reported_state"] for x in rows),
+                     "finished": finished(run, owner), "end": run.end_text(owner), "reason": run.reason(owner),
+                     "localization_error_m": finite(rec.localization_error()),
+                     "max_tracking_error_m": finite(rec.tracking_error()),
+                     "duration_wall_s": round(owner.wall_s, 2), "plot": str(out / kind / "hazard_run.png")}
+                plot_hazard_run(out / kind / "hazard_run.png", home_map(world, house), rec.paths, rec.localizations,
+                                info.landmarks, rows, homes[kind].hazards,
+                                title=f"{kind} (with another robot) seed {seed} ({house}): localization "
+                                      f"{cm(r['localization_error_m'])}, tracking {cm(r['max_tracking_error_m'])}",
+                                trajectory=[p[1:3] for p in run.trajectories[kind]])
+                (out / kind / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
+                result["robots"][kind] = r
+            result["all_correct"] = all(r["all_correct"] for r in result["robots"].values())
+            Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
     finally:
         world.close()
-    Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
+    check_interrupted(result)
     return result
 
 
 def summary(result: dict) -> str:
     lines = [f"two robots, one house ({result['house']}, seed {result['seed']}, "
-             f"{'shared' if result['shared'] else 'split'} hazard lists): {result['duration_sim_s']:.0f} s sim"]
+             f"{'shared' if result['shared'] else 'split'} hazard lists): {result['duration_sim_s']:.0f} s sim"
+             + (f"; {result['reason']}" if result["reason"] else "")]
     for kind, r in result["robots"].items():
-        lines.append(f"  {kind:9s} {'all correct' if r['all_correct'] else 'MISCLASSIFIED'}, localization "
+        verdict = ("all correct" if r["all_correct"] else "MISCLASSIFIED") if r["finished"] else "DID NOT FINISH"
+        lines.append(f"  {kind:9s} {verdict}, localization "
                      f"{cm(r['localization_error_m'])}, tracking {cm(r['max_tracking_error_m'])}, "
                      f"{r['duration_wall_s']:.0f} s wall")
         for h in r["hazards"]:
             lines.append(f"    {h['type']:4s} {h['id']:10s} true {h['true_state']:6s} reported {h['reported_state']}")
+    out = Path(result["trace"]).parent
+    lines.append(f"  wrote in {out}: {files_written(out)}")
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="two-robots", description=__doc__.splitlines()[0])
-    ap.add_argument("--seed", type=int, default=1)
+    ap = argparse.ArgumentParser(prog="rapp run two-robots", description=__doc__.split("\n\n")[0].replace("\n", " "))
+    ap.add_argument("--seed", type=int, default=1, help="draws the world (as in every scenario)")
     ap.add_argument("--house", choices=HOUSES, default="house")
     ap.add_argument("--shared", action="store_true", help="both owners list every hazard")
-    ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here")
-    ap.add_argument("--out", dest="out_dir", default=None, help="directory for plots, frames and trace")
+    ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here (default: OUT/result.json)")
+    ap.add_argument("--out", dest="out_dir", default=None, help="directory for plots, frames, chats and trace "
+                                                                 "(default: a new temporary directory)")
     ap.add_argument("--rtf", type=float, default=0.0, help="real-time factor (0 = as fast as possible)")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for the RApps' ends")
     args = ap.parse_args(argv)
-    result = asyncio.run(run_two_robots(args.seed, args.house, args.out_dir, args.json_path, args.shared, args.rtf))
+    try:
+        result = main_loop(run_two_robots(args.seed, args.house, args.out_dir, args.json_path, args.shared, args.rtf,
+                                          timeout_s=args.timeout))
+    except RunInterrupted as stop:
+        if stop.result:
+            print(summary(stop.result))
+        return 128 + stop.signum
     print(summary(result))
-    print(f"result: {args.json_path or Path(result['trace']).parent / 'result.json'}")
-    return 0 if result["all_correct"] else 1
+    return 0 if result["all_correct"] and result["ok"] else 1
 
 
 if __name__ == "__main__":

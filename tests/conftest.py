@@ -1,9 +1,29 @@
-"""Shared fixtures: one real embedded XMPP server per test session, on free loopback ports."""
+"""Shared fixtures: one real embedded XMPP server per test session, on free loopback ports; and a
+watchdog that ends what the run started when the run ends, even killed (tests/run_watchdog.py)."""
 from __future__ import annotations
+
+import os
+import secrets
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from xmpp_server import EmbeddedServer
+
+
+def pytest_configure(config):
+    """In the run's controller (not an xdist worker): every process the run starts inherits
+    RAPP_TEST_RUN; a watchdog in a session of its own kills them all once the controller is gone."""
+    if hasattr(config, "workerinput") or os.environ.get("RAPP_TEST_RUN") or not sys.platform.startswith("linux"):
+        return
+    mark = secrets.token_hex(8)
+    env = {k: v for k, v in os.environ.items() if k != "RAPP_TEST_RUN"}
+    subprocess.Popen([sys.executable, str(Path(__file__).parent / "run_watchdog.py"), str(os.getpid()), mark],
+                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                     start_new_session=True, env=env)
+    os.environ["RAPP_TEST_RUN"] = mark
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -167,6 +167,9 @@ async def test_trace_show_and_export_mermaid(running, tmp_path):
 
     res = await arapp("trace", "show", trace, "--agent", "store")
     assert res.returncode == 0, res.stderr
+    assert "  store " in res.stdout and "messages (" in res.stdout.splitlines()[0]  # the summary, by default
+    res = await arapp("trace", "show", trace, "--agent", "store", "--view", "table")
+    assert res.returncode == 0, res.stderr
     assert "list_packages" in res.stdout
 
     out = tmp_path / "trace.mmd"
@@ -204,12 +207,12 @@ def test_doctor_explains_when_nothing_listens():
 
 def test_doctor_notes_a_missing_speech_extra(monkeypatch, capsys):
     """Without eSpeak NG the install works, minus speech: a note that says what is lost, not a FAIL."""
-    from robots import tts
-    from robots.errors import UnsupportedOperation
+    from hearing import tts
+    from hearing.errors import SpeechUnavailable
     from scenarios import doctor
 
     def missing(*a, **kw):
-        raise UnsupportedOperation("text to speech needs the espeakng-loader package")
+        raise SpeechUnavailable("text to speech needs the espeakng-loader package")
 
     monkeypatch.setattr(tts, "synthesize", missing)
     assert doctor._check("text to speech", doctor._synthesis)
@@ -233,3 +236,46 @@ def test_a_server_without_db_removes_its_temporary_database_when_it_stops(tmp_pa
         proc.terminate()
         _, err = proc.communicate(timeout=20)
     assert proc.returncode == 0 and not db.parent.exists(), err
+
+
+# -- help, trace views and `rapp test` (issue 43 item 7) ---------------------------------------
+def test_run_help_lists_every_scenario_and_each_scenarios_help_is_whole():
+    from cli.main import SCENARIOS
+
+    res = rapp("run", "--help")
+    assert res.returncode == 0, res.stderr
+    for name in SCENARIOS:
+        assert f"\n  {name} " in res.stdout, res.stdout
+    res = rapp("run", "hazard-detection", "--help")
+    assert res.returncode == 0 and "pybullet build time" not in res.stdout + res.stderr  # no third-party banner
+    description = res.stdout.split("\n\n")[1]
+    assert description.rstrip().endswith("scored against ground truth."), description  # not cut mid-sentence
+    assert "--quiet" in res.stdout and "only the closing summary" in res.stdout
+    assert "only the closing summary" in rapp("run", "rapp", "--help").stdout  # one meaning of --quiet
+
+
+GOLDEN = ROOT / "tests" / "data" / "golden_trace.jsonl"
+
+
+def test_trace_show_summarises_by_default_limits_and_takes_roles():
+    res = rapp("trace", "show", GOLDEN)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert lines[0].startswith("golden_trace.jsonl: 202 records") and len(lines) < 60, res.stdout
+    assert any(line.startswith("  dyn ") and "dyn-nao1-golden-demo-" in line for line in lines), res.stdout  # roles
+    res = rapp("trace", "show", GOLDEN, "--view", "table", "--agent", "dyn", "--limit", "5")
+    assert res.returncode == 0, res.stderr
+    rows = [line for line in res.stdout.splitlines()[2:] if not line.startswith("...")]
+    assert len(rows) == 5 and all("dyn-nao1-golden-demo" in row for row in rows), res.stdout
+    assert "more records (--limit N" in res.stdout.splitlines()[-1]
+
+
+def test_rapp_test_runs_a_folders_tests_outside_the_checkout(tmp_path):
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_x.py").write_text(
+        "import asyncio\n\nasync def test_async_without_a_mark():\n    await asyncio.sleep(0)\n\n"
+        "def test_fails():\n    assert 1 == 2\n")
+    res = subprocess.run([*RAPP, "test", str(tmp_path)], capture_output=True, text=True, cwd=tmp_path, timeout=120,
+                         stdin=subprocess.DEVNULL)
+    assert res.returncode == 1 and "1 failed, 1 passed" in res.stdout, res.stdout[-2000:]
+    assert "warning" not in res.stdout.lower(), res.stdout[-2000:]

@@ -42,14 +42,14 @@ async def system(tmp_path_factory):
 async def _kill_cloud_of(system, keyword: str, rapp: str, sig=signal.SIGKILL) -> tuple[float, int]:
     user, start = system.handle.user, len(system.handle.user.received)
     await user.say(system.handle.core.address, keyword)
-    await user.wait_for(lambda t: t.startswith("watching cloud"), timeout=30, start=start)
+    await user.wait_for(lambda t: t.startswith(f"[{rapp}] watching cloud"), timeout=30, start=start)
     session = next(c for c in system.platform.clouds.values() if c.rapp == rapp)
     # serving, it runs CLOUD_NICE below the Platform (its own process only: the Platform's is untouched)
     own = os.getpriority(os.PRIO_PROCESS, 0)
     await wait_until(lambda: thread_priorities(session.process.pid) == {own + CLOUD_NICE}, 5)  # and its group
     assert os.getpriority(os.PRIO_PROCESS, 0) == own
     killed = time.time()  # the trace's clock
-    os.kill(session.process.pid, sig)
+    os.kill(session.process.agent_pid, sig)  # the runtime itself (inside its sandbox: not the outer process)
     return killed, start
 
 
@@ -57,7 +57,7 @@ async def test_killed_cloud_agent_is_reported_to_its_dynamic_agent_within_2s(sys
     killed, start = await _kill_cloud_of(system, "cloudlost", "cloud-lost")
     user = system.handle.user
     await user.wait_for(lambda t: t.startswith("cloud-lost finished"), timeout=20, start=start)
-    assert "cloud lost: cloud-lost" in user.texts()[start:]  # the RApp caught CloudAgentLost
+    assert "[cloud-lost] cloud lost: cloud-lost" in user.texts()[start:]  # the RApp caught CloudAgentLost
     # told: the Dynamic Agent's own record of the Platform's notice (the owner's chat adds the
     # RApp's report and the Core's relay, which a loaded test machine may stall)
     told = next((r for r in read_trace(system.settings.trace_file) if r["kind"] == "structure"
@@ -75,7 +75,7 @@ async def test_restartable_cloud_agent_is_started_once_more(system):
     texts = user.texts()[start:]
     # calls go on: one in flight is answered by the new process (the server kept it) or fails
     # with "cloud-restarted" and the next succeeds; none is lost, the task ends well
-    assert "echo done for owner-nao1, doubled 42" in texts and "cloud lost: cloud-lost" not in texts
+    assert "[cloud-again] echo done for owner-nao1, doubled 42" in texts and "[cloud-again] cloud lost: cloud-lost" not in texts
     trace = read_trace(system.settings.trace_file)
     events = [r for r in trace if r["kind"] == "structure"]
     lost = next(r for r in events if r["event"] == "cloud-lost" and r["rapp"] == "cloud-again")

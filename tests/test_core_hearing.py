@@ -1,5 +1,6 @@
 """A sentence the owner pauses in (agents/core_hearing.py): the voice detector cuts it at the pause,
-and the Core takes the next part as its continuation only when speech starts again soon enough."""
+and the Core takes the next part as its continuation only when speech starts again soon enough. And
+the keyword spotted ahead of the detector's cut (hearing/keywords.py LookAhead)."""
 from __future__ import annotations
 
 import asyncio
@@ -9,8 +10,9 @@ import pytest
 
 from agents import core_hearing
 from agents.core_hearing import CONTINUE_WITHIN_S, Continuation
-from robots import tts
-from robots.receptors import VoiceActivity
+from hearing import tts
+from hearing.keywords import LookAhead
+from hearing.vad import VoiceActivity
 
 RATE = 16000
 
@@ -57,7 +59,7 @@ async def test_speech_again_within_the_pause_continues_the_sentence():
     whole = first.then(more)
     assert whole.seconds == pytest.approx(first.seconds + more.seconds)
     assert whole.speech_seconds == pytest.approx(first.speech_seconds + more.speech_seconds)
-    # each 10 ms of the audio says whether the detector took it for speech (robots/receptors.py said_alone)
+    # each 10 ms of the audio says whether the detector took it for speech (hearing/keywords.py said_alone)
     for u in (first, more, whole):
         assert len(u.loud) * 160 == len(u.pcm) and abs(u.loud.sum() / 100 - u.speech_seconds) <= 0.05
     assert not whole.loud[len(first.loud) - 5:len(first.loud)].any()  # the pause
@@ -112,14 +114,14 @@ def test_an_owner_who_goes_on_makes_another_cut():
 
 @pytest.fixture(scope="module")
 def spotter():
-    from robots.receptors import KeywordSpotter
+    from hearing.keywords import KeywordSpotter
     return KeywordSpotter(["inbox", "weather"], ["what's the weather in warsaw"])
 
 
 @pytest.mark.parametrize("said, pause_s, early", [(("inbox",), 0.0, True), (("what's the", "weather"), 0.25, False)])
 async def test_the_keyword_spotted_ahead_is_taken_only_for_the_same_audio(spotter, said, pause_s, early):
     endings, cuts = _endings_and_cuts(_said(*said, pause_s=pause_s))
-    ahead = core_hearing.LookAhead()
+    ahead = LookAhead()
     ahead.start(spotter, endings[0][1])
     word, was_early = await ahead.spot(spotter, cuts[0][1])
     assert was_early is early

@@ -17,8 +17,9 @@ import pytest
 from agents.core_agent import CoreAgent
 from agents.core_hearing import Continuation
 from agents.tracing import read_trace
-from robots import RobotAPI, World, tts
-from robots.receptors import HeardUtterance, VoiceActivity
+from hearing import tts
+from hearing.vad import HeardUtterance, VoiceActivity
+from robots import RobotAPI, World
 from robots.sound import HouseSound, NoiseSource, house_sound, talker_at
 from scenarios.system import RappSystem
 
@@ -203,12 +204,12 @@ async def test_the_cognitive_game_is_answered_by_voice(system):
                "How much is 7 times 8?": "fifty six", "How much is 45 divided by 5?": "nine"}
     asked = 0
     while True:
-        text = await user.wait_for(lambda t: t.startswith("Question") or "finished:" in t or "problem" in t,
+        text = await user.wait_for(lambda t: "] Question" in t or "finished:" in t or "problem" in t,
                                    timeout=60, start=start)
         start = user.received.index(next(r for r in user.received[start:] if r[2] == text)) + 1
         if "finished:" in text or "problem" in text:
             break
-        question = re.sub(r"^Question \d+: ", "", text)
+        question = re.sub(r"^\[[^]]*\] Question \d+: ", "", text)  # a RApp's words come labelled
         speak(system, answers.get(question, "pass"), distance=1.0, voice="en-us", delay=0.5)
         asked += 1
     assert asked >= 2 and f"{asked} of {asked} correct, score 100" in text
@@ -219,7 +220,7 @@ async def test_the_cognitive_game_is_answered_by_voice(system):
 
 async def test_a_rapp_named_outside_the_dictionary_is_heard_by_both_paths(system, tmp_path):
     # `rapp new greeter` makes the keyword "greeter" and the phrase "run greeter"; pocketsphinx's
-    # dictionary has no "greeter", and neither path heard it until robots/pronounce.py
+    # dictionary has no "greeter", and neither path heard it until hearing/pronounce.py
     from rapps.scaffold import create
 
     core, user = system.handle.core, system.handle.user

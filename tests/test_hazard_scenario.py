@@ -12,12 +12,13 @@ from agents.services.errors import ServiceError
 from agents.services.home import get_info, upload_info
 from agents.tracing import read_trace
 from ontology.services.home import GetHomeInfo, HomeInfo, UploadHomeInfo
-from scenarios.hazard import parse_reports, run_hazard_detection
+from scenarios.hazard import run_hazard_detection
 from scenarios.home_setup import hazard_list, hazard_overrides
 
 RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
                "duration_sim_s", "duration_wall_s", "trace", "plot", "finished", "end", "routes_blocked",
-               "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops"}
+               "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops",
+               "ok", "reason"}
 
 
 def structure_events(trace: list[dict], rapp: str) -> list[str]:
@@ -29,11 +30,12 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     assert set(result) == RESULT_KEYS
     assert {h["id"] for h in result["hazards"]} == hazard_ids
     assert result["all_correct"], result["hazards"]
+    assert result["ok"] and result["finished"], result["reason"]
     events = structure_events(read_trace(result["trace"]), "hazard-detection")
     assert events[0] == "spawn" and "cloud-spawn" in events and events[-1] == "destroy", events
     chat = (out / "chat.txt").read_text()
     assert "hazard-detection finished" in chat
-    assert set(parse_reports(chat.splitlines())) == hazard_ids  # the user got every hazard's report
+    assert all(f"Hazard {h} (" in chat for h in hazard_ids)  # the user was told every hazard's report
     assert Path(result["plot"]).stat().st_size > 10_000
     stems = {p.stem for p in (out / "frames").glob("*.*")}  # PNG, or JPEG from a noisy camera
     assert {s.split("-look")[0] for s in stems} == hazard_ids <= stems  # a door looked at again: <id>-lookN too

@@ -16,6 +16,7 @@ from agents.errors import RequestRefused, RequestTimeout
 from agents.store_agent import StoreAgent
 from agents.tracing import read_trace
 from ontology import robot as R
+from ontology.acl import Performative
 from ontology import store as S
 from robots import RobotAPI, World
 from scenarios.system import RappSystem, wait_until
@@ -99,7 +100,8 @@ async def run_command(system, text: str, expect: str, timeout=60.0) -> str:
 
 
 def structure(trace, agent_prefix=None):
-    return [r for r in trace if r["kind"] == "structure"
+    """The agents' structure records (not the XMPP server's logins and registrations)."""
+    return [r for r in trace if r["kind"] == "structure" and not str(r.get("agent", "")).startswith("xmpp-server@")
             and (agent_prefix is None or r["agent"].startswith(agent_prefix))]
 
 
@@ -131,7 +133,7 @@ async def check_full_lifecycle(system) -> list[dict]:
     assert stopped, "the Dynamic Agent logged out"
     with pytest.raises(RequestTimeout):
         await core.request(spawn["dynamic"], R.GetGlobalPose(), timeout=0.5)
-    assert "echo done for owner-nao1" in system.handle.user.texts()
+    assert "[echo-app] echo done for owner-nao1" in system.handle.user.texts()  # labelled: the RApp's words
     return trace
 
 
@@ -315,3 +317,42 @@ async def test_core_answers_while_the_robot_is_still_speaking(system):
     await user.say(core.address, "please juggle three torches")
     await user.wait_for(lambda t: t.startswith("Sorry"), timeout=10, start=start)
     assert loop.time() - t0 < 1.0, "the command was answered while the robot spoke"
+
+
+async def test_the_owner_is_told_each_commands_end_as_a_typed_record(system):
+    """Results as data (ontology/results.py): the owner's client subscribes once; each command's end
+    comes as a TaskRecord (reports with their data, state, reason, stage, times), whether the task
+    finished, failed, or never started; none of it is chat, and only the owner may subscribe."""
+    from agents.errors import RequestRefused as Refused
+    from ontology.results import SubscribeTasks, TaskStage
+
+    core, user = system.handle.core, system.handle.user
+    await user.watch_tasks(core.address)
+    start = len(user.ended)
+    await run_command(system, "echo", "echo-app finished")
+    done = await user.task_end(30, start)
+    assert (done.rapp, done.stage, done.state, done.ok, done.command) == ("echo-app", TaskStage.RUN, "Finished", True,
+                                                                          "echo")
+    assert [r.text for r in done.reports] == ["echo done for owner-nao1"] and done.told == "echo-app finished."
+    assert done.started < done.reports[0].stamp <= done.ended and not done.refusals
+    assert [r.report.text for r in user.reported[-1:]] == ["echo done for owner-nao1"]  # each report as it came
+
+    await run_command(system, "failecho", "echo-fail ended with a problem")
+    failed = await user.task_end(30, start + 1)
+    assert (failed.rapp, failed.stage, failed.state, failed.ok) == ("echo-fail", TaskStage.RUN, "Error", False)
+    assert "deliberate failure" in failed.reason
+
+    await run_command(system, "please juggle three flaming torches", "did not understand")
+    await wait_until(lambda: len(user.ended) > start + 2, 10)  # told when the Core listens again
+    never = user.ended[start + 2]
+    assert (never.rapp, never.stage, never.ok, never.started) == ("", TaskStage.UNDERSTAND, False, None)
+    assert "juggle" in never.reason and never.command == "please juggle three flaming torches"
+    assert not [t for t in user.texts() if t.startswith("{")] and not user.bad  # records are not chat
+
+    intruder = RappAgent("intruder-tasks", system.settings)
+    await intruder.start()
+    try:
+        with pytest.raises(Refused, match="not the owner"):
+            await intruder.request(core.address, SubscribeTasks(), performative=Performative.SUBSCRIBE, timeout=20)
+    finally:
+        await intruder.stop()

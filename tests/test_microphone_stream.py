@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from agents.core_behaviours import MicrophoneStream
-from robots import RobotAPI, World, tts
-from robots.mic_array import Steering
+from hearing import tts
+from hearing.steering import Steering
+from robots import RobotAPI, World
 from robots.sound import house_sound, talker_at
 
 

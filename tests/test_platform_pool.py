@@ -134,7 +134,7 @@ def test_a_pooled_speech_recognition_fills_a_slot_with_the_callers_rooms():
     from agents.services.speech import SpeechRecognition
     from ontology.services.home import HomeInfo, RoomSpec, UploadHomeInfo
     from agents.services import run_service
-    from robots.sound import encode_wav
+    from hearing.wav import encode_wav
 
     from .services.test_speech import _heard
 

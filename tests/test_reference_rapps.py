@@ -1,4 +1,4 @@
-"""The reference RApps (weather reporter, e-mail reader, cognitive game) run on the same Core,
+"""The reference RApps (weather reporter, news explorer, e-mail reader, cognitive game) run on the same Core,
 unchanged, each started by a user sentence interpreted by the Platform."""
 from __future__ import annotations
 
@@ -23,12 +23,12 @@ async def system(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("reference")
     world = World.from_file("small", seed=9)
     async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
-        for name in ("weather_reporter", "email_reader", "cognitive_game"):
+        for name in ("weather_reporter", "email_reader", "cognitive_game", "news_explorer"):
             await system.publish(RAPPS / name)
         system.world = world
         system.nao = world.add_robot("nao")
         system.handle = await system.add_robot("nao", api=RobotAPI(system.nao))
-        await wait_until(lambda: len(system.handle.core.vocabulary) >= 3 and state(system.handle.core) == "s3_listen")
+        await wait_until(lambda: len(system.handle.core.vocabulary) >= 4 and state(system.handle.core) == "s3_listen")
         core = system.handle.core
         login = await system.publisher.request(system.platform.address,
                                                P.Login(user=core.user, password=core.password))
@@ -45,7 +45,7 @@ async def command(system, text: str, expect: str, timeout: float = 60.0, handle=
     start = len(user.received)
     await user.say(core.address, text)
     await user.wait_for(lambda t: expect in t, timeout=timeout, start=start)
-    return user.texts()[start:]
+    return [re.sub(r"^\[[^]]*\] ", "", t) for t in user.texts()[start:]]  # a RApp's words, their label off
 
 
 async def test_weather_reporter(system):
@@ -61,6 +61,17 @@ async def test_weather_reporter_writes_when_the_robot_cannot_speak(system):
     said = await command(system, "what's the weather in Krakow", "weather_reporter finished", handle=elektron)
     report = next(t for t in said if t.startswith("In Krakow"))
     assert "fog" in report and "cannot speak, so I wrote it" in report
+
+
+async def test_news_explorer_reads_a_topic_or_the_stories_about_a_subject(system):
+    said = await command(system, "tell me the news about health", "news_explorer finished")
+    report = next(t for t in said if t.startswith("Here are 2 stories about health"))
+    assert "1. Walking every day keeps the heart young." in report and "2. Flu season ends early" in report
+    assert any("about health" in t for _, t in system.nao.loudspeaker.spoken)  # it was spoken too
+    said = await command(system, "any news about the orchestra", "news_explorer finished")
+    assert any(t.startswith("Here is one story about orchestra. 1. Orchestra plays free concert") for t in said), said
+    said = await command(system, "what's new in gardening", "news_explorer finished")
+    assert any(t.startswith("I found no news about gardening.") for t in said), said
 
 
 async def test_email_reader(system):
@@ -81,12 +92,12 @@ async def test_cognitive_game_hears_answers_and_records_score(system):
                "How much is 7 times 8?": "56", "How much is 45 divided by 5?": "nine"}
     asked = 0
     while True:
-        text = await user.wait_for(lambda t: t.startswith("Question") or "finished:" in t,
+        text = await user.wait_for(lambda t: "] Question" in t or "finished:" in t,
                                    timeout=60, start=start)
         start = user.received.index(next(r for r in user.received[start:] if r[2] == text)) + 1
         if "finished:" in text:
             break
-        question = re.sub(r"^Question \d+: ", "", text)
+        question = re.sub(r"^\[[^]]*\] Question \d+: ", "", text)  # a RApp's words come labelled
         mic.hear(answers.get(question, "pass"))
         asked += 1
     assert asked >= 2 and f"{asked} of {asked} correct, score 100" in text

@@ -128,6 +128,9 @@ async def test_obstacle_within_safety_distance_latches_estop_and_strategies_hand
     assert steps[-4:] == [("wait-for-clear", "start", None), ("wait-for-clear", "end", "still blocked"),
                           ("back-off", "start", None), ("back-off", "end", "backed off")]
     assert _events(system, "estop-released")[-1]["by"] == "strategy:back-off"
+    # the relative move had failed and freed the base: the back-off locks it itself (tests/test_locks.py:
+    # a task still holding it lends it)
+    assert _events(system, "strategy")[-2]["base"] == ["core:back-off"]
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
 
 
@@ -152,7 +155,7 @@ async def test_a_task_subscribes_to_estop_events_and_expired_ones_are_dropped(sy
 
     core = system.handle.core
     task = asyncio.create_task(run_command(system, "eventsecho", "events-echo finished", timeout=60))
-    await system.handle.user.wait_for(lambda t: t == "subscribed", timeout=30)
+    await system.handle.user.wait_for(lambda t: t == "[events-echo] subscribed", timeout=30)  # its words, labelled
     dyn = core.dynamic.jid
     await core.send_notification(Notification.event(EventTopic.ESTOP, ttl_s=-1.0, latched=True), [bare(dyn)])
     await wait_until(lambda: any(r.get("topic") == "estop" for r in _events(system, "notification-expired")))

@@ -2,14 +2,14 @@
 own generated test passes, unchanged."""
 from __future__ import annotations
 
+import asyncio
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 from ontology.package import read_package
 
-from .test_cli import ROOT, arapp, rapp
+from .test_cli import RAPP, arapp, rapp
 
 
 async def test_new_rapp_builds_runs_and_its_test_passes(tmp_path):
@@ -24,6 +24,8 @@ async def test_new_rapp_builds_runs_and_its_test_passes(tmp_path):
 
     res = await arapp("run", "rapp", dest, "--robot", "nao", "--out", tmp_path / "out", timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
+    assert "pybullet build time" not in res.stdout + res.stderr  # no third-party banner
+    assert f"result {tmp_path / 'out' / 'result.json'}" in res.stdout  # the closing summary names its files
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     assert result["ok"] and result["reports"][0]["data"] == {"doubled": 42}
     # the same outputs as the hazard run: a plot of the run and the frames the RApp captured
@@ -33,9 +35,12 @@ async def test_new_rapp_builds_runs_and_its_test_passes(tmp_path):
     assert Path(frame).read_bytes()[:len(magic)] == magic
     assert "saw 320x240" in result["reports"][0]["text"]
 
-    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(dest / "tests")],
-                         cwd=ROOT, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
-    assert res.returncode == 0 and "1 passed" in res.stdout, res.stdout[-2000:]
+    # its test as the README says, from outside the checkout, with what `pip install -e .` brings
+    res = await asyncio.to_thread(subprocess.run, [*RAPP, "test", str(dest), "-q"], cwd=tmp_path, capture_output=True,
+                                  text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0 and "1 passed" in res.stdout, res.stdout[-2000:] + res.stderr[-2000:]
+    assert "warning" not in res.stdout.lower(), res.stdout[-2000:]  # no pytest warnings
+    assert not (dest / ".pytest_cache").exists()  # nothing cached into the RApp's folder
 
 
 def test_new_refuses_a_bad_name_or_a_used_directory(tmp_path):

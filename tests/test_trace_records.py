@@ -15,7 +15,7 @@ from ontology.trace import (AgentEvent, BehaviourEvent, MessageRecord, RecordKin
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "tests" / "data" / "golden_trace.jsonl"
 ENUMS = {e.__name__: e for e in (RecordKind, StructureEvent, AgentEvent, BehaviourEvent)}
-SOURCES = ("agents", "behaviours", "robots", "rapps", "scenarios", "bench", "cli")
+SOURCES = ("agents", "behaviours", "robots", "rapps", "scenarios", "bench", "cli", "xmpp_server")  # the server traces logins
 
 
 def _strings(node: ast.AST) -> list[str] | None:

@@ -190,9 +190,12 @@ def test_filter_by_agent_matches_local_part_bare_and_full_jid(records):
     assert by_local == filter_records(records, agents=[PLATFORM + "/robot"])
     assert len(message_events(by_local)) == 24
     assert {r["kind"] for r in by_local} == {"agent", "behaviour", "message", "structure"}
-    assert filter_records(records, agents=["core"]) == []  # no partial local-part matches
+    assert filter_records(records, agents=["core-n"]) == []  # no partial local-part matches
     cloud = filter_records(records, agents=[CLOUD.split("@")[0]])
     assert len(message_events(cloud)) == 4
+    # a role: every agent of that kind, whatever its (random) name (--agent dyn, cloud, core, ...)
+    assert filter_records(records, agents=["cloud"]) == cloud
+    assert filter_records(records, agents=["core"]) == filter_records(records, agents=["core-nao1"])
     assert {r.get("event") for r in cloud if r["kind"] == "structure"} == {
         "cloud-spawn", "cloud-destroy", "account-deleted"}
     assert len(message_events(filter_records(records, agents=["owner-nao1", CLOUD]))) == 8

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from agents.tracing import read_trace
-from robots import RobotAPI, World, tts
+from hearing import tts
+from robots import RobotAPI, World
 from robots.sound import house_sound, talker_at
 from scenarios.system import RappSystem
 
@@ -76,7 +77,7 @@ async def test_a_spoken_stop_pauses_the_running_task(tmp_path):
             await wait_until(lambda: core.vocabulary and state(core) == "s3_listen", 60)
             start = len(user.received)
             await user.say(core.address, "microphone")  # the task starts by chat; the owner then speaks
-            await user.wait_for(lambda t: t == "listening", timeout=30, start=start)
+            await user.wait_for(lambda t: t.endswith("] listening"), timeout=30, start=start)  # the RApp's, labelled
             assert core.estop_reason is None and core.dynamic is not None
             await wait_until(lambda: not core._robot_talking(), 10)  # "Starting ..." is chat only; be sure
 

@@ -95,7 +95,7 @@ async def test_a_hand_off_goes_to_the_prestarted_worker_and_the_pool_refills(set
         assert not warm_dir.exists() and {"package", "stdout.log", "stderr.log", "tmp"} <= set(os.listdir(run))
         if uid is not None:  # the sandbox: the package is the run's uid's, the process runs as it
             assert (run / "package" / "manifest.yaml").stat().st_uid == uid
-            assert os.stat(f"/proc/{agent.pid}").st_uid == uid
+            assert os.stat(f"/proc/{agent.agent_pid}").st_uid == uid  # the runtime, inside the sandbox
         # the run is at its parent's priority: the pool's first fill was, and the hand-off keeps it
         base = os.getpriority(os.PRIO_PROCESS, 0)
         assert worker.nice == 0 and thread_priorities(agent.pid) == {base}

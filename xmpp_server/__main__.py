@@ -18,6 +18,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--db", default=None, help="SQLite file (default: in memory, see --memory)")
     p.add_argument("--connection-timeout", type=int, default=CONNECTION_TIMEOUT_S,
                    help="seconds a silent client stays connected (default %(default)s)")
+    p.add_argument("--trace", default=None, help="append failed logins and in-band registrations to this trace file")
     p.add_argument("--verbose", action="store_true")
     a = p.parse_args(argv)
     if a.s2s_port == 0:
@@ -37,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         asyncio.run(serve(bind_host=a.host, port=a.port, s2s_port=a.s2s_port, domain=a.domain,
                           db_path=a.db, ready_callback=ready, verbose=a.verbose,
-                          connection_timeout=a.connection_timeout))
+                          connection_timeout=a.connection_timeout, trace_file=a.trace))
     except (KeyboardInterrupt, SystemExit):
         if not listening:  # pyjabber exits so when it cannot listen, and on a signal before that
             print("error: the server stopped before it listened", file=sys.stderr, flush=True)

@@ -91,6 +91,19 @@ class ChatUser(ClientXMPP):
     def texts(self) -> list[str]:
         return [t for _, _, t in self.received]
 
+    def transcript(self, start: int = 0, core: str | None = None) -> list[str]:
+        """The chat as its owner got it, one line a message with its sender (the account's name); a
+        sender other than `core` (the owner's robot) is marked so: a RApp that writes to the owner
+        itself cannot pass for the Core. What the Core relays of a RApp comes labelled `[rapp]`."""
+        core = str(core).split("/")[0] if core else None
+        out = []
+        for _, sender, text in self.received[start:]:
+            who = str(sender).split("@")[0]
+            if core and "@" in core and sender != core or core and "@" not in core and who != core:
+                who += " (not your robot's Core)"
+            out.append(f"{who}: {text}")
+        return out
+
     async def wait_for(self, predicate, timeout: float = 30.0, start: int = 0) -> str:
         """The first message (from index `start` on) satisfying predicate(text)."""
         loop = asyncio.get_running_loop()

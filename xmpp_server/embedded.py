@@ -12,7 +12,7 @@ import logging
 import os
 from pathlib import Path
 
-from .compat import configure_server, install_server_patches
+from .compat import configure_server, install_server_patches, trace_logins_and_registrations
 
 
 
@@ -54,8 +54,26 @@ def _write_self_signed(base: Path, domain: str) -> None:
 
 
 CONNECTION_TIMEOUT_S = 600
+def trace_writer(path: str | Path, domain: str):
+    """`record(event, **fields)`: a structure record of the server's (agents/tracing.py's format; this
+    floor is below the agents') appended to the run's trace with one write."""
+    import json
+    import time
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+
+    def record(event: str, **fields) -> None:
+        rec = {"t": round(time.time(), 6), "kind": "structure", "pid": os.getpid(), "agent": f"xmpp-server@{domain}",
+               "event": event, **fields}
+        os.write(fd, (json.dumps(rec, ensure_ascii=False) + "\n").encode())
+
+    return record
+
+
 def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
-                 db_path: str | None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S):
+                 db_path: str | None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S,
+                 trace_file: str | None = None):
     """A pyjabber Server for `domain` listening on bind_host:port only."""
     from loguru import logger as loguru_logger
     import pyjabber.server as pjs
@@ -68,6 +86,8 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
     logging.getLogger("sqlalchemy").setLevel(logging.WARNING)
 
     install_server_patches()  # xmpp_server/compat.py: pyjabber's internals, version-checked
+    if trace_file:  # failed logins and in-band registrations, in the run's trace
+        trace_logins_and_registrations(trace_writer(trace_file, domain))
     defaults = Parameters()
     params = Parameters(
         host=domain,
@@ -93,10 +113,12 @@ def build_server(*, bind_host: str, port: int, s2s_port: int, domain: str,
 
 
 async def serve(*, bind_host: str, port: int, s2s_port: int, domain: str, db_path: str | None,
-                ready_callback=None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S) -> None:
+                ready_callback=None, verbose: bool = False, connection_timeout: int = CONNECTION_TIMEOUT_S,
+                trace_file: str | None = None) -> None:
     """Run until cancelled or SIGINT/SIGTERM; call ready_callback once listening."""
     server = build_server(bind_host=bind_host, port=port, s2s_port=s2s_port, domain=domain,
-                          db_path=db_path, verbose=verbose, connection_timeout=connection_timeout)
+                          db_path=db_path, verbose=verbose, connection_timeout=connection_timeout,
+                          trace_file=trace_file)
     task = asyncio.create_task(server.start())
     ready = asyncio.create_task(server.ready.wait())
     done, _ = await asyncio.wait({task, ready}, return_when=asyncio.FIRST_COMPLETED)

@@ -146,7 +146,8 @@ def listening(host: str, port: int) -> bool:
 class EmbeddedServer(ManagedServer):
     def __init__(self, host: str = "127.0.0.1", port: int | None = None, domain: str = "localhost",
                  db: str | Path | None = None, memory: bool = False, verbose: bool = False,
-                 start_timeout: float = 20.0, connection_timeout: int | None = None):
+                 start_timeout: float = 20.0, connection_timeout: int | None = None,
+                 trace_file: str | Path | None = None):
         self.host = host
         self.port = port or free_port(host)
         self.port_chosen = port is None  # ours to change until the server first listens
@@ -158,6 +159,7 @@ class EmbeddedServer(ManagedServer):
         self.start_timeout = start_timeout
         self.connection_timeout = connection_timeout  # None: the server's default
         self.proc: subprocess.Popen | None = None
+        self.trace_file = trace_file  # failed logins and in-band registrations are traced there
 
     def command(self) -> list[str]:
         cmd = [sys.executable, "-m", "xmpp_server", "--host", self.host, "--port", str(self.port),
@@ -166,6 +168,8 @@ class EmbeddedServer(ManagedServer):
             cmd += ["--db", self.db]
         if self.connection_timeout is not None:
             cmd += ["--connection-timeout", str(self.connection_timeout)]
+        if self.trace_file:
+            cmd += ["--trace", str(self.trace_file)]
         if self.verbose:
             cmd.append("--verbose")
         return cmd

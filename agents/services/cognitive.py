@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import random
+import secrets
 import threading
 import time
 
@@ -16,25 +17,35 @@ from .errors import ServiceError
 
 
 class ExerciseStore:
-    """Tests loaded from data/cognitive_tests.json and each user's score history (in memory)."""
+    """Tests loaded from data/cognitive_tests.json and each user's score history (kept in `saved`,
+    agents/services/saved.py, if given)."""
 
-    def __init__(self, tests: list[dict]) -> None:
+    KIND = "cognitive"
+
+    def __init__(self, tests: list[dict], saved=None) -> None:
         self.tests = {t["id"]: t for t in tests}
         self.history: dict[str, list[ScoreRecord]] = {}
         self.lock = threading.Lock()
+        self._saved = saved
+        for rec in saved.records(self.KIND) if saved is not None else ():
+            self.history.setdefault(rec.user, []).append(ScoreRecord.model_validate(rec.meta))
+        for records in self.history.values():
+            records.sort(key=lambda r: r.time)
 
     def records(self, user: str, test_type: str = "") -> list[ScoreRecord]:
         with self.lock:
             return [r for r in self.history.get(user, []) if not test_type or r.type == test_type]
 
     def add(self, user: str, rec: ScoreRecord) -> None:
+        if self._saved is not None:
+            self._saved.put(self.KIND, user, f"{rec.time:.6f}-{secrets.token_hex(4)}", rec.model_dump(mode="json"))
         with self.lock:
             self.history.setdefault(user, []).append(rec)
 
 
 def store(ctx: ServiceContext) -> ExerciseStore:
     return ctx.state.store("cognitive", lambda: ExerciseStore(
-        json.loads((ctx.state.data_dir / "cognitive_tests.json").read_text())))
+        json.loads((ctx.state.data_dir / "cognitive_tests.json").read_text()), ctx.state.saved))
 
 
 def adaptive_difficulty(records: list[ScoreRecord]) -> int:

@@ -1,6 +1,7 @@
 """Per-user home descriptions (map id, landmarks, hazard list) kept on the Platform."""
 from __future__ import annotations
 
+import logging
 import threading
 
 from ontology.services.home import GetHomeInfo, HomeInfo, UploadHomeInfo
@@ -9,15 +10,27 @@ from ontology.errors import ErrorCode
 from .context import ServiceContext, ServiceState
 from .errors import ServiceError
 
+log = logging.getLogger("rapp.platform")
+
 
 class HomeStore:
-    """(user, home_id) -> HomeInfo, thread-safe."""
+    """(user, home_id) -> HomeInfo, thread-safe; kept in `saved` (agents/services/saved.py) if given."""
 
-    def __init__(self):
+    KIND = "home"
+
+    def __init__(self, saved=None):
         self._homes: dict[tuple[str, str], HomeInfo] = {}
         self._lock = threading.Lock()
+        self._saved = saved
+        for rec in saved.records(self.KIND) if saved is not None else ():
+            try:
+                self._homes[(rec.user, rec.key)] = HomeInfo.model_validate(rec.meta)
+            except ValueError as e:  # written by an older layout: that home is left out, not the rest
+                log.warning("saved home %r of %s no longer reads: %s", rec.key, rec.user, e)
 
     def put(self, user: str, info: HomeInfo) -> None:
+        if self._saved is not None:
+            self._saved.put(self.KIND, user, info.home_id, info.model_dump(mode="json"))
         with self._lock:
             self._homes[(user, info.home_id)] = info
 
@@ -41,7 +54,7 @@ class HomeStore:
 
 
 def homes(state: ServiceState) -> HomeStore:
-    return state.store("homes", HomeStore)
+    return state.store("homes", lambda: HomeStore(state.saved))
 
 
 def upload_info(req: UploadHomeInfo, ctx: ServiceContext) -> HomeInfo:

@@ -125,12 +125,31 @@ def encode_map(blocked: np.ndarray, resolution: float, origin=(0.0, 0.0, 0.0),
 
 
 class MapStore:
-    """Shared (preloaded) maps plus maps uploaded by each user; a user sees shared + own maps."""
+    """Shared (preloaded) maps plus maps uploaded by each user; a user sees shared + own maps.
+    Kept in a SavedData (`keep_in`): users' maps as PNG blobs, read back at the next start (shared
+    maps are preloaded from their folder at each start instead)."""
+
+    KIND = "map"
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._shared: dict[str, GridMap] = {}
         self._user: dict[str, dict[str, GridMap]] = {}
+        self._saved = None
+
+    def keep_in(self, saved) -> int:
+        """Write users' maps through to `saved` (agents/services/saved.py) and load those it holds."""
+        loaded = 0
+        for rec in saved.records(self.KIND):
+            img = cv2.imdecode(np.frombuffer(rec.blob, np.uint8), cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                continue
+            with self._lock:
+                self._user.setdefault(rec.user, {})[rec.key] = GridMap(
+                    rec.key, grid_from_image(img), float(rec.meta["resolution"]), tuple(rec.meta["origin"]))
+            loaded += 1
+        self._saved = saved
+        return loaded
 
     def add_shared(self, m: GridMap) -> None:
         m.shared = True
@@ -138,6 +157,10 @@ class MapStore:
             self._shared[m.map_id] = m
 
     def add(self, user: str, m: GridMap) -> None:
+        if self._saved is not None:  # first: a map the Platform answered for is one it keeps
+            png, _ = encode_map(m.blocked, m.resolution, m.origin)
+            self._saved.put(self.KIND, user, m.map_id,
+                            {"resolution": m.resolution, "origin": [float(v) for v in m.origin]}, png)
         with self._lock:
             self._user.setdefault(user, {})[m.map_id] = m
 

@@ -101,6 +101,20 @@ class ObstacleLayers:
         self._layers: dict[tuple[str, str], _Layer] = {}
         # (user, map id, mark shapes) -> (base map, overlay); LRU, most recent last
         self._overlays: OrderedDict[tuple, tuple[GridMap, OverlayMap]] = OrderedDict()
+        # called (lock held) with (user, map id, live marks, next id) after an add or a clear that
+        # dropped marks: the Platform keeps the layer (agents/services/saved.py keep_obstacles)
+        self.on_change: Callable[[str, str, list[Mark], int], None] | None = None
+
+    def restore(self, user: str, map_id: str, marks: list[tuple[str, float, float, float, float, str]],
+                next_id: int) -> None:
+        """Put back a kept layer: marks as (id, x, y, radius, seconds left, note)."""
+        with self._lock:
+            layer = self._layers.setdefault((user, map_id), _Layer())
+            now = self._clock()
+            for mid, x, y, r, left, note in marks:
+                if left > 0:
+                    layer.marks[mid] = Mark(mid, x, y, r, now + left, note)
+            layer.next_id = max(layer.next_id, next_id)
 
     def _live(self, user: str, map_id: str, create: bool = False) -> _Layer:
         """The layer with expired marks dropped (call with the lock held); an empty one, not stored,
@@ -130,6 +144,8 @@ class ObstacleLayers:
             mark = Mark(f"obs-{layer.next_id}", float(x), float(y), float(radius_m), self._clock() + ttl_s, note)
             layer.next_id += 1
             layer.marks[mark.id] = mark
+            if self.on_change is not None:
+                self.on_change(user, m.map_id, list(layer.marks.values()), layer.next_id)
             return mark
 
     def clear(self, user: str, map_id: str, x: float | None = None, y: float | None = None,
@@ -145,6 +161,8 @@ class ObstacleLayers:
                     if everything or math.hypot(k.x - x, k.y - y) <= radius_m + 1e-9]
             for mid in gone:
                 del layer.marks[mid]
+            if gone and self.on_change is not None:
+                self.on_change(user, map_id, list(layer.marks.values()), layer.next_id)
             return len(gone)
 
     def marks(self, user: str, map_id: str) -> list[Mark]:

@@ -54,7 +54,7 @@ POOLED = frozenset({
     "qr_detection", "face_detection", "human_detection", "object_detection_find_objects",
     "hazard_detection_door_check", "hazard_detection_light_check",
     "speech_recognition", "speech_noise_profile", "text_to_speech",
-    "path_planning_plan_path_2d",
+    "path_planning_plan_path_2d", "face_recognition_learn", "face_recognition_recognize",
 })
 START_TIMEOUT_S = 60.0  # for a worker to fork and say it is ready (a loaded machine)
 # base maps a worker keeps (with their cost maps, graphs and landmark tables: ~40 bytes a cell),
@@ -163,7 +163,7 @@ def _worker_main(conn, home: str) -> None:
 
 
 # what a call takes from the Platform's state and gives back (ServiceState.store names)
-_GIVEN_BACK = {"speech_noise_profile": ("speech_noise_profiles",)}
+_GIVEN_BACK = {"speech_noise_profile": ("speech_noise_profiles",), "face_recognition_learn": ("faces",)}
 
 
 def _rebuild(stores: dict[str, Any]) -> dict[str, Any]:
@@ -179,10 +179,20 @@ def _rebuild(stores: dict[str, Any]) -> dict[str, Any]:
         from .home import HomeStore
 
         out["homes"] = HomeStore.holding(out["homes"])
+    if "faces" in out:
+        from .faces import FaceGallery
+
+        gallery = FaceGallery()
+        gallery.people = out["faces"]
+        out["faces"] = gallery
     return out
 
 
 def _plain(store: Any) -> Any:
+    from .faces import FaceGallery
+
+    if isinstance(store, FaceGallery):
+        return store.people
     return dict(store) if isinstance(store, dict) else store
 
 
@@ -208,12 +218,25 @@ def _taken(service: str, req, ctx) -> dict[str, Any]:
         return out
     if service == "speech_noise_profile":
         return {"speech_noise_profiles": {}}
+    if service in ("face_recognition_learn", "face_recognition_recognize"):
+        from .faces import gallery
+
+        mine = gallery(ctx).of(ctx.user)
+        if service == "face_recognition_learn":  # the samples it adds to, if any
+            mine = {req.name: mine[req.name]} if req.name in mine else {}
+        return {"faces": {ctx.user: mine}}
     return {}
 
 
 def _merge(service: str, ctx, given: dict[str, Any]) -> None:
-    """What a pooled call stored, into the Platform's state."""
+    """What a pooled call stored, into the Platform's state (and so its saved data)."""
     for name, entries in given.items():
+        if name == "faces":
+            from .faces import gallery
+
+            for person, descriptors in entries.get(ctx.user, {}).items():
+                gallery(ctx).put(ctx.user, person, descriptors)
+            continue
         ctx.state.store(name, dict).update(entries)
 
 
@@ -508,7 +531,8 @@ class ServicePool:
         out = await fut
         if out[0] == "error":
             raise ServiceError(out[1], out[2])
-        _merge(service, ctx, out[2])
+        if out[2]:  # written through to the Platform's saved data: off the event loop
+            await asyncio.to_thread(_merge, service, ctx, out[2])
         return out[1]
 
     def close(self) -> None:

@@ -8,8 +8,8 @@ import ontology.services as _models  # noqa: F401  (registers the actions)
 from ontology.registry import Action, Content, lookup
 from ontology.errors import ErrorCode
 
-from . import (cognitive, email, hazard, home, information, interpretation, knowledge, localization, navigation,
-               obstacles, speech, vision)
+from . import (cognitive, email, faces, geolocation, hazard, home, information, interpretation, knowledge, localization,
+               navigation, obstacles, scenes, speech, vision)
 from .context import ServiceContext
 from .errors import ServiceError
 
@@ -40,6 +40,14 @@ _IMPLS: dict[str, Callable] = {
     "object_detection_learn_object": vision.learn_object,
     "object_detection_find_objects": vision.find_objects,
     "object_detection_clear_models": vision.clear_objects,
+    "face_recognition_learn": faces.learn_face,
+    "face_recognition_recognize": faces.recognize_faces,
+    "face_recognition_list": faces.list_faces,
+    "face_recognition_forget": faces.forget_face,
+    "scene_recognition_learn": scenes.learn_scene,
+    "scene_recognition_recognize": scenes.recognize_scene,
+    "scene_recognition_forget": scenes.forget_scenes,
+    "geolocation": geolocation.geolocate,
     "interpret_command": interpretation.interpret_command,
     "weather_report_current": information.weather_current,
     "weather_report_forecast": information.weather_forecast,

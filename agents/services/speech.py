@@ -16,10 +16,11 @@ from scipy.signal import istft, stft
 from ontology.errors import ErrorCode
 from ontology.services.speech import (NoiseProfile, Recognition, RecognizedWord, Speech, SpeechNoiseProfile,
                                       SpeechRecognition, TextToSpeech)
-from robots import tts
-from robots.errors import RobotError
-from robots.receptors import PhraseDecoder, fresh_front_end, grammar, normalize, speech_segments, sphinx_config
-from robots.sound import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
+from hearing import tts
+from hearing.decoder import PhraseDecoder, fresh_front_end, grammar, normalize, sphinx_config
+from hearing.errors import HearingError
+from hearing.vad import speech_segments
+from hearing.wav import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
 
 from .context import ServiceContext
 from .errors import ServiceError
@@ -41,7 +42,7 @@ def _audio(b64: str) -> np.ndarray:
         raise ServiceError("audio_b64 is not base64", ErrorCode.MALFORMED) from None
     try:
         pcm, _ = decode_wav(data, rates=(SAMPLE_RATE,), max_seconds=MAX_SECONDS)
-    except RobotError as e:
+    except HearingError as e:
         raise ServiceError(e.message, e.code) from None
     if pcm.size < SAMPLE_RATE // 10:
         raise ServiceError(f"recording of {pcm.size / SAMPLE_RATE:.2f} s is too short", ErrorCode.INVALID)
@@ -145,7 +146,7 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
         else:
             phrases = [p for p in (normalize(w) for w in req.words) if p]
             dec, search = _phrase_decoder(("jsgf", grammar(phrases, repeat=True)), phrases), "words"
-    except RobotError as e:
+    except HearingError as e:
         raise ServiceError(e.message, ErrorCode.INVALID) from None
     if search == "sentences" and not dec.phrases:
         raise ServiceError(f"no sentence has only words the recogniser can pronounce: {req.sentences[:3]} "
@@ -204,7 +205,7 @@ def _phrase_decoder(key: tuple, words: list[str] = ()) -> PhraseDecoder:
     dec = kept.pop(key, None)
     if dec is None:
         # the Store's sentences searched wide (PhraseDecoder.WIDE_BEAMS); a grammar of words as before:
-        # there the phone loop searched wide too gained as much as the words (a margin of 0.01 became 0)
+        # there the phone loop searched wide too gained as much as the words
         dec = PhraseDecoder(jsgf=key[1], words=words) if key[0] == "jsgf" else \
             PhraseDecoder(list(key[1:]), beams=PhraseDecoder.WIDE_BEAMS)
     kept[key] = dec
@@ -214,9 +215,8 @@ def _phrase_decoder(key: tuple, words: list[str] = ()) -> PhraseDecoder:
 
 
 # how far a sentence's path must score above the free phone loop (log-score per second) to be taken:
-# on bench/speech_offline.py's recordings (2026-11-26, 84 command phrases and 48 recordings of no
-# command per noise level) 0.0 took 7 other sentences said in a quiet room for a command phrase, 0.02
-# took 2, and every command phrase it kept at 0.0 it kept at 0.02 (quiet, TV 50 and TV 60 dB)
+# at 0 other sentences said in a quiet room were taken for a command phrase, and this bound kept every
+# command phrase 0 kept (docs/sound.md, "Keywords")
 SENTENCES_ACCEPT = 0.02
 MARGIN_SCALE = 0.03  # margin (PhraseDecoder.decode) at which the confidence is 0.73
 
@@ -232,7 +232,7 @@ def _confidence(margin: float) -> float:
 def text_to_speech(req: TextToSpeech, ctx: ServiceContext) -> Speech:
     try:
         pcm = tts.synthesize(req.text, tts.voice_for(req.language, req.voice), req.speed)
-    except RobotError as e:
+    except HearingError as e:
         raise ServiceError(e.message, e.code) from None
     return Speech(audio_b64=base64.b64encode(encode_wav(pcm)).decode(), sample_rate=SAMPLE_RATE,
                   seconds=len(pcm) / SAMPLE_RATE)

@@ -31,6 +31,7 @@ from ontology.errors import ErrorCode
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
+from .saved import pack_arrays, unpack_arrays
 
 _local = threading.local()  # OpenCV detectors are not shared between threads
 
@@ -119,15 +120,36 @@ def human_detection(req: HumanDetect, ctx: ServiceContext) -> Detections:
 
 
 class ObjectModels:
-    """Per-user learned objects: name -> (keypoint coordinates, ORB descriptors, model image size)."""
+    """Per-user learned objects: name -> (keypoint coordinates, ORB descriptors, model image size);
+    kept in `saved` (agents/services/saved.py) if given."""
 
-    def __init__(self) -> None:
+    KIND = "object"
+
+    def __init__(self, saved=None) -> None:
         self.lock = threading.Lock()
         self.models: dict[str, dict[str, tuple[np.ndarray, np.ndarray, tuple[int, int]]]] = {}
+        self._saved = saved
+        for rec in saved.records(self.KIND) if saved is not None else ():
+            arrays = unpack_arrays(rec.blob)
+            self.models.setdefault(rec.user, {})[rec.key] = (arrays["points"], arrays["descriptors"],
+                                                            tuple(rec.meta["size"]))
+
+    def put(self, user: str, name: str, pts: np.ndarray, desc: np.ndarray, size: tuple[int, int]) -> None:
+        if self._saved is not None:
+            self._saved.put(self.KIND, user, name, {"size": [int(v) for v in size]},
+                            pack_arrays(points=pts, descriptors=desc))
+        with self.lock:
+            self.models.setdefault(user, {})[name] = (pts, desc, size)
+
+    def clear(self, user: str) -> None:
+        if self._saved is not None:
+            self._saved.delete(self.KIND, user)
+        with self.lock:
+            self.models.pop(user, None)
 
 
 def models(ctx: ServiceContext) -> ObjectModels:
-    return ctx.state.store("objects", ObjectModels)
+    return ctx.state.store("objects", lambda: ObjectModels(ctx.state.saved))
 
 
 def orb_features(gray: np.ndarray, n: int = 1500):
@@ -140,9 +162,7 @@ def learn_object(req: LearnObject, ctx: ServiceContext) -> Done:
     pts, desc = orb_features(gray, 1000)
     if desc is None or len(pts) < 10:
         raise ServiceError("the object image has too little texture to learn (fewer than 10 features)", ErrorCode.NO_FEATURES)
-    store = models(ctx)
-    with store.lock:
-        store.models.setdefault(ctx.user, {})[req.name] = (pts, desc, gray.shape[::-1])
+    models(ctx).put(ctx.user, req.name, pts, desc, gray.shape[::-1])
     return Done()
 
 
@@ -174,7 +194,5 @@ def find_objects(req: FindObjects, ctx: ServiceContext) -> FoundObjects:
 
 
 def clear_objects(req: ClearObjects, ctx: ServiceContext) -> Done:
-    store = models(ctx)
-    with store.lock:
-        store.models.pop(ctx.user, None)
+    models(ctx).clear(ctx.user)
     return Done()

@@ -56,3 +56,23 @@ class NewsExplore(ServiceRequest):
     keywords: list[str] = []
     topic: str = ""
     max_stories: int = Field(default=5, ge=1, le=50)
+
+
+# ------------------------------------------------------------------ geolocalization
+class Location(Content):
+    city: str
+    country: str
+    country_code: str
+    latitude: float
+    longitude: float
+    timezone: str
+    source: str  # what answered: "ip-table", "timezone" or "platform" (where the Platform is set to be)
+
+
+@action("geolocation", ontology="platform", reply=Location, group=GROUP, idempotent=True)
+class Geolocate(ServiceRequest):
+    """Where an IP address is (`ip`), where a time zone's principal city is (`timezone`, e.g.
+    "Europe/Warsaw"), or, with neither, where the Platform serving the robot is."""
+
+    ip: str = Field(default="", max_length=45)
+    timezone: str = Field(default="", max_length=64)

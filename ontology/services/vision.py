@@ -1,4 +1,5 @@
-"""Vision services: face and human detection, object learn / find / clear (QR: localization.py)."""
+"""Vision services: face and human detection, face recognition of registered people, object learn /
+find / clear, scene (room) recognition (QR: localization.py)."""
 from __future__ import annotations
 
 from pydantic import Field
@@ -56,3 +57,104 @@ class FindObjects(ServiceRequest):
 @action("object_detection_clear_models", ontology="platform", reply=Done, group=GROUP)
 class ClearObjects(ServiceRequest):
     pass
+
+
+# ------------------------------------------------------------------ face recognition
+MAX_FACE_SAMPLES = 20
+
+
+class FaceLearned(Content):
+    name: str
+    used: int  # images a face was found in and learned
+    skipped: list[str] = []  # why the others were not ("image 2: no face found")
+    samples: int  # kept for this person now
+
+
+@action("face_recognition_learn", ontology="platform", reply=FaceLearned, group=GROUP)
+class LearnFace(ServiceRequest):
+    """Register a person from a few photographs (1-10), each with that person's face the largest in it;
+    learning again under the same name adds to what was learned (at most MAX_FACE_SAMPLES kept)."""
+
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f]+$")
+    images_b64: list[str] = Field(min_length=1, max_length=10)
+
+
+class RecognizedFace(Content):
+    box: Box
+    name: str  # the registered person, or "" for someone unknown
+    distance: float  # to that person's nearest sample (descriptor space; below `threshold`: recognized)
+    nearest: str = ""  # the nearest registered person, even when too far to be them
+
+
+class RecognizedFaces(Content):
+    faces: list[RecognizedFace]  # largest face first
+
+
+@action("face_recognition_recognize", ontology="platform", reply=RecognizedFaces, group=GROUP, idempotent=True)
+class RecognizeFaces(ServiceRequest):
+    image_b64: str
+    threshold: float = Field(default=0.6, gt=0.0, le=2.0)  # dlib's rule: one person within 0.6
+    limit: int = Field(default=10, ge=1, le=50)
+
+
+class FacePerson(Content):
+    name: str
+    samples: int
+
+
+class FacePeople(Content):
+    people: list[FacePerson]
+
+
+@action("face_recognition_list", ontology="platform", reply=FacePeople, group=GROUP, idempotent=True)
+class ListFaces(ServiceRequest):
+    pass
+
+
+@action("face_recognition_forget", ontology="platform", reply=FacePeople, group=GROUP)
+class ForgetFace(ServiceRequest):
+    """Forget one person (`name`), or everyone (`name` empty)."""
+
+    name: str = Field(default="", max_length=64)
+
+
+# ------------------------------------------------------------------ scene recognition
+@action("scene_recognition_learn", ontology="platform", reply=Done, group=GROUP)
+class LearnScene(ServiceRequest):
+    """Camera images taken in `room` of the user's home `home_id` (views from several places and
+    headings make it robust; learning again adds views)."""
+
+    room: str = Field(min_length=1, max_length=64)
+    images_b64: list[str] = Field(min_length=1, max_length=12)
+    home_id: str = Field(default="home", min_length=1, max_length=64)
+
+
+class SceneGuess(Content):
+    room: str
+    distance: float  # mean over the images of the distance to the room's nearest learned view (0..2)
+    votes: int = 0  # image features that match the room's learned views better than anything else
+
+
+class SceneReply(Content):
+    room: str  # the recognized room, "" when none is near enough
+    distance: float
+    votes: int = 0
+    candidates: list[SceneGuess]  # every learned room, the best first
+
+
+@action("scene_recognition_recognize", ontology="platform", reply=SceneReply, group=GROUP, idempotent=True)
+class RecognizeScene(ServiceRequest):
+    """Which room the images were taken in: one view, or a look-around (several headings from one place)
+    for a surer answer."""
+
+    images_b64: list[str] = Field(min_length=1, max_length=12)
+    home_id: str = Field(default="home", min_length=1, max_length=64)
+    max_distance: float = Field(default=0.5, gt=0.0)  # without enough feature votes, nearer than this
+
+
+@action("scene_recognition_forget", ontology="platform", reply=Done, group=GROUP)
+class ForgetScenes(ServiceRequest):
+    """Forget the learned views of one room of a home, or of all its rooms (`room` empty)."""
+
+    home_id: str = Field(default="home", min_length=1, max_length=64)
+    room: str = Field(default="", max_length=64)

@@ -4,20 +4,20 @@ from __future__ import annotations
 
 from typing import Any, Callable, Literal
 
-from ontology.platform import CloudAgentReply, Pong, TokenReply
+from ontology.platform import CloudAgentReply, Pong, Released, TokenReply
 from ontology.registry import Done, Progress
 from ontology.robot import Audio, CameraInfo, CameraParams, Image, JointAngles, LaserScan, LockState, MicrophoneLevel, SonarReading, Transform, WordSpotted
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.email import EmailList
 from ontology.services.hazard import DoorAngle, DoorGeometry, LightLevel
 from ontology.services.home import HomeInfo
-from ontology.services.information import CurrentWeather, Forecast, NewsReply
+from ontology.services.information import CurrentWeather, Forecast, Location, NewsReply
 from ontology.services.interpretation import Interpretation, RAppDescription
 from ontology.services.knowledge import ClassList, CognitiveHistory, CognitiveTest, IsSubclass, ScoreRecord
 from ontology.services.localization import Landmark, MarkerObservation, QRDetections
 from ontology.services.navigation import MapInfo, MapList, ObstacleLayer, PlanPathReply
 from ontology.services.speech import NoiseProfile, Recognition, Speech
-from ontology.services.vision import Detections, FoundObjects
+from ontology.services.vision import Detections, FaceLearned, FacePeople, FoundObjects, RecognizedFaces, SceneReply
 
 from ._call import UNSET, _Calls
 
@@ -135,6 +135,24 @@ class PlatformCalls(_Calls):
     async def face_detection(self, *, image_b64: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
         return await self._call("face_detection", {"token": token, "image_b64": image_b64}, _timeout, _feedback)
 
+    async def face_recognition_forget(self, *, name: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FacePeople:
+        """Forget one person (`name`), or everyone (`name` empty)."""
+        return await self._call("face_recognition_forget", {"token": token, "name": name}, _timeout, _feedback)
+
+    async def face_recognition_learn(self, *, name: str, images_b64: list[str], token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FaceLearned:
+        """Register a person from a few photographs (1-10), each with that person's face the largest in it;"""
+        return await self._call("face_recognition_learn", {"token": token, "name": name, "images_b64": images_b64}, _timeout, _feedback)
+
+    async def face_recognition_list(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FacePeople:
+        return await self._call("face_recognition_list", {"token": token}, _timeout, _feedback)
+
+    async def face_recognition_recognize(self, *, image_b64: str, threshold: float = 0.6, limit: int = 10, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> RecognizedFaces:
+        return await self._call("face_recognition_recognize", {"token": token, "image_b64": image_b64, "threshold": threshold, "limit": limit}, _timeout, _feedback)
+
+    async def geolocation(self, *, ip: str = '', timezone: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Location:
+        """Where an IP address is (`ip`), where a time zone's principal city is (`timezone`, e.g."""
+        return await self._call("geolocation", {"token": token, "ip": ip, "timezone": timezone}, _timeout, _feedback)
+
     async def hazard_detection_door_check(self, *, image_b64: str, method: Literal['image', 'geometry'] = 'image', geometry: DoorGeometry | None = None, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> DoorAngle:
         """Door opening angle (degrees) from one image of where the door meets the floor."""
         return await self._call("hazard_detection_door_check", {"token": token, "image_b64": image_b64, "method": method, "geometry": geometry}, _timeout, _feedback)
@@ -211,9 +229,21 @@ class PlatformCalls(_Calls):
         """Find and decode QR codes; with intrinsics also each code's pose (code frame: origin at the"""
         return await self._call("qr_detection", {"token": token, "image_b64": image_b64, "camera": camera, "code_size_m": code_size_m}, _timeout, _feedback)
 
-    async def release_cloud_agents(self, *, owner_jid: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
-        """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy)."""
+    async def release_cloud_agents(self, *, owner_jid: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Released:
+        """Stop every Cloud Agent that lives with this Dynamic Agent (sent by its Core on destroy); the"""
         return await self._call("release_cloud_agents", {"token": token, "owner_jid": owner_jid}, _timeout, _feedback)
+
+    async def scene_recognition_forget(self, *, home_id: str = 'home', room: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Forget the learned views of one room of a home, or of all its rooms (`room` empty)."""
+        return await self._call("scene_recognition_forget", {"token": token, "home_id": home_id, "room": room}, _timeout, _feedback)
+
+    async def scene_recognition_learn(self, *, room: str, images_b64: list[str], home_id: str = 'home', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Camera images taken in `room` of the user's home `home_id` (views from several places and"""
+        return await self._call("scene_recognition_learn", {"token": token, "room": room, "images_b64": images_b64, "home_id": home_id}, _timeout, _feedback)
+
+    async def scene_recognition_recognize(self, *, images_b64: list[str], home_id: str = 'home', max_distance: float = 0.5, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> SceneReply:
+        """Which room the images were taken in: one view, or a look-around (several headings from one place)"""
+        return await self._call("scene_recognition_recognize", {"token": token, "images_b64": images_b64, "home_id": home_id, "max_distance": max_distance}, _timeout, _feedback)
 
     async def speech_noise_profile(self, *, audio_b64: str, name: str = 'default', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NoiseProfile:
         """Store the spectrum of a recording of the room without speech under `name` (per user)."""

@@ -136,30 +136,23 @@ def test_report_text_and_data_say_the_same():
     assert HazardReport.model_validate(door.model_dump()) == door
 
 
-def test_the_scenario_reads_the_reports_data_from_the_trace():
-    """scenarios/hazard.py scores the data of the reports the Core received (its side of the trace);
-    what it reads is what the chat told the user."""
-    from agents.tracing import cap
-    from scenarios.hazard import hazard_reports, parse_reports, reported
+def test_the_scenario_reads_the_reports_data_from_the_task_record():
+    """scenarios/hazard.py scores the data of the reports the Core kept in its task record
+    (ontology/results.py), never the chat's text nor the trace: the closing summary, which carries
+    no single hazard, is left out, whatever its size."""
+    from ontology.results import ReportRecord, TaskRecord, TaskStage
+    from scenarios.hazard import hazard_reports, reported
 
     found = [HazardReport(id="d1", type="door", state="open", hazard=True, angle_deg=37.26, method="edges"),
              HazardReport(id="l1", type="lamp", state="unknown", hazard=None)]
-    summary = C.Report(text="Hazards found: the door d1 is open.", data={"hazards": [f.model_dump() for f in found],
-                                                                            "localizations": [{"x": 1.0}] * 200})
-    reports = [C.Report(text=describe(f), data={"hazard": f.model_dump()}) for f in found] + [summary]
-
-    def received(report: C.Report, agent: str = "core@localhost") -> dict:
-        body = report.model_dump_json()
-        return {"t": 1.0, "kind": "message", "pid": 1, "dir": "recv", "agent": agent, "sender": "dyn@localhost",
-                "receiver": agent, "performative": "request", "conversation_id": "c-1", "ontology": "core",
-                "action": "report", "message_id": "m-1", "in_reply_to": "", "path": "xmpp", "size": len(body),
-                "content": cap(body)}
-
-    records = [received(r) for r in reports] + [received(reports[0], agent="core-other@localhost")]
-    assert records[2]["content"].endswith("chars]")  # the long summary is capped in the trace: skipped
-    assert hazard_reports(records, "core@localhost") == found
-    assert reported(found) == parse_reports([r.text for r in reports]) == {
-        "d1": {"state": "open", "angle": 37.3}, "l1": {"state": "unknown", "angle": None}}
+    summary = ReportRecord(text="Hazards found: the door d1 is open.", stamp=3.0,
+                           data={"hazards": [f.model_dump() for f in found], "localizations": [{"x": 1.0}] * 200})
+    reports = [ReportRecord(text=describe(f), data={"hazard": f.model_dump()}, stamp=1.0) for f in found] + [summary]
+    record = TaskRecord(robot_id="nao1", rapp="hazard-detection", stage=TaskStage.RUN, state="Finished", ok=True,
+                        reports=reports, ended=4.0)
+    sent = TaskRecord.model_validate_json(record.fitted().model_dump_json())  # as the owner's client gets it
+    assert hazard_reports(sent.reports) == found
+    assert reported(found) == {"d1": {"state": "open", "angle": 37.3}, "l1": {"state": "unknown", "angle": None}}
 
 
 async def test_a_door_frame_without_usable_lines_is_looked_at_again_from_the_next_view():

@@ -1,6 +1,6 @@
 """Several microphones on the NAO's head (robots/mic_array.py, HouseSound.receive_array): each hears a
 source after its own delay, the room's echo is as coherent between them as a diffuse field's, and a
-beamformer gains on a TV what the room allows it, no more."""
+beamformer (hearing/steering.py) gains on a TV what the room allows it, no more."""
 import base64
 import math
 
@@ -9,13 +9,15 @@ import pytest
 from pydantic import ValidationError
 from scipy.signal import coherence
 
+from hearing import tts
+from hearing.errors import BadAudio
+from hearing.steering import SPEED_OF_SOUND, Steering, mvdr, nulling_taps
+from hearing.vad import VoiceActivity
+from hearing.wav import decode_wav, encode_wav
 from ontology.robot import CaptureAudio
-from robots import tts
 from robots.floorplan import load_plan
-from robots.mic_array import (NAO_MICS, SPEED_OF_SOUND, Steering, arrival_delays, diffuse, heads_mics, mvdr,
-                              nulling_taps)
-from robots.receptors import VoiceActivity
-from robots.sound import BadAudio, HouseSound, NoiseSource, decode_wav, encode_wav, house_sound, talker_at
+from robots.mic_array import NAO_MICS, arrival_delays, diffuse, heads_mics
+from robots.sound import HouseSound, NoiseSource, house_sound, talker_at
 from robots.world import HOUSES
 
 from .conftest import api_at

@@ -13,9 +13,10 @@ from agents.services import SERVICES, ServiceError, run_service
 from agents.services.speech import subtract_noise
 from ontology.errors import ErrorCode
 from ontology.services.speech import SpeechNoiseProfile, SpeechRecognition, TextToSpeech
-from robots import tts
+from hearing import tts
+from hearing.wav import decode_wav, encode_wav, level_dbfs
 from robots.floorplan import load_plan
-from robots.sound import HouseSound, NoiseSource, decode_wav, encode_wav, level_dbfs
+from robots.sound import HouseSound, NoiseSource
 from robots.world import HOUSES
 
 # what the Store's RApps answer to (their manifests' phrases)
@@ -81,11 +82,11 @@ def test_words_outside_the_dictionary_are_pronounced(ctx):
 
 
 def test_sentences_it_cannot_pronounce_get_a_clear_error(ctx, monkeypatch):
-    from robots import tts
-    from robots.errors import UnsupportedOperation
+    from hearing import tts
+    from hearing.errors import SpeechUnavailable
 
     def no_espeak(*a, **kw):  # as on a Platform installed without the speech extra
-        raise UnsupportedOperation("text to speech needs the espeakng-loader package")
+        raise SpeechUnavailable("text to speech needs the espeakng-loader package")
 
     monkeypatch.setattr(tts, "phonemes", no_espeak)
     _, pcm = _heard("summon the zorblax")

@@ -7,6 +7,7 @@ import pytest
 from scenarios.run_rapp import run_rapp
 
 HERE = Path(__file__).resolve().parent.parent
+pytestmark = pytest.mark.asyncio  # async tests run under pytest-asyncio, in or out of this checkout
 
 
 @pytest.mark.parametrize("robot", ["nao", "elektron"])

@@ -1,7 +1,8 @@
-"""One BLAS thread per process (called when `robots` is imported; child processes inherit it).
+"""One BLAS thread per process (called when `hearing` is imported, and so `robots` too; child
+processes inherit it).
 
 OpenBLAS hands a matrix product to its own worker threads and spins until they finish. A CI run
-hung so for minutes: the Core's voice detector (robots/denoise.py, a 348x257 by 257x16 product on
+hung so for minutes: the Core's voice detector (hearing/bands.py, a 348x257 by 257x16 product on
 the event loop) waited in exec_blas for a BLAS worker that slept, while executor threads of the same
 process did numpy work too (numpy issue 17752 reports such hangs with several calling threads). Our
 products are small and our processes many on few cores: BLAS's own threads gain nothing here.

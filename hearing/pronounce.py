@@ -1,7 +1,7 @@
 """Pronunciations for words pocketsphinx's dictionary lacks ("greeter", "roomba", a RApp's made-up
 name), so a RApp's keywords and phrases can be said whatever words they use.
 
-eSpeak NG (robots/tts.py `phonemes`) says how the word sounds, in IPA; that is mapped to the phones
+eSpeak NG (hearing/tts.py `phonemes`) says how the word sounds, in IPA; that is mapped to the phones
 of pocketsphinx's US English model (ARPAbet, as cmudict writes them):
 
     pronunciation("greeter")   # "G R IY T ER"; None where eSpeak NG is missing or a sound has no phone
@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 import re
 
-from .errors import RobotError
+from .errors import HearingError
 
 # IPA (as eSpeak NG's en-us voice writes it) -> ARPAbet; longest match first within a phoneme
 _PHONES = {
@@ -53,6 +53,6 @@ def pronunciation(word: str, voice: str = "en-us") -> str | None:
     from . import tts
     try:
         units = tts.phonemes(word, voice)
-    except RobotError:  # eSpeak NG missing (UnsupportedOperation) or the word refused
+    except HearingError:  # eSpeak NG missing (SpeechUnavailable) or the word refused
         return None
     return ipa_to_phones(units)

@@ -4,7 +4,7 @@ import re
 
 import pytest
 
-from robots.pronounce import ipa_to_phones, pronunciation
+from hearing.pronounce import ipa_to_phones, pronunciation
 
 pytest.importorskip("espeakng_loader")
 
@@ -44,8 +44,8 @@ def test_everyday_words_are_pronounced_as_the_dictionary_has_them():
 
 def test_a_word_outside_the_dictionary_is_recognised_and_others_are_not_forced_onto_it():
     from bench.speech_offline import heard_utterances
-    from robots import tts
-    from robots.receptors import PhraseDecoder
+    from hearing import tts
+    from hearing.decoder import PhraseDecoder
 
     dec = PhraseDecoder(["greeter", "run greeter", "check the hazards"])
     assert dec.added == ["greeter"] and dec.unpronounced == [] and "run greeter" in dec.phrases

@@ -1,4 +1,4 @@
-"""Band spectra of the microphone's 10 ms frames, for voice activity detection (robots/receptors.py,
+"""Band spectra of the microphone's 10 ms frames, for voice activity detection (hearing/vad.py,
 VoiceActivity): a TV's sound swells and fades but keeps its spectrum; a voice over it changes it.
 
 Nothing here knows what a source played: only the microphone's int16 samples at 16 kHz come in.

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import resample_poly
 
-from .errors import InvalidArgument, UnsupportedOperation
-from .sound import SAMPLE_RATE
+from .errors import InvalidArgument, SpeechUnavailable
+from .wav import SAMPLE_RATE
 
 DEFAULT_VOICE = "en-us"
 # voices the tests and measurements use; any eSpeak NG voice name with an optional "+variant" works
@@ -60,7 +60,7 @@ def _fresh_engine():
     try:
         import espeakng_loader
     except ImportError:
-        raise UnsupportedOperation("text to speech needs the espeakng-loader package (pip install espeakng-loader)") \
+        raise SpeechUnavailable("text to speech needs the espeakng-loader package (pip install espeakng-loader)") \
             from None
     with _lock:
         lib = ctypes.CDLL(espeakng_loader.get_library_path())
@@ -73,7 +73,7 @@ def _fresh_engine():
             lib.espeak_SetSynthCallback.argtypes = [_CALLBACK]
             rate = lib.espeak_Initialize(_AUDIO_OUTPUT_SYNCHRONOUS, 0, espeakng_loader.get_data_path().encode(), 0)
             if rate <= 0:
-                raise UnsupportedOperation(f"eSpeak NG failed to initialise (code {rate})")
+                raise SpeechUnavailable(f"eSpeak NG failed to initialise (code {rate})")
             lib.espeak_SetSynthCallback(_collect)
             # a voice's breath noise (the "+f2" variants) draws on eSpeak's own generator and libc's
             # rand(), seeded from the clock: both fixed, so the noise is the same at every call
@@ -96,7 +96,7 @@ def _set_voice(lib, voice: str) -> None:
 
 
 def check_voice(voice: str) -> None:
-    """InvalidArgument where eSpeak NG has no such voice (UnsupportedOperation: no eSpeak NG)."""
+    """InvalidArgument where eSpeak NG has no such voice (SpeechUnavailable: no eSpeak NG)."""
     with _fresh_engine() as (lib, _):
         _set_voice(lib, voice)
 

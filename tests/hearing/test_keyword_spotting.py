@@ -1,11 +1,11 @@
 """The Core's keyword spotter on the owner's synthesised speech, cut by its voice activity detector:
-a keyword scoring a little below the free phone loop is still the keyword, where the strict bound
-(supervision words) refuses it; a sentence is none."""
+a keyword scoring a little below the free phone loop is still the keyword (hearing/keywords.py
+ACCEPT), where a bound of 0 refuses it; a sentence is none."""
 import pytest
 
 from bench.speech_offline import heard_utterances
-from robots import tts
-from robots.receptors import KeywordSpotter
+from hearing import tts
+from hearing.keywords import ACCEPT, KeywordSpotter
 
 KEYWORDS = {"hazards": "hazard_detection", "hazard": "hazard_detection", "weather": "weather_reporter",
             "forecast": "weather_reporter", "email": "email_reader", "mail": "email_reader",
@@ -18,7 +18,7 @@ def _utterances(text: str, voice: str, speed: int, distance: float):
     return heard_utterances(tts.synthesize(text, voice, speed), distance)  # the speech harness's recording
 
 
-def _spotter(accept=KeywordSpotter.ACCEPT):
+def _spotter(accept=ACCEPT):
     return KeywordSpotter(sorted(KEYWORDS), PHRASES, groups=KEYWORDS, accept=accept)
 
 
@@ -32,23 +32,23 @@ CLOSE_CALLS = [("hazards", "en", 160, 1.0), ("hazard", "en", 130, 1.0), ("weathe
 def test_keywords_a_little_below_the_phone_loop_are_the_keywords():
     # counted over several, not judged one by one: the margins are within 0.04 of the bound, and a
     # small change to the synthesiser or the house moves them (eSpeak NG's output moved with what a
-    # process had synthesised before, until robots/tts.py loaded it afresh per call). One spotter of
-    # each kind decides them all, as the Core's does: a decision depends on its own audio only.
-    owner, supervision = [], []
-    loose, strict = _spotter(), _spotter(KeywordSpotter.STRICT)
+    # process had synthesised before, until hearing/tts.py loaded it afresh per call). One spotter of
+    # each bound decides them all, as the Core's does: a decision depends on its own audio only.
+    at_accept, at_zero = [], []
+    loose, strict = _spotter(), _spotter(0.0)
     for said, voice, speed, distance in CLOSE_CALLS:
         utts = _utterances(said, voice, speed, distance)
-        owner.append(next((w for u in utts if (w := loose.spot(u))), None))
-        supervision.append(next((w for u in utts if (w := strict.spot(u))), None))
+        at_accept.append(next((w for u in utts if (w := loose.spot(u))), None))
+        at_zero.append(next((w for u in utts if (w := strict.spot(u))), None))
     rapps = [KEYWORDS[c[0]] for c in CLOSE_CALLS]  # "inbox" heard as "email" starts the same RApp
-    assert all(w is None or KEYWORDS[w] == r for w, r in zip(owner + supervision, rapps + rapps)), (owner, supervision)
-    assert sum(map(bool, owner)) >= sum(map(bool, supervision)) + 2, (owner, supervision)
+    assert all(w is None or KEYWORDS[w] == r for w, r in zip(at_accept + at_zero, rapps + rapps)), (at_accept, at_zero)
+    assert sum(map(bool, at_accept)) >= sum(map(bool, at_zero)) + 2, (at_accept, at_zero)
 
 
 # the middle three were each taken for a keyword (email, hazards, email) that covered 0.4-0.7 of the
 # speech heard, before the spotter asked a keyword alone to cover most of it (KeywordSpotter.MIN_COVER);
 # the last one for "weather", covering 0.79 of it with 0.13 s of speech before it, until a keyword alone
-# had to leave no more than MAX_OTHER_SPEECH_S outside (robots/receptors.py said_alone). The third
+# had to leave no more than MAX_OTHER_SPEECH_S outside (hearing/keywords.py said_alone). The third
 # needs that rule too since the detector no longer holds an utterance open for one loud frame
 @pytest.mark.parametrize("said,voice,speed,distance", [
     ("thank you very much", "en-us", 160, 1.0), ("hello there", "en+f2", 160, 1.0),
@@ -61,7 +61,7 @@ def test_a_sentence_is_no_keyword(said, voice, speed, distance):
 
 # in a furnished room (reverberation time 0.6 s) the detector hears a word's echo as speech for a few
 # hundred ms after it: these keywords, said alone, covered 0.40-0.72 of the speech heard and were
-# refused until the echo (ECHO_DB below the words) was left out (robots/receptors.py said_alone)
+# refused until the echo (ECHO_DB below the words) was left out (hearing/keywords.py said_alone)
 ALONE_IN_A_ROOM = [("email", "en-us", 160, 1.0), ("forecast", "en-us", 130, 2.0), ("hazards", "en-us", 130, 0.5),
                    ("quiz", "en", 190, 0.5), ("weather", "en-us+f3", 190, 1.0)]
 # and these sentences, taken for a keyword there, stay refused: their other words are as loud as it
