@@ -104,6 +104,6 @@ async def test_silence_before_the_core_watches_is_not_a_hang():
         s.ended.set()
 
     core = SimpleNamespace(dynamic=session, estop_reason=None, _late_not_hung=lambda *a: False,
-                           _end=end)
+                           _end=end, pause_allowance_s=CoreAgent.pause_allowance_s)
     asyncio.get_running_loop().call_later(0.5, end, session, "finished")
     assert await CoreAgent.serve_until_done(core) == "finished"

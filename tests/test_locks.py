@@ -10,6 +10,8 @@ import pytest
 from agents.core_strategies import Strategies
 from agents.locks import LockError, ResourceLocks
 from ontology.registry import Done
+from ontology.robot import GetGlobalPose
+from ontology.services.common import Pose2D
 
 
 async def test_an_heir_uses_the_device_and_the_owner_gets_it_back():
@@ -95,6 +97,8 @@ class _Robot:
         self.locks, self.moves = locks, []
 
     async def handle(self, req):
+        if isinstance(req, GetGlobalPose):  # where the safety incident is
+            return Pose2D(x=0.0, y=0.0, theta=0.0)
         self.moves.append((type(req).__name__, self.locks.chain("base")))
         return Done()
 
@@ -121,6 +125,15 @@ class _Core(Strategies):
     async def resume_motion(self, by):
         self.resumed.append(by)
         self.estop_reason = None
+
+    # the safety incident's hosts (a task-less Core: the incident is told when it closes)
+    incident, dynamic = None, None
+
+    def _in_background(self, coro) -> None:
+        coro.close()
+
+    async def tell_user(self, text, speak=True):
+        self.records.append(("told", {"text": text}))
 
 
 async def test_the_back_off_acts_for_the_task_with_its_inherited_base():
