@@ -14,6 +14,8 @@ message); `read_trace(path, validate=True)` does.
 """
 from __future__ import annotations
 
+import hashlib
+import hmac
 import json
 import os
 import re
@@ -44,6 +46,9 @@ class TraceWriter:
         self.path = Path(path) if path else None
         self._lock = threading.Lock()
         self._fd: int | None = fd
+        # a recording's whole message bodies (record_bodies): the writer of BODIES beside the trace,
+        # or this writer itself in a RApp process (raw down its pipe, masked by the relay); None: off
+        self.bodies: TraceWriter | None = None
         if self.path and fd is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             # 0600: a trace holds every message of the run (RApp processes get an append-only fd)
@@ -77,6 +82,22 @@ class TraceWriter:
                 f'"size": {int(size)}, "content": {s(content)}}}\n')
         self._write(line.encode())
 
+    def body(self, direction: str, agent: str, sender: str, receiver: str, performative: str,
+             conversation_id: str, ontology: str, action: str, message_id: str, in_reply_to: str,
+             body: str, feedback: bool = False) -> None:
+        """A message's whole body (ontology.recording.BodyRecord) where a recording is asked for:
+        secrets replaced by placeholders (mask_secrets) by a trusted writer, a RApp process's by
+        its relay."""
+        sink = self.bodies
+        if sink is None:
+            return
+        rec = {"t": round(time.time(), 6), "kind": BODY, "pid": _pid, "dir": direction, "agent": agent,
+               "sender": sender, "receiver": receiver, "performative": performative,
+               "conversation_id": conversation_id, "ontology": ontology, "action": action,
+               "message_id": message_id, "in_reply_to": in_reply_to, "feedback": feedback,
+               "body": body if sink is self else mask_secrets(body)}
+        sink._write((_ENCODE(rec) + "\n").encode())  # noqa: SLF001
+
     def _write(self, line: bytes) -> None:
         with self._lock:
             if self._fd is not None:
@@ -104,6 +125,46 @@ def inherit_trace_fd(fd: int) -> None:
     _inherited = TraceWriter(None, fd)
 
 
+def send_bodies_down_pipe() -> None:
+    """A RApp process whose run is recorded (SpawnSpec.record): its agents' message bodies go down
+    its trace pipe too, for its relay to mask and write."""
+    if _inherited is not None:
+        _inherited.bodies = _inherited
+
+
+def record_bodies(trace_path: str | Path) -> TraceWriter:
+    """Record the whole body of every message traced to `trace_path` (this process's agents and
+    the RApp processes it relays), in BODIES beside it; the RApp packages its Cores run are kept
+    in PACKAGES there (keep_package). Returns the trace's writer."""
+    writer = tracer_for(trace_path)
+    if writer.enabled and writer.bodies is None:
+        writer.bodies = TraceWriter(writer.path.parent / BODIES)
+    return writer
+
+
+def stop_recording_bodies(trace_path: str | Path) -> None:
+    writer = tracer_for(trace_path)
+    bodies, writer.bodies = writer.bodies, None
+    if bodies is not None and bodies is not writer:
+        bodies.close()
+
+
+def keep_package(writer: TraceWriter, data: bytes) -> str | None:
+    """A RApp package a Core downloaded, kept beside a recorded trace as PACKAGES/<sha256>.rapp
+    (for `rapp replay`); its sha256, or None when the trace is not recorded."""
+    if writer.bodies is None or writer.bodies is writer or writer.path is None:
+        return None
+    sha = hashlib.sha256(data).hexdigest()
+    path = writer.path.parent / PACKAGES / f"{sha}.rapp"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{_pid}.part")
+        tmp.write_bytes(data)
+        tmp.chmod(0o600)
+        os.replace(tmp, path)
+    return sha
+
+
 def tracer_for(path: str | Path | None) -> TraceWriter:
     """One shared writer per file per process; the inherited one, or a disabled writer, when
     path is None."""
@@ -123,13 +184,14 @@ class TraceRelay:
     takes its run's at the hand-off) and `pid()`. What cannot be a record is kept as a `log` record
     saying so; a line over MAX_LINE is cut; past MAX_BYTES a run's records are dropped, once said."""
 
-    MAX_LINE = 256 * 1024
+    MAX_LINE = 2 * 1024**2  # a message body (agents/base.py MAX_BODY, 256 K characters) escaped
     MAX_BYTES = 64 * 1024**2
+    MAX_BODY_BYTES = 512 * 1024**2  # of a recording's message bodies (camera images)
 
     def __init__(self, fd: int, writer: TraceWriter, who, pid):
         self.fd, self.writer, self.who, self.pid = fd, writer, who, pid
         self._buf = b""
-        self._bytes = 0
+        self._bytes = self._body_bytes = 0
         self._loop = None
 
     def start(self, loop) -> None:
@@ -167,6 +229,9 @@ class TraceRelay:
         os.close(self.fd)
 
     def _one(self, line: bytes) -> None:
+        if _BODY_KIND in line[:80]:
+            self._body(line)
+            return
         self._bytes += len(line)
         if self._bytes > self.MAX_BYTES:
             if self._bytes - len(line) <= self.MAX_BYTES:
@@ -191,7 +256,75 @@ class TraceRelay:
             pass
 
 
+    def _body(self, line: bytes) -> None:
+        """A RApp's message body (TraceWriter.body): masked here, written to the recording's
+        BODIES with the RApp's identity, or dropped when its run is not recorded."""
+        sink = self.writer.bodies
+        if sink is None or sink is self.writer:
+            return
+        self._body_bytes += len(line)
+        if self._body_bytes > self.MAX_BODY_BYTES:
+            if self._body_bytes - len(line) <= self.MAX_BODY_BYTES:
+                self.writer.record(RecordKind.LOG, agent=self.who(), origin=self.who(), level="WARNING",
+                                   message=f"message bodies past {self.MAX_BODY_BYTES} bytes not recorded")
+            return
+        try:
+            rec = json.loads(line)
+            body = rec["body"]
+            if not isinstance(body, str):
+                raise ValueError
+        except (ValueError, KeyError, TypeError):
+            return
+        who = self.who()
+        if rec.get("agent") not in (None, who):
+            rec["claimed_agent"] = rec["agent"]
+        rec.pop("origin", None)
+        rec.update(t=round(time.time(), 6), pid=self.pid(), agent=who, origin=who, body=mask_secrets(body))
+        try:
+            sink._write((_ENCODE(rec) + "\n").encode())  # noqa: SLF001
+        except (TypeError, ValueError, OSError):
+            pass
+
+
 _SECRET = re.compile(r'("(?:password|token)"\s*:\s*")[^"]*(")')
+BODY = "body"  # the kind of a recording's body record (ontology/recording.py BodyRecord)
+BODIES = "messages.jsonl"  # a recording's message bodies, beside its trace
+PACKAGES = "packages"  # a recording's RApp packages, beside its trace
+SECRET_FIELDS = frozenset({"password", "token"})
+_BODY_KIND = b'"kind": "body"'  # near the start of a body line (TraceWriter.body), after "t"
+_KEY = os.urandom(32)  # this process's: placeholders are stable within it, and say nothing of the secret
+_SECRET_VALUE = re.compile(r'("(?:password|token)"\s*:\s*")((?:[^"\\]|\\.)*)(")')
+
+
+def placeholder(secret: str) -> str:
+    """What a recording writes instead of a secret: the same for the same secret in one process
+    (a keyed hash, the key never written), so a replay can substitute its own values consistently."""
+    return "<secret:" + hmac.new(_KEY, secret.encode(), hashlib.sha256).hexdigest()[:16] + ">"
+
+
+def is_placeholder(value) -> bool:
+    return isinstance(value, str) and value.startswith("<secret:") and value.endswith(">") and len(value) == 25
+
+
+def mask_secrets(body: str) -> str:
+    """A message body with the value of every `password` and `token` field (at any depth of its
+    JSON) replaced by its placeholder; a body that is not JSON has such fields replaced as text."""
+    if not body or ('"password"' not in body and '"token"' not in body):
+        return body
+    try:
+        data = json.loads(body)
+    except ValueError:
+        return _SECRET_VALUE.sub(lambda m: m.group(1) + placeholder(m.group(2)) + m.group(3), body)
+    return json.dumps(_masked(data), ensure_ascii=False, separators=(",", ":"))
+
+
+def _masked(value):
+    if isinstance(value, dict):
+        return {k: (placeholder(v) if k in SECRET_FIELDS and isinstance(v, str) and v else _masked(v))
+                for k, v in value.items()}
+    if isinstance(value, list):
+        return [_masked(v) for v in value]
+    return value
 
 
 def cap(text: str | None, limit: int = CONTENT_CAP) -> str:

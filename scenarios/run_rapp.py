@@ -59,12 +59,13 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                    timeout_s: float, progress: bool = False, live: bool | None = None,
                    watch_port: int | None = None, speak: bool = False,
                    script: list[SpokenLine] | None = None, listen: bool = False,
-                   disturbances: str | Path | None = None) -> dict:
+                   disturbances: str | Path | None = None, record: bool = True, frames: bool = True) -> dict:
     """`progress`: show it (`live`: the rich panel, None = on a terminal, else plain lines);
     `watch_port`: serve the live page there (0 = any free port); `speak`: the owner says the command
     aloud instead of typing it; `script`: lines the owner says at their times; `listen`: no command
     is sent, the owner's voice gives it; `disturbances`: a scenario file's people, doors and boxes
-    (robots/disturbances.py). While it runs, `rapp say TEXT` is heard too (the run's inbox)."""
+    (robots/disturbances.py); `record`: the run's recording and run.mcap (`frames`: with the camera's
+    frames; docs/recordings.md). While it runs, `rapp say TEXT` is heard too (the run's inbox)."""
     out = Path(out)
     world = scenario_world(house, seed, disturbances=disturbances)
     watch: WatchServer | None = None
@@ -82,7 +83,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
         home = home_description(world, name, out) if has_layout(name, world) else None
         voice = OwnerVoice(world, api, out)
         owner = Owner(robot, api, f"owner-{robot}1", None, home=home)
-        run = Run(out, world, src, [owner])
+        run = Run(out, world, src, [owner], record=record, frames=frames, grid=plot_grid(world, house))
 
         async def before(run: Run) -> None:
             owner.command = None if listen else say or run.keywords[0]
@@ -137,6 +138,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                       "outputs": outputs, "truth": run.truth()}
             (out / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
             (out / "result.json").write_text(json.dumps(result, indent=1))
+            await run.finish_recording()
         check_interrupted(result)
         return result
     finally:
@@ -182,6 +184,9 @@ def main(argv: list[str] | None = None) -> int:
                                                           "(`rapp say TEXT` while it runs, or --scenario lines)")
     p.add_argument("--allow-unsandboxed", action="store_true",
                    help="run the RApp without the sandbox where the kernel allows none (the reason is printed)")
+    p.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
+                                                             "packages/ nor run.mcap (docs/recordings.md)")
+    p.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
     a = p.parse_args(argv)
     if not allow_unsandboxed(a.allow_unsandboxed, "rapp run rapp"):
         return 2
@@ -200,7 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = main_loop(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=not a.quiet,
                                     live=False if a.plain else None, watch_port=a.watch, speak=a.speak,
-                                    script=script, listen=a.listen, disturbances=a.scenario))
+                                    script=script, listen=a.listen, disturbances=a.scenario,
+                                    record=not a.no_record, frames=not a.no_frames))
     except ScriptError as exc:
         print(f"rapp run rapp: {exc}", file=sys.stderr)
         return 2
