@@ -337,6 +337,9 @@ def cmd_replay(argv: list[str]) -> int:
                                                   "package: how a refactor is checked without a robot")
     p.add_argument("--run", type=int, metavar="N", help="which RApp run of the recording (1-based; default the last)")
     p.add_argument("--list", action="store_true", help="list the recording's RApp runs and exit")
+    p.add_argument("--save", metavar="DEST", help="copy what a replay needs (trace, message bodies, packages, "
+                                                  "result; no credentials) to DEST, e.g. a RApp's tests/recording, "
+                                                  "and exit (docs/sdk.md 'A recording as a test')")
     p.add_argument("--in-process", action="store_true", help="run the RApp in this process, unsandboxed (faster; "
                                                               "your own code only)")
     p.add_argument("--stall", type=float, default=10.0, metavar="S",
@@ -345,9 +348,13 @@ def cmd_replay(argv: list[str]) -> int:
     p.add_argument("--timeout", type=float, default=600.0, help="seconds the whole replay may take (default 600)")
     p.add_argument("--trace", metavar="FILE", help="write the replay's own trace there")
     a = p.parse_args(argv)
-    from rapps.replay import RecordingError, list_runs, replay
+    from rapps.replay import RecordingError, list_runs, replay, save_recording
 
     try:
+        if a.save:
+            copied = save_recording(a.run_dir, a.save)
+            print(f"saved in {a.save}: {', '.join(copied)}")
+            return 0
         if a.list:
             print("\n".join(list_runs(a.run_dir)) or "no RApp runs in this recording")
             return 0

@@ -200,6 +200,26 @@ def list_runs(run_dir: str | Path) -> list[str]:
         (r for r in records if r.get("event") == StructureEvent.SPAWN and not r.get("origin") and r.get("dynamic")), 1)]
 
 
+def save_recording(run_dir: str | Path, dest: str | Path) -> list[str]:
+    """What a replay needs of a run folder, copied to `dest` (a RApp's tests/recording): the trace,
+    the message bodies (secrets already placeholders), the kept packages and result.json; never the
+    run's system/ folder (its agents' credentials). The files copied."""
+    src, dest = Path(run_dir), Path(dest)
+    load_recording(src)  # a clear error if it cannot be replayed
+    dest.mkdir(parents=True, exist_ok=True)
+    copied = []
+    for name in ("trace.jsonl", BODIES, "result.json"):
+        if (src / name).exists():
+            shutil.copyfile(src / name, dest / name)
+            copied.append(name)
+    if (src / PACKAGES).is_dir():
+        (dest / PACKAGES).mkdir(exist_ok=True)
+        for p in sorted((src / PACKAGES).glob("*.rapp")):
+            shutil.copyfile(p, dest / PACKAGES / p.name)
+            copied.append(f"{PACKAGES}/{p.name}")
+    return copied
+
+
 # -- comparing ------------------------------------------------------------------------------------
 def _parse(text: str) -> Any:
     try:
@@ -546,5 +566,5 @@ def _last_status(rec: RecordedRun, script: Script) -> str:
     return states[-1] if states else ""
 
 
-__all__ = ["replay", "load_recording", "list_runs", "ReplayResult", "Divergence", "RecordingError",
+__all__ = ["replay", "load_recording", "list_runs", "save_recording", "ReplayResult", "Divergence", "RecordingError",
            "first_difference", "Script"]
