@@ -108,7 +108,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             info = home[0]
             rows, found = score_owner(run, owner, info.hazards)
             result = {
-                "robot": robot, "seed": seed, "hazards": rows,
+                "robot": robot, "seed": seed, "house": house, "hazards": rows,
                 "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),
                 "localization_error_m": finite(recorder.localization_error()),
                 "max_tracking_error_m": finite(recorder.tracking_error()),
@@ -199,7 +199,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
                                                               "packages/ nor run.mcap (docs/recordings.md)")
     ap.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
+    ap.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run (its robot, seed and house), "
+                    "then compare the hazards' reports and the trajectory with it (docs/recordings.md)")
+    ap.add_argument("--tolerance", type=float, default=None, metavar="M",
+                    help="--replay: how far (m) the trajectories may be apart (default 0.25)")
     args = ap.parse_args(argv)
+    if args.replay:
+        from .resim import ResimError, recorded_result
+        try:
+            rec = recorded_result(args.replay)
+        except ResimError as exc:
+            print(f"rapp run hazard-detection: {exc}", file=sys.stderr)
+            return 2
+        args.robot, args.seed, args.house = rec.get("robot", args.robot), rec.get("seed", args.seed), \
+            rec.get("house", args.house)
     try:
         result = main_loop(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
                                                 args.rtf, timeout_s=args.timeout, progress=not args.quiet,
@@ -210,6 +223,13 @@ def main(argv: list[str] | None = None) -> int:
             print(summary(stop.result))
         return 128 + stop.signum
     print(summary(result))
+    if args.replay:
+        from . import resim
+        out = Path(result["trace"]).parent
+        comparison = resim.compare(args.replay, out, args.robot, args.tolerance or resim.TRAJECTORY_TOL_M)
+        print(comparison.text())
+        print(f"  compared in {resim.write(out, args.replay, comparison)}")
+        return 0 if comparison.ok else 1
     return 0 if result["all_correct"] and result["finished"] else 1
 
 
