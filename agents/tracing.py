@@ -49,6 +49,7 @@ class TraceWriter:
         # a recording's whole message bodies (record_bodies): the writer of BODIES beside the trace,
         # or this writer itself in a RApp process (raw down its pipe, masked by the relay); None: off
         self.bodies: TraceWriter | None = None
+        self.blobs: BlobStore | None = None  # a BODIES writer's store of long strings
         if self.path and fd is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             # 0600: a trace holds every message of the run (RApp processes get an append-only fd)
@@ -89,14 +90,26 @@ class TraceWriter:
         secrets replaced by placeholders (mask_secrets) by a trusted writer, a RApp process's by
         its relay."""
         sink = self.bodies
-        if sink is None:
+        if sink is None or (ontology, action) in UNRECORDED_BODIES:
             return
         rec = {"t": round(time.time(), 6), "kind": BODY, "pid": _pid, "dir": direction, "agent": agent,
                "sender": sender, "receiver": receiver, "performative": performative,
                "conversation_id": conversation_id, "ontology": ontology, "action": action,
                "message_id": message_id, "in_reply_to": in_reply_to, "feedback": feedback,
-               "body": body if sink is self else mask_secrets(body)}
-        sink._write((_ENCODE(rec) + "\n").encode())  # noqa: SLF001
+               "body": body}
+        if sink is self:  # a RApp process: raw down the pipe, masked by the trusted relay
+            self._write((_ENCODE(rec) + "\n").encode())
+        else:
+            sink.write_body(rec)
+
+    def write_body(self, rec: dict) -> None:
+        """A body record into this BODIES writer: secrets masked, long strings of its JSON (camera
+        images) kept once as blobs (BlobStore) and named in the body by reference."""
+        body = mask_secrets(rec["body"])
+        if self.blobs is not None and len(body) >= BLOB_MIN:
+            body = self.blobs.extract(body)
+        rec["body"] = body
+        self._write((_ENCODE(rec) + "\n").encode())
 
     def _write(self, line: bytes) -> None:
         with self._lock:
@@ -138,7 +151,9 @@ def record_bodies(trace_path: str | Path) -> TraceWriter:
     in PACKAGES there (keep_package). Returns the trace's writer."""
     writer = tracer_for(trace_path)
     if writer.enabled and writer.bodies is None:
-        writer.bodies = TraceWriter(writer.path.parent / BODIES)
+        bodies = TraceWriter(writer.path.parent / BODIES)
+        bodies.blobs = BlobStore(writer.path.parent / BLOBS)
+        writer.bodies = bodies
     return writer
 
 
@@ -147,6 +162,64 @@ def stop_recording_bodies(trace_path: str | Path) -> None:
     bodies, writer.bodies = writer.bodies, None
     if bodies is not None and bodies is not writer:
         bodies.close()
+
+
+class BlobStore:
+    """Long strings of a recording (camera images travel as base64 in several messages and in
+    robot.jsonl), each kept once as BLOBS/<sha256> and named where it stood by `<blob:sha256>`."""
+
+    def __init__(self, directory: str | Path):
+        self.dir = Path(directory)
+        self._known: set[str] = set()
+        self._lock = threading.Lock()
+
+    def put(self, text: str) -> str:
+        data = text.encode()
+        sha = hashlib.sha256(data).hexdigest()
+        with self._lock:
+            if sha not in self._known:
+                self.dir.mkdir(parents=True, exist_ok=True)
+                fd = os.open(self.dir / sha, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+                try:
+                    os.write(fd, data)
+                finally:
+                    os.close(fd)
+                self._known.add(sha)
+        return f"<blob:{sha}>"
+
+    def extract(self, body: str) -> str:
+        """The body with each string of BLOB_MIN characters or more in its JSON put in the store."""
+        try:
+            data = json.loads(body)
+        except ValueError:
+            return body
+        found = [False]
+
+        def walk(v):
+            if isinstance(v, str) and len(v) >= BLOB_MIN:
+                found[0] = True
+                return self.put(v)
+            if isinstance(v, dict):
+                return {k: walk(x) for k, x in v.items()}
+            if isinstance(v, list):
+                return [walk(x) for x in v]
+            return v
+        out = walk(data)
+        return json.dumps(out, ensure_ascii=False, separators=(",", ":")) if found[0] else body
+
+
+def inflate(text: str, blobs_dir: str | Path) -> str:
+    """A recorded body (JSON) with its blob references replaced by their strings again."""
+    if "<blob:" not in text:
+        return text
+    d = Path(blobs_dir)
+    return _BLOB_REF.sub(lambda m: json.dumps((d / m.group(1)).read_text(), ensure_ascii=False), text)
+
+
+def blob_store_for(trace_path: str | Path) -> BlobStore | None:
+    """The blob store of a recorded trace (None when it is not recorded)."""
+    bodies = tracer_for(trace_path).bodies
+    return None if bodies is None else bodies.blobs
 
 
 def keep_package(writer: TraceWriter, data: bytes) -> str | None:
@@ -279,9 +352,9 @@ class TraceRelay:
         if rec.get("agent") not in (None, who):
             rec["claimed_agent"] = rec["agent"]
         rec.pop("origin", None)
-        rec.update(t=round(time.time(), 6), pid=self.pid(), agent=who, origin=who, body=mask_secrets(body))
+        rec.update(t=round(time.time(), 6), pid=self.pid(), agent=who, origin=who, body=body)
         try:
-            sink._write((_ENCODE(rec) + "\n").encode())  # noqa: SLF001
+            sink.write_body(rec)
         except (TypeError, ValueError, OSError):
             pass
 
@@ -290,6 +363,11 @@ _SECRET = re.compile(r'("(?:password|token)"\s*:\s*")[^"]*(")')
 BODY = "body"  # the kind of a recording's body record (ontology/recording.py BodyRecord)
 BODIES = "messages.jsonl"  # a recording's message bodies, beside its trace
 PACKAGES = "packages"  # a recording's RApp packages, beside its trace
+BLOBS = "blobs"  # a recording's long strings (BlobStore), beside its trace
+# whole in the trace already, numerous, and no replay needs them (four a second for a whole run)
+UNRECORDED_BODIES = frozenset({("core", "heartbeat")})
+BLOB_MIN = 4096  # characters of a string kept as a blob
+_BLOB_REF = re.compile(r'"<blob:([0-9a-f]{64})>"')
 SECRET_FIELDS = frozenset({"password", "token"})
 _BODY_KIND = b'"kind": "body"'  # near the start of a body line (TraceWriter.body), after "t"
 _KEY = os.urandom(32)  # this process's: placeholders are stable within it, and say nothing of the secret

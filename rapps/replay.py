@@ -38,7 +38,7 @@ from spade.message import Message
 
 from agents.base import RappAgent
 from agents.messages import AclInfo, bare, is_feedback
-from agents.tracing import BODIES, PACKAGES, is_placeholder, read_trace
+from agents.tracing import BLOBS, BODIES, PACKAGES, inflate, is_placeholder, read_trace
 from ontology import acl
 from ontology.acl import Performative
 from ontology.package import build_package_bytes, unpack_package
@@ -115,16 +115,17 @@ class RecordedRun:
         return sorted({e.peer for e in self.exchange} | {self.core, self.platform})
 
 
-def _bodies(path: Path) -> list[dict]:
+def _bodies(path: Path, blobs: Path) -> list[dict]:
     out = []
     with open(path, encoding="utf-8") as f:
         for line in f:
             try:
                 rec = json.loads(line)
-            except ValueError:
+                if isinstance(rec, dict) and rec.get("kind") == "body" and isinstance(rec.get("body"), str):
+                    rec["body"] = inflate(rec["body"], blobs)
+                    out.append(rec)
+            except (ValueError, OSError):
                 continue
-            if isinstance(rec, dict) and rec.get("kind") == "body" and isinstance(rec.get("body"), str):
-                out.append(rec)
     return out
 
 
@@ -156,7 +157,7 @@ def load_recording(run_dir: str | Path, run: int | None = None) -> RecordedRun:
     registers = [r for r in records if r.get("event") == StructureEvent.REGISTER and bare(r.get("agent", "")) == core
                  and r.get("platform")]
     platform = bare(registers[-1]["platform"]) if registers else f"platform@{dyn.split('@', 1)[1]}"
-    exchange, trusted_only = _exchange(_bodies(d / BODIES), dyn)
+    exchange, trusted_only = _exchange(_bodies(d / BODIES, d / BLOBS), dyn)
     robot = RobotInfo.model_validate(spawn["robot"]) if spawn.get("robot") else None
     return RecordedRun(d, n, len(spawns), dyn, core, platform, spawn.get("rapp", ""), spawn.get("version", ""),
                        spawn.get("params") or {}, robot, package, exchange,
@@ -212,11 +213,13 @@ def save_recording(run_dir: str | Path, dest: str | Path) -> list[str]:
         if (src / name).exists():
             shutil.copyfile(src / name, dest / name)
             copied.append(name)
-    if (src / PACKAGES).is_dir():
-        (dest / PACKAGES).mkdir(exist_ok=True)
-        for p in sorted((src / PACKAGES).glob("*.rapp")):
-            shutil.copyfile(p, dest / PACKAGES / p.name)
-            copied.append(f"{PACKAGES}/{p.name}")
+    for sub, pattern in ((PACKAGES, "*.rapp"), (BLOBS, "*")):
+        if (src / sub).is_dir():
+            (dest / sub).mkdir(exist_ok=True)
+            files = sorted((src / sub).glob(pattern))
+            for p in files:
+                shutil.copyfile(p, dest / sub / p.name)
+            copied.append(f"{sub}/ ({len(files)} files)")
     return copied
 
 

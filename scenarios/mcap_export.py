@@ -17,14 +17,15 @@ robot's use Foxglove's well-known schemas (their JSON Schema text, scenarios/fox
 Times are the wall clock of the trace (log_time, ns since the epoch); robot samples carry the
 simulation time too (metadata `sim` of the recording is not a channel). A folder recorded before
 robot.jsonl existed gets its true trajectory from result.json (placed by the simulation time after
-the first hand-off) and its frames from frames/ (by file time); without messages.jsonl the ACL
-contents are the trace's capped text (`truncated: true`).
+the first hand-off) and its frames from frames/ (by file time); a message without its whole body in
+messages.jsonl has the trace's content (`truncated: true` where the trace capped it).
 """
 from __future__ import annotations
 
 import base64
 import json
 import math
+import re
 from functools import lru_cache
 from pathlib import Path
 
@@ -32,7 +33,7 @@ import cv2
 import numpy as np
 from mcap.writer import Writer
 
-from agents.tracing import BODIES, read_trace
+from agents.tracing import BLOBS, BODIES, inflate, read_trace
 from ontology.recording import AclMessage
 from ontology.trace import CHAT, RecordKind
 
@@ -100,7 +101,7 @@ def export_mcap(run_dir: str | Path, out: str | Path | None = None, frames: bool
     b = McapBuilder()
     robot_log = run / "robot.jsonl"
     if robot_log.exists():
-        robots = _robot_samples(b, robot_log, frames)
+        robots = _robot_samples(b, robot_log, frames, run / BLOBS)
     else:
         robots = _from_result(b, run, records, frames)
     _trace_channels(b, records)
@@ -118,12 +119,12 @@ def export_mcap(run_dir: str | Path, out: str | Path | None = None, frames: bool
 
 
 # -- the robot ------------------------------------------------------------------------------------
-def _robot_samples(b: McapBuilder, path: Path, frames: bool) -> set[str]:
+def _robot_samples(b: McapBuilder, path: Path, frames: bool, blobs: Path) -> set[str]:
     robots: set[str] = set()
     with open(path, encoding="utf-8") as f:
         for line in f:
             try:
-                s = json.loads(line)
+                s = json.loads(inflate(line, blobs) if frames else line)
                 _sample(b, s, frames, robots)
             except (ValueError, KeyError, TypeError):
                 continue  # a line cut by a crash
@@ -226,21 +227,21 @@ def _trace_channels(b: McapBuilder, records: list[dict]) -> None:
 
 
 def _acl_channels(b: McapBuilder, run: Path, records: list[dict]) -> None:
-    """Each message once (its sender's side where traced, else its receiver's), whole where the
-    run recorded bodies."""
+    """Each message of the trace once (its sender's record where traced, else its receiver's), with
+    its whole body where the run recorded one (messages.jsonl), else the trace's content."""
+    bodies = {(r.get("sender"), r.get("message_id")): r["body"] for r in _bodies(run / BODIES, run / BLOBS)
+              if r.get("message_id")}
     seen: set[tuple] = set()
-    sources = _bodies(run / BODIES)
-    truncated = not sources
-    if truncated:
-        sources = [r for r in records if r.get("kind") == RecordKind.MESSAGE]
-    sources.sort(key=lambda r: (r.get("dir") != "send", r.get("t", 0.0)))  # senders' records first
-    for r in sources:
+    messages = [r for r in records if r.get("kind") == RecordKind.MESSAGE]
+    messages.sort(key=lambda r: (r.get("dir") != "send", r.get("t", 0.0)))  # senders' records first
+    for r in messages:
         key = (r.get("sender"), r.get("message_id")) if r.get("message_id") else \
-            (r.get("sender"), r.get("receiver"), round(r.get("t", 0.0), 1), r.get("body", r.get("content")))
+            (r.get("sender"), r.get("receiver"), round(r.get("t", 0.0), 1), r.get("content"))
         if key in seen:
             continue
         seen.add(key)
-        text = r.get("body") if not truncated else r.get("content", "")
+        whole = bodies.get((r.get("sender"), r.get("message_id")))
+        text = whole if whole is not None else r.get("content", "")
         t = r.get("t", 0.0)
         if r.get("performative") == CHAT:
             b.add(t, "/chat", "foxglove.Log", _log(t, _local(r.get("sender", "")), 2,
@@ -254,12 +255,15 @@ def _acl_channels(b: McapBuilder, run: Path, records: list[dict]) -> None:
                          performative=r.get("performative", ""), conversation_id=r.get("conversation_id", ""),
                          ontology=r.get("ontology", ""), action=r.get("action", ""),
                          message_id=r.get("message_id", ""), in_reply_to=r.get("in_reply_to", ""),
-                         feedback=bool(r.get("feedback")), size=r.get("size", len(text or "")),
-                         content=content, truncated=truncated)
+                         feedback=bool(r.get("feedback")), size=r.get("size", len(text or "")), content=content,
+                         truncated=whole is None and bool(_CAPPED.search(text or "")))
         b.add(t, f"/acl/{_local(msg.sender)}", ACL_SCHEMA, msg.model_dump())
 
 
-def _bodies(path: Path) -> list[dict]:
+_CAPPED = re.compile(r"\.\.\.\[\+\d+ chars\]$")  # agents/tracing.py cap()
+
+
+def _bodies(path: Path, blobs: Path) -> list[dict]:
     out = []
     if not path.exists():
         return out
@@ -267,8 +271,9 @@ def _bodies(path: Path) -> list[dict]:
         for line in f:
             try:
                 rec = json.loads(line)
-            except ValueError:
+                if isinstance(rec, dict) and rec.get("kind") == "body":
+                    rec["body"] = inflate(rec["body"], blobs)
+                    out.append(rec)
+            except (ValueError, KeyError, TypeError, OSError):
                 continue
-            if isinstance(rec, dict) and rec.get("kind") == "body":
-                out.append(rec)
     return out

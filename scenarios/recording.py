@@ -1,6 +1,7 @@
 """A run's recording, made by the scenario's own (trusted) process while the run goes on
 (docs/recordings.md): the whole message bodies beside the trace (agents/tracing.py record_bodies),
-the RApp packages its Cores run (packages/), and robot.jsonl, what each simulated robot did and
+the RApp packages its Cores run (packages/), long strings such as camera frames once each (blobs/),
+and robot.jsonl, what each simulated robot did and
 sensed (ontology/recording.py RobotSample): the map, its true pose every SAMPLE_S simulated seconds,
 the estimates it was told (set_global_pose), the paths it was asked to follow, laser and sonar scans
 (at most one per SCAN_S simulated seconds each) and camera frames (every capture; `frames=False`
@@ -15,13 +16,14 @@ import asyncio
 import base64
 import json
 import os
+import shutil
 import threading
 import time
 from pathlib import Path
 
 import cv2
 
-from agents.tracing import BODIES, record_bodies, stop_recording_bodies
+from agents.tracing import BLOBS, BODIES, blob_store_for, record_bodies, stop_recording_bodies
 
 ROBOT_LOG = "robot.jsonl"
 MCAP_FILE = "run.mcap"
@@ -58,8 +60,8 @@ class RobotLog:
 class RobotSink:
     """What a scenarios.recorder.RecordingAPI tells the recording about one robot."""
 
-    def __init__(self, log: RobotLog, robot: str, frames: bool):
-        self.log, self.robot, self.frames = log, robot, frames
+    def __init__(self, log: RobotLog, robot: str, frames: bool, blobs=None):
+        self.log, self.robot, self.frames, self.blobs = log, robot, frames, blobs
         self._last_scan: dict[str, float] = {}
 
     def estimate(self, x: float, y: float, theta: float) -> None:
@@ -78,7 +80,9 @@ class RobotSink:
             self.log.write("laser" if name == "get_laser_scan" else "sonar", self.robot, **reply.model_dump())
         elif name == "capture_image" and self.frames:
             self.log.write("image", self.robot, camera=reply.camera, encoding=reply.encoding,
-                           width=reply.width, height=reply.height, data_b64=reply.data_b64)
+                           width=reply.width, height=reply.height,
+                           # the same frame the Core's answer carried: one blob for both (agents/tracing.py)
+                           data_b64=self.blobs.put(reply.data_b64) if self.blobs is not None else reply.data_b64)
 
 
 class Recording:
@@ -93,14 +97,16 @@ class Recording:
         """Before the system starts (its agents then write the message bodies too)."""
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / BODIES).unlink(missing_ok=True)
+        shutil.rmtree(self.out / BLOBS, ignore_errors=True)
         record_bodies(self.trace)
+        blobs = blob_store_for(self.trace)
         self.log = RobotLog(self.out / ROBOT_LOG, self.world)
         if self.grid is not None:
             ok, png = cv2.imencode(".png", self.grid.image)
             self.log.write("map", resolution=self.grid.resolution, origin=list(self.grid.origin),
                            png_b64=base64.b64encode(png.tobytes()).decode())
         for kind, api in self.apis.items():
-            api.sink = RobotSink(self.log, kind, self.frames)
+            api.sink = RobotSink(self.log, kind, self.frames, blobs)
 
     def start(self) -> None:
         """Sample the true poses (once the loop runs)."""
