@@ -7,8 +7,9 @@ What is compared, and how strictly:
 - how the task ended (ok, stage, state) and the reports: the same number, the same texts once their
   numbers are set aside, the same data keys and non-numeric values; numbers within NUMBER_TOL
   (relative) or, for hazard runs, each hazard's reported state equal and its door angle within ANGLE_TOL_DEG;
-- the true trajectory: at every sampled simulated time both runs have, within `tolerance_m`
-  (default TRAJECTORY_TOL_M) of each other.
+- the true trajectory, as a path: every sampled point within `tolerance_m` (default TRAJECTORY_TOL_M)
+  of the other run's path, and the end poses as close (when the robot moved, in simulated time, is not
+  compared: it depends on when the messages arrived).
 Why not bit for bit: the simulation steps in its own thread as fast as it can (rtf 0) while the agents'
 messages travel between processes, so when a motion command lands, in simulated time, depends on
 thread and process timing; the camera renders then see a slightly different pose and the
@@ -22,6 +23,9 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from .recorder import distance_to_polyline
 from .recording import ROBOT_LOG
 
 TRAJECTORY_TOL_M = 0.25
@@ -65,22 +69,16 @@ def trajectory(run_dir: str | Path, robot: str) -> list[tuple[float, float, floa
 
 
 def max_deviation(a: list[tuple[float, float, float]], b: list[tuple[float, float, float]]) -> tuple[float, float]:
-    """The largest distance between the two trajectories at the simulated times of `a` within both
-    (b interpolated), and the time it was at."""
+    """How far apart the two trajectories are as paths: the largest distance from a point of either
+    to the other's polyline (when each moved, in simulated time, differs between runs: see the
+    module's doc), and the end poses' distance if larger; with the simulated time of the worst point of `a`."""
     if not a or not b:
         return math.inf, 0.0
-    worst, at, j = 0.0, 0.0, 0
-    for t, x, y in a:
-        if t < b[0][0] or t > b[-1][0]:
-            continue
-        while j + 1 < len(b) and b[j + 1][0] < t:
-            j += 1
-        (t0, x0, y0), (t1, x1, y1) = b[j], b[min(j + 1, len(b) - 1)]
-        f = 0.0 if t1 <= t0 else min(max((t - t0) / (t1 - t0), 0.0), 1.0)
-        d = math.hypot(x - (x0 + f * (x1 - x0)), y - (y0 + f * (y1 - y0)))
-        if d > worst:
-            worst, at = d, t
-    return worst, at
+    pa = np.array([[x, y] for _, x, y in a], float)
+    pb = np.array([[x, y] for _, x, y in b], float)
+    da, db = distance_to_polyline(pa, pb), distance_to_polyline(pb, pa)
+    worst = max(float(da.max()), float(db.max()), float(np.linalg.norm(pa[-1] - pb[-1])))
+    return worst, a[int(da.argmax())][0]
 
 
 @dataclass
