@@ -7,7 +7,9 @@ next, one with other content, or one the recording has and the RApp did not send
 
 How the recording is followed (the Dynamic Agent's own view, in its order):
 - each request the RApp sends is matched to the first request of the recording not yet matched to
-  the same peer with the same performative, ontology and action; its content must be the same (the
+  the same peer with the same performative, ontology and action, and no earlier request of the
+  recording may be left behind unless it was still waiting for its answer when this one was sent
+  (requests in flight together may come in either order); its content must be the same (the
   recording's secret placeholders standing for whatever value the replay gives, consistently);
 - what the RApp received (answers, progress informs, the Core's notifications) is delivered in the
   recorded order, each as soon as every request the RApp had sent before it in the recording has
@@ -313,6 +315,15 @@ class Script:
         self.answered = 0
         self.progress_at = time.monotonic()
         self._seen_ids: set[str] = set()
+        # where each recorded request was done: the index of its final answer (or its own, expecting none);
+        # a request may be matched ahead of an earlier one only if that one was still open when it was sent
+        final = {p.value for p in acl.FINAL}
+        answers = {}
+        for e in run.exchange:
+            if e.dir == "recv" and e.performative in final and not e.feedback:
+                answers.setdefault(e.conversation_id, e.index)
+        self.done_at = {s.index: (answers.get(s.conversation_id, len(run.exchange)) if s.performative in OPENING
+                                  else s.index) for s in self.sends}
 
     def on_send(self, msg: Message, peer: str) -> None:
         info = AclInfo.of(msg)
@@ -332,6 +343,11 @@ class Script:
                           pending[0].n if pending else len(self.run.exchange))
             return
         rec = candidates[0]
+        skipped = next((e for e in pending if e.index < rec.index and self.done_at[e.index] < rec.index), None)
+        if skipped is not None:  # the recording had that one done before this one was sent
+            self._diverge("unexpected", "the RApp sent a request the recording has only after another one",
+                          _describe(key, msg.body or ""), skipped.describe(), skipped.n)
+            return
         diff = first_difference(_parse(rec.body), actual, self.secrets)
         if diff:
             self._diverge("different", diff, _describe(key, msg.body or ""), rec.describe(), rec.n)
