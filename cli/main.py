@@ -279,6 +279,9 @@ def cmd_trace(argv: list[str]) -> int:
         p.add_argument("--no-frames", action="store_true", help="mcap: without the camera's frames")
     if action in ("export", "html"):
         p.add_argument("-o", "--output", help="output file (default: stdout for export, FILE.html for html)")
+    if action == "html":
+        p.add_argument("--no-scene", action="store_true", help="without the map, poses and camera frames of a "
+                                                               "recorded run (robot.jsonl beside the trace)")
     a = p.parse_args(argv)
     from agents.tracing import read_trace
 
@@ -308,9 +311,10 @@ def cmd_trace(argv: list[str]) -> int:
         else:
             print(text)
         return 0
-    from scenarios.trace_html import render_html
+    from scenarios.trace_html import render_html, scene_data
     out = Path(a.output or (str(a.file) + ".html"))
-    out.write_text(render_html(records, title=Path(a.file).name))
+    scene = None if a.no_scene else scene_data(Path(a.file).parent)  # a recorded run's map, poses and frames
+    out.write_text(render_html(records, title=Path(a.file).name, scene=scene))
     print(out)
     return 0
 

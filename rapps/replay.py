@@ -51,6 +51,7 @@ from xmpp_server.credentials import generate_password
 # sent as often as the wall clock says: answered from the recording, never compared
 TIMED = frozenset({("core", "heartbeat"), ("platform-directory", "list_platforms")})
 OPENING = frozenset(p.value for p in acl.OPENING)
+FIRST_MESSAGE_S = 90.0  # the Dynamic Agent's start: a Core waits its login (20 s) and import (10 s) as long
 
 
 class RecordingError(ValueError):
@@ -400,7 +401,10 @@ class Script:
         return next((s for s in self.sends if s.index < e.index and s.index not in self.matched), None)
 
     def stall_limit(self, s: Exchanged, floor_s: float) -> float:
-        """How long the RApp may take to send `s`: twice what it took in the recording, and floor_s more."""
+        """How long the RApp may take to send `s`: twice what it took in the recording, and floor_s more;
+        its first message FIRST_MESSAGE_S at least (a sandboxed process's start and imports, under load)."""
+        if not self.matched:
+            return max(FIRST_MESSAGE_S, floor_s)
         before = [e for e in self.run.exchange if e.index < s.index and not e.timed]
         gap = s.t - before[-1].t if before else 0.0
         return 2 * max(gap, 0.0) + floor_s
