@@ -22,6 +22,7 @@ from scenarios import resim
 from scenarios.run_rapp import run_rapp
 
 from .test_cli import arapp, rapp
+from .test_trace_view import browser_page  # noqa: F401 - the headless Chromium fixture
 
 APP = Path(__file__).resolve().parent / "fixtures" / "recorded_app"
 
@@ -233,3 +234,46 @@ async def test_resimulation_matches_the_recording(recorded, tmp_path):
     (tmp_path / "result.json").write_text(json.dumps(other))
     c = resim.compare(out, tmp_path, "nao")
     assert not c.ok and any("seed" in d for d in c.differ) and any("doors" in d for d in c.differ)
+
+
+def test_the_trace_page_shows_the_scene_at_the_record_clicked(recorded, browser_page, tmp_path):
+    """Item 5: clicking a message moves the scene to its time: the robot where it was then, the path
+    it was following, the latest frame; the slider scrubs through the run."""
+    from scenarios.trace_html import render_html, scene_data
+
+    out, _ = recorded
+    scene = scene_data(out)
+    records = _trace(out)
+    page = tmp_path / "trace.html"
+    page.write_text(render_html(records, title="recorded", scene=scene), encoding="utf-8")
+    browser_page.goto(page.as_uri())
+    browser_page.wait_for_selector("#robot-pose")
+    assert browser_page.is_visible("#scene") and browser_page.is_visible("#map-image")
+    [path_t] = [p[0] for p in scene["robots"]["nao"]["paths"]]
+    frame_t = scene["frames"][0][0]
+    poses = scene["robots"]["nao"]["poses"]
+
+    def click(action: str, performative: str = "request") -> float:
+        rec = next(r for r in records if r["kind"] == "message" and r["action"] == action
+                   and r["performative"] == performative and r["dir"] == "send")
+        browser_page.locator(f'g.msg[data-conv="{rec["conversation_id"]}"][data-performative="{performative}"]').first.click()
+        return rec["t"]
+
+    t = click("get_global_pose")  # before the step: at the start, no path yet, no frame yet
+    assert float(browser_page.get_attribute("#scene-time", "data-t")) == pytest.approx(t)
+    start_x = float(browser_page.get_attribute("#robot-pose", "data-x"))
+    assert start_x == pytest.approx(poses[0][1], abs=0.02)
+    assert browser_page.locator("#scene-svg .plan").count() == 0
+    assert browser_page.get_attribute("#camera-frame", "data-t") == ""
+
+    t = click("report")  # after it: moved by its step, the path drawn, the frame shown
+    assert t > path_t and t > frame_t
+    assert float(browser_page.get_attribute("#robot-pose", "data-x")) == pytest.approx(start_x + 0.3, abs=0.08)
+    assert browser_page.locator("#scene-svg .plan").count() == 1
+    assert float(browser_page.get_attribute("#camera-frame", "data-t")) == pytest.approx(frame_t)
+    assert browser_page.evaluate("document.getElementById('camera-frame').naturalWidth") > 0
+
+    browser_page.fill("#scrub", "0")  # the slider to the start
+    browser_page.dispatch_event("#scrub", "input")
+    assert float(browser_page.get_attribute("#robot-pose", "data-x")) == pytest.approx(poses[0][1], abs=0.02)
+    assert browser_page.problems == []
