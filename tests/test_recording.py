@@ -135,9 +135,47 @@ async def test_the_run_mcap_has_each_channel_with_its_schema(recorded):
             and r["sender"].startswith(dyn)}
     assert counts[f"/acl/{dyn}"] == len(sent)  # each of its messages once, heartbeats included
     acl, camera = _messages(out / "run.mcap", f"/acl/{dyn}"), _messages(out / "run.mcap", "/nao/camera")
+    with open(out / "run.mcap", "rb") as f:  # every channel's first messages against the schema the file carries
+        reader = make_reader(f)
+        seen: dict[str, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            if seen.get(channel.topic, 0) >= 3:
+                continue
+            seen[channel.topic] = seen.get(channel.topic, 0) + 1
+            text = json.loads(schema.data)
+            bad = _conforms(json.loads(message.data), text, text.get("$defs", {}), channel.topic)
+            assert not bad, bad
     report = next(m for m in acl if m["action"] == "report")
     assert report["content"]["data"] == {"doubled": 42, "user": "owner-nao1"} and not report["truncated"]
     assert camera[0]["format"] in ("png", "jpeg") and len(camera[0]["data"]) > 1000  # the frame itself
+
+
+def _conforms(value, schema: dict, defs: dict, where: str = "") -> list[str]:
+    """What in `value` breaks a JSON Schema's types, required properties and enumerations (the parts
+    Foxglove's schemas use; a reader like Foxglove or Lichtblick relies on exactly these)."""
+    if "$ref" in schema:
+        schema = defs[schema["$ref"].rsplit("/", 1)[-1]]
+    if "oneOf" in schema:  # Foxglove's enumerations: one const each
+        consts = [o.get("const") for o in schema["oneOf"]]
+        return [] if value in consts else [f"{where}: {value!r} not one of {consts}"]
+    types = schema.get("type")
+    types = [types] if isinstance(types, str) else types or []
+    checks = {"object": lambda v: isinstance(v, dict), "array": lambda v: isinstance(v, list),
+              "string": lambda v: isinstance(v, str), "boolean": lambda v: isinstance(v, bool),
+              "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
+              "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool), "null": lambda v: v is None}
+    if types and not any(checks[t](value) for t in types):
+        return [f"{where}: {type(value).__name__} is not {types}"]
+    bad = []
+    if isinstance(value, dict):
+        bad += [f"{where}.{k}: missing" for k in schema.get("required", []) if k not in value]
+        for k, sub in schema.get("properties", {}).items():
+            if k in value:
+                bad += _conforms(value[k], sub, defs, f"{where}.{k}")
+    if isinstance(value, list) and "items" in schema:
+        for i, item in enumerate(value[:20]):
+            bad += _conforms(item, schema["items"], defs, f"{where}[{i}]")
+    return bad
 
 
 def _messages(path: Path, topic: str) -> list[dict]:
