@@ -101,8 +101,8 @@ async def test_{pkg}_runs_on_a_simulated_nao(tmp_path):
 
 REPLAY_TEST = '''\
 """Replays the recorded run in tests/recording against this source and fails on the first divergence
-(docs/sdk.md "A recording as a test"). It waits for a recording: make one with
-    rapp run rapp {dest} --out RUN   and then   rapp replay RUN --save {dest}/tests/recording
+(docs/sdk.md "A recording as a test"). It waits for a recording; in this RApp's folder make one with
+    rapp run rapp . --out /tmp/run   and keep it with   rapp replay /tmp/run --save tests/recording
 """
 from pathlib import Path
 
@@ -147,5 +147,5 @@ def create(name: str, directory: str | Path | None = None, cloud: bool = False) 
         (dest / pkg / "models.py").write_text(MODELS.format(**fill))
         (dest / pkg / "cloud.py").write_text(CLOUD.format(**fill))
     (dest / "tests" / f"test_{pkg}.py").write_text(TEST.format(**fill))
-    (dest / "tests" / f"test_{pkg}_replay.py").write_text(REPLAY_TEST.format(dest=dest, **fill))
+    (dest / "tests" / f"test_{pkg}_replay.py").write_text(REPLAY_TEST.format(**fill))
     return dest
