@@ -101,8 +101,9 @@ async def test_{pkg}_runs_on_a_simulated_nao(tmp_path):
 
 REPLAY_TEST = '''\
 """Replays the recorded run in tests/recording against this source and fails on the first divergence
-(docs/sdk.md "A recording as a test"). It waits for a recording; in this RApp's folder make one with
-    rapp run rapp . --out /tmp/run   and keep it with   rapp replay /tmp/run --save tests/recording
+(docs/sdk.md "A recording as a test"). It waits for a recording; in this RApp's folder make one and keep it:
+    rapp run rapp . --out /tmp/run
+    rapp replay /tmp/run --save tests/recording
 """
 from pathlib import Path
 
