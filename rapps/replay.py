@@ -400,6 +400,12 @@ class Script:
         e = self.recvs[self.next_recv]
         return next((s for s in self.sends if s.index < e.index and s.index not in self.matched), None)
 
+    def unanswered(self) -> Exchanged | None:
+        """A request the replay matched whose answer the recording does not have (it ended first)."""
+        end = len(self.run.exchange)
+        return next((s for s in self.sends if s.index in self.matched and s.performative in OPENING
+                     and self.done_at[s.index] == end), None)
+
     def stall_limit(self, s: Exchanged, floor_s: float) -> float:
         """How long the RApp may take to send `s`: twice what it took in the recording, and floor_s more;
         its first message FIRST_MESSAGE_S at least (a sandboxed process's start and imports, under load)."""
@@ -559,8 +565,11 @@ async def replay(run_dir: str | Path, *, rapp_dir: str | Path | None = None, run
                 break
             waiting = script.blocked_on()
             if waiting is not None and time.monotonic() - script.progress_at > script.stall_limit(waiting, stall_s):
-                script._diverge("stalled", "the RApp has not sent the request the recording has next", "",
-                                waiting.describe(), waiting.n)
+                open_ = script.unanswered()
+                text = ("the RApp waits for the answer to a request the recording has none for (the original run "
+                        f"ended while it waited): {open_.describe()}" if open_ is not None else
+                        "the RApp has not sent the request the recording has next")
+                script._diverge("stalled", text, "", waiting.describe(), waiting.n)
                 break
             if time.monotonic() > deadline:
                 script._diverge("stalled", f"the replay did not end within {timeout_s:g} s", "", "", 0)
