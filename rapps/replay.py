@@ -325,6 +325,19 @@ class Script:
                 answers.setdefault(e.conversation_id, e.index)
         self.done_at = {s.index: (answers.get(s.conversation_id, len(run.exchange)) if s.performative in OPENING
                                   else s.index) for s in self.sends}
+        self._by_key: dict[tuple, list[Exchanged]] = {}  # unmatched sends of each kind, in order
+        for e in self.sends:
+            self._by_key.setdefault(e.key, []).append(e)
+        self._low = 0  # position in self.sends of the first unmatched send
+        self._timed_answers: dict[tuple, list[Exchanged]] = {}  # the first timed request's answers, per kind
+        for conv, e in self.timed_convs.items():
+            if e.key not in self._timed_answers:
+                self._timed_answers[e.key] = [r for r in self.recvs if r.conversation_id == conv]
+
+    def _first_unmatched(self) -> Exchanged | None:
+        while self._low < len(self.sends) and self.sends[self._low].index in self.matched:
+            self._low += 1
+        return self.sends[self._low] if self._low < len(self.sends) else None
 
     def on_send(self, msg: Message, peer: str) -> None:
         info = AclInfo.of(msg)
@@ -335,16 +348,22 @@ class Script:
         if (info.ontology, info.action) in TIMED:
             self._timed(key, info)
             return
-        candidates = [e for e in self.sends if e.index not in self.matched and e.key == key]
-        pending = [e for e in self.sends if e.index not in self.matched]
+        candidates = self._by_key.get(key) or []
+        first = self._first_unmatched()
         actual = _parse(msg.body or "")
         if not candidates:
             self._diverge("unexpected", "the RApp sent a request the recording does not have",
-                          _describe(key, msg.body or ""), pending[0].describe() if pending else "(nothing more)",
-                          pending[0].n if pending else len(self.run.exchange))
+                          _describe(key, msg.body or ""), first.describe() if first else "(nothing more)",
+                          first.n if first else len(self.run.exchange))
             return
         rec = candidates[0]
-        skipped = next((e for e in pending if e.index < rec.index and self.done_at[e.index] < rec.index), None)
+        skipped = None
+        for e in self.sends[self._low:]:  # the unmatched ones before it (requests in flight together: few)
+            if e.index >= rec.index:
+                break
+            if e.index not in self.matched and self.done_at[e.index] < rec.index:
+                skipped = e
+                break
         if skipped is not None:  # the recording had that one done before this one was sent
             self._diverge("unexpected", "the RApp sent a request the recording has only after another one",
                           _describe(key, msg.body or ""), skipped.describe(), skipped.n)
@@ -354,6 +373,7 @@ class Script:
             self._diverge("different", diff, _describe(key, msg.body or ""), rec.describe(), rec.n)
             return
         self.matched.add(rec.index)
+        candidates.pop(0)
         self.convs[rec.conversation_id] = info.conversation_id
         if rec.message_id:
             self.ids[rec.message_id] = info.reply_with
@@ -362,12 +382,8 @@ class Script:
 
     def _timed(self, key, info: AclInfo) -> None:
         """Answered with the recording's answers to the first request of its kind (none: a heartbeat)."""
-        first = next((e for e in self.timed_convs.values() if e.key == key), None)
-        if first is None:
-            return
-        for e in self.recvs:
-            if e.conversation_id == first.conversation_id:
-                self.deliver(e, info.conversation_id, info.reply_with, self._body(e))
+        for e in self._timed_answers.get(key, []):
+            self.deliver(e, info.conversation_id, info.reply_with, self._body(e))
 
     def pump(self) -> None:
         """Deliver what the RApp received next in the recording, as far as it may be."""
@@ -376,7 +392,8 @@ class Script:
             if e.conversation_id in self.timed_convs:
                 self.next_recv += 1  # delivered with its timed request
                 continue
-            if any(s.index < e.index and s.index not in self.matched for s in self.sends):
+            first = self._first_unmatched()
+            if first is not None and first.index < e.index:
                 return
             self.next_recv += 1
             self.answered += 1
@@ -395,10 +412,10 @@ class Script:
 
     def blocked_on(self) -> Exchanged | None:
         """The recorded request the RApp has not sent and the next delivery waits for."""
-        if self.next_recv >= len(self.recvs):
-            return next((s for s in self.sends if s.index not in self.matched), None)
-        e = self.recvs[self.next_recv]
-        return next((s for s in self.sends if s.index < e.index and s.index not in self.matched), None)
+        first = self._first_unmatched()
+        if self.next_recv >= len(self.recvs) or first is None:
+            return first
+        return first if first.index < self.recvs[self.next_recv].index else None
 
     def unanswered(self) -> Exchanged | None:
         """A request the replay matched whose answer the recording does not have (it ended first)."""
@@ -411,8 +428,8 @@ class Script:
         its first message FIRST_MESSAGE_S at least (a sandboxed process's start and imports, under load)."""
         if not self.matched:
             return max(FIRST_MESSAGE_S, floor_s)
-        before = [e for e in self.run.exchange if e.index < s.index and not e.timed]
-        gap = s.t - before[-1].t if before else 0.0
+        before = next((e for e in reversed(self.run.exchange[:s.index]) if not e.timed), None)
+        gap = s.t - before.t if before else 0.0
         return 2 * max(gap, 0.0) + floor_s
 
     def finish(self) -> Divergence | None:
