@@ -498,6 +498,10 @@ class RappAgent(Agent):
             # a RApp's report is its result: kept whole (up to a message's size limit), the rest capped
             cap(msg.body, REPORT_CAP if (info.ontology, info.action) == (C.ONTOLOGY, "report") else CONTENT_CAP),
             feedback=is_feedback(msg))  # a progress inform, not an answer
+        if self.tracer.bodies is not None:  # a recording: the whole body too (agents/tracing.py)
+            self.tracer.body(direction, self.address, bare(msg.sender), bare(msg.to), info.performative or "chat",
+                             info.conversation_id, info.ontology, info.action, info.reply_with, info.in_reply_to,
+                             msg.body or "", feedback=is_feedback(msg))
 
 
 def _accepts(behaviour, msg: Message) -> bool:

@@ -79,6 +79,7 @@ from .sandbox import Sandbox
 from .responder import Responder
 from .warm_pool import WarmPool
 from .store_client import download_package
+from .tracing import keep_package
 
 log = logging.getLogger("rapp.core")
 
@@ -472,6 +473,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                                           require_signature=self.require_signature)
         if self.robot_type not in package.manifest.robot_types:
             raise RuntimeError(f"{rapp} {package.manifest.version} does not support a {self.robot_type} robot")
+        keep_package(self.tracer, data)  # a recorded run keeps it beside its trace (rapp replay)
         self.record_structure("download", rapp=rapp, version=info.version, size=info.size,
                               sha256=info.sha256, signature=package.signature.value)
         return package, data
@@ -496,14 +498,16 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         spec = SpawnSpec(kind="dynamic", name=name, password=ident.password, package_dir="",
                          core=self.address, platform=self.platform, token=app_token.token, params=params,
                          robot=RobotInfo(robot_id=self.robot_id, robot_type=self.robot_type,
-                                         capabilities=sorted(self.robot.capabilities())))
+                                         capabilities=sorted(self.robot.capabilities())),
+                         record=self.tracer.bodies is not None)
         session.process = spawn_agent(spec, workdir, self.settings, mode=self.dynamic_mode, limits=self.limits,
                                       sandbox=self.sandbox, pool=self.warm_pool)
         session.process.on_refusal = lambda refusal: self._sandbox_refused(session, refusal)
         await session.process.start()
         self.record_structure("spawn", dynamic=session.jid, rapp=m.name, version=m.version,
                               pid=session.process.pid, sandbox=session.process.sandboxed,
-                              warm=getattr(session.process, "warm", False))
+                              warm=getattr(session.process, "warm", False),
+                              params=params, robot=spec.robot.model_dump())  # what a replay gives its run
         watcher = asyncio.create_task(self._watch_process(session))
         try:
             await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)

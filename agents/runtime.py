@@ -99,6 +99,9 @@ async def run_spec(spec: SpawnSpec | None, login: WarmLogin | None = None, pipe:
                 return 0  # discarded idle: no run came
         else:
             agent = build_agent(spec)
+        if spec.record:  # the run is recorded: the whole message bodies go to the relay too
+            from .tracing import send_bodies_down_pipe
+            send_bodies_down_pipe()
         if spec.kind == "cloud":
             from .crash_box import BOX_NAME, CrashBox
             agent.crash_box = CrashBox(Path.cwd() / BOX_NAME)  # in its run directory (cwd)

@@ -11,6 +11,8 @@
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
     rapp platform upload-home --house H --user U --password P
     rapp trace show|export|html FILE [...]      (rapp trace FILE = show: a summary; --view, --limit)
+    rapp trace export --format mcap RUN_DIR [-o FILE] [--no-frames]   (run.mcap of a run folder)
+    rapp replay RUN_DIR [--rapp DIR] [--run N]  (a recorded RApp run again, against the recorded answers)
     rapp bench [--quick] [--json FILE]
     rapp doctor
 """
@@ -271,12 +273,20 @@ def cmd_trace(argv: list[str]) -> int:
         p.add_argument("--limit", type=int, default=200, metavar="N",
                        help="table and sequence: the first N messages and records (default 200; 0: all)")
     if action == "export":
-        p.add_argument("--format", choices=["mermaid", "json", "text"], default="mermaid")
+        p.add_argument("--format", choices=["mermaid", "json", "text", "mcap"], default="mermaid",
+                       help="mcap: the whole run folder (FILE: the folder or its trace.jsonl) as an MCAP file for "
+                            "Foxglove or Lichtblick (docs/recordings.md; default output RUN_DIR/run.mcap)")
+        p.add_argument("--no-frames", action="store_true", help="mcap: without the camera's frames")
     if action in ("export", "html"):
         p.add_argument("-o", "--output", help="output file (default: stdout for export, FILE.html for html)")
+    if action == "html":
+        p.add_argument("--no-scene", action="store_true", help="without the map, poses and camera frames of a "
+                                                               "recorded run (robot.jsonl beside the trace)")
     a = p.parse_args(argv)
     from agents.tracing import read_trace
 
+    if action == "export" and a.format == "mcap":
+        return _export_mcap(Path(a.file), a.output, frames=not a.no_frames)
     if not Path(a.file).exists():
         raise CliError(f"no trace file {a.file}")
     records = tr.filter_records(read_trace(a.file), agents=a.agent, conversations=a.conversation)
@@ -301,11 +311,65 @@ def cmd_trace(argv: list[str]) -> int:
         else:
             print(text)
         return 0
-    from scenarios.trace_html import render_html
+    from scenarios.trace_html import render_html, scene_data
     out = Path(a.output or (str(a.file) + ".html"))
-    out.write_text(render_html(records, title=Path(a.file).name))
+    scene = None if a.no_scene else scene_data(Path(a.file).parent)  # a recorded run's map, poses and frames
+    out.write_text(render_html(records, title=Path(a.file).name, scene=scene))
     print(out)
     return 0
+
+
+def _export_mcap(src: Path, output: str | None, frames: bool) -> int:
+    from scenarios.mcap_export import export_mcap
+
+    run = src if src.is_dir() else src.parent
+    if not (run / "trace.jsonl").exists():
+        raise CliError(f"no run folder {src} (a folder with trace.jsonl, as `rapp run ... --out DIR` writes)")
+    out = export_mcap(run, output or run / "run.mcap", frames=frames)
+    print(f"{out} ({out.stat().st_size} bytes)")
+    return 0
+
+
+# -- replay -----------------------------------------------------------------------------------
+def cmd_replay(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="rapp replay", description=(
+        "Run a recorded run's RApp again as a Dynamic Agent against the recorded answers of its Core, Platform "
+        "and Cloud Agent (no simulation, no Store; an embedded XMPP server of its own) and print the first "
+        "divergence, or 'no divergence' (docs/recordings.md). Exit 0: no divergence; 1: a divergence."))
+    p.add_argument("run_dir", help="a recorded run folder (every `rapp run` writes one with --out)")
+    p.add_argument("--rapp", metavar="DIR", help="replay this (changed) RApp source folder instead of the recorded "
+                                                  "package: how a refactor is checked without a robot")
+    p.add_argument("--run", type=int, metavar="N", help="which RApp run of the recording (1-based; default the last)")
+    p.add_argument("--list", action="store_true", help="list the recording's RApp runs and exit")
+    p.add_argument("--save", metavar="DEST", help="copy what a replay needs (trace, message bodies, packages, "
+                                                  "result; no credentials) to DEST, e.g. a RApp's tests/recording, "
+                                                  "and exit (docs/sdk.md 'A recording as a test')")
+    p.add_argument("--in-process", action="store_true", help="run the RApp in this process, unsandboxed (faster; "
+                                                              "your own code only)")
+    p.add_argument("--stall", type=float, default=10.0, metavar="S",
+                   help="seconds, beyond twice the recorded time, the RApp may take to send the request the "
+                        "recording has next before the replay says it stalled (default 10)")
+    p.add_argument("--timeout", type=float, default=600.0, help="seconds the whole replay may take (default 600)")
+    p.add_argument("--trace", metavar="FILE", help="write the replay's own trace there")
+    a = p.parse_args(argv)
+    from rapps.replay import RecordingError, list_runs, replay, save_recording
+
+    try:
+        if a.save:
+            copied = save_recording(a.run_dir, a.save)
+            print(f"saved in {a.save}: {', '.join(copied)}")
+            return 0
+        if a.list:
+            print("\n".join(list_runs(a.run_dir)) or "no RApp runs in this recording")
+            return 0
+        if a.rapp and not Path(a.rapp).is_dir():
+            raise CliError(f"no RApp folder {a.rapp}")
+        result = asyncio.run(replay(a.run_dir, rapp_dir=a.rapp, run=a.run, mode="inprocess" if a.in_process else "process",
+                                    stall_s=a.stall, timeout_s=a.timeout, trace_file=a.trace))
+    except RecordingError as e:
+        raise CliError(f"rapp replay: {e}") from None
+    print(result.summary())
+    return 0 if result.ok else 1
 
 
 # -- say --------------------------------------------------------------------------------------
@@ -421,6 +485,8 @@ def build_parser() -> argparse.ArgumentParser:
     sy.add_argument("--level", type=float, default=60.0, help="dB SPL at 1 m (60: conversation)")
 
     sub.add_parser("trace", help="show, export or render a message trace (rapp trace FILE)", add_help=False)
+    sub.add_parser("replay", help="replay a recorded RApp run against its recorded answers (rapp replay --help)",
+                   add_help=False)
     sub.add_parser("bench", help="run the benchmarks (rapp bench --help)", add_help=False)
     sub.add_parser("agent", help="run one Store, Platform or Core agent here (rapp agent --help)",
                    add_help=False)
@@ -442,6 +508,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if argv and argv[0] == "trace":
             return cmd_trace(argv[1:])
+        if argv and argv[0] == "replay":
+            return cmd_replay(argv[1:])
         if argv and argv[0] == "agent":
             from scenarios.roles import main as agent_main
             return agent_main(argv[1:])

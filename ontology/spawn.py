@@ -30,6 +30,7 @@ class SpawnSpec(BaseModel):
     token: str = Field(default="", repr=False)  # the run's scoped Platform token
     params: dict[str, Any] = {}
     robot: RobotInfo | None = None
+    record: bool = False  # the run is recorded: its agents send their whole message bodies to the trace relay
 
 
 class WarmLogin(BaseModel):

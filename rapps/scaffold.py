@@ -1,5 +1,6 @@
 """`rapp new NAME [DIR] [--cloud]`: a RApp package to start from: manifest, a task with a two-state
-FSM, optionally a Cloud Agent part, and a test that runs it on the simulated robot. It builds,
+FSM, optionally a Cloud Agent part, a test that runs it on the simulated robot, and a test that replays
+a recorded run of it once one is saved in its tests/recording (rapps/sdk/testing.py). It builds,
 publishes and runs unchanged (`rapp run rapp DIR`)."""
 from __future__ import annotations
 
@@ -98,6 +99,30 @@ async def test_{pkg}_runs_on_a_simulated_nao(tmp_path):
 '''
 
 
+REPLAY_TEST = '''\
+"""Replays the recorded run in tests/recording against this source and fails on the first divergence
+(docs/sdk.md "A recording as a test"). It waits for a recording; in this RApp's folder make one and keep it:
+    rapp run rapp . --out /tmp/run
+    rapp replay /tmp/run --save tests/recording
+"""
+from pathlib import Path
+
+import pytest
+
+from rapps.sdk.testing import assert_replays, has_recording
+
+HERE = Path(__file__).resolve().parent.parent
+RECORDING = HERE / "tests" / "recording"
+pytestmark = pytest.mark.asyncio
+
+
+@pytest.mark.skipif(not has_recording(RECORDING), reason="no recording yet: rapp run rapp DIR --out RUN, "
+                                                         "then rapp replay RUN --save DIR/tests/recording")
+async def test_{pkg}_behaves_as_recorded():
+    await assert_replays(RECORDING, HERE)
+'''
+
+
 def create(name: str, directory: str | Path | None = None, cloud: bool = False) -> Path:
     if not re.fullmatch(r"[a-z][a-z0-9-]{1,40}", name):
         raise ValueError(f"a RApp name is lower-case letters, digits and dashes, starting with a letter: {name!r}")
@@ -123,4 +148,5 @@ def create(name: str, directory: str | Path | None = None, cloud: bool = False) 
         (dest / pkg / "models.py").write_text(MODELS.format(**fill))
         (dest / pkg / "cloud.py").write_text(CLOUD.format(**fill))
     (dest / "tests" / f"test_{pkg}.py").write_text(TEST.format(**fill))
+    (dest / "tests" / f"test_{pkg}_replay.py").write_text(REPLAY_TEST.format(**fill))
     return dest

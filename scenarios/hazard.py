@@ -86,12 +86,13 @@ def finished(run: Run, owner: Owner) -> bool:
 async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "house", json_path=None,
                                out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0,
                                progress: bool = False, disturbances=None, during=None,
-                               live: bool | None = None) -> dict:
+                               live: bool | None = None, record: bool = True, frames: bool = True) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
     result also counts the robot's contacts with people and objects and, from the trace's structure
-    records, the Core's reactive strategies and the plan monitor's failed plans (replans)."""
+    records, the Core's reactive strategies and the plan monitor's failed plans (replans). `record`:
+    the run's recording and run.mcap (`frames`: with the camera's frames; docs/recordings.md)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances)
@@ -101,7 +102,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         home = home_description(world, house, out)
         owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home)
         run = Run(out, world, RAPP_DIR, [owner], settings=settings,
-                  platform_kw={"services_state": ServiceState(work_dir=out / "services")})
+                  platform_kw={"services_state": ServiceState(work_dir=out / "services")},
+                  record=record, frames=frames, grid=home_map(world, house))
         side = None if during is None else (lambda run: during(owner.handle, world, recorder))
         await run.run(timeout_s, during=side,
                       show=dict(pose=lambda: recorder.robot.pose, live=live) if progress else None)
@@ -109,7 +111,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             info = home[0]
             rows, found = score_owner(run, owner, info.hazards)
             result = {
-                "robot": robot, "seed": seed, "hazards": rows,
+                "robot": robot, "seed": seed, "house": house, "hazards": rows,
                 "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),
                 "localization_error_m": finite(recorder.localization_error()),
                 "max_tracking_error_m": finite(recorder.tracking_error()),
@@ -131,6 +133,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             (out / "recording.json").write_text(json.dumps({"localizations": recorder.localizations,
                                                             "paths": recorder.paths}))
             Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
+            await run.finish_recording()
     finally:
         world.close()
     check_interrupted(result)
@@ -190,16 +193,40 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for the RApp's end")
     ap.add_argument("--quiet", action="store_true", help="no progress while it runs, only the closing summary")
     ap.add_argument("--plain", action="store_true", help="progress as plain lines, even on a terminal")
+    ap.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
+                                                              "packages/ nor run.mcap (docs/recordings.md)")
+    ap.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
+    ap.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run (its robot, seed and house), "
+                    "then compare the hazards' reports and the trajectory with it (docs/recordings.md)")
+    ap.add_argument("--tolerance", type=float, default=None, metavar="M",
+                    help="--replay: how far (m) the trajectories may be apart (default 0.25)")
     args = ap.parse_args(argv)
+    if args.replay:
+        from .resim import ResimError, recorded_result
+        try:
+            rec = recorded_result(args.replay)
+        except ResimError as exc:
+            print(f"rapp run hazard-detection: {exc}", file=sys.stderr)
+            return 2
+        args.robot, args.seed, args.house = rec.get("robot", args.robot), rec.get("seed", args.seed), \
+            rec.get("house", args.house)
     try:
         result = main_loop(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
                                                 args.rtf, timeout_s=args.timeout, progress=not args.quiet,
-                                                live=False if args.plain else None))
+                                                live=False if args.plain else None, record=not args.no_record,
+                                                frames=not args.no_frames))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))
         return 128 + stop.signum
     print(summary(result))
+    if args.replay:
+        from . import resim
+        out = Path(result["trace"]).parent
+        comparison = resim.compare(args.replay, out, args.robot, args.tolerance or resim.TRAJECTORY_TOL_M)
+        print(comparison.text())
+        print(f"  compared in {resim.write(out, args.replay, comparison)}")
+        return 0 if comparison.ok else 1
     return 0 if result["all_correct"] and result["finished"] else 1
 
 

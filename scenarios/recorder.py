@@ -44,6 +44,7 @@ class RecordingAPI:
         self.current_path: list[list[float]] | None = None
         self.latest_image = None  # ontology.robot.Image
         self.captures = 0
+        self.sink = None  # a run's recording (scenarios/recording.py RobotSink): what it keeps of the calls
 
     # robots.interface.RobotInterface: what is not recorded goes to the real API
     @property
@@ -64,6 +65,8 @@ class RecordingAPI:
             if name == "move_along_path":
                 return await self._follow(req)
             reply = await self.api.handle(req)
+            if self.sink is not None:
+                self.sink.reply(name, reply)
             if name == "capture_image":
                 self.latest_image, self.captures = reply, self.captures + 1
             if name == "capture_image" and (self.every_capture or self._last == "look_at_point"):
@@ -79,6 +82,8 @@ class RecordingAPI:
         dth = math.atan2(math.sin(req.theta - tth), math.cos(req.theta - tth))
         self.localizations.append({"time": self.world.time, "estimate": [req.x, req.y, req.theta],
                                    "truth": [tx, ty, tth], "error_m": err, "heading_error_rad": dth})
+        if self.sink is not None:
+            self.sink.estimate(req.x, req.y, req.theta)
         return await self.api.handle(req)
 
     async def _follow(self, req):
@@ -92,6 +97,8 @@ class RecordingAPI:
 
         sampler = asyncio.create_task(sample())
         self.current_path = [[p.x, p.y] for p in req.poses]
+        if self.sink is not None:
+            self.sink.path([[p.x, p.y, p.theta] for p in req.poses])
         try:
             return await self.api.handle(req)
         finally:

@@ -6,6 +6,7 @@ machines: Store and Platform on a server, one Core per robot (docs/deployment.md
     rapp agent platform --data /var/lib/rapp/platform --maps /var/lib/rapp/maps --replica platform-2
     rapp agent platform --name platform-2 --primary platform      # a replica: adds capacity
     rapp agent core --robot nao --robot-id nao1 --owner alice --trust dev.pub --house house --seed 1
+    rapp agent core ... --record runs/alice-1      # and a recording of it (docs/recordings.md)
 
 Each agent logs in with its own password (RAPP_XMPP_PASSWORD, or its file in the credentials
 directory, generated on first start: xmpp_server/credentials.py). Data directories default to
@@ -136,6 +137,19 @@ async def _core(a, settings) -> None:
     world = World.from_file(a.house, seed=a.seed, rtf=a.rtf)
     api = RobotAPI(world.add_robot(a.robot))
     robot_id = a.robot_id or f"{a.robot}1"
+    recording = None
+    if a.record:  # this Core's recording (docs/recordings.md): its trace, message bodies, robot, run.mcap
+        from scenarios.recorder import RecordingAPI
+        from scenarios.recording import Recording
+        from scenarios.runner import plot_grid
+
+        out = Path(a.record)
+        out.mkdir(parents=True, exist_ok=True)
+        settings = settings.model_copy(update={"trace_file": out / "trace.jsonl"})
+        api = RecordingAPI(api)
+        recording = Recording(out, world, {a.robot: api}, plot_grid(world, a.house))
+        recording.begin()
+        print(f"recording into {out} (run.mcap written when it stops)", flush=True)
     core = CoreAgent(a.name or f"core-{robot_id}", robot_id=robot_id, robot_type=a.robot, robot_api=api,
                      owner=a.owner, platform=a.platform, store=a.store, user=a.owner,
                      password=owner_password(a, settings), settings=settings, sandbox=sandbox(a),
@@ -152,7 +166,17 @@ async def _core(a, settings) -> None:
         except Exception as e:  # noqa: BLE001 - the Core serves on without a home
             print(f"home description not uploaded: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
 
-    await _run_until_stopped([core], cleanup=world.close, after_start=home)
+    async def record_and_home() -> None:
+        if recording is not None:
+            recording.start()
+        await home()
+
+    try:
+        await _run_until_stopped([core], after_start=record_and_home)
+        if recording is not None:
+            print(f"recorded: {await recording.finish()}", flush=True)
+    finally:
+        world.close()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -190,6 +214,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--house", default="small", help="core: simulated house (name or YAML file)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rtf", type=float, default=1.0, help="core: simulation real-time factor")
+    p.add_argument("--record", metavar="DIR", help="core: record into DIR (trace, whole message bodies with secrets "
+                   "as placeholders, the RApp packages, the robot's poses and frames; run.mcap at stop; "
+                   "`rapp replay DIR` replays its RApp runs: docs/recordings.md)")
     a = p.parse_args(argv)
     settings = XmppSettings.from_env()
     role = {"store": _store, "platform": _platform, "core": _core}[a.role]

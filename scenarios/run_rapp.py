@@ -59,18 +59,22 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                    timeout_s: float, progress: bool = False, live: bool | None = None,
                    watch_port: int | None = None, speak: bool = False,
                    script: list[SpokenLine] | None = None, listen: bool = False,
-                   disturbances: str | Path | None = None) -> dict:
+                   disturbances: str | Path | None = None, record: bool = True, frames: bool = True,
+                   command_at: float | None = None) -> dict:
     """`progress`: show it (`live`: the rich panel, None = on a terminal, else plain lines);
     `watch_port`: serve the live page there (0 = any free port); `speak`: the owner says the command
     aloud instead of typing it; `script`: lines the owner says at their times; `listen`: no command
     is sent, the owner's voice gives it; `disturbances`: a scenario file's people, doors and boxes
-    (robots/disturbances.py). While it runs, `rapp say TEXT` is heard too (the run's inbox)."""
+    (robots/disturbances.py); `record`: the run's recording and run.mcap (`frames`: with the camera's
+    frames; docs/recordings.md); `command_at`: the simulated time the command is given at (a
+    re-simulation's, scenarios/resim.py). While it runs, `rapp say TEXT` is heard too (the run's inbox)."""
     out = Path(out)
     world = scenario_world(house, seed, disturbances=disturbances)
     watch: WatchServer | None = None
     view = RunView()
     voice_tasks: list[asyncio.Task] = []
     outputs: list[str] = []
+    given_at: list[float] = []  # the simulated time the command was given
     try:
         # every image the RApp captures is kept in out/frames; legs and localizations are recorded
         api = RecordingAPI(RobotAPI(world.add_robot(robot)), frames_dir=out / "frames", every_capture=True)
@@ -82,7 +86,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
         home = home_description(world, name, out) if has_layout(name, world) else None
         voice = OwnerVoice(world, api, out)
         owner = Owner(robot, api, f"owner-{robot}1", None, home=home)
-        run = Run(out, world, src, [owner])
+        run = Run(out, world, src, [owner], record=record, frames=frames, grid=plot_grid(world, house))
 
         async def before(run: Run) -> None:
             owner.command = None if listen else say or run.keywords[0]
@@ -97,6 +101,9 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                                 asyncio.create_task(voice.run_script(script or []))])
 
         async def deliver(owner: Owner) -> None:
+            if command_at is not None and command_at > world.time:
+                await world.sleep(command_at - world.time)  # as late as in the recorded run
+            given_at.append(round(world.time, 3))
             if listen:  # the command comes by voice: `rapp say` or the scenario's speech lines
                 print(f"[run] {robot} in {house}: listening; speak with `rapp say TEXT`", flush=True)
             elif speak:
@@ -125,6 +132,8 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                       f"{'finished' if ok else run.interrupted or 'error'}",
                 trajectory=[p[1:3] for p in run.trajectories[robot]])
             result = {"rapp": run.name, "robot": robot, "house": house, "seed": seed, "command": owner.command,
+                      "command_sim_s": given_at[0] if given_at else None,
+                      "scenario": str(disturbances) if disturbances else None,
                       "spoken": voice.spoken, "person_contacts": world.person_contacts(),
                       "object_contacts": world.object_contacts(),
                       "ok": ok, "end": run.end_text(owner), "reason": run.reason(owner),
@@ -137,6 +146,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                       "outputs": outputs, "truth": run.truth()}
             (out / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
             (out / "result.json").write_text(json.dumps(result, indent=1))
+            await run.finish_recording()
         check_interrupted(result)
         return result
     finally:
@@ -161,7 +171,8 @@ def closing_summary(result: dict, out: Path) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="rapp run rapp", description=__doc__.split("\n\n")[0].replace("\n", " "))
-    p.add_argument("rapp", help="a RApp source directory (with manifest.yaml) or a built .rapp package")
+    p.add_argument("rapp", nargs="?", help="a RApp source directory (with manifest.yaml) or a built .rapp package "
+                                           "(with --replay: default the recorded package)")
     p.add_argument("--robot", choices=ROBOTS, default="nao")
     p.add_argument("--house", default="small", help="house name (small, house, twodoors, generated with --seed) "
                                                      "or YAML file")
@@ -182,9 +193,24 @@ def main(argv: list[str] | None = None) -> int:
                                                           "(`rapp say TEXT` while it runs, or --scenario lines)")
     p.add_argument("--allow-unsandboxed", action="store_true",
                    help="run the RApp without the sandbox where the kernel allows none (the reason is printed)")
+    p.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
+                                                             "packages/ nor run.mcap (docs/recordings.md)")
+    p.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
+    p.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run: its robot, house, seed and "
+                   "command (at its simulated time), then compare reports and trajectory with it (docs/recordings.md)")
+    p.add_argument("--tolerance", type=float, default=None, metavar="M",
+                   help="--replay: how far (m) the trajectories may be apart (default 0.25)")
     a = p.parse_args(argv)
     if not allow_unsandboxed(a.allow_unsandboxed, "rapp run rapp"):
         return 2
+    if a.replay:
+        try:
+            a = _from_recording(a, p)
+        except ValueError as exc:
+            print(f"rapp run rapp: {exc}", file=sys.stderr)
+            return 2
+    if a.rapp is None:
+        p.error("the RApp (a folder or package) is needed, or --replay RUN_DIR")
     src = Path(a.rapp)
     if not src.exists():
         print(f"rapp run rapp: {src} does not exist", file=sys.stderr)
@@ -200,7 +226,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = main_loop(run_rapp(src, a.robot, a.house, a.seed, a.say, out, a.timeout, progress=not a.quiet,
                                     live=False if a.plain else None, watch_port=a.watch, speak=a.speak,
-                                    script=script, listen=a.listen, disturbances=a.scenario))
+                                    script=script, listen=a.listen, disturbances=a.scenario,
+                                    record=not a.no_record, frames=not a.no_frames,
+                                    command_at=getattr(a, "command_at", None)))
     except ScriptError as exc:
         print(f"rapp run rapp: {exc}", file=sys.stderr)
         return 2
@@ -210,4 +238,34 @@ def main(argv: list[str] | None = None) -> int:
             return 128 + stop.signum
         result, code = stop.result, 128 + stop.signum
     print(closing_summary(result, out))
+    if a.replay and not code:
+        from scenarios import resim
+        comparison = resim.compare(a.replay, out, a.robot, a.tolerance or resim.TRAJECTORY_TOL_M)
+        print(comparison.text())
+        print(f"  compared in {resim.write(out, a.replay, comparison)}")
+        return 0 if comparison.ok else 1
     return code or (0 if result["ok"] else 1)
+
+
+def _from_recording(a, p) -> argparse.Namespace:
+    """A re-simulation's settings: the recorded run's robot, house, seed, command and its time, scenario
+    file, and (no RApp given) its recorded package."""
+    from scenarios.resim import recorded_result
+
+    rec = recorded_result(a.replay)
+    given = {k for k in ("robot", "house", "seed", "say") if getattr(a, k) != p.get_default(k)}
+    for key, field in (("robot", "robot"), ("house", "house"), ("seed", "seed"), ("say", "command")):
+        if key not in given and rec.get(field) is not None:
+            setattr(a, key, rec[field])
+    if a.scenario is None and rec.get("scenario"):
+        a.scenario = rec["scenario"]
+    a.command_at = rec.get("command_sim_s")
+    if a.rapp is None:
+        from rapps.replay import load_recording
+        package = load_recording(a.replay).package
+        if package is None:
+            raise ValueError(f"{a.replay} kept no package: give the RApp's folder")
+        a.rapp = str(package)
+    if given:
+        print(f"[resim] given, not the recording's: {', '.join(sorted(given))}", flush=True)
+    return a

@@ -35,6 +35,7 @@ from robots.gridmap import build_grid_map
 
 from .home_setup import DOOR_OPEN_DEG, has_layout, home_map
 from .progress import follow
+from .recording import Recording
 from .system import RappSystem, RobotHandle, wait_until
 
 SAMPLE_S = 0.2  # simulation seconds between samples of the true trajectory
@@ -78,9 +79,12 @@ class Owner:
 
 class Run:
     def __init__(self, out: Path, world, rapp: Path, owners: list[Owner], *, settings=None,
-                 platform_kw: dict | None = None):
+                 platform_kw: dict | None = None, record: bool = True, frames: bool = True, grid=None):
+        """`record`: the run's recording (scenarios/recording.py: message bodies, packages, robot.jsonl,
+        then run.mcap by finish_recording()); `frames`: with the camera's frames; `grid`: the map in it."""
         self.out, self.world, self.rapp, self.owners = Path(out), world, Path(rapp), owners
         self.settings, self.platform_kw = settings, platform_kw or {}
+        self.recording = Recording(self.out, world, {o.kind: o.api for o in owners}, grid, frames) if record else None
         self.trace = self.out / "trace.jsonl"
         self.name, self.keywords = "", []
         self.trajectories: dict[str, list[list[float]]] = {o.kind: [] for o in owners}  # [t, x, y, theta]
@@ -110,6 +114,12 @@ class Run:
         side: asyncio.Task | None = None
         self.system = system = RappSystem(self.out / "system", settings=self.settings, trace_file=self.trace,
                                           platform_kw=self.platform_kw)
+        if self.recording is not None:
+            for stale in ("run.mcap", "robot.jsonl"):
+                (self.out / stale).unlink(missing_ok=True)
+            shutil.rmtree(self.out / "packages", ignore_errors=True)
+            self.recording.begin()
+            self.recording.start()
         try:
             await system.start()
             await self._publish()
@@ -154,6 +164,8 @@ class Run:
                 await system.stop()
             for task in samplers:
                 task.cancel()
+            if self.recording is not None:
+                self.recording.stop()
         if _STATE.signum is not None:  # also when it came while the system stopped
             self.signum, self.failure = _STATE.signum, self.interrupted
         return self
@@ -205,6 +217,10 @@ class Run:
             x, y, theta = robot.pose[:3]
             into.append([round(self.world.time, 2), round(x, 3), round(y, 3), round(theta, 4)])
             await self.world.sleep(SAMPLE_S, drive=False)  # observe; never run the world ahead
+
+    async def finish_recording(self) -> Path | None:
+        """run.mcap from the run folder (after result.json: its metadata come from there)."""
+        return await self.recording.finish() if self.recording is not None else None
 
     # -- what the scenarios write ---------------------------------------------------------------
     def truth(self, kind: str | None = None) -> dict:

@@ -79,12 +79,72 @@ def script_json(value) -> str:
     return text
 
 
-def render_html(records: Iterable[dict], title: str = "Trace") -> str:
-    """The whole page as a string; all text from the trace is inserted as text, never as HTML."""
+def render_html(records: Iterable[dict], title: str = "Trace", scene: dict | None = None) -> str:
+    """The whole page as a string; all text from the trace is inserted as text, never as HTML.
+    `scene` (scene_data of the run folder): the map, poses, paths and camera frames the page shows
+    for the message or time clicked."""
     data = page_data(records, title)
+    data["scene"] = scene
     return (_PAGE.replace("{{TITLE}}", html.escape(title))
-            .replace("{{CSS}}", _CSS).replace("{{JS}}", _JS)
+            .replace("{{CSS}}", _CSS + _SCENE_CSS).replace("{{JS}}", _JS + _SCENE_JS)
             .replace("{{DATA}}", script_json(data)))
+
+
+FRAME_WIDTH = 320  # px of a camera frame as the page keeps it (re-encoded JPEG)
+
+
+def scene_data(run_dir: str | Path, frames: bool = True) -> dict | None:
+    """What the page's scene shows, from a recorded run folder's robot.jsonl (None without one): the
+    map (PNG, resolution, origin, size), per robot its true poses [t, x, y, theta], estimates and
+    planned paths [t, [[x, y]...]], and the camera frames [t, robot, data URL] (smaller JPEGs)."""
+    import base64
+
+    import cv2
+    import numpy as np
+
+    from agents.tracing import BLOBS, inflate
+    from scenarios.recording import ROBOT_LOG
+
+    path = Path(run_dir) / ROBOT_LOG
+    if not path.exists():
+        return None
+    out: dict = {"map": None, "robots": {}, "frames": []}
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            try:
+                s = json.loads(line)
+                kind, t, robot = s["kind"], s["t"], s.get("robot", "")
+                if kind == "map":
+                    img = cv2.imdecode(np.frombuffer(base64.b64decode(s["png_b64"]), np.uint8), cv2.IMREAD_GRAYSCALE)
+                    out["map"] = {"png": "data:image/png;base64," + s["png_b64"], "resolution": s["resolution"],
+                                  "origin": s["origin"][:2], "width": int(img.shape[1]), "height": int(img.shape[0])}
+                    continue
+                r = out["robots"].setdefault(robot, {"poses": [], "estimates": [], "paths": []})
+                if kind == "pose":
+                    r["poses"].append([t, *s["pose"]])
+                elif kind == "estimate":
+                    r["estimates"].append([t, *s["pose"]])
+                elif kind == "path":
+                    r["paths"].append([t, [p[:2] for p in s["poses"]]])
+                elif kind == "image" and frames:
+                    s = json.loads(inflate(line, Path(run_dir) / BLOBS))
+                    out["frames"].append([t, robot, _small_jpeg(s["data_b64"])])
+            except (ValueError, KeyError, TypeError, OSError, cv2.error):
+                continue  # a line cut short, a blob missing: left out
+    return out if out["map"] or out["robots"] else None
+
+
+def _small_jpeg(data_b64: str) -> str:
+    import base64
+
+    import cv2
+    import numpy as np
+
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(data_b64), np.uint8), cv2.IMREAD_COLOR)
+    if img.shape[1] > FRAME_WIDTH:
+        img = cv2.resize(img, (FRAME_WIDTH, round(img.shape[0] * FRAME_WIDTH / img.shape[1])), interpolation=cv2.INTER_AREA)
+    ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 75])
+    return "data:image/jpeg;base64," + base64.b64encode(jpg.tobytes()).decode()
 
 
 _PAGE = """<!DOCTYPE html>
@@ -117,7 +177,15 @@ _PAGE = """<!DOCTYPE html>
 <main>
   <div id="diagram-scroll"><svg id="diagram-header" xmlns="http://www.w3.org/2000/svg"></svg>
     <svg id="diagram" xmlns="http://www.w3.org/2000/svg" data-count="0"></svg></div>
+  <div id="side">
+  <section id="scene" hidden>
+    <div id="scene-head"><span id="scene-time" data-t="">-</span>
+      <input type="range" id="scrub" min="0" max="1000" value="1000" aria-label="time"></div>
+    <div id="scene-map"><img id="map-image" alt="map"><svg id="scene-svg" xmlns="http://www.w3.org/2000/svg"></svg></div>
+    <figure id="camera"><img id="camera-frame" alt="the latest camera frame" data-t=""><figcaption id="camera-caption">no frame yet</figcaption></figure>
+  </section>
   <aside id="details"><p class="hint">Click an arrow or a band to see its record.</p></aside>
+  </div>
 </main>
 <script type="application/json" id="trace-data">{{DATA}}</script>
 <script>{{JS}}</script>
@@ -143,8 +211,8 @@ main { flex: 1; display: flex; min-height: 0; }
 #diagram-header { position: sticky; top: 0; background: #fafafe; z-index: 2; display: block;
                   border-bottom: 1px solid #ccd; }
 #diagram { display: block; }
-#details { width: 380px; min-width: 260px; overflow: auto; border-left: 1px solid #ccd;
-           padding: 8px 10px; background: #fcfcfc; }
+#side { width: 380px; min-width: 260px; display: flex; flex-direction: column; border-left: 1px solid #ccd; }
+#details { flex: 1; overflow: auto; padding: 8px 10px; background: #fcfcfc; }
 #details dl { display: grid; grid-template-columns: max-content 1fr; gap: 1px 8px; margin: 0 0 8px; }
 #details dt { color: #666; } #details dd { margin: 0; word-break: break-all; }
 #details pre { background: #f2f2f2; padding: 6px; white-space: pre-wrap; word-break: break-all;
@@ -347,7 +415,7 @@ _JS = r"""
     g.append(el("text", {x: labelX, y: ly - 5, "text-anchor": anchor, fill: colour}, text));
     const hx = Math.min(x1, x2) - 4, hw = Math.max(Math.abs(x2 - x1), 40) + 8;
     g.append(el("rect", {class: "hit", x: hx, y: ly - 18, width: hw, height: 24}));  // on top
-    g.addEventListener("click", () => showDetails(m, g));
+    g.addEventListener("click", () => { showDetails(m, g); if (window.rappScene) window.rappScene.at(m.t); });
     return g;
   }
 
@@ -369,7 +437,7 @@ _JS = r"""
     } else if (tx + guess > width - PAD) tx = GUTTER;
     g.append(el("text", {class: "label", x: tx, y: top + NOTE_ROW / 2 + 4, "text-anchor": anchor,
                          stroke: BANDS[cat] || BANDS.structure}, label));
-    g.addEventListener("click", () => showDetails(n, g));
+    g.addEventListener("click", () => { showDetails(n, g); if (window.rappScene) window.rappScene.at(n.t); });
     return g;
   }
 
@@ -416,6 +484,91 @@ _JS = r"""
 """
 
 _JS = _JS.replace("{{OPENING}}", json.dumps(OPENING_OR_CHAT))  # the ontology's, in the page's code
+
+_SCENE_CSS = """
+#scene { border-bottom: 1px solid #ccd; padding: 4px 8px; background: #fff; }
+#scene-head { display: flex; gap: 6px; align-items: center; font-size: 12px; }
+#scrub { flex: 1; }
+#scene-map { position: relative; width: 100%; }
+#map-image { width: 100%; display: block; image-rendering: pixelated; }
+#scene-svg { position: absolute; left: 0; top: 0; width: 100%; height: 100%; }
+#camera { margin: 4px 0 0; }
+#camera-frame { max-width: 100%; display: block; }
+#camera-caption { font-size: 11px; color: #666; }
+.traj { fill: none; stroke: #1f5fbf; stroke-opacity: 0.5; }
+.plan { fill: none; stroke: #e8590c; stroke-dasharray: 4 2; }
+.robot { fill: #1f5fbf; } .heading { stroke: #1f5fbf; stroke-width: 2; }
+.estimate { fill: none; stroke: #2b8a3e; stroke-width: 1.5; }
+"""
+
+# the scene: for the time of the record clicked (or the slider's), each robot's true pose and its
+# trajectory so far, its latest planned path and estimate, and the latest camera frame then
+_SCENE_JS = r"""
+(function () {
+  "use strict";
+  const DATA = JSON.parse(document.getElementById("trace-data").textContent);
+  const S = DATA.scene;
+  if (!S || !S.map) return;
+  const NS = "http://www.w3.org/2000/svg", $ = id => document.getElementById(id);
+  const M = S.map;
+  $("scene").hidden = false;
+  $("map-image").src = M.png;
+  const svg = $("scene-svg");
+  svg.setAttribute("viewBox", "0 0 " + M.width + " " + M.height);
+  const px = (x, y) => [(x - M.origin[0]) / M.resolution, M.height - (y - M.origin[1]) / M.resolution];
+  const times = [];
+  Object.values(S.robots).forEach(r => r.poses.forEach(p => times.push(p[0])));
+  S.frames.forEach(f => times.push(f[0]));
+  const lo = Math.min(...times, DATA.t0 || Infinity), hi = Math.max(...times);
+  function el(tag, attrs) {
+    const e = document.createElementNS(NS, tag);
+    for (const k in attrs) e.setAttribute(k, String(attrs[k]));
+    return e;
+  }
+  function latest(list, t) {  // the last entry at or before t (lists are in time order)
+    let found = null;
+    for (const e of list) { if (e[0] <= t) found = e; else break; }
+    return found;
+  }
+  function at(t) {
+    svg.replaceChildren();
+    const r = M.resolution;
+    Object.entries(S.robots).forEach(([name, R]) => {
+      const past = R.poses.filter(p => p[0] <= t);
+      if (past.length > 1) svg.append(el("polyline", {class: "traj", "stroke-width": 0.04 / r,
+        points: past.map(p => px(p[1], p[2]).join(",")).join(" ")}));
+      const plan = latest(R.paths, t);
+      if (plan) svg.append(el("polyline", {class: "plan", "stroke-width": 0.03 / r,
+        points: plan[1].map(p => px(p[0], p[1]).join(",")).join(" ")}));
+      const est = latest(R.estimates, t);
+      if (est) { const [ex, ey] = px(est[1], est[2]);
+        svg.append(el("circle", {class: "estimate", cx: ex, cy: ey, r: 0.15 / r, "data-x": est[1], "data-y": est[2]})); }
+      const pose = latest(R.poses, t) || R.poses[0];
+      if (pose) {
+        const [cx, cy] = px(pose[1], pose[2]), len = 0.35 / r;
+        const g = el("g", {id: "robot-pose", "data-robot": name, "data-x": pose[1], "data-y": pose[2], "data-t": pose[0]});
+        g.append(el("line", {class: "heading", x1: cx, y1: cy, x2: cx + len * Math.cos(pose[3]),
+                             y2: cy - len * Math.sin(pose[3]), "stroke-width": 0.05 / r}));
+        g.append(el("circle", {class: "robot", cx: cx, cy: cy, r: 0.12 / r}));
+        svg.append(g);
+      }
+    });
+    const frame = latest(S.frames, t);
+    const img = $("camera-frame");
+    if (frame) { if (img.getAttribute("data-t") !== String(frame[0])) img.src = frame[2];
+      img.setAttribute("data-t", frame[0]); img.hidden = false;
+      $("camera-caption").textContent = frame[1] + " camera, " + (t - frame[0]).toFixed(1) + " s before"; }
+    else { img.hidden = true; img.setAttribute("data-t", ""); $("camera-caption").textContent = "no frame yet"; }
+    const label = $("scene-time");
+    label.setAttribute("data-t", t);
+    label.textContent = "+" + (t - (DATA.t0 || lo)).toFixed(2) + " s";
+    $("scrub").value = hi > lo ? Math.round(1000 * (t - lo) / (hi - lo)) : 1000;
+  }
+  $("scrub").addEventListener("input", e => at(lo + (hi - lo) * e.target.value / 1000));
+  window.rappScene = {at: at};
+  at(hi);
+})();
+"""
 
 
 def main(argv: list[str] | None = None) -> None:

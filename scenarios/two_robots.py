@@ -56,7 +56,8 @@ async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json
         owners = [Owner(kind, recorders[kind], f"owner-{kind}-{seed}", COMMAND, home=(homes[kind], png, yaml_text))
                   for kind in ROBOTS]
         run = Run(out, world, RAPP_DIR, owners, settings=settings,
-                  platform_kw={"services_state": ServiceState(work_dir=out / "services")})
+                  platform_kw={"services_state": ServiceState(work_dir=out / "services")},
+                  grid=home_map(world, house))
         await run.run(timeout_s)
         with saving():
             result = {"seed": seed, "house": house, "shared": shared, "duration_sim_s": round(run.sim_s, 2),
@@ -80,6 +81,7 @@ async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json
                 result["robots"][kind] = r
             result["all_correct"] = all(r["all_correct"] for r in result["robots"].values())
             Path(json_path or out / "result.json").write_text(json.dumps(result, indent=1))
+            await run.finish_recording()
     finally:
         world.close()
     check_interrupted(result)

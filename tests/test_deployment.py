@@ -126,8 +126,9 @@ async def test_deployment_runs_hazard_detection_for_a_plain_chat_owner(tmp_path)
     reads every hazard's report in the chat."""
     d = Deployment(tmp_path)
     owner = None
-    try:
-        _, key, owner = await d.up("nao", "--rtf", "0")  # simulated as fast as the machine goes
+    rec = tmp_path / "recording"
+    try:  # simulated as fast as the machine goes, and recorded (docs/recordings.md)
+        _, key, owner = await d.up("nao", "--rtf", "0", "--record", str(rec))
         d.publish(ROOT / "rapps" / "hazard_detection", key)
         texts = await owner.command("core-nao1@localhost", "please check the hazards", "hazard-detection finished",
                                     timeout=240)
@@ -135,11 +136,18 @@ async def test_deployment_runs_hazard_detection_for_a_plain_chat_owner(tmp_path)
         reports = {m.group(1): m.group(2) for m in map(HAZARD_LINE.search, texts) if m}
         assert set(reports) == {"d1", "l1"}, texts  # the small house's door and lamp, each reported
         assert all(state in ("open", "closed", "on", "off") for state in reports.values()), reports
+        d.procs["core"].send_signal(signal.SIGTERM)  # the Core writes run.mcap as it stops
+        await asyncio.to_thread(d.procs["core"].wait, 60)
     finally:
         if owner is not None:
             owner.disconnect()
         d.stop_all()
     assert list((tmp_path / "tmp").iterdir()) == []
+    assert (rec / "run.mcap").stat().st_size > 0 and any((rec / "packages").glob("*.rapp"))
+    # the Platform, a process of its own, recorded nothing: its answers come from the RApp's side
+    res = await asyncio.to_thread(subprocess.run, [*RAPP, "replay", str(rec)], cwd=tmp_path, env=d.env,
+                                  capture_output=True, text=True, timeout=180, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0 and "no divergence" in res.stdout, res.stdout + res.stderr
 
 
 async def test_deployment_survives_a_core_crash(tmp_path):

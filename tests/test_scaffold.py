@@ -35,10 +35,14 @@ async def test_new_rapp_builds_runs_and_its_test_passes(tmp_path):
     assert Path(frame).read_bytes()[:len(magic)] == magic
     assert "saw 320x240" in result["reports"][0]["text"]
 
-    # its test as the README says, from outside the checkout, with what `pip install -e .` brings
+    # the run is a recording: saved into the RApp's tests, its scaffolded replay test runs it (issue 45.3)
+    saved = rapp("replay", tmp_path / "out", "--save", dest / "tests" / "recording")
+    assert saved.returncode == 0 and "messages.jsonl" in saved.stdout, saved.stderr
+    assert not (dest / "tests" / "recording" / "system").exists()  # no credentials copied
+    # its tests as the README says, from outside the checkout, with what `pip install -e .` brings
     res = await asyncio.to_thread(subprocess.run, [*RAPP, "test", str(dest), "-q"], cwd=tmp_path, capture_output=True,
                                   text=True, timeout=300, stdin=subprocess.DEVNULL)
-    assert res.returncode == 0 and "1 passed" in res.stdout, res.stdout[-2000:] + res.stderr[-2000:]
+    assert res.returncode == 0 and "2 passed" in res.stdout, res.stdout[-2000:] + res.stderr[-2000:]
     assert "warning" not in res.stdout.lower(), res.stdout[-2000:]  # no pytest warnings
     assert not (dest / ".pytest_cache").exists()  # nothing cached into the RApp's folder
 
