@@ -2,8 +2,17 @@
 
     s0 init -> s1 register -> s2 vocabulary -> s3 listen -> s4a keyword -> s5 download
                                                    (not a keyword alone) -> s4b platform -> s5
-      -> s6 activate (spawn a_dyn, hand supervision over) -> s8 serve (s9: the command server
-      executes each robot-API request) -> s10 destroy (reap a_dyn, resume supervision) -> s3
+      -> s6 activate (spawn a_dyn, hand supervision over) -> s8 serve -> s10 destroy (reap a_dyn,
+      resume supervision) -> s3
+
+    s9 (the double circle: one robot-API request of a_dyn, served while the FSM waits in s8):
+        lock (the device's) -> act <-> held (the emergency stop latched) ; act -> release
+        resources (a_dyn's own lock / free of a resource, paper 003)
+
+s9's requests come concurrently (a motion with feedback while the pose is read): each is one pass
+of its own instance of `build_command_fsm`, run by the command server as the request comes, while
+the Core's FSM stays in s8; every state entered is a trace record (`fsm` "core.s9", with the
+request's `conversation_id`).
 
 s3 takes a command as text (chat, typed microphone utterances) or as speech (the microphone's sound,
 cut into utterances by voice activity detection). s4's two branches are the figure's: an isolated
@@ -166,6 +175,34 @@ def build_core_fsm() -> FSM:
     fsm.add_transition("s8_serve", "s10_destroy", on_error=True)
     fsm.add_transition("s10_destroy", "s3_listen")
     fsm.add_transition("s10_destroy", "s3_listen", on_error=True)
+    return fsm
+
+
+# -- s9: one robot-API request of the Dynamic Agent (agents/core_commands.py holds the steps) -----
+class CommandStep(OneShot):
+    """One step of s9: `await core.command_<step>(memory)`, whose value picks the next state. An
+    exception is kept (memory["raised"]) for the command server: its type says refuse or failure."""
+
+    def __init__(self, step: str):
+        super().__init__(step)
+        self.step = step
+
+    async def action(self):
+        try:
+            return await getattr(self.agent, f"command_{self.step}")(self.memory)
+        except Exception as e:
+            self.memory["raised"] = e
+            raise
+
+
+def build_command_fsm(action: str) -> FSM:
+    fsm = FSM("core.s9", initial="resources" if action in ("lock_resource", "free_resource") else "lock")
+    for name, final in [("resources", True), ("lock", False), ("act", False), ("held", False), ("release", True)]:
+        fsm.add_state(name, CommandStep(name), final=final)
+    fsm.add_transition("lock", "act")
+    fsm.add_transition("act", "release", when=lambda m, o: o.value == "done")
+    fsm.add_transition("act", "held", when=lambda m, o: o.value == "held")
+    fsm.add_transition("held", "act")
     return fsm
 
 

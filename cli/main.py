@@ -266,12 +266,14 @@ def cmd_trace(argv: list[str]) -> int:
                    f"{', '.join(tr.ROLES)}), a name (core-nao1) or a JID")
     p.add_argument("--conversation", action="append", help="only this conversation id (prefix ok)")
     if action == "show":
-        p.add_argument("--view", choices=["summary", "table", "sequence", "both"], default="summary",
-                       help="summary (default), the messages as a table, as a sequence diagram, or both")
+        p.add_argument("--view", choices=["summary", "table", "sequence", "both", "fsm"], default="summary",
+                       help="summary (default), the messages as a table, as a sequence diagram, or both; fsm: "
+                            "each agent's FSM path and its request passes (fig. 5's s9, fig. 6)")
         p.add_argument("--limit", type=int, default=200, metavar="N",
                        help="table and sequence: the first N messages and records (default 200; 0: all)")
     if action == "export":
-        p.add_argument("--format", choices=["mermaid", "json", "text"], default="mermaid")
+        p.add_argument("--format", choices=["mermaid", "json", "text", "states"], default="mermaid",
+                       help="mermaid: a sequence diagram; states: each agent's FSM as a Mermaid state diagram")
     if action in ("export", "html"):
         p.add_argument("-o", "--output", help="output file (default: stdout for export, FILE.html for html)")
     a = p.parse_args(argv)
@@ -284,6 +286,10 @@ def cmd_trace(argv: list[str]) -> int:
         if a.view == "summary":
             print(tr.summary_text(records, Path(a.file).name))
             return 0
+        if a.view == "fsm":
+            from scenarios.fsm_view import fsm_text
+            print(fsm_text(records))
+            return 0
         shown, more = tr.limit_items(records, a.limit)
         if a.view in ("table", "both"):
             print(tr.table(shown))
@@ -294,7 +300,9 @@ def cmd_trace(argv: list[str]) -> int:
         return 0
     if action == "export":
         import json
+        from scenarios.fsm_view import fsm_mermaid
         text = {"mermaid": lambda: tr.mermaid(records), "text": lambda: tr.sequence_text(records),
+                "states": lambda: fsm_mermaid(records),
                 "json": lambda: json.dumps(records, indent=1)}[a.format]()
         if a.output:
             Path(a.output).write_text(text)

@@ -9,7 +9,8 @@ records of no agent, `agent` (the writer's address). The kinds:
   agent      event=started|stopped|start-failed|disconnected|reconnected
   behaviour  event=activated|deactivated, behaviour
   structure  event=StructureEvent (below), then the event's own fields (rapp, dynamic, cloud, ...)
-  state      event=enter, fsm, state (FSM states of embodied behaviours)
+  state      event=enter, fsm, state (FSM states of embodied behaviours); conversation_id on the
+             states of a request's own pass (the Platform's fig. 6 request FSM, the Core's s9)
   timeout    peer, action, conversation_id, timeout_s (a request not answered in time)
   retry      peer, action, attempt (an idempotent request sent again)
   resend     peer, conversation_id (a request sent again after reconnecting)
@@ -195,6 +196,7 @@ class StateRecord(_Record):
     event: Literal["enter"]
     fsm: str
     state: str
+    conversation_id: str = ""  # the request whose pass entered it ("" for an agent's own FSM)
 
 
 class TimeoutRecord(_Record):
