@@ -2,6 +2,7 @@
 
     s0 init -> s1 register -> s2 vocabulary -> s3 listen -> s4a keyword -> s5 download
                                                    (not a keyword alone) -> s4b platform -> s5
+                                                   (a time named) -> s4b -> s4c schedule -> s3
       -> s6 activate (spawn a_dyn, hand supervision over) -> s8 serve -> s10 destroy (reap a_dyn,
       resume supervision) -> s3
 
@@ -18,6 +19,9 @@ s3 takes a command as text (chat, typed microphone utterances) or as speech (the
 cut into utterances by voice activity detection). s4's two branches are the figure's: an isolated
 keyword is mapped to its RApp on the robot (s4a: pocketsphinx with the vocabulary of s2); anything
 else goes to the Platform (s4b: speech_recognition for speech, then interpret_command).
+A schedule come due (agents/scheduler.py) enters s3 as a command the Core knows and takes s4a,
+as an isolated keyword does; s4c (not in the figure: the paper's sec. 7 trigger) keeps, cancels or
+lists schedules when the Platform's interpretation names a time, and tells the owner.
 A failed recognition or interpretation tells the user why (spoken: "Sorry, I did not understand")
 and returns to s3; so does a failed download; a failed activation goes through s10 so nothing is
 left running.
@@ -31,6 +35,7 @@ from behaviours import FSM, Behaviour, OneShot
 from hearing.vad import HeardUtterance
 
 from .errors import RequestError
+from .scheduler import ScheduledStart
 
 log = logging.getLogger("rapp.core")
 
@@ -77,9 +82,16 @@ class Listen(Behaviour):  # s3: wait for the user's next command (chat or microp
         return self.iterations >= 1
 
 
-class Keyword(CoreState):  # s4a: an isolated keyword -> its RApp, here on the robot
+class Keyword(CoreState):  # s4a: an isolated keyword -> its RApp, here on the robot (or a schedule come due)
     async def action(self):
         command = self.memory["command"]
+        if isinstance(command, ScheduledStart):
+            self.memory["rapp"], self.memory["params"] = command.schedule.rapp, dict(command.schedule.params)
+            if self.core.scheduler.too_late(command):
+                self.memory["missed"] = True
+                await self.core.scheduler.missed(command.schedule, command.due, "the robot was busy until too late")
+                raise RuntimeError("scheduled task missed")
+            return True
         if isinstance(command, HeardUtterance):
             if command.too_long:
                 await self.core.tell_user("Sorry, I did not understand: that was too long for a command.",
@@ -117,6 +129,16 @@ class Interpret(CoreState):  # s4b: anything else -> the Platform (speech recogn
             await self.core.tell_user(f"Sorry, I could not interpret \"{text}\": {_why(e)}")
             raise
         self.memory["rapp"], self.memory["params"] = found.rapp, dict(found.parameters)
+        self.memory["schedule"] = found.schedule
+        if found.schedule is not None:
+            self.memory["text"] = text
+
+
+class Schedule(CoreState):  # s4c (sec. 7's trigger): keep, cancel or list schedules; the owner is told
+    async def action(self):
+        await self.core.scheduler.handle(self.memory["schedule"], self.memory["rapp"], self.memory["params"],
+                                         self.memory["text"])
+        self.core.command_answered()
 
 
 class Download(CoreState):  # s5: fetch the package, check sha256 and signature
@@ -152,6 +174,7 @@ def build_core_fsm() -> FSM:
     for name, state in [("s0_init", Init("init")), ("s1_register", Register("register")),
                         ("s2_vocabulary", Vocabulary("vocabulary")), ("s3_listen", Listen("listen")),
                         ("s4a_keyword", Keyword("keyword")), ("s4b_platform", Interpret("interpret")),
+                        ("s4c_schedule", Schedule("schedule")),
                         ("s5_download", Download("download")),
                         ("s6_activate", Activate("activate")), ("s8_serve", Serve("serve")),
                         ("s10_destroy", Destroy("destroy"))]:
@@ -165,7 +188,10 @@ def build_core_fsm() -> FSM:
     fsm.add_transition("s4a_keyword", "s5_download", when=lambda m, o: bool(o.value))
     fsm.add_transition("s4a_keyword", "s4b_platform", when=lambda m, o: not o.value)
     fsm.add_transition("s4a_keyword", "s3_listen", on_error=True)
-    fsm.add_transition("s4b_platform", "s5_download")
+    fsm.add_transition("s4b_platform", "s5_download", when=lambda m, o: m.get("schedule") is None)
+    fsm.add_transition("s4b_platform", "s4c_schedule", when=lambda m, o: m.get("schedule") is not None)
+    fsm.add_transition("s4c_schedule", "s3_listen")
+    fsm.add_transition("s4c_schedule", "s3_listen", on_error=True)
     fsm.add_transition("s4b_platform", "s3_listen", on_error=True)
     fsm.add_transition("s5_download", "s6_activate")
     fsm.add_transition("s5_download", "s3_listen", on_error=True)

@@ -86,12 +86,20 @@ class StructureEvent(StrEnum):
     MOTION_HELD = "motion-held"  # a motion of the task waits for the emergency stop's release
     MOTION_RESUMED = "motion-resumed"  # ... and was (re-)issued after it
     STRATEGY = "strategy"  # a reactive strategy of the Core (phase start/end; agents/core_strategies.py)
+    # the Core's schedules (agents/scheduler.py)
+    SCHEDULE_KEPT = "schedule-kept"  # a schedule made at the owner's word
+    SCHEDULE_REFUSED = "schedule-refused"  # ... or refused, with the reason
+    SCHEDULE_CANCELLED = "schedule-cancelled"  # schedules forgotten at the owner's word
+    SCHEDULE_LISTED = "schedule-listed"  # the schedules told to the owner
+    SCHEDULE_DUE = "schedule-due"  # a schedule's time came: its RApp starts (trigger "scheduled")
+    SCHEDULE_MISSED = "schedule-missed"  # its time came while the robot could not start it
     # a Dynamic Agent's plan monitor (rapps/sdk/monitor.py)
     PLAN_FAILED = "plan-failed"  # an expectation of the running plan failed: the task re-plans
     OBSTACLE_MARKED = "obstacle-marked"  # an obstacle entered into the Platform's temporary layer
     OBSTACLE_CLEARED = "obstacle-cleared"  # ... and taken out, seen free again
     # the Store
     PUBLISH = "publish"  # a package published
+    BUILD = "build"  # a published version's build for one robot type began or ended (agents/store_build.py)
     REFUSED = "refused"  # an operation refused to a caller without the right (Core, Store, Platform, a sandbox)
     REFUSALS = "refusals"  # what a RApp run was refused, told to its owner at its end (the Core)
     LOGIN_FAILED = "login-failed"  # a failed SASL login (the embedded server)
