@@ -151,3 +151,19 @@ async def test_a_store_that_requires_tests_refuses_a_package_without(tmp_path):
     async with RappSystem(tmp_path / "run", store_kw={"build": True, "require_tests": True}) as system:
         with pytest.raises(RequestRefused, match="has no tests"):
             await system.publish(tiny_rapp(tmp_path, tests=False))
+
+
+def test_rapp_test_runs_a_rapps_tests_for_one_robot_type(tmp_path):
+    import subprocess
+
+    from .test_cli import RAPP
+
+    src = tiny_rapp(tmp_path)
+    run = [*RAPP, "test", str(src), "-k", "can_speak", "--robot"]
+    nao = subprocess.run([*run, "nao"], capture_output=True, text=True, cwd=tmp_path, timeout=120,
+                         stdin=subprocess.DEVNULL)
+    elektron = subprocess.run([*run, "elektron"], capture_output=True, text=True, cwd=tmp_path, timeout=120,
+                              stdin=subprocess.DEVNULL)
+    assert nao.returncode == 0 and "1 passed" in nao.stdout, nao.stdout[-2000:]
+    assert elektron.returncode == 1 and "an elektron has no speech synthesizer" in elektron.stdout, elektron.stdout[-2000:]
+
