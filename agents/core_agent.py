@@ -9,6 +9,8 @@ Behaviours and when they are active (see `active_behaviours()`):
   audio-listener  while the Core supervises: the microphone's sound, voice activity -> utterances
                   (s4 spots an isolated keyword itself, sends anything longer to the Platform)
   command-server  while a Dynamic Agent supervises: its robot-API requests (fig. 5, s8/s9)
+  (the scheduler, a background task: the owner's schedules come due into the command queue,
+                  agents/scheduler.py; kept in `data_dir`)
   busy-chat       while a Dynamic Agent supervises: answers the user, "stop" cancels the task
   heartbeats      while a Dynamic Agent supervises: its liveness (a hang is noticed within 2 s)
   (voice supervision, a background task, not a behaviour, with voice_supervision=True: while a RApp runs, the
@@ -51,8 +53,8 @@ from robots.interface import check_robot
 from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
-from ontology.results import (RefusalRecord, ReportRecord, SubscribeTasks, TaskEnded, TaskRecord, TaskReported,
-                              TaskStage)
+from ontology.results import (RefusalRecord, ReportRecord, ScheduleChanged, SubscribeTasks, TaskEnded, TaskRecord,
+                              TaskReported, TaskStage, TaskTrigger)
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
 from hearing.keywords import KeywordSpotter, LookAhead, keyword_in_a_sentence
@@ -68,6 +70,7 @@ from .core_hearing import Continuation
 from .core_events import CoreEvents
 from .core_strategies import Strategies
 from .core_fsm import build_core_fsm
+from .scheduler import ScheduledStart, Scheduler
 from .errors import Refusal, RequestError, RequestFailed
 from .locks import ResourceLocks
 from .messages import bare
@@ -121,6 +124,8 @@ class DynamicSession:
     reports: list[ReportRecord] = field(default_factory=list)  # what it reported, in order
     # what was refused it (by this Core, its sandbox, the Platform): {by, what, why, count}, told at its end
     refusals: list[dict] = field(default_factory=list)
+    trigger: TaskTrigger = TaskTrigger.COMMAND  # what started it: the owner's command, or a schedule
+    schedule_id: int | None = None
 
 
 class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
@@ -133,7 +138,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                  limits: Limits = Limits(), say_reports: bool = True,
                  safety_distance: float | None = 0.10, safety_period: float = 0.2,
                  dynamic_mode: str = "process", sandbox: Sandbox | None = None, hear_audio: bool = True,
-                 warm_workers: int = 1, warm_imports: tuple[str, ...] = (), voice_supervision: bool = False):
+                 warm_workers: int = 1, warm_imports: tuple[str, ...] = (), voice_supervision: bool = False,
+                 data_dir: str | Path | None = None, clock=None):
         super().__init__(name, settings)
         self.accounts = EphemeralAccounts(self.settings, owner=name)
         self.sandbox = sandbox or Sandbox()
@@ -149,7 +155,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.memory: dict = {}
         self.vocabulary: dict[str, str] = {}
         self.catalogue: list[S.PackageSummary] = []
-        self.commands: asyncio.Queue[str | HeardUtterance] = asyncio.Queue()
+        self.commands: asyncio.Queue[str | HeardUtterance | ScheduledStart] = asyncio.Queue()
         self.hear_audio = hear_audio  # listen to the microphone's sound (when the robot has a microphone)
         # also spot "stop" / "cancel" / "resume" in the microphone's sound while a RApp runs. Off by
         # default: the cognitive game by voice once heard 1 of 2 answers with it on under load; that miss
@@ -189,6 +195,10 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._estop_released.set()
         self.driving = False  # a move_vel velocity is in force
         self.safety_distance, self.safety_period = safety_distance, safety_period
+        # what survives a restart: the owner's schedules (None: kept in memory, for this run only)
+        self.data_dir = Path(data_dir) if data_dir else None
+        self.scheduler = Scheduler(self, self.data_dir / "schedules.db" if self.data_dir else None, clock)
+        self._trigger: ScheduledStart | None = None  # the schedule the command in hand came from
 
     # -- setup and behaviours ------------------------------------------------------------
     async def setup(self) -> None:
@@ -205,6 +215,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._listen_to_microphone()
         self.supervisor = BehaviourHost(build_core_fsm(), self.memory)
         self.activate("supervisor", self.supervisor)
+        self.scheduler.start()
 
     def _listen_to_microphone(self) -> None:
         mic = self.robot.microphone
@@ -302,10 +313,16 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     async def next_command(self) -> str | HeardUtterance:
         await self._command_failed()  # back in s3 without a task's end: the last command failed before it ran
         command = await self.commands.get()
-        for key in ("rapp", "params", "package"):  # the last command's, not this one's
+        for key in ("rapp", "params", "package", "schedule", "missed"):  # the last command's, not this one's
             self.memory.pop(key, None)
-        self._command_told = (command if isinstance(command, str) else "", len(self.told))
+        self._trigger = command if isinstance(command, ScheduledStart) else None
+        text = command.schedule.command if self._trigger else command if isinstance(command, str) else ""
+        self._command_told = (text, len(self.told))
         return command
+
+    def command_answered(self) -> None:
+        """The command in hand was answered without a task (a schedule kept, cancelled or listed)."""
+        self._command_told = None
 
     def hear(self, text: str) -> None:
         """The robot's microphone heard the user (scenario scripts and tests call this)."""
@@ -468,7 +485,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def fetch_package(self, rapp: str) -> tuple[Package, bytes]:
         self._heard_apologies = 0  # a command was understood (s5)
-        info, data = await download_package(self, self.store, rapp, token=await self.fresh_token())
+        # the version the Store lists for this robot type (its build for the type passed), not the latest
+        version = next((p.version for p in self.catalogue if p.name == rapp), None)
+        info, data = await download_package(self, self.store, rapp, version, token=await self.fresh_token())
         package = await asyncio.to_thread(read_package, data, trusted_keys=self.trusted_keys,
                                           require_signature=self.require_signature)
         if self.robot_type not in package.manifest.robot_types:
@@ -490,7 +509,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         name = ident.name
         session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
                                  manifest=m, workdir=workdir, account=ident,
-                                 command=self._command_told[0] if self._command_told else "")
+                                 command=self._command_told[0] if self._command_told else "",
+                                 trigger=TaskTrigger.SCHEDULED if self._trigger else TaskTrigger.COMMAND,
+                                 schedule_id=self._trigger.schedule.id if self._trigger else None)
         self.dynamic = session
         app_token = await self.request(self.platform, P.IssueAppToken(
             token=await self.fresh_token(), rapp=m.name, services=m.services, holder_jid=session.jid,
@@ -520,6 +541,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         del watcher
 
     async def stop(self) -> None:
+        await self.scheduler.stop()
         for task in list(self._background):
             task.cancel()
         await self.warm_pool.close()  # idle workers killed and reaped
@@ -560,7 +582,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if self.safety_distance:
             self.activate("safety", SafetyMonitor(self, period=self.safety_period))
             self.robot.protect(self.safety_distance)  # the same margin, checked by the robot at its own rate
-        self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp)
+        self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp, trigger=self.dynamic.trigger,
+                              **({"schedule": self.dynamic.schedule_id} if self.dynamic.schedule_id else {}))
         self.dynamic.started = time.time()
         # the owner knows at once (chat only: the loudspeaker is the RApp's now)
         self._in_background(self.tell_user(f"Starting {self.dynamic.rapp}.", speak=False))
@@ -712,7 +735,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             stage=TaskStage.RUN if session.started is not None else TaskStage.START, state=session.state,
             ok=session.state == "Finished" and not session.refusals, reason=session.end_reason or session.detail,
             told=self.told[-1], reports=session.reports, refusals=[RefusalRecord(**r) for r in session.refusals],
-            outputs=str(outputs) if outputs.is_dir() else None, started=session.started, ended=time.time()))
+            outputs=str(outputs) if outputs.is_dir() else None, started=session.started, ended=time.time(),
+            trigger=session.trigger, schedule_id=session.schedule_id))
 
     def _resume_if_needed(self) -> None:
         if "user-listener" not in self.active_behaviours():
@@ -754,7 +778,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         # a RApp that has just said the text itself marks it `said`: chat only, not a second time aloud.
         # In the chat its words are labelled as its own: the Core does not vouch for them
         await self.tell_user(req.text, speak=not req.data.get("said", False), label=d.rapp)
-        await self._tell_watchers(TaskReported(robot_id=self.robot_id, rapp=d.rapp, report=report))
+        await self.tell_watchers(TaskReported(robot_id=self.robot_id, rapp=d.rapp, report=report))
         return Done()
 
     # -- the owner's task records (ontology/results.py) --------------------------------------
@@ -764,7 +788,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.task_watchers.add(ctx.sender)
         return Done()
 
-    async def _tell_watchers(self, content: TaskReported | TaskEnded) -> None:
+    async def tell_watchers(self, content: TaskReported | TaskEnded | ScheduleChanged) -> None:
         for jid in list(self.task_watchers):
             try:
                 await self.notify(jid, content, ontology=content.ontology_name, action=content.action_name)
@@ -773,19 +797,22 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def _tell_task_end(self, record: TaskRecord) -> None:
         self._command_told = None  # this command's end is told
-        await self._tell_watchers(TaskEnded(record=record.fitted()))
+        await self.tell_watchers(TaskEnded(record=record.fitted()))
 
     async def _command_failed(self) -> None:
         """The command in hand ended before a task ran (s4-s6 failed, the owner was told why): its record."""
         if self._command_told is None:
             return
         command, told = self._command_told
-        stage = (TaskStage.START if "package" in self.memory else TaskStage.DOWNLOAD if "rapp" in self.memory
-                 else TaskStage.UNDERSTAND)
+        stage = (TaskStage.START if "package" in self.memory or "missed" in self.memory
+                 else TaskStage.DOWNLOAD if "rapp" in self.memory else TaskStage.UNDERSTAND)
         said = self.told[told:]
+        start = self._trigger
         await self._tell_task_end(TaskRecord(robot_id=self.robot_id, command=command, rapp=self.memory.get("rapp", ""),
                                              stage=stage, ok=False, reason=said[-1] if said else "not understood",
-                                             told=said[-1] if said else "", ended=time.time()))
+                                             told=said[-1] if said else "", ended=time.time(),
+                                             trigger=TaskTrigger.SCHEDULED if start else TaskTrigger.COMMAND,
+                                             schedule_id=start.schedule.id if start else None))
 
     async def _on_release_stop(self, req: C.ReleaseStop, ctx) -> Done:
         """The supervising RApp releases a stop its robot's safety latched (never the owner's)."""
@@ -844,10 +871,26 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if word in RESUME_WORDS:
             await self.resume_motion()
             return
+        if await self._schedule_while_busy(text):
+            return
         waiting = self.waiting_for()
         await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}" + (f", waiting for {waiting}" if waiting
                                                                                else "")
                              + "; say \"stop\" to pause it, \"cancel\" to end it.")
+
+    async def _schedule_while_busy(self, text: str) -> bool:
+        """A schedule asked for while a task runs (the chat's path: "check the hazards at 22:00"):
+        kept or refused now (busy until the task may end). False: the words name no schedule."""
+        if len(_words(text)) < 2 or not self.catalogue:
+            return False
+        try:
+            found = await self.interpret(text)
+        except RequestError:
+            return False
+        if found.schedule is None:
+            return False
+        await self.scheduler.handle(found.schedule, found.rapp, dict(found.parameters), text)
+        return True
 
 
 def _keep_refusal(kept: list[dict], refusal: dict, limit: int = 50) -> None:

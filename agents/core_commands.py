@@ -17,7 +17,9 @@ from robots.errors import MotionBlocked, MotionInterrupted, RobotError
 
 from .errors import Failure, Refusal
 from .core_events import ESTOP_TTL_S
+from .core_fsm import build_command_fsm
 from .locks import LockError, ResourceLocks, device_of
+from .passes import run_pass
 from .messages import bare
 from .responder import Responder
 
@@ -99,65 +101,99 @@ class RobotCommands:
                           f"(needed by {req.action_name}) in its manifest", ErrorCode.PERMISSION)
 
     async def _robot_call(self, req, ctx):
+        """s9 of fig. 5: one robot-API request of the supervising Dynamic Agent, as a pass of the
+        command sub-FSM (agents/core_fsm.py build_command_fsm), side by side with its other requests
+        while the Core's FSM stays in s8."""
+        memory = {"request": req, "ctx": ctx}
+        try:
+            return await run_pass(self, build_command_fsm(req.action_name), memory, ctx.info.conversation_id)
+        except LockError as e:
+            raise Refusal(str(e), ErrorCode.LOCKED) from None
+        finally:
+            if memory.get("reporter") is not None:
+                memory["reporter"].cancel()
+            device = memory.pop("locked", None)  # released here whatever ended the pass
+            if device is not None and self.locks.holder(device) == ctx.sender:  # (not dropped at a destroy)
+                self.locks.free(device, ctx.sender)
+
+    # -- the steps of s9 (agents/core_fsm.py) ------------------------------------------------------
+    async def command_resources(self, memory: dict):
+        """The Dynamic Agent's own lock and free of a resource (paper 003)."""
+        req, ctx = memory["request"], memory["ctx"]
         if req.action_name == "lock_resource":
-            return await self._lock(req, ctx.sender)
-        if req.action_name == "free_resource":
-            return self._free(req, ctx.sender)
+            memory["reply"] = await self._lock(req, ctx.sender)
+        else:
+            memory["reply"] = self._free(req, ctx.sender)
+
+    async def command_lock(self, memory: dict) -> None:
+        """The device's lock for the command (waits up to 60 s for it); a velocity's effect noted."""
+        req, ctx = memory["request"], memory["ctx"]
         drive = facts(req.action_name).drive
         if drive == "sets":  # a velocity keeps the base moving after the call returns
             self.driving = any(abs(getattr(req, f, 0.0) or 0.0) > 1e-9 for f in ("x", "y", "theta"))
         elif drive == "ends":
             self.driving = False
-        try:
-            async with self.locks.hold(device_of(req.action_name), ctx.sender, timeout=60.0):
-                if not facts(req.action_name).motion:
-                    return await self.robot.handle(req)
-                reporter = asyncio.create_task(self._report_motion(req, ctx)) if ctx.wants_feedback else None
-                try:
-                    return await self._motion(req, ctx)  # cancelled by the requester: the motion stops
-                finally:
-                    if reporter is not None:
-                        reporter.cancel()
-        except LockError as e:
-            raise Refusal(str(e), ErrorCode.LOCKED) from None
+        device = device_of(req.action_name)
+        if device is not None:
+            if not await self.locks.lock(device, ctx.sender, 60.0):
+                raise LockError(f"{device} is busy (held by {self.locks.holder(device)})")
+            memory["locked"] = device
 
-    async def _motion(self, req, ctx):
-        """A motion of the task. While the emergency stop is latched it is held (waits for the resume,
-        not refused); one the stop interrupts is issued again after the resume when its target is
-        absolute (robot_actions.resumable), else it fails with `estop` (a relative move would go
-        somewhere else from where the stop left the robot)."""
+    async def command_act(self, memory: dict):
+        """Carry the command out. A motion of the task while the emergency stop is latched is held,
+        not refused (the value "held": s9's held state waits for the release); one the stop
+        interrupts is issued again after the resume when its target is absolute
+        (robot_actions.resumable), else it fails with `estop` (a relative move would go somewhere
+        else from where the stop left the robot)."""
+        req, ctx = memory["request"], memory["ctx"]
         name = req.action_name
-        while True:
-            if self.estop_reason is not None:
-                self.record_structure(StructureEvent.MOTION_HELD, action=name, reason=self.estop_reason)
-                await ctx.feedback(Progress(text=f"held by the emergency stop ({self.estop_reason})",
-                                            data={"paused": True}))
-                await self._estop_released.wait()
-                if self.fail_held is not None:  # a strategy handed back with the way blocked: re-plan
-                    code, why = self.fail_held
-                    raise Failure(f"{name}: {why}", code)
-                self.record_structure(StructureEvent.MOTION_RESUMED, action=name)
-            try:
-                return await self.robot.handle(req)
-            except MotionBlocked as e:
-                if not self.safety_distance:
-                    raise
-                # the robot's collision protection (or its bumper) stopped it: the safety stop, as the
-                # safety check's; the reactive strategies hand the held motion back or fail it (blocked).
-                # The safety check may have latched it a moment before (both see the same obstacle;
-                # its stop had not yet interrupted the motion): then the motion is held as interrupted
-                if self.estop_reason is None:
-                    await self.emergency_stop(f"obstacle ahead ({e})", by="safety")
-                    self._in_background(self.react_to_obstacle())
-                if not resumable(name):
-                    raise Failure(f"{name} was interrupted by the emergency stop ({self.estop_reason}); "
-                                  f"a relative motion is not resumed", ErrorCode.ESTOP) from None
-            except MotionInterrupted:
-                if self.estop_reason is None:
-                    raise
-                if not resumable(name):
-                    raise Failure(f"{name} was interrupted by the emergency stop ({self.estop_reason}); "
-                                  f"a relative motion is not resumed", ErrorCode.ESTOP) from None
+        if not facts(name).motion:
+            memory["reply"] = await self.robot.handle(req)
+            return "done"
+        if ctx.wants_feedback and memory.get("reporter") is None:
+            memory["reporter"] = asyncio.create_task(self._report_motion(req, ctx))
+        if self.estop_reason is not None:
+            return "held"
+        try:
+            memory["reply"] = await self.robot.handle(req)  # cancelled by the requester: the motion stops
+            return "done"
+        except MotionBlocked as e:
+            if not self.safety_distance:
+                raise
+            # the robot's collision protection (or its bumper) stopped it: the safety stop, as the
+            # safety check's; the reactive strategies hand the held motion back or fail it (blocked).
+            # The safety check may have latched it a moment before (both see the same obstacle;
+            # its stop had not yet interrupted the motion): then the motion is held as interrupted
+            if self.estop_reason is None:
+                await self.emergency_stop(f"obstacle ahead ({e})", by="safety")
+                self._in_background(self.react_to_obstacle())
+        except MotionInterrupted:
+            if self.estop_reason is None:
+                raise
+        if not resumable(name):
+            raise Failure(f"{name} was interrupted by the emergency stop ({self.estop_reason}); "
+                          f"a relative motion is not resumed", ErrorCode.ESTOP)
+        return "held"
+
+    async def command_held(self, memory: dict) -> None:
+        """A motion held by the emergency stop: told, then issued again at the release (or failed when
+        a strategy hands it back with the way blocked: the task re-plans)."""
+        req, ctx = memory["request"], memory["ctx"]
+        name = req.action_name
+        self.record_structure(StructureEvent.MOTION_HELD, action=name, reason=self.estop_reason)
+        await ctx.feedback(Progress(text=f"held by the emergency stop ({self.estop_reason})", data={"paused": True}))
+        await self._estop_released.wait()
+        if self.fail_held is not None:
+            code, why = self.fail_held
+            raise Failure(f"{name}: {why}", code)
+        self.record_structure(StructureEvent.MOTION_RESUMED, action=name)
+
+    async def command_release(self, memory: dict) -> None:
+        """The device's lock freed: the command is done."""
+        req, ctx = memory["request"], memory["ctx"]
+        device = memory.pop("locked", None)
+        if device is not None:
+            self.locks.free(device, ctx.sender)
 
     async def _report_motion(self, req, ctx) -> None:
         """Progress informs of a motion, at its start and then every FEEDBACK_EVERY_S: the estimated

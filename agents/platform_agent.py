@@ -1,6 +1,10 @@
 """Platform Agent: users and tokens, service discovery and dispatch, Cloud Agent lifecycle
 (paper 000 sec. 5.3, fig. 6; paper 001 sec. 3).
 
+Its behaviour is fig. 6's FSM (agents/platform_fsm.py): s0 -> s1 for the agent, and one pass
+s1 -> s2 register | s3 interpret | s4 service | s5 create a_cloud | s6 destroy a_cloud -> s1 per
+request, served side by side by the responders.
+
 Every service request carries a token; a missing, unknown or expired one is refused before the
 service runs. Services are synchronous work (agents/services): the CPU-bound ones (pool.POOLED:
 vision, hazard checks, speech, path planning) run in the Platform's worker processes
@@ -30,6 +34,7 @@ from ontology.spawn import SpawnSpec
 from ontology import platform as P
 from ontology.registry import Done, actions
 from ontology.errors import ErrorCode
+from behaviours import BehaviourHost
 
 from . import platform_directory as D
 from .base import RappAgent
@@ -38,6 +43,8 @@ from .errors import Failure, Refusal, RequestError, RequestRefused
 from .process import AgentProcess, InProcessAgent, Limits, check_spawn_mode, spawn_agent, sweep_run_dirs
 from .runtime import WARM_EXTRA_IMPORTS
 from .responder import Responder
+from .passes import run_pass
+from .platform_fsm import CREATE_CLOUD, build_platform_fsm, build_request_fsm, route
 from .store_client import download_package
 from .identity import EphemeralAccounts, Identity, is_rapp_account, trace_refusal
 from .messages import bare
@@ -142,32 +149,58 @@ class PlatformAgent(RappAgent):
             self.service_pool.start()  # workers fork in the background
         if self.primary is not None:
             self._setup_replica()
-            return
-        await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
-        handlers = {"register_user": self.register_user, "login": self.login,
-                    "list_services": self.list_services, "register_robot": self.register_robot,
-                    "start_cloud_agent": self.start_cloud, "stop_cloud_agent": self.stop_cloud,
-                    "release_cloud_agents": self.release_clouds, "cloud_ready": self.cloud_ready,
-                    "ping": self.ping, "issue_app_token": self.issue_app_token,
-                    "verify_token": self.verify_token}
-        for name in self.services:
-            handlers[name] = self.run_service
-        responder = Responder(P.ONTOLOGY, handlers, check=self._check_token)
-        self.activate("platform-service", responder, responder.make_template())
-        directory = Responder(D.ONTOLOGY, {"platform_report": self.platform_report,
-                                           "list_platforms": self.list_platforms,
-                                           "lookup_token": self.lookup_token})
-        self.activate("platform-directory", directory, directory.make_template())
-        self._sweeper = asyncio.create_task(self._sweep_accounts(self.accounts.pending()))
+        else:
+            await asyncio.to_thread(sweep_run_dirs, self.workdir)  # what a crash left behind
+            self._handlers = {"register_user": self.register_user, "login": self.login,
+                              "list_services": self.list_services, "register_robot": self.register_robot,
+                              "stop_cloud_agent": self.stop_cloud,
+                              "release_cloud_agents": self.release_clouds, "cloud_ready": self.cloud_ready,
+                              "ping": self.ping, "issue_app_token": self.issue_app_token,
+                              "verify_token": self.verify_token, "platform_report": self.platform_report,
+                              "list_platforms": self.list_platforms, "lookup_token": self.lookup_token}
+            for name in self.services:
+                self._handlers[name] = self.run_service
+            # every request is one pass of fig. 6's request FSM (agents/platform_fsm.py), side by side
+            served = set(self._handlers) | CREATE_CLOUD  # s5's steps are the Platform's own (cloud_*)
+            responder = Responder(P.ONTOLOGY, {name: self._pass for name in actions(P.ONTOLOGY) if name in served},
+                                  check=self._check_token)
+            self.activate("platform-service", responder, responder.make_template())
+            directory = Responder(D.ONTOLOGY, {name: self._pass for name in
+                                               ("platform_report", "list_platforms", "lookup_token")})
+            self.activate("platform-directory", directory, directory.make_template())
+        self.activate("platform-fsm", BehaviourHost(build_platform_fsm(), {}))  # fig. 6: s0 -> s1
+
+    def platform_init(self) -> None:
+        """s0 of fig. 6: what a crashed earlier run left of the Cloud Agents' accounts goes."""
+        if self.primary is None:
+            self._sweeper = asyncio.create_task(self._sweep_accounts(self.accounts.pending()))
+
+    async def _pass(self, req, ctx):
+        """One request through fig. 6's states (agents/platform_fsm.py): s1 -> sX -> s1."""
+        state = route(req.action_name, by_core=ctx.token is not None and ctx.token.services is None)
+        memory = {"action": req.action_name, "request": req, "ctx": ctx}
+        try:
+            return await run_pass(self, build_request_fsm(state), memory, ctx.info.conversation_id)
+        finally:
+            if memory.get("admitted"):  # admitted (s4), never executed: a cancel came between
+                self.pending -= 1
+                self.served += 1
+
+    async def serve_request(self, memory: dict):
+        """The step of s2, s3, s6 (and s4 for what is no pooled service): the action's handler."""
+        return await self._handlers[memory["action"]](memory["request"], memory["ctx"])
 
     def _setup_replica(self) -> None:
-        """Only the stateless services; everything else is the primary's (refused with its name)."""
+        """Only the stateless services; everything else is the primary's (refused with its name, on
+        arrival: it never enters fig. 6's states here)."""
+        self._handlers = {"ping": self.ping, "list_services": self.list_services,
+                          "token_revoked": self.token_revoked}
+        self._handlers.update({name: self.run_service for name in D.REPLICATED if name in self.services})
         handlers = {name: self.primary_only for name in actions(P.ONTOLOGY)}
-        handlers.update({"ping": self.ping, "list_services": self.list_services})
-        handlers.update({name: self.run_service for name in D.REPLICATED if name in self.services})
+        handlers.update({name: self._pass for name in self._handlers if name != "token_revoked"})
         responder = Responder(P.ONTOLOGY, handlers, check=self._check_token)
         self.activate("platform-service", responder, responder.make_template())
-        directory = Responder(D.ONTOLOGY, {"token_revoked": self.token_revoked})
+        directory = Responder(D.ONTOLOGY, {"token_revoked": self._pass})
         self.activate("platform-directory", directory, directory.make_template())
         self._reporter = asyncio.create_task(self._report_loop())
 
@@ -301,14 +334,31 @@ class PlatformAgent(RappAgent):
 
     # -- services -------------------------------------------------------------------------------
     async def run_service(self, req, ctx):
+        """A service as one step (s3: a Core's command interpreted): admitted, then executed."""
+        memory = {"action": req.action_name, "request": req, "ctx": ctx}
+        await self.admit_service(memory)
+        return await self.execute_service(memory)
+
+    async def admit_service(self, memory: dict) -> None:
+        """s4's first step: past `max_pending` concurrent calls a new one is refused with a reason
+        rather than left unanswered (ping and list_services, no service's work, always pass)."""
+        if memory["action"] not in self.services:
+            return
+        if self.pending >= self.max_pending:
+            raise Refusal(f"platform busy: {self.pending} calls in progress, retry shortly", ErrorCode.BUSY)
+        self.pending += 1
+        memory["admitted"] = True
+
+    async def execute_service(self, memory: dict):
+        """s4's second step: the service's work, in the pool's processes or a worker thread."""
         from agents.services.context import ServiceContext
         from agents.services.errors import ServiceError
         from agents.services.pool import POOLED
 
-        if self.pending >= self.max_pending:
-            raise Refusal(f"platform busy: {self.pending} calls in progress, retry shortly", ErrorCode.BUSY)
+        req, ctx = memory["request"], memory["ctx"]
+        if not memory.get("admitted"):
+            return await self._handlers[memory["action"]](req, ctx)
         spec = self.services[req.action_name]
-        self.pending += 1
         call = ServiceContext(user=ctx.user, state=self.state)
         try:
             if self.service_pool is not None and req.action_name in POOLED:
@@ -317,6 +367,7 @@ class PlatformAgent(RappAgent):
         except ServiceError as e:
             raise Failure(str(getattr(e, "reason", e)), getattr(e, "code", ErrorCode.SERVICE_ERROR)) from None
         finally:
+            memory["admitted"] = False
             self.pending -= 1
             self.served += 1
 
@@ -401,7 +452,9 @@ class PlatformAgent(RappAgent):
             await asyncio.sleep(D.REPORT_S)
 
     # -- Cloud Agents -----------------------------------------------------------------------------
-    async def start_cloud(self, req: P.StartCloudAgent, ctx) -> P.CloudAgentReply:
+    async def cloud_download(self, memory: dict) -> None:
+        """A Cloud Agent for the Dynamic Agent that asks (s5 of fig. 6: download, build, start). Download: who may ask (its Dynamic Agent, once per run), then the package from the Store."""
+        req, ctx = memory["request"], memory["ctx"]
         owner = ctx.sender  # a Cloud Agent serves the agent that asked for it, nobody named in content
         if req.owner_jid and bare(req.owner_jid) != owner:
             raise Refusal(f"{owner} cannot start a Cloud Agent for {req.owner_jid}", ErrorCode.FORBIDDEN)
@@ -420,11 +473,21 @@ class PlatformAgent(RappAgent):
             raise Failure(f"cannot fetch {req.rapp} from the Store: {e.reason}", ErrorCode.STORE) from None
         if not info.manifest.get("cloud_entry_point"):
             raise Refusal(f"{req.rapp} has no Cloud Agent part", ErrorCode.NO_CLOUD_PART)
+        memory["owner"], memory["info"], memory["data"] = owner, info, data
+
+    async def cloud_build(self, memory: dict) -> None:
+        """s5, build: the package unpacked (checked again) into a run directory of its own."""
         from ontology.package import unpack_package
 
+        info = memory["info"]
         n = next(self._serial)
         workdir = self.workdir / f"{n:04d}-{info.name}"
-        await asyncio.to_thread(unpack_package, data, workdir / "package")
+        await asyncio.to_thread(unpack_package, memory.pop("data"), workdir / "package")
+        memory["workdir"] = workdir
+
+    async def cloud_start(self, memory: dict) -> P.CloudAgentReply:
+        """s5, start: its account and token, its process in the sandbox, until it says it serves."""
+        req, ctx, info, workdir, owner = (memory[k] for k in ("request", "ctx", "info", "workdir", "owner"))
         prefix = f"cloud-{info.name}".replace("_", "-")
         worker = self._cloud_worker()
         try:

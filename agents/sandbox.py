@@ -216,6 +216,8 @@ class Sandbox:
     mode: str = field(default_factory=default_mode)
     tmpfs_mb: int = 256  # /app/tmp and the sandbox root live in RAM: capped
     max_connections: int = 1  # XMPP connections a RApp process may hold at once (its agent's)
+    packages: tuple[str, ...] = PROJECT_PACKAGES  # the project's packages bound (a Store build's tests: more)
+    extra_binds: tuple[tuple[str, str, bool], ...] = ()  # (source, target, writable): a Store build's /dev/shm
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -296,9 +298,9 @@ class Sandbox:
         root = _project_root()
         out = [(p, p, False) for p in SYSTEM if os.path.isdir(p)]
         out += [(p, p, False) for p in _python_dirs() if not any(p.startswith(s + "/") for s in SYSTEM)]
-        out += [(str(root / pkg), str(root / pkg), False) for pkg in PROJECT_PACKAGES if (root / pkg).is_dir()]
+        out += [(str(root / pkg), str(root / pkg), False) for pkg in self.packages if (root / pkg).is_dir()]
         out += [(f"/dev/{d}", f"/dev/{d}", True) for d in DEVICES if os.path.exists(f"/dev/{d}")]
-        return out  # and the run's directory as /app: the process's cwd (agents/confine.py)
+        return out + list(self.extra_binds)  # and the run's directory as /app: the process's cwd (agents/confine.py)
 
 
 def open_run_file(path: Path, mode: str):

@@ -2,10 +2,24 @@
 
 Packages travel in base64 chunks (ontology/chunks.py): `download_info` then `download_chunk` per
 index; publishing sends `upload_chunk`s then `publish`. Repository calls run in a worker thread.
+
+Per-robot builds (paper 000 sec. 6.2; agents/store_build.py): a publish is answered at once, its
+builds queued, one per robot type the manifest declares; a builder task runs them one at a time,
+each the package's own tests in a sandbox of its own, in a process of its own (the event loop never
+waits on one). A version is listed for a type when its build for the type passed; a type whose
+build failed is refused with the reason, and every build's log is kept (`builds`, `build_log`).
+A package without tests is compiled only and listed "untested" (`require_tests=True`: refused).
+The Cores subscribed are told of a version when a type of theirs is listed. Builds queued or
+running when the Store stopped run at its next start. `build=False` (a scenario's Store, or one
+inside a build) builds nothing: every declared type is listed "untested".
 """
 from __future__ import annotations
 
 import asyncio
+import itertools
+import logging
+import os
+import shutil
 import time
 import uuid
 from pathlib import Path
@@ -23,6 +37,7 @@ from .identity import is_rapp_account, trace_refusal
 from .responder import Responder
 from .store_repository import StoreError, StoreRepository
 
+log = logging.getLogger("rapp.store")
 UPLOAD_TTL_S = 300.0
 MAX_SUBSCRIBERS = 1000
 MAX_UPLOADS = 32
@@ -32,6 +47,10 @@ def _summary(p) -> S.PackageSummary:
     return S.PackageSummary(**{k: getattr(p, k) for k in S.PackageSummary.model_fields})
 
 
+def _build(b) -> S.BuildInfo:
+    return S.BuildInfo(**b.model_dump())
+
+
 def _details(info) -> S.PackageDetails:
     return S.PackageDetails(summary=_summary(info), owner=info.owner, manifest=info.manifest,
                             signer_key_id=info.signer_key_id, versions=info.versions)
@@ -39,12 +58,22 @@ def _details(info) -> S.PackageDetails:
 
 class StoreAgent(RappAgent):
     def __init__(self, name: str = "store", data_dir: str | Path = "store-data", settings=None,
-                 require_signature: bool = False, platform: str = "platform"):
+                 require_signature: bool = False, platform: str = "platform", build: bool = True,
+                 require_tests: bool = False, sandbox=None, build_timeout_s: float | None = None):
         super().__init__(name, settings)
+        # never inside a build: a RApp's test that runs a whole system (scenarios.run_rapp) would build again
+        self.build = build and os.environ.get("RAPP_STORE_BUILD") != "1"
+        self.require_tests = require_tests
+        self._sandbox = sandbox  # None: the machine's best (made at the first build)
+        self.build_timeout_s = build_timeout_s
+        self._builds: asyncio.Queue[tuple[str, str, str]] = asyncio.Queue()
+        self._builder: asyncio.Task | None = None
+        self._build_serial = itertools.count(1)
         self.platform = self.settings.jid(platform)  # verifies download tokens; downloads freely
         self._verified: dict[tuple[str, str], float] = {}  # (token, sender) -> when verified
         self.subscribers: dict[str, str | None] = {}  # JID -> robot type it asked about
         self.repo = StoreRepository(data_dir, require_signature=require_signature)
+        self.build_dir = Path(data_dir) / "builds"  # each build's run directory, removed at its end
         self._uploads: dict[str, tuple[float, Reassembler]] = {}
         self._downloads: dict[tuple[str, str], tuple[float, list]] = {}
 
@@ -54,13 +83,17 @@ class StoreAgent(RappAgent):
             "list_packages": self.list_packages, "search": self.search, "info": self.info,
             "versions": self.versions, "download_info": self.download_info,
             "download_chunk": self.download_chunk, "upload_chunk": self.upload_chunk,
-            "publish": self.publish, "delete": self.delete,
+            "publish": self.publish, "delete": self.delete, "builds": self.builds, "build_log": self.build_log,
         }
         responder = Responder(S.ONTOLOGY, {k: _store_errors(v) for k, v in handlers.items()})
         self.activate("store-service", responder, responder.make_template())
         subscriptions = Responder(S.ONTOLOGY, {"subscribe_catalogue": self.subscribe},
                                   performative=Performative.SUBSCRIBE)
         self.activate("store-subscriptions", subscriptions, subscriptions.make_template())
+        await asyncio.to_thread(shutil.rmtree, self.build_dir, True)  # a stopped build's leftovers
+        for b in await self._repo(self.repo.unfinished_builds):  # what a stopped Store had not built
+            self._builds.put_nowait((b.name, b.version, b.robot_type))
+        self._builder = asyncio.create_task(self._build_loop(), name="store-builder")
 
     # -- subscriptions (FIPA subscribe): Cores learn of new and removed RApps at once -------
     async def subscribe(self, req: S.SubscribeCatalogue, ctx) -> Done:
@@ -77,8 +110,12 @@ class StoreAgent(RappAgent):
                 await self.notify(jid, note, ontology=S.ONTOLOGY, action="catalogue_changed")
 
     async def stop(self) -> None:
+        if self._builder is not None:
+            self._builder.cancel()  # its process group and control group killed (store_build.run_tests)
+            await asyncio.gather(self._builder, return_exceptions=True)
         await super().stop()
         self.repo.close()
+        await asyncio.to_thread(shutil.rmtree, self.build_dir, True)
 
     async def _repo(self, fn, *args, **kw):
         return await asyncio.to_thread(fn, *args, **kw)
@@ -126,7 +163,7 @@ class StoreAgent(RappAgent):
         return S.PackageList(packages=[_summary(p) for p in rows])
 
     async def info(self, req: S.Info, ctx) -> S.PackageDetails:
-        return _details(await self._repo(self.repo.info, req.name, req.version))
+        return await self._details(await self._repo(self.repo.info, req.name, req.version))
 
     async def versions(self, req: S.GetVersions, ctx) -> S.Versions:
         return S.Versions(name=req.name, versions=await self._repo(self.repo.versions, req.name))
@@ -210,10 +247,101 @@ class StoreAgent(RappAgent):
             data = entry[1].result()
         except ChunkError as e:
             raise Refusal(f"upload incomplete or corrupt: {e}", ErrorCode.BAD_CHUNK) from None
-        info = await self._repo(self.repo.publish, req.owner, data)
-        self.record_structure("publish", rapp=info.name, version=info.version, by=req.owner)
-        await self._tell_subscribers("published", info.name, [info.version], list(info.robot_types))
-        return _details(info)
+        builds = await asyncio.to_thread(self._first_builds, data)
+        info = await self._repo(self.repo.publish, req.owner, data, builds)
+        queued = [t for t, (state, _) in builds.items() if state == S.BuildState.QUEUED]
+        self.record_structure("publish", rapp=info.name, version=info.version, by=req.owner,
+                              builds={t: state for t, (state, _) in builds.items()})
+        for robot_type in queued:
+            self._builds.put_nowait((info.name, info.version, robot_type))
+        if info.robot_types:  # listed at once (nothing to run): the Cores of those types are told now
+            await self._tell_subscribers("published", info.name, [info.version], list(info.robot_types))
+        return await self._details(info)
+
+    async def _details(self, info) -> S.PackageDetails:
+        details = _details(info)
+        details.builds = [_build(b) for b in await self._repo(self.repo.builds, info.name, info.version)]
+        return details
+
+    def _first_builds(self, data: bytes) -> dict[str, tuple[str, str]]:
+        """Each declared type's build as the publish leaves it: queued (its tests run next), failed
+        (its sources do not compile), or untested (no tests, or this Store builds nothing)."""
+        from ontology.package import PackageError, read_package, unpack_package
+
+        from .store_build import compile_sources, has_tests
+
+        try:
+            pkg = read_package(data, max_size=self.repo.max_package_size, require_signature=self.repo.require_signature)
+        except (PackageError, TypeError):
+            return {}  # refused by the repository's own check, with its reason
+        types = pkg.manifest.robot_types
+        if not self.build:
+            return {t: (S.BuildState.UNTESTED, "this Store builds nothing (build=False)") for t in types}
+        scratch = self.build_dir / f"check-{uuid.uuid4().hex[:8]}"
+        try:
+            unpack_package(data, scratch / "package")
+            errors = compile_sources(scratch / "package")
+            tests = has_tests(scratch / "package")
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
+        if errors:
+            why = f"does not compile: {errors[0]}" + (f" (and {len(errors) - 1} more)" if len(errors) > 1 else "")
+            return {t: (S.BuildState.FAILED, why) for t in types}
+        if not tests:
+            if self.require_tests:
+                raise Refusal(f"{pkg.manifest.name} has no tests (tests/test_*.py): this Store builds and lists a "
+                              "package per robot type by its own tests", ErrorCode.INVALID_PACKAGE)
+            return {t: (S.BuildState.UNTESTED, "no tests (tests/test_*.py): compiled only") for t in types}
+        return {t: (S.BuildState.QUEUED, "") for t in types}
+
+    # -- builds (agents/store_build.py) ----------------------------------------------------------
+    async def _build_loop(self) -> None:
+        while True:
+            name, version, robot_type = await self._builds.get()
+            try:
+                await self._build_one(name, version, robot_type)
+            except asyncio.CancelledError:
+                raise
+            except Exception as e:  # noqa: BLE001 - one build's trouble never stops the others
+                log.exception("build of %s %s for %s failed", name, version, robot_type)
+                await self._repo(self.repo.set_build, name, version, robot_type, S.BuildState.FAILED,
+                                 f"the Store could not build it: {type(e).__name__}: {e}", ended=time.time())
+
+    async def _build_one(self, name: str, version: str, robot_type: str) -> None:
+        from ontology.package import unpack_package
+
+        from .sandbox import Sandbox
+        from .store_build import BUILD_TIMEOUT_S, run_tests
+
+        try:
+            dl = await self._repo(self.repo.download, name, version)
+        except StoreError:
+            return  # deleted meanwhile
+        started = time.time()
+        await self._repo(self.repo.set_build, name, version, robot_type, S.BuildState.BUILDING, started=started)
+        self.record_structure("build", rapp=name, version=version, robot_type=robot_type, state="building")
+        workdir = self.build_dir / f"{next(self._build_serial):04d}-{name}-{version}-{robot_type}"
+        try:
+            await asyncio.to_thread(unpack_package, dl.data, workdir / "package")
+            if self._sandbox is None:
+                self._sandbox = await asyncio.to_thread(Sandbox)
+            result = await run_tests(workdir / "package", robot_type, workdir, self._sandbox,
+                                     timeout_s=self.build_timeout_s or BUILD_TIMEOUT_S)
+        finally:
+            await asyncio.to_thread(shutil.rmtree, workdir, True)
+        await self._repo(self.repo.set_build, name, version, robot_type, result.state, result.reason,
+                         log=result.log, ended=time.time())
+        self.record_structure("build", rapp=name, version=version, robot_type=robot_type, state=result.state,
+                              reason=result.reason[:300], seconds=round(time.time() - started, 1))
+        if result.state == S.BuildState.PASSED:
+            await self._tell_subscribers("published", name, [version], [robot_type])
+
+    async def builds(self, req: S.Builds, ctx) -> S.BuildList:
+        return S.BuildList(builds=[_build(b) for b in await self._repo(self.repo.builds, req.name, req.version)])
+
+    async def build_log(self, req: S.BuildLog, ctx) -> S.BuildLogText:
+        text = await self._repo(self.repo.build_log, req.name, req.version, req.robot_type)
+        return S.BuildLogText(name=req.name, version=req.version, robot_type=req.robot_type, log=text)
 
     async def delete(self, req: S.Delete, ctx) -> S.Deleted:
         await self._check_owner(req.owner, req.password, ctx.sender)

@@ -1,7 +1,10 @@
 """Persistent repository of the RAPP Store: owners, robots and published RApp packages.
 
-Storage (all under ``data_dir``): SQLite ``store.db`` in WAL mode holding metadata, and the
-package archives as content-addressed blobs ``blobs/<sha256[:2]>/<sha256>``. Everything survives
+Storage (all under ``data_dir``): SQLite ``store.db`` in WAL mode holding metadata and each
+version's builds (one per robot type it declares: state, reason, log; agents/store_build.py), and
+the package archives as content-addressed blobs ``blobs/<sha256[:2]>/<sha256>``. A version is
+listed for a robot type only where its build for that type passed (or had nothing to run:
+"untested"). Everything survives
 a restart (open a new `StoreRepository` on the same directory). Methods are synchronous, short
 and thread-safe (one connection guarded by a lock), meant to be called via ``asyncio.to_thread``.
 Every refusal raises `StoreError` with a ``code``: "not_found", "duplicate", "forbidden",
@@ -75,8 +78,35 @@ CREATE TABLE IF NOT EXISTS owner_jids (
     jid TEXT NOT NULL
 );
 """
-# schema versions (agents/schema.py): step 1 is the layout from before versions were kept
-MIGRATIONS: tuple = (_SCHEMA,)
+_BUILDS = """
+CREATE TABLE builds (
+    name TEXT NOT NULL,
+    version TEXT NOT NULL,
+    robot_type TEXT NOT NULL,
+    state TEXT NOT NULL,
+    reason TEXT NOT NULL DEFAULT '',
+    log TEXT NOT NULL DEFAULT '',
+    started REAL,
+    ended REAL,
+    PRIMARY KEY (name, version, robot_type),
+    FOREIGN KEY (name, version) REFERENCES versions(name, version)
+)
+"""
+
+
+def _add_builds(db: sqlite3.Connection) -> None:
+    """Step 2: builds per robot type; what was published before is listed as it was (untested)."""
+    db.execute(_BUILDS)
+    for name, version, types in db.execute("SELECT name, version, robot_types FROM versions").fetchall():
+        for robot_type in json.loads(types):
+            db.execute("INSERT INTO builds (name, version, robot_type, state, reason) VALUES (?,?,?,?,?)",
+                       (name, version, robot_type, "untested", "published before the Store built packages"))
+
+
+# schema versions (agents/schema.py): step 1 is the layout from before versions were kept; 2 the builds
+MIGRATIONS: tuple = (_SCHEMA, _add_builds)
+LISTED_STATES = ("passed", "untested")  # ontology.store.LISTED
+MAX_LOG = 64 * 1024
 _VERSION_COLS = ("name, version, description, robot_types, keywords, phrases, manifest, sha256, size, "
                  "signer_key_id, signer_public_key, published_by, published_at, downloads")
 _ORDER = "major DESC, minor DESC, patch DESC"
@@ -129,6 +159,19 @@ class PackageInfo(PackageSummary):
     published_at: float
     downloads: int = 0
     versions: list[str] = []
+
+
+class Build(BaseModel):
+    """One version's build for one robot type."""
+
+    name: str
+    version: str
+    robot_type: str
+    state: str
+    reason: str = ""
+    started: float | None = None
+    ended: float | None = None
+    log_size: int = 0
 
 
 class Download(NamedTuple):
@@ -300,8 +343,10 @@ class StoreRepository:
         return [Robot(**dict(r)) for r in rows]
 
     # ------------------------------------------------------------------ packages
-    def publish(self, owner: str, package_bytes: bytes) -> PackageInfo:
-        """Validate and store a package for ``owner``.
+    def publish(self, owner: str, package_bytes: bytes,
+                builds: dict[str, tuple[str, str]] | None = None) -> PackageInfo:
+        """Validate and store a package for ``owner``, with its builds: robot type -> (state,
+        reason) for each type its manifest declares (default: all "untested", listed at once).
 
         Refusals: "forbidden" (unknown owner, name owned by someone else, owner has a public key
         and the package is not signed by it), "invalid_package" (any `PackageError`, message kept),
@@ -322,13 +367,13 @@ class StoreRepository:
         with self._lock:
             self._write_blob(pkg.sha256, bytes(package_bytes))
             try:
-                self._insert_version(owner, pkg)
+                self._insert_version(owner, pkg, builds or {t: ("untested", "") for t in m.robot_types})
             except BaseException:
                 self._drop_blob_if_unreferenced(pkg.sha256)
                 raise
         return self.info(m.name, m.version)
 
-    def _insert_version(self, owner: str, pkg: Package) -> None:
+    def _insert_version(self, owner: str, pkg: Package, builds: dict[str, tuple[str, str]]) -> None:
         m, now = pkg.manifest, time.time()
         with self._tx() as db:
             row = db.execute("SELECT owner FROM packages WHERE name=?", (m.name,)).fetchone()
@@ -346,25 +391,35 @@ class StoreRepository:
                 (m.name, m.version, m.description, json.dumps(m.robot_types), json.dumps(m.keywords),
                  json.dumps(m.phrases), m.model_dump_json(), pkg.sha256, pkg.size, pkg.key_id,
                  pkg.public_key, owner, now, 0, major, minor, patch))
+            for robot_type in m.robot_types:
+                state, reason = builds.get(robot_type, ("untested", ""))
+                db.execute("INSERT INTO builds (name, version, robot_type, state, reason) VALUES (?,?,?,?,?)",
+                           (m.name, m.version, robot_type, state, reason))
 
-    @staticmethod
-    def _summary(row: sqlite3.Row) -> PackageSummary:
+    def _summary(self, row: sqlite3.Row) -> PackageSummary:
+        """A version as listed: robot_types are those its builds passed (or had nothing to run)."""
+        listed = {r[0] for r in self._query(
+            f"SELECT robot_type FROM builds WHERE name=? AND version=? AND state IN {LISTED_STATES}",
+            (row["name"], row["version"]))}
         return PackageSummary(name=row["name"], version=row["version"], description=row["description"],
-                              robot_types=json.loads(row["robot_types"]), keywords=json.loads(row["keywords"]),
-                              phrases=json.loads(row["phrases"]), sha256=row["sha256"], size=row["size"])
+                              robot_types=[t for t in json.loads(row["robot_types"]) if t in listed],
+                              keywords=json.loads(row["keywords"]), phrases=json.loads(row["phrases"]),
+                              sha256=row["sha256"], size=row["size"])
 
     def _latest_rows(self, robot_type: str | None = None) -> list[sqlite3.Row]:
-        where, args = "", ()
+        listed = (f"EXISTS (SELECT 1 FROM builds b WHERE b.name=v.name AND b.version=v.version AND "
+                  f"b.state IN {LISTED_STATES}")
+        where, args = f"WHERE {listed})", ()
         if robot_type is not None:
-            where = "WHERE EXISTS (SELECT 1 FROM json_each(v.robot_types) WHERE value=?)"
+            where = f"WHERE {listed} AND b.robot_type=?)"
             args = (robot_type,)
         sql = (f"SELECT * FROM (SELECT v.*, ROW_NUMBER() OVER (PARTITION BY name ORDER BY {_ORDER}) AS rn "
                f"FROM versions v {where}) WHERE rn=1 ORDER BY name")
         return self._query(sql, args)
 
     def list(self, robot_type: str | None = None) -> list[PackageSummary]:
-        """Latest version of every package, sorted by name. With ``robot_type``: for each package,
-        its latest version supporting that robot type (packages never supporting it are omitted)."""
+        """Latest listed version of every package, sorted by name. With ``robot_type``: for each
+        package, its latest version built for that robot type (packages never built for it are omitted)."""
         if robot_type is not None and robot_type not in ROBOT_TYPES:
             raise StoreError(f"unknown robot type {robot_type!r}; known: {sorted(ROBOT_TYPES)}", ErrorCode.INVALID)
         return [self._summary(r) for r in self._latest_rows(robot_type)]
@@ -419,6 +474,44 @@ class StoreRepository:
                            published_at=row["published_at"], downloads=row["downloads"],
                            versions=self.versions(name))
 
+    # ------------------------------------------------------------------ builds
+    def set_build(self, name: str, version: str, robot_type: str, state: str, reason: str = "",
+                  log: str | None = None, started: float | None = None, ended: float | None = None) -> None:
+        """A build's new state (its log cut to its last MAX_LOG characters)."""
+        sets, args = ["state=?", "reason=?"], [state, reason[:2000]]
+        for column, value in (("log", None if log is None else log[-MAX_LOG:]), ("started", started), ("ended", ended)):
+            if value is not None:
+                sets.append(f"{column}=?")
+                args.append(value)
+        with self._tx() as db:
+            db.execute(f"UPDATE builds SET {', '.join(sets)} WHERE name=? AND version=? AND robot_type=?",
+                       (*args, name, version, robot_type))
+
+    def builds(self, name: str | None = None, version: str | None = None) -> list[Build]:
+        """Builds kept (of a package, of a version), newest versions first, then by robot type."""
+        where, args = [], []
+        for column, value in (("b.name", name), ("b.version", version)):
+            if value is not None:
+                where.append(f"{column}=?")
+                args.append(value)
+        rows = self._query(
+            "SELECT b.name, b.version, b.robot_type, b.state, b.reason, b.started, b.ended, length(b.log) AS log_size "
+            "FROM builds b JOIN versions v ON v.name=b.name AND v.version=b.version "
+            + (f"WHERE {' AND '.join(where)} " if where else "")
+            + f"ORDER BY b.name, v.major DESC, v.minor DESC, v.patch DESC, b.robot_type", tuple(args))
+        return [Build(**dict(r)) for r in rows]
+
+    def build_log(self, name: str, version: str, robot_type: str) -> str:
+        rows = self._query("SELECT log FROM builds WHERE name=? AND version=? AND robot_type=?",
+                           (name, version, robot_type))
+        if not rows:
+            raise StoreError(f"no build of {name} {version} for {robot_type!r}", ErrorCode.NOT_FOUND)
+        return rows[0][0]
+
+    def unfinished_builds(self) -> list[Build]:
+        """Builds queued, or begun by a Store that stopped before their end (to run again)."""
+        return [b for b in self.builds() if b.state in ("queued", "building")]
+
     def download(self, name: str, version: str | None = None) -> Download:
         """Manifest, archive bytes and sha256 of a version (latest by default); counts the download.
         "not_found" if absent, "corrupt" if the stored blob is missing or damaged."""
@@ -453,6 +546,7 @@ class StoreRepository:
                 if not rows:
                     raise StoreError(f"package {name!r} has no version {version!r}", ErrorCode.NOT_FOUND)
             for r in rows:
+                db.execute("DELETE FROM builds WHERE name=? AND version=?", (name, r[0]))
                 db.execute("DELETE FROM versions WHERE name=? AND version=?", (name, r[0]))
             if not db.execute("SELECT 1 FROM versions WHERE name=? LIMIT 1", (name,)).fetchone():
                 db.execute("DELETE FROM packages WHERE name=?", (name,))
@@ -461,5 +555,5 @@ class StoreRepository:
         return sorted((r[0] for r in rows), key=version_key, reverse=True)
 
 
-__all__ = ["StoreRepository", "StoreError", "Owner", "Robot", "PackageSummary", "PackageInfo", "Download",
+__all__ = ["StoreRepository", "StoreError", "Owner", "Robot", "PackageSummary", "PackageInfo", "Build", "Download",
            "hash_password"]

@@ -9,6 +9,7 @@
     rapp say TEXT [--run DIR] [--distance M] [--voice V]   (the owner speaks into a running `rapp run`)
     rapp package build DIR [-o OUT] [--key KEY.pem] | rapp package keygen KEY.pem
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
+    rapp store builds [NAME] | log NAME --robot-type T [--version V] | serve [--port P]   (builds; a page)
     rapp platform upload-home --house H --user U --password P
     rapp trace show|export|html FILE [...]      (rapp trace FILE = show: a summary; --view, --limit)
     rapp trace export --format mcap RUN_DIR [-o FILE] [--no-frames]   (run.mcap of a run folder)
@@ -88,19 +89,20 @@ def _scenario_list() -> str:
 def cmd_test(a, rest: list[str]) -> int:
     """A RApp's tests with the base install (pytest and pytest-asyncio are dependencies of the
     project): its own rootdir, no configuration of the checkout it may sit in, async tests run
-    without marks, nothing cached into the RApp's folder."""
+    without marks, nothing cached into the RApp's folder; as the Store's build runs them
+    (agents/store_build.py), `--robot` for one robot type (RAPP_ROBOT_TYPE)."""
     import os
 
     import pytest
 
+    from agents.store_build import pytest_args
+
     target = Path(a.dir)
     if not target.exists():
         raise CliError(f"no RApp folder {target}")
-    tests = target / "tests" if (target / "tests").is_dir() else target
-    args = [str(tests), "--rootdir", str(target if target.is_dir() else target.parent), "-c", os.devnull,
-            "-p", "no:cacheprovider", "-o", "asyncio_mode=auto", "-o", "asyncio_default_fixture_loop_scope=function",
-            "-o", "asyncio_default_test_loop_scope=function", *rest]
-    return int(pytest.main(args))
+    if a.robot:
+        os.environ["RAPP_ROBOT_TYPE"] = a.robot
+    return int(pytest.main([*pytest_args(target), *rest]))
 
 
 # -- package ----------------------------------------------------------------------------------
@@ -184,6 +186,11 @@ def cmd_store(a) -> int:
             await client.request(store, S.RegisterOwner(owner=a.owner, password=a.password))
             d = await publish_package(client, store, a.owner, a.password, Path(a.target).read_bytes())
             print(f"published {d.summary.name} {d.summary.version} ({d.summary.size} bytes)")
+            builds = d.builds if a.no_wait else await _wait_for_builds(client, store, d, a.build_timeout)
+            for b in builds:
+                print(f"  {b.robot_type:10} {b.state:9} {b.reason}".rstrip())
+            if any(b.state == S.BuildState.FAILED for b in builds):
+                print(f"  logs: rapp store log {d.summary.name} --version {d.summary.version} --robot-type TYPE")
         elif a.action == "list":
             reply = await client.request(store, S.ListPackages(robot_type=a.robot_type))
             for p in reply.packages:
@@ -194,13 +201,26 @@ def cmd_store(a) -> int:
             print(f"  {d.summary.description}")
             print(f"  robots: {', '.join(d.summary.robot_types)}; keywords: {', '.join(d.summary.keywords)}")
             print(f"  sha256 {d.summary.sha256}; signed by {d.signer_key_id or 'nobody'}")
+        elif a.action == "builds":
+            reply = await client.request(store, S.Builds(name=a.target, version=a.version))
+            for b in reply.builds:
+                print(f"{b.name:24} {b.version:10} {b.robot_type:10} {b.state:9} {b.reason}".rstrip())
+        elif a.action == "log":
+            if not a.robot_type:
+                raise CliError("store log needs --robot-type")
+            version = a.version or (await client.request(store, S.Info(name=a.target))).summary.version
+            reply = await client.request(store, S.BuildLog(name=a.target, version=version, robot_type=a.robot_type))
+            print(reply.log, end="" if reply.log.endswith("\n") else "\n")
+        elif a.action == "serve":
+            from scenarios.store_page import serve_forever
+            await serve_forever(client, store, host=a.host, port=a.port)
         elif a.action == "remove":
             d = await client.request(store, S.Delete(owner=a.owner, password=a.password, name=a.target,
                                                      version=a.version))
             print(f"removed {d.name} {', '.join(d.versions)}")
         return 0
 
-    if a.action in ("publish", "info", "remove") and not a.target:
+    if a.action in ("publish", "info", "remove", "log") and not a.target:
         raise CliError(f"store {a.action} needs a target")
     if a.action in ("publish", "remove"):  # owner operations come from the owner's own XMPP account
         if not (a.owner and a.password):
@@ -211,6 +231,26 @@ def cmd_store(a) -> int:
         except AgentStartError as e:
             raise CliError(f"the XMPP server refused owner {a.owner!r} (wrong password?): {e}") from None
     return asyncio.run(_with_client(run))
+
+
+async def _wait_for_builds(client, store: str, details, timeout_s: float) -> list:
+    """The version's builds once none is queued or running (or as they are after `timeout_s`),
+    with a line on stderr whenever one ends."""
+    import time
+
+    from ontology import store as S
+
+    deadline, told = time.monotonic() + timeout_s, set()
+    while True:
+        reply = await client.request(store, S.Builds(name=details.summary.name, version=details.summary.version))
+        for b in reply.builds:
+            if b.state not in (S.BuildState.QUEUED, S.BuildState.BUILDING) and b.robot_type not in told:
+                told.add(b.robot_type)
+                print(f"  built for {b.robot_type}: {b.state}", file=sys.stderr, flush=True)
+        if all(b.state not in (S.BuildState.QUEUED, S.BuildState.BUILDING) for b in reply.builds) \
+                or time.monotonic() > deadline:
+            return reply.builds
+        await asyncio.sleep(1.0)
 
 
 # -- platform ---------------------------------------------------------------------------------
@@ -268,13 +308,15 @@ def cmd_trace(argv: list[str]) -> int:
                    f"{', '.join(tr.ROLES)}), a name (core-nao1) or a JID")
     p.add_argument("--conversation", action="append", help="only this conversation id (prefix ok)")
     if action == "show":
-        p.add_argument("--view", choices=["summary", "table", "sequence", "both"], default="summary",
-                       help="summary (default), the messages as a table, as a sequence diagram, or both")
+        p.add_argument("--view", choices=["summary", "table", "sequence", "both", "fsm"], default="summary",
+                       help="summary (default), the messages as a table, as a sequence diagram, or both; fsm: "
+                            "each agent's FSM path and its request passes (fig. 5's s9, fig. 6)")
         p.add_argument("--limit", type=int, default=200, metavar="N",
                        help="table and sequence: the first N messages and records (default 200; 0: all)")
     if action == "export":
-        p.add_argument("--format", choices=["mermaid", "json", "text", "mcap"], default="mermaid",
-                       help="mcap: the whole run folder (FILE: the folder or its trace.jsonl) as an MCAP file for "
+        p.add_argument("--format", choices=["mermaid", "json", "text", "states", "mcap"], default="mermaid",
+                       help="mermaid: a sequence diagram; states: each agent's FSM as a Mermaid state diagram; "
+                            "mcap: the whole run folder (FILE: the folder or its trace.jsonl) as an MCAP file for "
                             "Foxglove or Lichtblick (docs/recordings.md; default output RUN_DIR/run.mcap)")
         p.add_argument("--no-frames", action="store_true", help="mcap: without the camera's frames")
     if action in ("export", "html"):
@@ -294,6 +336,10 @@ def cmd_trace(argv: list[str]) -> int:
         if a.view == "summary":
             print(tr.summary_text(records, Path(a.file).name))
             return 0
+        if a.view == "fsm":
+            from scenarios.fsm_view import fsm_text
+            print(fsm_text(records))
+            return 0
         shown, more = tr.limit_items(records, a.limit)
         if a.view in ("table", "both"):
             print(tr.table(shown))
@@ -304,7 +350,9 @@ def cmd_trace(argv: list[str]) -> int:
         return 0
     if action == "export":
         import json
+        from scenarios.fsm_view import fsm_mermaid
         text = {"mermaid": lambda: tr.mermaid(records), "text": lambda: tr.sequence_text(records),
+                "states": lambda: fsm_mermaid(records),
                 "json": lambda: json.dumps(records, indent=1)}[a.format]()
         if a.output:
             Path(a.output).write_text(text)
@@ -434,6 +482,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "as `pip install -e .` installed it: async tests need no mark, the checkout's "
                                    "pytest configuration is not used. Options after DIR go to pytest (-k, -x, -q).")
     t.add_argument("dir", help="the RApp's folder (as `rapp new` made it)")
+    t.add_argument("--robot", choices=["nao", "elektron"], help="the robot type its tests run for (RAPP_ROBOT_TYPE), "
+                                                                 "as the Store's build runs them once per type")
 
     n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)",
                        description="Create a RApp folder to start from: a manifest, a task with a two-state FSM, "
@@ -455,12 +505,19 @@ def build_parser() -> argparse.ArgumentParser:
     st = sub.add_parser("store", help="talk to the Store Agent on the configured XMPP server",
                         description="Publish, list, describe or remove RApp packages in the Store Agent on the "
                                     "configured XMPP server (RAPP_XMPP_*; docs/deployment.md).")
-    st.add_argument("action", choices=["publish", "list", "info", "remove"], help="what to do")
+    st.add_argument("action", choices=["publish", "list", "info", "remove", "builds", "log", "serve"],
+                    help="what to do (builds: each version's build per robot type; log: one build's log; serve: "
+                         "a page for developers listing packages, versions, builds and logs)")
     st.add_argument("target", nargs="?", help="package file (publish) or package name")
     st.add_argument("--owner", help="publish, remove: the Store owner's name (their own XMPP account)")
     st.add_argument("--password", help="publish, remove: the owner's password")
-    st.add_argument("--version", help="remove: only this version (default: every version)")
-    st.add_argument("--robot-type", help="list: only packages for this robot type")
+    st.add_argument("--version", help="remove: only this version (default: every version); builds, log: this version")
+    st.add_argument("--robot-type", help="list: only packages for this robot type; log: the build's robot type")
+    st.add_argument("--no-wait", action="store_true", help="publish: do not wait for the builds")
+    st.add_argument("--build-timeout", type=float, default=1800.0, metavar="S",
+                    help="publish: seconds to wait for the builds (default 1800)")
+    st.add_argument("--host", default="127.0.0.1", help="serve: address (default 127.0.0.1: this machine only)")
+    st.add_argument("--port", type=int, default=8780, help="serve: port (default 8780; 0: any free one)")
     st.add_argument("--store", default="store", help="the Store Agent's name or JID")
 
     pl = sub.add_parser("platform", help="talk to the Platform Agent as a robot owner",

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 from enum import StrEnum
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field
 
@@ -31,6 +31,13 @@ class TaskStage(StrEnum):
     DOWNLOAD = "download"  # the RApp could not be fetched or checked (s5)
     START = "start"  # its Dynamic Agent did not start (s6)
     RUN = "run"  # it ran and ended in any way (s8-s10)
+
+
+class TaskTrigger(StrEnum):
+    """What started a task (paper 000 sec. 7: "upon request from the user or executing a scheduled task")."""
+
+    COMMAND = "command"  # the owner's command, said or written
+    SCHEDULED = "scheduled"  # a schedule the Core keeps came due (agents/scheduler.py)
 
 
 class ReportRecord(Content):
@@ -68,6 +75,8 @@ class TaskRecord(Content):
     outputs: str | None = Field(None, description="the Core's directory of the RApp's files (Task.outputs)")
     started: float | None = Field(None, description="when its Dynamic Agent was spawned (s since the epoch)")
     ended: float = Field(description="when the Core recorded its end (s since the epoch)")
+    trigger: TaskTrigger = Field(TaskTrigger.COMMAND, description="what started it")
+    schedule_id: int | None = Field(None, description="the schedule it ran for (trigger scheduled)")
 
     def fitted(self, budget: int = RECORD_BUDGET) -> "TaskRecord":
         """This record, its earliest reports left out (and counted) until its JSON fits `budget` characters."""
@@ -79,6 +88,39 @@ class TaskRecord(Content):
         if not drop:
             return self
         return self.model_copy(update={"reports": self.reports[drop:], "reports_omitted": self.reports_omitted + drop})
+
+
+class ScheduleRecord(Content):
+    """A schedule the Core keeps (agents/scheduler.py): a RApp to start at a time, once or every day."""
+
+    id: int
+    robot_id: str
+    rapp: str
+    params: dict[str, str] = {}
+    command: str = Field("", description="the owner's words that made it")
+    kind: Literal["once", "daily"]
+    time_of_day: str | None = Field(None, description="daily: HH:MM, the robot's local time")
+    due: float = Field(description="its next start (s since the epoch, the robot's clock)")
+    window_s: float = Field(description="how long its task may run (the RApp's time limit): what clashes with it")
+
+
+class ScheduleEvent(StrEnum):
+    KEPT = "kept"  # a schedule made
+    REFUSED = "refused"  # one the Core cannot keep, with the reason
+    CANCELLED = "cancelled"  # one forgotten at the owner's word
+    MISSED = "missed"  # one that came due while the robot could not start it (busy, stopped)
+    LISTED = "listed"  # the schedules kept, as asked
+
+
+@action("schedule_changed", ontology=ONTOLOGY, reply=Done, group="task")
+class ScheduleChanged(Action):
+    """One way, to the task subscribers: the Core's schedules changed (or were refused a change)."""
+
+    robot_id: str
+    event: ScheduleEvent
+    schedules: list[ScheduleRecord] = []  # the schedules it concerns (kept, cancelled, missed, listed)
+    reason: str = ""  # refused, missed: why
+    command: str = ""  # the owner's words
 
 
 @action("subscribe_tasks", ontology=ONTOLOGY, reply=Done, group="task")

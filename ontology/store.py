@@ -1,6 +1,8 @@
-"""Store Agent messages: owners and robots, publishing, listing, search, download in chunks."""
+"""Store Agent messages: owners and robots, publishing, listing, search, download in chunks, and the
+per-robot builds of what is published (agents/store_build.py)."""
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Literal, Any
 
 from pydantic import Field
@@ -25,12 +27,48 @@ class PackageList(Content):
     packages: list[PackageSummary]
 
 
+class BuildState(StrEnum):
+    """A version's build for one robot type (paper 000 sec. 6.2: the Store builds each RApp per robot)."""
+
+    QUEUED = "queued"  # published, its build not begun
+    BUILDING = "building"  # its tests run in the sandbox for the type
+    PASSED = "passed"  # they passed: listed for the type
+    FAILED = "failed"  # they failed (or it does not compile): not listed for the type, with the reason
+    UNTESTED = "untested"  # no tests (or the Store builds nothing): compiled only, listed for the type
+
+
+LISTED = (BuildState.PASSED, BuildState.UNTESTED)  # the states a version is offered to a robot type in
+
+
+class BuildInfo(Content):
+    name: str
+    version: str
+    robot_type: str
+    state: BuildState
+    reason: str = ""  # failed: why the type was refused; untested: why nothing ran
+    started: float | None = None
+    ended: float | None = None
+    log_size: int = 0  # characters of its log kept (`build_log`)
+
+
+class BuildList(Content):
+    builds: list[BuildInfo]
+
+
+class BuildLogText(Content):
+    name: str
+    version: str
+    robot_type: str
+    log: str
+
+
 class PackageDetails(Content):
     summary: PackageSummary
     owner: str
     manifest: dict[str, Any]
     signer_key_id: str | None = None
     versions: list[str] = []
+    builds: list[BuildInfo] = []  # this version's, one per robot type its manifest declares
 
 
 class DownloadInfo(Content):
@@ -138,6 +176,21 @@ class Delete(Action):
     password: str
     name: str
     version: str | None = None
+
+
+@action("builds", ontology=ONTOLOGY, reply=BuildList, group="builds", idempotent=True)
+class Builds(Action):
+    """Every build the Store keeps (of one package, or of all; of one version, or of all)."""
+
+    name: str | None = None
+    version: str | None = None
+
+
+@action("build_log", ontology=ONTOLOGY, reply=BuildLogText, group="builds", idempotent=True)
+class BuildLog(Action):
+    name: str
+    version: str
+    robot_type: str
 
 
 @action("subscribe_catalogue", ontology=ONTOLOGY, reply=Done, group="catalogue")

@@ -9,7 +9,8 @@ records of no agent, `agent` (the writer's address). The kinds:
   agent      event=started|stopped|start-failed|disconnected|reconnected
   behaviour  event=activated|deactivated, behaviour
   structure  event=StructureEvent (below), then the event's own fields (rapp, dynamic, cloud, ...)
-  state      event=enter, fsm, state (FSM states of embodied behaviours)
+  state      event=enter, fsm, state (FSM states of embodied behaviours); conversation_id on the
+             states of a request's own pass (the Platform's fig. 6 request FSM, the Core's s9)
   timeout    peer, action, conversation_id, timeout_s (a request not answered in time)
   retry      peer, action, attempt (an idempotent request sent again)
   resend     peer, conversation_id (a request sent again after reconnecting)
@@ -86,12 +87,20 @@ class StructureEvent(StrEnum):
     MOTION_RESUMED = "motion-resumed"  # ... and was (re-)issued after it
     STRATEGY = "strategy"  # a reactive strategy of the Core (phase start/end; agents/core_strategies.py)
     SAFETY_INCIDENT = "safety-incident"  # the safety stops at one place are over (told to the owner in one line)
+    # the Core's schedules (agents/scheduler.py)
+    SCHEDULE_KEPT = "schedule-kept"  # a schedule made at the owner's word
+    SCHEDULE_REFUSED = "schedule-refused"  # ... or refused, with the reason
+    SCHEDULE_CANCELLED = "schedule-cancelled"  # schedules forgotten at the owner's word
+    SCHEDULE_LISTED = "schedule-listed"  # the schedules told to the owner
+    SCHEDULE_DUE = "schedule-due"  # a schedule's time came: its RApp starts (trigger "scheduled")
+    SCHEDULE_MISSED = "schedule-missed"  # its time came while the robot could not start it
     # a Dynamic Agent's plan monitor (rapps/sdk/monitor.py)
     PLAN_FAILED = "plan-failed"  # an expectation of the running plan failed: the task re-plans
     OBSTACLE_MARKED = "obstacle-marked"  # an obstacle entered into the Platform's temporary layer
     OBSTACLE_CLEARED = "obstacle-cleared"  # ... and taken out, seen free again
     # the Store
     PUBLISH = "publish"  # a package published
+    BUILD = "build"  # a published version's build for one robot type began or ended (agents/store_build.py)
     REFUSED = "refused"  # an operation refused to a caller without the right (Core, Store, Platform, a sandbox)
     REFUSALS = "refusals"  # what a RApp run was refused, told to its owner at its end (the Core)
     LOGIN_FAILED = "login-failed"  # a failed SASL login (the embedded server)
@@ -196,6 +205,7 @@ class StateRecord(_Record):
     event: Literal["enter"]
     fsm: str
     state: str
+    conversation_id: str = ""  # the request whose pass entered it ("" for an agent's own FSM)
 
 
 class TimeoutRecord(_Record):

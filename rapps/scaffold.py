@@ -79,8 +79,10 @@ class {cls}Cloud(CloudService):
 '''
 
 TEST = '''\
-"""Runs {name} on the simulated robot: `rapp test` on its folder, or `pytest {rel}`."""
+"""Runs {name} on the simulated robot: `rapp test` on its folder, or `pytest {rel}`. The Store runs it
+once per robot type of the manifest (RAPP_ROBOT_TYPE) and lists the RApp for the types that pass."""
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -88,11 +90,12 @@ import pytest
 from scenarios.run_rapp import run_rapp
 
 HERE = Path(__file__).resolve().parent.parent
+ROBOT = os.environ.get("RAPP_ROBOT_TYPE", "nao")  # `rapp test DIR --robot elektron`; the Store's build sets it
 pytestmark = pytest.mark.asyncio  # pytest-asyncio runs it (`rapp test DIR` needs no mark)
 
 
-async def test_{pkg}_runs_on_a_simulated_nao(tmp_path):
-    result = await run_rapp(HERE, "nao", "small", 1, None, tmp_path, timeout_s=120)
+async def test_{pkg}_runs_on_a_simulated_robot(tmp_path):
+    result = await run_rapp(HERE, ROBOT, "small", 1, None, tmp_path, timeout_s=120)
     assert result["ok"], result["end"]
     assert any("{name} done" in r["text"] for r in result["reports"])
     assert json.loads((tmp_path / "result.json").read_text())["ok"]

@@ -5,6 +5,7 @@ Cloud Agent) walk the robot to each door and lamp and report; the run is scored 
     result = await run_hazard_detection("nao", seed=1, house="house", out_dir="out/")
     python -m scenarios.hazard --robot elektron --seed 3 --house small --json result.json
     python -m scenarios.hazard --robot nao --house generated --seed 5   # the house generated from seed 5
+    rapp run hazard-detection --scheduled            # started by a schedule (sec. 7), not by a command
 
 The RApp's findings come as data: each hazard's report carries a HazardReport (`data["hazard"]`), and
 the Core tells the owner's client every report and the task's end as typed records
@@ -34,6 +35,7 @@ from .runner import Owner, Run, RunInterrupted, check_interrupted, files_written
 
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
 COMMAND = "check the hazards"
+SCHEDULE_LEAD_S = 120.0  # --scheduled: the robot's clock starts this long before the time written
 ROBOTS = ("nao", "elektron")
 
 
@@ -86,13 +88,17 @@ def finished(run: Run, owner: Owner) -> bool:
 async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "house", json_path=None,
                                out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0,
                                progress: bool = False, disturbances=None, during=None,
-                               live: bool | None = None, record: bool = True, frames: bool = True) -> dict:
+                               live: bool | None = None, record: bool = True, frames: bool = True,
+                               scheduled: str | None = None) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
     result also counts the robot's contacts with people and objects and, from the trace's structure
     records, the Core's reactive strategies and the plan monitor's failed plans (replans). `record`:
-    the run's recording and run.mcap (`frames`: with the camera's frames; docs/recordings.md)."""
+    the run's recording and run.mcap (`frames`: with the camera's frames; docs/recordings.md).
+    `scheduled` ("22:00"): the owner writes "check the hazards every day at 22:00" at the start
+    instead of the command; the robot's simulated clock reads SCHEDULE_LEAD_S before it, and the
+    Core starts the RApp when that time comes (agents/scheduler.py)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances)
@@ -101,6 +107,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                 frames_dir=out / "frames")
         home = home_description(world, house, out)
         owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home)
+        if scheduled:
+            owner.command, owner.deliver, owner.core_kw = schedule_owner(world, scheduled)
         run = Run(out, world, RAPP_DIR, [owner], settings=settings,
                   platform_kw={"services_state": ServiceState(work_dir=out / "services")},
                   record=record, frames=frames, grid=home_map(world, house))
@@ -117,6 +125,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 "max_tracking_error_m": finite(recorder.tracking_error()),
                 "duration_sim_s": round(run.sim_s, 2), "duration_wall_s": round(run.wall_s, 2),
                 "finished": finished(run, owner), "end": run.end_text(owner),
+                "trigger": owner.record.trigger.value if owner.record is not None else None,
                 "ok": run.ok(owner), "reason": run.reason(owner),
                 "routes_blocked": [r.model_dump() for r in found if r.type == "route"],
                 "person_contacts": world.person_contacts(), "object_contacts": world.object_contacts(),
@@ -138,6 +147,33 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         world.close()
     check_interrupted(result)
     return result
+
+
+def schedule_owner(world, at: str):
+    """(command, deliver, core_kw) of an owner who schedules the check at `at` (HH:MM, the robot's
+    local time) instead of asking for it: the Core's clock is the world's, starting SCHEDULE_LEAD_S
+    before `at` today, and runs ahead while the Core waits (agents/scheduler.py WorldClock)."""
+    from datetime import datetime, timedelta
+
+    from agents.scheduler import WorldClock
+    from ontology.results import ScheduleEvent
+
+    try:
+        hour, minute = (int(x) for x in at.split(":"))
+        first = datetime.now().astimezone().replace(hour=hour, minute=minute, second=0, microsecond=0)
+    except ValueError:
+        raise ValueError(f"--scheduled takes a time of day as HH:MM, not {at!r}") from None
+    clock = WorldClock(world, first - timedelta(seconds=SCHEDULE_LEAD_S), fast_forward=True)
+    command = f"{COMMAND} every day at {hour:02d}:{minute:02d}"
+
+    async def deliver(owner: Owner) -> None:
+        user, start = owner.handle.user, len(owner.handle.user.schedules)
+        await user.say(owner.handle.core.address, command)
+        told = await user.schedule_change(60, start)
+        if told.event != ScheduleEvent.KEPT:
+            raise RuntimeError(f"the Core did not keep the schedule ({told.event}): {told.reason}")
+
+    return command, deliver, {"clock": clock}
 
 
 def monitoring(records: list[dict]) -> dict:
@@ -165,7 +201,8 @@ def summary(result: dict) -> str:
     lines = [f"hazard detection: robot {result['robot']} seed {result['seed']}: {verdict}, "
              f"localization {cm(result['localization_error_m'])}, "
              f"tracking {cm(result['max_tracking_error_m'])}, "
-             f"{result['duration_sim_s']:.0f} s sim / {result['duration_wall_s']:.0f} s wall"]
+             f"{result['duration_sim_s']:.0f} s sim / {result['duration_wall_s']:.0f} s wall"
+             + (" (started by its schedule)" if result.get("trigger") == "scheduled" else "")]
     if not result["ok"]:
         lines.append(f"  {result['reason']}")
     for h in result["hazards"]:
@@ -200,6 +237,9 @@ def main(argv: list[str] | None = None) -> int:
                     "then compare the hazards' reports and the trajectory with it (docs/recordings.md)")
     ap.add_argument("--tolerance", type=float, default=None, metavar="M",
                     help="--replay: how far (m) the trajectories may be apart (default 0.25)")
+    ap.add_argument("--scheduled", nargs="?", const="22:00", metavar="HH:MM",
+                    help="started by a schedule, not a command: the owner writes 'check the hazards every day at "
+                         "HH:MM' (default 22:00) and the robot's simulated clock comes to it")
     args = ap.parse_args(argv)
     if args.replay:
         from .resim import ResimError, recorded_result
@@ -214,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         result = main_loop(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
                                                 args.rtf, timeout_s=args.timeout, progress=not args.quiet,
                                                 live=False if args.plain else None, record=not args.no_record,
-                                                frames=not args.no_frames))
+                                                frames=not args.no_frames, scheduled=args.scheduled))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

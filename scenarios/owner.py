@@ -18,7 +18,7 @@ from agents.stanza import ACL_NS, message_xml, read_message
 from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import ContentError, parse_json, validate
-from ontology.results import SubscribeTasks, TaskEnded, TaskRecord, TaskReported
+from ontology.results import ScheduleChanged, SubscribeTasks, TaskEnded, TaskRecord, TaskReported
 from xmpp_server.chat import ChatUser
 
 _ACL = "{%s}acl" % ACL_NS
@@ -29,6 +29,7 @@ class OwnerClient(ChatUser):
         super().__init__(*args, **kw)
         self.reported: list[TaskReported] = []  # every report told, in order
         self.ended: list[TaskRecord] = []  # every command's end, in order
+        self.schedules: list[ScheduleChanged] = []  # every change of the Core's schedules told, in order
         self.bad: list[str] = []  # ACL content that did not validate (kept, never fatal)
         self._answers: dict[str, asyncio.Future] = {}  # conversation -> the answer to our subscribe
         self._news = asyncio.Event()
@@ -48,6 +49,8 @@ class OwnerClient(ChatUser):
                 self.reported.append(validate(TaskReported, parse_json(acl.body)))
             elif info.action == TaskEnded.action_name:
                 self.ended.append(validate(TaskEnded, parse_json(acl.body)).record)
+            elif info.action == ScheduleChanged.action_name:
+                self.schedules.append(validate(ScheduleChanged, parse_json(acl.body)))
             else:
                 return
         except ContentError as e:
@@ -69,6 +72,21 @@ class OwnerClient(ChatUser):
             except Exception:  # noqa: BLE001 - a malformed refusal is still a refusal
                 why = body or ""
             raise RuntimeError(f"{core} refused to tell its task records ({performative}): {why}")
+
+    async def schedule_change(self, timeout: float, start: int = 0) -> ScheduleChanged:
+        """The first change of the Core's schedules told from index `start` of `schedules` on."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while len(self.schedules) <= start:
+            remaining = deadline - loop.time()
+            if remaining <= 0:
+                raise asyncio.TimeoutError(f"no schedule change within {timeout:g} s")
+            self._news.clear()
+            try:
+                await asyncio.wait_for(self._news.wait(), remaining)
+            except asyncio.TimeoutError:
+                pass
+        return self.schedules[start]
 
     async def task_end(self, timeout: float, start: int = 0,
                        accept: Callable[[TaskRecord], bool] = lambda r: True) -> TaskRecord:

@@ -65,9 +65,17 @@ def is_shown_record(rec: dict) -> bool:
     return True
 
 
+def request_pass(rec: dict) -> bool:
+    """A state of a request's own pass (the Platform's fig. 6 FSM, the Core's s9): not the run's to show."""
+    fsm = str(rec.get("fsm", ""))
+    return bool(rec.get("conversation_id")) or fsm == "platform" or fsm.startswith(("platform.", "core."))
+
+
 def describe(rec: dict) -> str | None:
     """One line for a trace record worth showing, else None."""
     kind, agent = rec.get("kind"), _short(rec.get("agent"))
+    if kind == RecordKind.STATE and request_pass(rec):
+        return None
     if kind == RecordKind.STATE and rec.get("event") == "enter":
         who = "core" if rec.get("fsm") == "core" else f"rapp {rec.get('fsm')}"
         return f"{who}: {rec.get('state')}"
@@ -100,6 +108,8 @@ class RunView:
 
     def apply(self, rec: dict) -> None:
         kind = rec.get("kind")
+        if kind == RecordKind.STATE and request_pass(rec):
+            return
         if kind == RecordKind.STATE and rec.get("event") == "enter":
             if rec.get("fsm") == "core":
                 self.core = str(rec.get("state"))
@@ -200,6 +210,8 @@ class PlainLines:
 
     def batch(self, records: list[dict], now: float) -> None:
         for rec in records:
+            if rec.get("kind") == RecordKind.STATE and request_pass(rec):
+                continue
             if rec.get("kind") == RecordKind.STATE and rec.get("event") == "enter" and rec.get("fsm") == "core":
                 self.core_chain.append(str(rec.get("state")))
                 continue

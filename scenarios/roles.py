@@ -54,7 +54,8 @@ def data_dir(role: str, given: str | None) -> Path:
 async def _store(a, settings) -> None:
     from agents.store_agent import StoreAgent
     await _run_until_stopped([StoreAgent(a.name or "store", data_dir("store", a.data), settings,
-                                         require_signature=a.require_signature, platform=a.platform)])
+                                         require_signature=a.require_signature, platform=a.platform,
+                                         build=not a.no_build, require_tests=a.require_tests)])
 
 
 async def _platform(a, settings) -> None:
@@ -153,7 +154,8 @@ async def _core(a, settings) -> None:
     core = CoreAgent(a.name or f"core-{robot_id}", robot_id=robot_id, robot_type=a.robot, robot_api=api,
                      owner=a.owner, platform=a.platform, store=a.store, user=a.owner,
                      password=owner_password(a, settings), settings=settings, sandbox=sandbox(a),
-                     workdir=a.workdir or data_dir(f"core-{robot_id}", None) / "work",
+                     workdir=a.workdir or data_dir(f"core-{robot_id}", a.data) / "work",
+                     data_dir=data_dir(f"core-{robot_id}", a.data),  # its schedules (agents/scheduler.py)
                      warm_imports=DYNAMIC_WARM_IMPORTS, **trust(a))
 
     async def home() -> None:  # the owner's home description, for RApps that need one
@@ -185,8 +187,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--name", help="the agent's account name (default: store / platform / core-ROBOT_ID)")
     p.add_argument("--store", default="store", help="the Store Agent's name or JID")
     p.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
-    p.add_argument("--data", help="store, platform: data directory (default ~/.local/share/rapp/ROLE)")
+    p.add_argument("--data", help="store, platform, core: data directory (default ~/.local/share/rapp/ROLE; a "
+                                   "Core's: its schedules)")
     p.add_argument("--require-signature", action="store_true", help="store: refuse unsigned packages")
+    p.add_argument("--no-build", action="store_true", help="store: run no package's tests; list every declared "
+                                                           "robot type untested (development only)")
+    p.add_argument("--require-tests", action="store_true", help="store: refuse packages without tests")
     p.add_argument("--workdir", help="core, platform: where RApp runs unpack and log (default: "
                                       "~/.local/share/rapp/<agent>/work; emptied at every stop and start)")
     p.add_argument("--maps", help="platform: directory of map_server YAML maps to preload")

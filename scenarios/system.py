@@ -59,12 +59,15 @@ class RappSystem:
     def __init__(self, workdir: str | Path | None = None, *, settings: XmppSettings | None = None,
                  trace_file: str | Path | None = None, force_xmpp: bool | None = None,
                  limits: Limits = Limits(), services: dict | None = None,
-                 platform_kw: dict | None = None, store_and_platform: bool = True):
+                 platform_kw: dict | None = None, store_and_platform: bool = True, store_kw: dict | None = None):
         # store_and_platform=False: they run elsewhere (own processes, `rapp agent store/platform`)
         # under the names "store" and "platform"; publish() and the Cores reach them over XMPP
         self._own_agents = store_and_platform
         self._services = services
         self._platform_kw = platform_kw or {}
+        # a run's Store builds nothing unless asked (`store_kw={"build": True}`): a scenario runs a
+        # RApp, and a RApp's own test that runs one (scenarios.run_rapp) would wait on its build
+        self._store_kw = {"build": False, **(store_kw or {})}
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="rapp-run-"))
         self.workdir.mkdir(parents=True, exist_ok=True)
         self._given_settings = settings
@@ -98,7 +101,7 @@ class RappSystem:
         if not self._own_agents:
             await self.publisher.start()
             return self
-        self.store = StoreAgent("store", self.workdir / "store", self.settings)
+        self.store = StoreAgent("store", self.workdir / "store", self.settings, **self._store_kw)
         # cloud_nice 0: this Platform shares its process with the simulated robots, which stand for
         # the robots' own CPUs; a Cloud Agent below it yielded to the simulation too, and the README's
         # hazard run took 243 s instead of 223 s. A Platform of its own (`rapp agent platform`) keeps

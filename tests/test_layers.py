@@ -73,7 +73,7 @@ def rapp_escapes() -> list[str]:
             continue
         own = {p.name for p in d.iterdir() if p.is_dir()}
         for f in sorted(d.rglob("*.py")):
-            if "tests" in f.relative_to(d).parts:  # a RApp's own tests run here, are not shipped
+            if "tests" in f.relative_to(d).parts:  # a RApp's own tests: run by `rapp test` and the Store's build
                 continue
             for line, mod in _imports(f):
                 top = mod.split(".")[0]

@@ -170,6 +170,48 @@ async def test_cloud_agent_lives_and_dies_with_dynamic_agent(system):
     assert not system.platform.clouds
 
 
+async def test_fig6_request_passes_and_s9_are_state_records(system):
+    """Fig. 6: the Platform's own FSM goes s0 -> s1; each request is a pass s1 -> sX -> s1 of its own
+    (s5 a sub-FSM: download, build, start). Fig. 5: each robot command is a pass of the s9 sub-FSM
+    while the Core's FSM stays in s8; every state entered is a record carrying its request."""
+    start = len(read_trace(system.settings.trace_file))
+    await run_command(system, "cloudecho", "echo-cloud finished")
+    trace = read_trace(system.settings.trace_file)
+    platform, core = system.platform.address, system.handle.core.address
+    states = [r for r in trace if r["kind"] == "state"]
+    assert [r["state"] for r in states if r["agent"] == platform and r["fsm"] == "platform"
+            and not r.get("conversation_id")] == ["s0_init", "s1_wait"]
+    new = trace[start:]
+    by_conv = {}
+    for r in new:
+        if r["kind"] == "state" and r.get("conversation_id") and r["agent"] == platform:
+            by_conv.setdefault(r["conversation_id"], []).append((r["fsm"], r["state"]))
+    sent = {r["conversation_id"]: r["action"] for r in new if r["kind"] == "message" and r["dir"] == "recv"
+            and r["agent"] == platform and r["performative"] == "request"}
+    paths = {sent[c]: p for c, p in by_conv.items() if c in sent}
+    assert paths["start_cloud_agent"] == [("platform", "s5_create_cloud"), ("platform.s5_create_cloud", "download"),
+                                          ("platform.s5_create_cloud", "build"), ("platform.s5_create_cloud", "start")]
+    assert paths["release_cloud_agents"] == [("platform", "s6_destroy_cloud")]
+    assert paths["issue_app_token"] == [("platform", "s2_register")]
+    assert paths["cloud_ready"] == [("platform", "s2_register")]
+    # every request the Platform took was one pass (the Store's token checks too)
+    assert set(sent) <= set(by_conv), {sent[c] for c in set(sent) - set(by_conv)}
+    commands = {r["conversation_id"]: r["action"] for r in new if r["kind"] == "message" and r["dir"] == "recv"
+                and r["agent"] == core and r["ontology"] == "robot" and r["performative"] == "request"}
+    s9 = {}
+    for r in new:
+        if r["kind"] == "state" and r["agent"] == core and r["fsm"] == "core.s9":
+            s9.setdefault(r["conversation_id"], []).append(r["state"])
+    assert commands and set(commands) == set(s9)
+    assert all(s9[c] == ["lock", "act", "release"] for c in commands), s9
+    # the Core's own FSM went through s8 once for the task, not once per command
+    core_states = [r["state"] for r in new if r["kind"] == "state" and r["agent"] == core and r["fsm"] == "core"]
+    assert core_states.count("s8_serve") == 1, core_states
+    from scenarios.fsm_view import fsm_text
+    drawn = fsm_text(trace)
+    assert "s5_create_cloud[download > build > start]" in drawn and "core.s9: lock > act > release" in drawn, drawn
+
+
 async def test_unknown_command_is_explained_and_core_keeps_listening(system):
     reply = await run_command(system, "please juggle three flaming torches", "did not understand")
     assert "juggle" in reply and reply.count("understand") == 1, reply

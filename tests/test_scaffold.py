@@ -20,7 +20,7 @@ async def test_new_rapp_builds_runs_and_its_test_passes(tmp_path):
     assert rapp("package", "build", dest, "-o", pkg).returncode == 0
     package = read_package(pkg.read_bytes())
     assert package.manifest.name == "lamp-check" and package.manifest.cloud_entry_point
-    assert not [p for p in package.paths if p.startswith("tests/")]  # its tests are not shipped
+    assert "tests/test_lamp_check.py" in package.paths  # its tests are shipped: the Store builds it by them
 
     res = await arapp("run", "rapp", dest, "--robot", "nao", "--out", tmp_path / "out", timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr

@@ -7,6 +7,12 @@ zero scores are refused with a reason the Core can say to the user.
 Parameters: a phrase may hold slots, `check the lamp in the {room}`; a command that fits the
 phrase fills them (a slot takes one to three words). Besides, `city` (after "in" / "for", or a
 known city name) for every RApp.
+
+Schedules (paper 000 sec. 7, a task started "upon request from the user or executing a scheduled
+task"): a command naming a time is a schedule's (`Interpretation.schedule`): "check the hazards
+every day at 22:00", "... in ten minutes", "... tomorrow at 7 am", "cancel the evening check",
+"what is scheduled?". The time is taken out before the RApp is matched; the robot's Core resolves
+it against its own clock (agents/scheduler.py), which the Platform cannot know.
 """
 from __future__ import annotations
 
@@ -14,7 +20,8 @@ import json
 import re
 from functools import lru_cache
 
-from ontology.services.interpretation import InterpretCommand, Interpretation
+from ontology.services.interpretation import (InterpretCommand, Interpretation, ScheduleAction, ScheduleRequest,
+                                              When)
 from ontology.errors import ErrorCode
 
 from .context import DATA_DIR, ServiceContext
@@ -114,7 +121,17 @@ def interpret(text: str, robot_type: str, rapps) -> Interpretation:
 
 
 def interpret_command(req: InterpretCommand, ctx: ServiceContext) -> Interpretation:
-    out = interpret(req.text, req.robot_type, req.rapps)
+    schedule, rest = parse_schedule(req.text)
+    if schedule is None:
+        out = interpret(req.text, req.robot_type, req.rapps)
+    elif schedule.action == ScheduleAction.ADD:  # what to start, without the time's words
+        out = interpret(rest, req.robot_type, req.rapps).model_copy(update={"schedule": schedule})
+    else:  # cancel or list: a RApp named narrows it, none is fine
+        try:
+            out = interpret(rest, req.robot_type, req.rapps) if rest.strip() else None
+        except ServiceError:
+            out = None
+        out = (out or Interpretation(rapp="", score=0.0)).model_copy(update={"schedule": schedule})
     room = out.parameters.get("room")
     if room:  # as the caller's home names it: said "living room", it is the home's "living_room"
         from .home import homes
@@ -129,3 +146,108 @@ def room_named(value: str, rooms: list[str]) -> str | None:
     "Living Room", "living_room" and "living-room" are all said "living room"."""
     said = normalize(value)
     return next((r for r in rooms if normalize(r) == said), None)
+
+
+# -- schedules: a time in the command ---------------------------------------------------------------
+NUMBERS = {w: i for i, w in enumerate("zero one two three four five six seven eight nine ten eleven twelve thirteen "
+                                      "fourteen fifteen sixteen seventeen eighteen nineteen twenty".split())}
+NUMBERS.update({"thirty": 30, "forty": 40, "fifty": 50, "sixty": 60, "a": 1, "an": 1, "a couple of": 2})
+_NUM = r"(?:\d+(?:\.\d+)?|(?:twenty|thirty|forty|fifty)(?:[ -](?:one|two|three|four|five|six|seven|eight|nine))?|" \
+       r"a couple of|" + "|".join(sorted((w for w in NUMBERS if " " not in w), key=len, reverse=True)) + ")"
+UNITS = {"second": 1, "sec": 1, "minute": 60, "min": 60, "hour": 3600, "hr": 3600}
+PARTS = {"morning": "morning", "afternoon": "afternoon", "evening": "evening", "night": "night",
+         "tonight": "evening"}
+_IN = re.compile(rf"\b(?:in|within)\s+(?:(half an hour|a quarter of an hour|an hour and a half)|({_NUM})\s+"
+                 rf"(seconds?|secs?|minutes?|mins?|hours?|hrs?))\b")
+_AT = re.compile(rf"\bat\s+(?:(noon|midday|midnight)|(\d{{1,2}})(?::(\d{{2}}))?|({_NUM}))"
+                 r"(?:\s*(a\.?m\.?|p\.?m\.?|o'?clock))?(?=\W|$)")
+_DAILY = re.compile(r"\b(?:every\s*day|each day|daily|every (morning|afternoon|evening|night))\b")
+_DAY = re.compile(r"\b(today|tonight|tomorrow)\b")
+_DATE = re.compile(r"\bon\s+(\d{4}-\d{2}-\d{2})\b")
+_PART = re.compile(r"\b(?:in the |this )?(morning|afternoon|evening|night|tonight)\b")
+_CANCEL = re.compile(r"^\W*(?:please\s+)?(?:cancel|remove|delete|forget|unschedule|call off|drop)\b")
+_EVERY = re.compile(r"\b(?:all|every|each)\b(?!\s*day)")
+_LIST = re.compile(r"\b(?:what(?:'s| is| are)|which|list|show|tell me)\b.*\b(?:schedul\w*|planned)\b")
+
+
+def number(word: str) -> float:
+    word = word.strip()
+    if word in NUMBERS:
+        return NUMBERS[word]
+    if re.fullmatch(r"\d+(?:\.\d+)?", word):
+        return float(word)
+    tens, _, unit = word.replace("-", " ").partition(" ")
+    return NUMBERS[tens] + NUMBERS.get(unit, 0)
+
+
+def parse_schedule(text: str) -> tuple[ScheduleRequest | None, str]:
+    """The schedule a command asks for, and the command without its time words; (None, text) when
+    it names no time. ServiceError for a time said wrong (25:00, "every day" with no time)."""
+    said = " ".join(text.replace("’", "'").split())
+    low = said.lower()
+    if len(low) != len(said):  # a character whose lower case is longer: the spans index the lower text
+        said = low
+    if _LIST.search(low):
+        return ScheduleRequest(action=ScheduleAction.LIST), ""
+    cancel = _CANCEL.search(low)
+    spans: list[tuple[int, int]] = [cancel.span()] if cancel else []
+    when, daily, part = None, _DAILY.search(low), None
+    m_in, m_at = _IN.search(low), _AT.search(low)
+    day, date = _DAY.search(low), _DATE.search(low)
+    for m in (daily, day, date):
+        if m:
+            spans.append(m.span())
+    evening = bool(day and day.group(1) == "tonight") or bool(daily and daily.group(1) in ("evening", "night"))
+    m_part = _PART.search(low)
+    if m_part and not (daily and m_part.start() >= daily.start()):
+        part = PARTS[m_part.group(1)]
+        evening = evening or part in ("evening", "night", "afternoon")
+        spans.append(m_part.span())
+    if m_in:
+        spans.append(m_in.span())
+        phrase, count, unit = m_in.groups()
+        seconds = {"half an hour": 1800, "a quarter of an hour": 900, "an hour and a half": 5400}.get(phrase) \
+            if phrase else number(count) * UNITS[unit.rstrip("s")]
+        when = When(kind="in", seconds=seconds)
+    elif m_at:
+        spans.append(m_at.span())
+        hour, minute = _clock_time(m_at, evening)
+        if daily:
+            when = When(kind="daily", hour=hour, minute=minute)
+        else:
+            when = When(kind="at", hour=hour, minute=minute, date=date.group(1) if date else None,
+                        day=None if date or not day else "tomorrow" if day.group(1) == "tomorrow" else "today")
+    elif daily and not cancel:
+        raise ServiceError(f"at what time? Say it with one, as in \"{text.strip()} at 22:00\"", ErrorCode.INVALID)
+    if cancel:
+        if _EVERY.search(low):
+            spans.append(_EVERY.search(low).span())
+        time_of_day = when if when is not None and when.kind != "in" else None
+        part = part or (daily.group(1) if daily and daily.group(1) else None)
+        return ScheduleRequest(action=ScheduleAction.CANCEL, when=time_of_day, part_of_day=part,
+                               every=bool(_EVERY.search(low))), _without(said, spans)
+    if when is None:
+        return None, text
+    return ScheduleRequest(action=ScheduleAction.ADD, when=when), _without(said, spans)
+
+
+def _clock_time(m: re.Match, evening: bool) -> tuple[int, int]:
+    named, digits, minutes, words, suffix = m.groups()
+    if named:
+        return (0 if named == "midnight" else 12), 0
+    hour, minute = (int(digits), int(minutes or 0)) if digits else (int(number(words)), 0)
+    suffix = (suffix or "").replace(".", "")
+    if hour > 23 or minute > 59 or (suffix in ("am", "pm") and not 1 <= hour <= 12):
+        raise ServiceError(f"{m.group(0)[3:].strip()} is not a time of day", ErrorCode.INVALID)
+    if suffix == "pm" and hour < 12:
+        hour += 12
+    elif suffix == "am" and hour == 12:
+        hour = 0
+    elif not suffix.endswith("m") and evening and hour < 12 and minutes is None:
+        hour += 12  # "tonight at ten", "every evening at 9"
+    return hour, minute
+
+
+def _without(text: str, spans: list[tuple[int, int]]) -> str:
+    keep = [ch if not any(a <= i < b for a, b in spans) else " " for i, ch in enumerate(text)]
+    return " ".join("".join(keep).split())
