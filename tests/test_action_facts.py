@@ -171,7 +171,8 @@ async def _no_feedback(progress):
 
 
 def _ctx():
-    return SimpleNamespace(sender="dyn@x", wants_feedback=False, feedback=_no_feedback)
+    return SimpleNamespace(sender="dyn@x", wants_feedback=False, feedback=_no_feedback,
+                           info=SimpleNamespace(conversation_id="c-1"))  # a pass of s9 is traced under it
 
 
 @pytest.mark.parametrize("name", ROBOT)
