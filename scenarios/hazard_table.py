@@ -15,7 +15,6 @@ reason; its hazards count as wrong checks. Each row carries its wall time.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import random
 import statistics
@@ -25,6 +24,7 @@ from pathlib import Path
 
 from .hazard import run_hazard_detection
 from .home_setup import DOOR_OPEN_DEG, GENERATED, HOUSES, hazard_overrides, layout
+from .runner import RunInterrupted, main_loop
 
 # paper 001 sec. 4: the NAO localized within +-10 cm and tracked within 20 cm, the Elektron 7 / 15 cm
 PAPER_LOC_M = {"nao": 0.10, "elektron": 0.07}
@@ -123,9 +123,11 @@ def markdown(results: list[dict], title: str) -> str:
     return "\n".join(lines)
 
 
-async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path) -> list[dict]:
-    """`runs`: (house, seed) pairs, each run on every robot."""
-    results = []
+async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path,
+                    results: list[dict] | None = None) -> list[dict]:
+    """`runs`: (house, seed) pairs, each run on every robot; each result appended to `results` as it
+    comes (an interrupted table keeps the runs done, and the interrupted run's result)."""
+    results = [] if results is None else results
     print(f"seeds: {' '.join(f'{h}:{s}' for h, s in runs)} (repeat: --seed-list {' '.join(f'{h}:{s}' for h, s in runs)})",
           flush=True)
     print(f"{'robot':9s} {'house':9s} {'seed':>4s} {'loc cm':>6s} {'trk cm':>6s} {'ok':5s} {'sim s':>8s}"
@@ -135,6 +137,10 @@ async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path) -
             try:
                 r = await run_hazard_detection(robot, seed, house, out_dir=out / f"{robot}-{house}-{seed}",
                                                timeout_s=RUN_TIMEOUT_S)
+            except RunInterrupted as stop:  # Ctrl-C: its result (written) joins the table, which stops
+                if stop.result:
+                    results.append({**stop.result, "house": house})
+                raise
             except Exception as e:  # noqa: BLE001 - one failed run must not end the table; it stays in it
                 r = {"robot": robot, "seed": seed, "failed": f"{type(e).__name__}: {e}"[:300],
                      "hazards": unchecked(house, seed)}
@@ -211,7 +217,14 @@ def main(argv: list[str] | None = None) -> int:
         runs = sorted({(r.get("house", args.house), r["seed"]) for r in results})
     else:
         out = Path(args.out or tempfile.mkdtemp(prefix="hazard-table-"))
-        results = asyncio.run(run_table(runs, args.robots, out))
+        results: list[dict] = []
+        try:
+            main_loop(run_table(runs, args.robots, out, results))
+        except RunInterrupted as stop:  # the runs done so far are kept, the table says it was cut short
+            (out / "table.json").write_text(json.dumps(results, indent=1))
+            print(f"interrupted ({stop.signum}) after {len(results)} of {len(runs) * len(args.robots)} runs; "
+                  f"results so far: {out / 'table.json'}")
+            return 128 + stop.signum
         (out / "table.json").write_text(json.dumps(results, indent=1))
         print(f"results: {out / 'table.json'}")
     print("\n".join(summary_rows(results)))

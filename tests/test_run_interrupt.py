@@ -98,3 +98,38 @@ def test_an_interrupted_run_writes_its_result_and_ends_every_process(tmp_path, s
         time.sleep(0.2)
     assert not group_alive(proc.pid), "a process of the run's group is still running"
     assert not [p for p in pids if alive(p)], "an agent process of the run is still running"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_an_interrupted_hazard_table_keeps_the_runs_so_far(tmp_path):
+    """Ctrl-C during a table's run: that run's result.json is written, table.json holds it (cut short,
+    `ok: false`), the command exits 130 and no process of the table is left."""
+    out = tmp_path / "table"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_")}
+    with open(tmp_path / "log.txt", "w") as log:
+        proc = subprocess.Popen([*RAPP, "run", "hazard-table", "--robots", "nao", "--house", "small",
+                                 "--seed-list", "small:1", "small:2", "--out", out], cwd=ROOT, env=env, stdout=log,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 200
+        trace = out / "nao-small-1" / "trace.jsonl"
+        while not reported(trace):
+            assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "log.txt").read_text()[-3000:]
+            time.sleep(0.3)
+        os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(90)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    text = (tmp_path / "log.txt").read_text()
+    assert code == 130 and "interrupted" in text and "Traceback" not in text, text[-3000:]
+    table = json.loads((out / "table.json").read_text())
+    assert [(r["house"], r["seed"], r["ok"]) for r in table] == [("small", 1, False)], table
+    assert json.loads((out / "nao-small-1" / "result.json").read_text())["reason"].startswith("interrupted by SIGINT")
+    assert not (out / "nao-small-2").exists()  # the table stopped
+    deadline = time.monotonic() + 10
+    while group_alive(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not group_alive(proc.pid), "a process of the table is still running"
