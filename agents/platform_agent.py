@@ -2,9 +2,10 @@
 (paper 000 sec. 5.3, fig. 6; paper 001 sec. 3).
 
 Every service request carries a token; a missing, unknown or expired one is refused before the
-service runs. Services are synchronous work (agents/services): the CPU-bound ones (pool.POOLED:
-vision, hazard checks, speech, path planning) run in the Platform's worker processes
-(agents/services/pool.py, one per core, `service_workers=0`: in threads as before), the cheap and
+service runs. Services are synchronous work (agents/services): the CPU-bound ones (the pooled
+column of agents/services/registry.py: vision, hazard checks, speech, path planning) run in the
+Platform's worker processes (agents/services/pool.py, one per core, `service_workers=0`: in threads
+as before), the cheap and
 stateful ones in worker threads, so one robot's request never stalls another's and none runs on
 the event loop; past `max_pending` concurrent calls new ones are refused with a reason rather than
 left unanswered.
@@ -303,7 +304,6 @@ class PlatformAgent(RappAgent):
     async def run_service(self, req, ctx):
         from agents.services.context import ServiceContext
         from agents.services.errors import ServiceError
-        from agents.services.pool import POOLED
 
         if self.pending >= self.max_pending:
             raise Refusal(f"platform busy: {self.pending} calls in progress, retry shortly", ErrorCode.BUSY)
@@ -311,7 +311,7 @@ class PlatformAgent(RappAgent):
         self.pending += 1
         call = ServiceContext(user=ctx.user, state=self.state)
         try:
-            if self.service_pool is not None and req.action_name in POOLED:
+            if self.service_pool is not None and spec.pooled:
                 return await self.service_pool.run(req.action_name, req, call)
             return await asyncio.to_thread(spec.run, req, call)
         except ServiceError as e:
