@@ -62,6 +62,10 @@ def test_an_unknown_type_is_refused_by_name_everywhere():
         navigation.robot_radius("pepper")
 
 
+def test_docs_show_the_table():
+    assert robot_types.markdown_table() in (ROOT / "docs" / "architecture.md").read_text()
+
+
 def test_the_choices_of_every_robot_option_are_the_table():
     from scenarios import disturbance_suite, hazard, hazard_validation, run_rapp
 
