@@ -22,12 +22,15 @@ tests/test_robot_types.py checks the table against its readers and runs a RApp o
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 
-class Odometry(NamedTuple):
+@dataclass(frozen=True)
+class Odometry:
     """1 sigma of a robot's odometry error: random parts grow with the square root of the motion,
-    systematic parts (slip, drift) with the motion itself."""
+    systematic parts (slip, drift) with the motion itself. rapps.sdk.ekf.OdometryModel adds its
+    covariance."""
 
     trans_std: float  # m per sqrt(m) travelled
     trans_rel: float  # fraction of the distance (systematic slip)

@@ -154,7 +154,7 @@ async def test_a_rapp_runs_end_to_end_on_a_third_robot_type(rover, tmp_path):
         await run.run(timeout_s=60)
         assert run.ok(owner), run.reason(owner)
         report = owner.reports[-1].data
-        assert report["robot_type"] == "rover" and report["odometry"] == ROVER.odometry._asdict()
+        assert report["robot_type"] == "rover" and report["odometry"] == dataclasses.asdict(ROVER.odometry)
         assert report["length_m"] > 1.0
         assert api.robot.spec.radius == ROVER.body_radius_m
         x, y = api.robot.pose[:2]

@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ontology.robot_types import ROBOT_TYPES
+from ontology.robot_types import ROBOT_TYPES, Odometry
 
 CHI2_3DOF_99 = 11.34  # chi-square, 3 degrees of freedom, 99 %: a consistent fix is refused 1 time in 100
 
@@ -43,16 +43,10 @@ def compose(a, d) -> tuple[float, float, float]:
 
 
 @dataclass(frozen=True)
-class OdometryModel:
+class OdometryModel(Odometry):
     """How wrong a robot's odometry may be (1 sigma), as a RApp developer calibrates it: random parts grow
-    with the square root of the motion, systematic parts (slip, drift) with the motion itself."""
-
-    trans_std: float  # m per sqrt(m) travelled
-    trans_rel: float  # fraction of the distance (systematic slip)
-    rot_std: float  # rad per sqrt(rad) turned
-    rot_rel: float  # fraction of the turn (systematic slip)
-    heading_std: float  # rad per sqrt(m) travelled
-    heading_drift: float  # rad per m travelled (systematic)
+    with the square root of the motion, systematic parts (slip, drift) with the motion itself (the
+    fields of ontology.robot_types.Odometry)."""
 
     def covariance(self, d: float, r: float) -> np.ndarray:
         """Robot-frame covariance of a displacement over `d` m and `r` rad, straight ahead: slip along it;
@@ -69,7 +63,7 @@ class _OdometryByType(Mapping[str, OdometryModel]):
     ontology/robot_types.py, read there at each look-up (a type added to the table has its model)."""
 
     def __getitem__(self, robot_type: str) -> OdometryModel:
-        return OdometryModel(**ROBOT_TYPES[robot_type].odometry._asdict())
+        return OdometryModel(**asdict(ROBOT_TYPES[robot_type].odometry))
 
     def __iter__(self) -> Iterator[str]:
         return iter(ROBOT_TYPES)

@@ -5,10 +5,6 @@ the state travels as the pool carries it (in one process here; tests/test_platfo
 tests/test_platform_restart.py go through real worker processes)."""
 from __future__ import annotations
 
-import base64
-import io
-import wave
-
 import numpy as np
 import pytest
 
@@ -22,10 +18,12 @@ from agents.services.pool import _merge, _taken
 from agents.services.state_parts import STORES, travel
 from agents.services.vision import models
 from ontology.registry import actions
-from ontology.services.home import HazardSpec, HomeInfo, RoomSpec
 from ontology.services.common import Pose2D
+from ontology.services.home import HazardSpec, HomeInfo, RoomSpec
 from ontology.services.speech import SpeechNoiseProfile, SpeechRecognition
 from ontology.services.vision import FindObjects, LearnFace, RecognizeFaces
+
+from .test_saved import _wav_noise
 
 # ---------------------------------------------------------------- the answers before the table
 OLD_POOLED = {
@@ -65,14 +63,6 @@ def test_only_pooled_rows_carry_state_and_every_store_named_travels():
 
 def _ctx(user: str = "ann") -> ServiceContext:
     return ServiceContext(user=user, state=ServiceState())
-
-
-def _wav_noise() -> str:
-    pcm = (np.random.default_rng(3).normal(0, 800, 16000)).astype(np.int16)
-    buf = io.BytesIO()
-    with wave.open(buf, "wb") as w:
-        w.setnchannels(1), w.setsampwidth(2), w.setframerate(16000), w.writeframes(pcm.tobytes())
-    return base64.b64encode(buf.getvalue()).decode()
 
 
 def test_a_pooled_call_takes_only_the_callers_own_entries():
