@@ -5,10 +5,9 @@ Every service request carries a token; a missing, unknown or expired one is refu
 service runs. Services are synchronous work (agents/services): the CPU-bound ones (the pooled
 column of agents/services/registry.py: vision, hazard checks, speech, path planning) run in the
 Platform's worker processes (agents/services/pool.py, one per core, `service_workers=0`: in threads
-as before), the cheap and
-stateful ones in worker threads, so one robot's request never stalls another's and none runs on
-the event loop; past `max_pending` concurrent calls new ones are refused with a reason rather than
-left unanswered.
+as before), the cheap and stateful ones in worker threads, so one robot's request never stalls
+another's and none runs on the event loop; past `max_pending` concurrent calls new ones are refused
+with a reason rather than left unanswered.
 
 Several Platform agents can serve one domain (agents/platform_directory.py, docs/deployment.md):
 the primary (`replicas=[names]`) keeps users, tokens, Cloud Agents and every stateful service; a

@@ -90,9 +90,8 @@ def markdown_table() -> str:
     """The table as docs/architecture.md shows it."""
     rows = ["| type | body | body radius (m) | clearance radius (m) | odometry (trans, rot, heading std) |",
             "|---|---|---:|---:|---|"]
-    rows += [f"| `{name}` | `{t.body}` | {t.body_radius_m:.2f} | {t.clearance_radius_m:.2f} | "
-             f"{t.odometry.trans_std:g} m/√m, {t.odometry.rot_std:g} rad/√rad, {t.odometry.heading_std:g} rad/√m |"
-             for name, t in ROBOT_TYPES.items()]
+    rows += [f"| `{name}` | `{t.body}` | {t.body_radius_m:.2f} | {t.clearance_radius_m:.2f} | {o.trans_std:g} m/√m, "
+             f"{o.rot_std:g} rad/√rad, {o.heading_std:g} rad/√m |" for name, t in ROBOT_TYPES.items() for o in [t.odometry]]
     return "\n".join(rows)
 
 

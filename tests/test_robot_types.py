@@ -150,7 +150,7 @@ async def test_a_rapp_runs_end_to_end_on_a_third_robot_type(rover, tmp_path):
         owner = Owner(rover, api, "owner-rover1", "rove", home=home_description(world, "small", tmp_path),
                       core_kw={"dynamic_mode": "inprocess"})
         run = Run(tmp_path, world, ROOT / "tests" / "fixtures" / "rover_check", [owner],
-                  platform_kw={"service_workers": 0, "cloud_mode": "inprocess"})
+                  platform_kw={"service_workers": 0})
         await run.run(timeout_s=60)
         assert run.ok(owner), run.reason(owner)
         report = owner.reports[-1].data
