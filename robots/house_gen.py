@@ -551,7 +551,9 @@ def start_poses(d: Draft, desc: dict) -> dict:
     main = int(labels[_cell(next(iter(key_points(desc).values())), origin)])
     robots = {}
     walk = [r for r in d.rooms if r.walk]
-    for kind in ROBOT_TYPES:  # a type added to the table draws after the others: theirs stay
+    # a type added to the table is drawn after the others: their poses stay (unless the new one sees
+    # too few codes and the whole house is drawn again: well_marked)
+    for kind in ROBOT_TYPES:
         room = walk[int(d.rng.integers(len(walk)))]
         x0, y0, x1, y1 = room.rect
         r0, c0 = _cell((x0, y0), origin)
