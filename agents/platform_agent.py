@@ -6,12 +6,12 @@ s1 -> s2 register | s3 interpret | s4 service | s5 create a_cloud | s6 destroy a
 request, served side by side by the responders.
 
 Every service request carries a token; a missing, unknown or expired one is refused before the
-service runs. Services are synchronous work (agents/services): the CPU-bound ones (pool.POOLED:
-vision, hazard checks, speech, path planning) run in the Platform's worker processes
-(agents/services/pool.py, one per core, `service_workers=0`: in threads as before), the cheap and
-stateful ones in worker threads, so one robot's request never stalls another's and none runs on
-the event loop; past `max_pending` concurrent calls new ones are refused with a reason rather than
-left unanswered.
+service runs. Services are synchronous work (agents/services): the CPU-bound ones (the pooled
+column of agents/services/registry.py: vision, hazard checks, speech, path planning) run in the
+Platform's worker processes (agents/services/pool.py, one per core, `service_workers=0`: in threads
+as before), the cheap and stateful ones in worker threads, so one robot's request never stalls
+another's and none runs on the event loop; past `max_pending` concurrent calls new ones are refused
+with a reason rather than left unanswered.
 
 Several Platform agents can serve one domain (agents/platform_directory.py, docs/deployment.md):
 the primary (`replicas=[names]`) keeps users, tokens, Cloud Agents and every stateful service; a
@@ -353,7 +353,6 @@ class PlatformAgent(RappAgent):
         """s4's second step: the service's work, in the pool's processes or a worker thread."""
         from agents.services.context import ServiceContext
         from agents.services.errors import ServiceError
-        from agents.services.pool import POOLED
 
         req, ctx = memory["request"], memory["ctx"]
         if not memory.get("admitted"):
@@ -361,7 +360,7 @@ class PlatformAgent(RappAgent):
         spec = self.services[req.action_name]
         call = ServiceContext(user=ctx.user, state=self.state)
         try:
-            if self.service_pool is not None and req.action_name in POOLED:
+            if self.service_pool is not None and spec.pooled:
                 return await self.service_pool.run(req.action_name, req, call)
             return await asyncio.to_thread(spec.run, req, call)
         except ServiceError as e:

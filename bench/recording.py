@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ontology import robot_types
+
 ROOT = Path(__file__).resolve().parent.parent
 RAPP = [sys.executable, "-m", "cli.main"]
 
@@ -58,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.recording", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--house", default="house", choices=["house", "small"])
-    ap.add_argument("--robot", default="nao", choices=["nao", "elektron"])
+    ap.add_argument("--robot", default="nao", choices=robot_types.names())
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", default=None, help="directory for the runs (default: a temporary one)")
     ap.add_argument("--json", metavar="FILE", help="also write the figures as JSON")

@@ -457,6 +457,8 @@ def cmd_doctor(a) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ontology import robot_types  # the --robot choices (imported here: `rapp --help` stays quick)
+
     p = argparse.ArgumentParser(prog="rapp", description="RAPP variable-structure robot control system")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", required=True)
@@ -482,7 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "as `pip install -e .` installed it: async tests need no mark, the checkout's "
                                    "pytest configuration is not used. Options after DIR go to pytest (-k, -x, -q).")
     t.add_argument("dir", help="the RApp's folder (as `rapp new` made it)")
-    t.add_argument("--robot", choices=["nao", "elektron"], help="the robot type its tests run for (RAPP_ROBOT_TYPE), "
+    t.add_argument("--robot", choices=robot_types.names(), help="the robot type its tests run for (RAPP_ROBOT_TYPE), "
                                                                  "as the Store's build runs them once per type")
 
     n = sub.add_parser("new", help="create a RApp package to start from (manifest, task, test)",

@@ -16,9 +16,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .robot_actions import ROBOT_API_GROUPS  # the groups a Dynamic Agent may call on its Core Agent
+# the robot types a RApp may target (ontology/robot_types.py; the Core and Store refuse any other)
+from .robot_types import ROBOT_TYPES
 
-#: Robot types a RApp may target (one place; the Core/Store refuse anything else).
-ROBOT_TYPES: frozenset[str] = frozenset({"nao", "elektron"})
 #: Manifest file names looked up (in this order) in a source directory or an archive.
 MANIFEST_NAMES: tuple[str, ...] = ("manifest.yaml", "manifest.json")
 

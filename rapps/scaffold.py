@@ -7,12 +7,14 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from ontology import robot_types
+
 MANIFEST = """\
 # {name}: made by `rapp new`. Fields: docs/sdk.md and ontology/manifest.py.
 name: {name}
 version: 0.1.0
 description: {title} (edit me).
-robot_types: [nao, elektron]
+robot_types: [{robot_types}]
 keywords: [{keyword}]
 phrases:
   - run {words}
@@ -136,6 +138,7 @@ def create(name: str, directory: str | Path | None = None, cloud: bool = False) 
     cls = "".join(w.capitalize() for w in name.split("-"))
     title = name.replace("-", " ").capitalize()
     fill = dict(name=name, pkg=pkg, cls=cls, title=title, keyword=name.replace("-", ""),
+                robot_types=", ".join(robot_types.names()),  # every type of ontology/robot_types.py
                 words=name.replace("-", " "), rel=f"{dest}/tests",
                 cloud_line=f"cloud_entry_point: {pkg}.cloud:{cls}Cloud\n" if cloud else "",
                 cloud_import="\nfrom .models import ONTOLOGY\n" if cloud else "",

@@ -37,7 +37,7 @@ one_blas_thread()  # before numpy is used from several threads (hearing/blas.py)
 # the simulator (pybullet) loads when one of these is first used, not with the package: what a Core
 # needs of any robot (robots.interface, robots.errors) imports without it
 _SIMULATOR = {"RobotAPI": ".api", "OdometryNoise": ".odometry", "Robot": ".robot", "HOUSES": ".world",
-              "ROBOT_SPECS": ".world", "GroundTruth": ".world", "World": ".world"}
+              "ROBOT_SPECS": ".bodies", "GroundTruth": ".world", "World": ".world"}
 
 
 def __getattr__(name: str):

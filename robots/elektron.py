@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 
+from ontology.robot_types import robot_type
+
+from .failure_modes import ElektronFailures
 from .spec import CameraSpec, RangeSpec, RobotSpec
 from .urdf import JointDef, UrdfBuilder, box, cylinder
 
@@ -34,11 +37,11 @@ def _urdf():
 POSTURES = {name: {"HeadPan": 0.0, "HeadTilt": 0.0} for name in ("Zero", "Stand", "StandInit")}
 
 SPEC = RobotSpec(
-    kind="elektron", build_urdf=_urdf, radius=0.26, collision_height=0.45, holonomic=False,
+    kind="elektron", build_urdf=_urdf, radius=robot_type("elektron").body_radius_m, collision_height=0.45, holonomic=False,
     max_vx=0.25, max_vy=0.0, max_wz=1.0,
     cameras=[CameraSpec("head", "camera", 45.0)],
     head_yaw="HeadPan", head_pitch="HeadTilt", look_camera="head", joint_speed=1.5,
     postures=POSTURES, rest_posture="Zero",
     laser=RangeSpec("laser", "laser", -math.radians(120), math.radians(120), 241, 0.02, 5.6),
-    speech=False,
+    speech=False, failures=ElektronFailures(),
 )

@@ -123,8 +123,6 @@ class ElektronFailures:
     laser: RangeNoise = ELEKTRON_LASER
 
 
-DEFAULTS: dict[str, NaoFailures | ElektronFailures] = {"nao": NaoFailures(), "elektron": ElektronFailures()}
-
 
 # ============================================================================ the switch
 def enabled() -> bool:
@@ -150,9 +148,9 @@ def ideal_robots():
         _override = saved
 
 
-def defaults_for(kind: str):
-    """The failure-mode parameters of a robot kind, or None (ideal) when switched off."""
-    return DEFAULTS.get(kind) if enabled() else None
+def defaults_for(spec: "RobotSpec"):
+    """The failure-mode parameters of a body (its SPEC's `failures`), or None (ideal) when switched off."""
+    return spec.failures if enabled() else None
 
 
 def seed_sequence(seed: int, *names) -> list[int]:

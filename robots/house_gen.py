@@ -35,6 +35,8 @@ import numpy as np
 import yaml
 from scipy import ndimage
 
+from ontology.robot_types import ROBOT_TYPES, widest_clearance_m
+
 from .floorplan import Door, Lamp, load_plan
 from .gridmap import FREE, build_grid_map
 
@@ -46,7 +48,8 @@ JUNCTION_CLEAR = 0.55  # m from a wall junction to a door gap: a perpendicular w
 PASSAGE_W, OPENING_W, HAZARD_W = 1.0, (1.0, 1.4), (0.9, 1.0)
 PASSAGE_OPEN_DEG = (80.0, 90.0)  # how far the owner leaves a passage door open (scenario overrides)
 LAMP_INSET, LAMP_Z, LAMP_STAND_M = 0.4, 1.4, 1.4
-NAV_RADIUS = 0.30 + 0.05  # the planner's Elektron footprint (agents/services/navigation.py) + slack
+# the passage every generated house leaves: the widest robot type's clearance radius (ontology/robot_types.py)
+NAV_RADIUS = widest_clearance_m()
 START_CLEARANCE = 0.7  # m from any obstacle for a robot's start pose
 QR_SIZE, QR_Z, QR_SPACING, QR_END, QR_SHIFTS = 0.35, 0.7, 2.0, 0.6, (0.0, 0.3, -0.3, 0.6, -0.6)
 QR_CORNER = 0.45  # m: no spot nearer a corner (the panel is ~0.45 m wide)
@@ -548,7 +551,9 @@ def start_poses(d: Draft, desc: dict) -> dict:
     main = int(labels[_cell(next(iter(key_points(desc).values())), origin)])
     robots = {}
     walk = [r for r in d.rooms if r.walk]
-    for kind in ("nao", "elektron"):
+    # a type added to the table is drawn after the others: their poses stay (unless the new one sees
+    # too few codes and the whole house is drawn again: well_marked)
+    for kind in ROBOT_TYPES:
         room = walk[int(d.rng.integers(len(walk)))]
         x0, y0, x1, y1 = room.rect
         r0, c0 = _cell((x0, y0), origin)

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 
+from ontology.robot_types import robot_type
+
+from .failure_modes import NaoFailures
 from .mic_array import NAO_MICS
 from .spec import CameraSpec, RangeSpec, RobotSpec
 from .urdf import JointDef, UrdfBuilder, box, cylinder, sphere
@@ -91,7 +94,7 @@ POSTURES = {
 
 
 SPEC = RobotSpec(
-    kind="nao", build_urdf=_urdf, radius=0.17, collision_height=0.45, holonomic=True,
+    kind="nao", build_urdf=_urdf, radius=robot_type("nao").body_radius_m, collision_height=0.45, holonomic=True,
     max_vx=0.12, max_vy=0.10, max_wz=0.6,
     cameras=[CameraSpec("top", "CameraTop", 60.97), CameraSpec("bottom", "CameraBottom", 60.97)],
     head_yaw="HeadYaw", head_pitch="HeadPitch", look_camera="top", joint_speed=2.0,
@@ -99,4 +102,5 @@ SPEC = RobotSpec(
     sonars=[RangeSpec("sonar_left", "SonarLeft", -0.26, 0.26, 5, 0.25, 2.55),
             RangeSpec("sonar_right", "SonarRight", -0.26, 0.26, 5, 0.25, 2.55)],
     speech=True, microphones=NAO_MICS, lift_joint="BaseLift", lift_height=lift_height, hidden_joints=("BaseLift",),
+    failures=NaoFailures(),
 )

@@ -76,7 +76,8 @@ def _mirror_scene_class():
 
     from .receptors import apply_params, render_radiance
     from .robot import create_bodies, probe_z, yaw_quat
-    from .world import ROBOT_SPECS, Scene
+    from .bodies import ROBOT_SPECS
+    from .world import Scene
 
     class MirrorScene(Scene):
         def __init__(self, plan):

@@ -80,7 +80,7 @@ class Robot:
         self.microphone = Microphone()
         self.controllers: dict[str, "Controller"] = {}
         self.locomotion: Locomotion | None = None
-        self.set_failure_modes(defaults_for(spec.kind))
+        self.set_failure_modes(defaults_for(spec))
         for j, a in spec.postures.get("StandInit", {}).items():
             self.set_joint(j, a)
         self.update_lift()

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 
 @dataclass(frozen=True)
@@ -30,9 +30,11 @@ class RangeSpec:
 
 @dataclass
 class RobotSpec:
+    """A body (robots/nao.py, robots/elektron.py) of a robot type of ontology/robot_types.py."""
+
     kind: str
     build_urdf: Callable[[], "tuple[Path, dict[str, tuple[float, float]]]"]
-    radius: float  # collision cylinder
+    radius: float  # collision cylinder: the type's body_radius_m
     collision_height: float
     holonomic: bool
     max_vx: float
@@ -53,3 +55,5 @@ class RobotSpec:
     lift_joint: str | None = None  # virtual prismatic joint keeping the feet on the floor
     lift_height: Callable[[dict[str, float]], float] | None = None
     hidden_joints: tuple[str, ...] = ()
+    # how it fails like a real one (robots/failure_modes.py NaoFailures, ElektronFailures); None: ideal
+    failures: Any = None

@@ -29,7 +29,7 @@ import numpy as np
 from .pybullet_quiet import p
 import yaml
 
-from . import elektron, nao
+from .bodies import ROBOT_SPECS
 from .controllers import Controller, Observer, Timer
 from .errors import InvalidArgument, RobotError, WorldClosed
 from .floorplan import (CEILING_COLOR, DOOR_COLOR, DOOR_HEIGHT, DOOR_THICKNESS, FLOOR_COLOR, Box, Plan,
@@ -42,13 +42,11 @@ from .receptors import Camera
 from .render_process import RenderPool, SceneState
 from .robot import Robot, yaw_quat
 from .simclock import SimClock
-from .spec import RobotSpec
 
 if TYPE_CHECKING:
     from .disturbances import ContactEvent, Disturbances, DisturbanceSpec
 
 HOUSES = Path(__file__).parent / "houses"
-ROBOT_SPECS: dict[str, RobotSpec] = {"nao": nao.SPEC, "elektron": elektron.SPEC}
 LAMP_ON_COLOR = (1.0, 0.96, 0.78)
 LAMP_OFF_COLOR = (0.22, 0.22, 0.23)
 RENDER_MODES = ("process", "inline")
@@ -337,7 +335,7 @@ class World(Scene):
     # ------------------------------------------------------------------ robots
     def add_robot(self, kind: str, name: str | None = None, pose: tuple[float, float, float] | None = None,
                   odometry_noise: OdometryNoise | None = None) -> Robot:
-        """Add a robot ("nao" or "elektron"). Without `pose` the description's start spec (fixed or a seeded
+        """Add a robot of a type of ontology/robot_types.py ("nao", "elektron"). Without `pose` the description's start spec (fixed or a seeded
         random pose in a room/region) is used. Returns the Robot; wrap it in RobotAPI for async use."""
         if kind not in ROBOT_SPECS:
             raise InvalidArgument(f"unknown robot kind {kind!r} (known: {', '.join(ROBOT_SPECS)})")

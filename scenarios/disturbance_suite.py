@@ -25,11 +25,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Awaitable, Callable
 
+from ontology import robot_types
+
 from .hazard import run_hazard_detection
 from .runner import RunInterrupted, main_loop
 
 HOUSE = "twodoors"
-ROBOTS = ("nao", "elektron")
+ROBOTS = robot_types.names()  # ontology/robot_types.py
 FAST = ("door-closed",)  # run in the default test suite (tests/test_disturbance_suite.py)
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from agents.services.context import ServiceState
 from agents.tracing import read_trace
+from ontology import robot_types
 from ontology.results import ReportRecord, TaskStage
 from ontology.trace import RecordKind, StructureEvent
 from rapps.hazard_detection.hazard_detection.models import HazardReport
@@ -36,7 +37,7 @@ from .runner import Owner, Run, RunInterrupted, check_interrupted, files_written
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
 COMMAND = "check the hazards"
 SCHEDULE_LEAD_S = 120.0  # --scheduled: the robot's clock starts this long before the time written
-ROBOTS = ("nao", "elektron")
+ROBOTS = robot_types.names()  # ontology/robot_types.py
 
 
 def hazard_reports(reports: list[ReportRecord]) -> list[HazardReport]:

@@ -25,6 +25,7 @@ import numpy as np
 
 from agents.services import hazard
 from agents.services.images import encode_image
+from ontology import robot_types
 from ontology.manifest import load_manifest
 from ontology.robot import GetCameraInfo, GetTransform, LookAtPoint, SetCameraParams
 from ontology.services.hazard import DoorCheck, LightCheck
@@ -40,7 +41,7 @@ from .home_setup import DOOR_OPEN_DEG, LAYOUTS, hazard_list, hazard_overrides, h
 
 COMMAND = ".venv/bin/python -m scenarios.hazard_validation --houses 10 --out docs/hazard-validation.md"
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
-ROBOTS = ("nao", "elektron")
+ROBOTS = robot_types.names()  # ontology/robot_types.py
 ANGLES = tuple(range(0, 91, 5))
 DOOR_VIEWS = (("house", "d_kitchen"), ("house", "d_bedroom"), ("small", "d1"))  # all the doors checked
 ROOM_LIGHT = {"dim": 0.5, "as simulated": 1.0, "bright": 2.0}  # scale of the renderer's ambient + diffuse light

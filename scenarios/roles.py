@@ -22,6 +22,7 @@ import signal
 import sys
 from pathlib import Path
 
+from ontology import robot_types
 from xmpp_server.settings import XmppSettings
 
 
@@ -205,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warm-workers", type=int, default=None, metavar="N",
                    help="platform: Cloud Agent processes kept started ahead of time (default: 1, from the "
                         "first Cloud Agent on; N: filled at start, for N robots starting Cloud Agents at once)")
-    p.add_argument("--robot", choices=["nao", "elektron"], default="nao", help="core: robot model")
+    p.add_argument("--robot", choices=robot_types.names(), default="nao", help="core: robot type")
     p.add_argument("--robot-id")
     p.add_argument("--owner", default="owner", help="core: the user whose chat it listens to")
     p.add_argument("--password", help="core: the owner's Platform/Store password (default: generated "

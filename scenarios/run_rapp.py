@@ -25,6 +25,7 @@ from pathlib import Path
 
 from agents.sandbox import allow_unsandboxed, copy_outputs
 from agents.tracing import read_trace
+from ontology import robot_types
 from ontology.results import TaskStage
 from ontology.trace import RecordKind, StructureEvent
 from robots import RobotAPI
@@ -38,7 +39,7 @@ from scenarios.runner import (Owner, Run, RunInterrupted, check_interrupted, fil
 from scenarios.system import wait_until
 from scenarios.watch import DEFAULT_PORT, WatchServer, WatchState
 
-ROBOTS = ("nao", "elektron")
+ROBOTS = robot_types.names()  # ontology/robot_types.py
 
 
 def _copy_outputs(records: list[dict], core: str, dest: Path) -> list[str]:

@@ -20,11 +20,13 @@ from pathlib import Path
 from agents.services.context import ServiceState
 from robots import OdometryNoise, RobotAPI
 
-from .hazard import COMMAND, RAPP_DIR, ROBOTS, cm, finished, finite, score_owner
+from .hazard import COMMAND, RAPP_DIR, cm, finished, finite, score_owner
 from .home_setup import HOUSES, home_description, home_map, scenario_world
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
 from .runner import Owner, Run, RunInterrupted, check_interrupted, files_written, main_loop, saving
+
+ROBOTS = ("nao", "elektron")  # the scenario's pair (paper 001's two robots), not every robot type
 
 # which hazards each robot's owner lists (split mode), per house
 SPLIT = {

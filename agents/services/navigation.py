@@ -10,6 +10,7 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
+from ontology.robot_types import ROBOT_TYPES
 from ontology.services.common import Pose2D
 from ontology.services.navigation import (
     PLAN_FOUND, PLAN_NOT_FOUND, PLAN_UNKNOWN_ALGORITHM, PLAN_UNKNOWN_MAP, PLAN_UNKNOWN_ROBOT,
@@ -22,17 +23,15 @@ from .images import b64_bytes
 from .maps import GridMap, parse_map
 from .obstacles import OverlayMap
 
-# footprint radius (m) of each robot type as the planner keeps it free: the cost map inflates obstacles
-# by it. Not the body alone (NAO 0.17 m, Elektron 0.26 m) but what its collision protection needs
-# (robots/controllers.py, the Core's 0.10 m safety margin): the NAO's sonars look 10-40 deg to each
-# side and stop it for an echo within 0.35 m, so a wall beside it must stay 0.29 m away (4 deg of
-# heading error), plus its 2 cm sway and 4 cm of the slip a leg accumulates: 0.35 m (= the generated
-# houses' guaranteed passage, robots/house_gen.NAV_RADIUS); the Elektron's laser stops it only for
-# what is ahead: its body and 4 cm (tests/services/test_navigation.py walks both beside a wall)
-ROBOT_RADIUS = {"nao": 0.35, "elektron": 0.30}
 GRID_ALGORITHMS = ("astar", "dijkstra")
 ALGORITHMS = GRID_ALGORITHMS + planning.OMPL_PLANNERS
 ESCAPE_M = 0.25  # how far a start inside an obstacle's inflation may be from free space
+
+
+def robot_radius(robot_type: str) -> float:
+    """The footprint radius (m) the cost map keeps free round a robot type: its clearance radius
+    (ontology/robot_types.py: what its collision protection needs, not its body)."""
+    return ROBOT_TYPES[robot_type].clearance_radius_m
 
 
 def map_info(m: GridMap) -> MapInfo:
@@ -55,7 +54,7 @@ def free_cells(m: GridMap, robot_type: str, margin_m: float = 0.0) -> np.ndarray
     (cached per margin). An overlay's is its base map's less the inflated marks, inflated only
     around them (inflating a union is the union of the inflations)."""
     margin_m = round(margin_m, 3)
-    radius = (ROBOT_RADIUS[robot_type] + margin_m) / m.resolution
+    radius = (robot_radius(robot_type) + margin_m) / m.resolution
     if isinstance(m, OverlayMap) and m.base is not None:
         base = m.base
         return m.cached(("free", robot_type, margin_m),
@@ -179,7 +178,7 @@ def _leave_marks(m: OverlayMap, rt: str, at) -> tuple[tuple[float, float] | None
         return (float(at[0]), float(at[1])), ""
     p = np.asarray(m.cell_to_world(*at), float)
     q = np.asarray(m.cell_to_world(*out), float)
-    reach = max(k.radius_m + ROBOT_RADIUS[rt] - math.hypot(*(p - (k.x, k.y))) for k in m.marks)
+    reach = max(k.radius_m + robot_radius(rt) - math.hypot(*(p - (k.x, k.y))) for k in m.marks)
     if not math.isfinite(dist) or dist > reach + 2 * m.resolution:
         return None, "start pose is inside temporary obstacle marks, too deep to step out of them"
     if not planning.segment_free(free_cells(m.base, rt), at, out):
@@ -189,7 +188,7 @@ def _leave_marks(m: OverlayMap, rt: str, at) -> tuple[tuple[float, float] | None
         c = np.array([k.x, k.y])
         t = float(np.clip(np.dot(c - p, d) / max(float(np.dot(d, d)), 1e-12), 0.0, 1.0))
         closest = math.hypot(*(p + t * d - c))
-        if closest < k.radius_m + ROBOT_RADIUS[rt] and closest < math.hypot(*(p - c)) - m.resolution:
+        if closest < k.radius_m + robot_radius(rt) and closest < math.hypot(*(p - c)) - m.resolution:
             return None, "start pose is inside temporary obstacle marks; stepping out would cross one"
     return out, ""
 
@@ -276,9 +275,9 @@ def plan_on_map(req: PlanPath2D, m: GridMap | None, overlay: Callable[[GridMap],
     t0 = time.perf_counter()
     if m is None:
         return PlanPathReply(plan_found=PLAN_UNKNOWN_MAP, reason=f"unknown map {req.map_id!r}")
-    if req.robot_type not in ROBOT_RADIUS:
+    if req.robot_type not in ROBOT_TYPES:
         return PlanPathReply(plan_found=PLAN_UNKNOWN_ROBOT,
-                             reason=f"unknown robot type {req.robot_type!r} (known: {', '.join(ROBOT_RADIUS)})")
+                             reason=f"unknown robot type {req.robot_type!r} (known: {', '.join(ROBOT_TYPES)})")
     if req.algorithm not in ALGORITHMS:
         return PlanPathReply(plan_found=PLAN_UNKNOWN_ALGORITHM,
                              reason=f"unknown algorithm {req.algorithm!r} (known: {', '.join(ALGORITHMS)})")

@@ -12,7 +12,8 @@ JSON) on the same core. `ServicePool` runs them in worker processes instead:
   a plan preferably to the worker that already has that map's cost maps), writes the request down
   the worker's pipe and waits for its answer, so the event loop only awaits a future;
 - state stays in the Platform: a call takes the little it needs with it (a user's learned objects,
-  a noise profile, the live obstacle marks) and gives back what it stored (a new noise profile).
+  a noise profile, the live obstacle marks) and gives back what it stored (a new noise profile), as
+  its row of the service table declares (agents/services/registry.py: reads, writes; state_parts.py).
   A map is the exception: each worker caches it under its content hash (`GridMap.content_key`),
   together with its cost maps and landmark tables, so a 4 MB grid crosses the pipe once per worker;
   a worker that no longer holds it answers "need-map" and gets it again;
@@ -49,13 +50,6 @@ from ontology.errors import ErrorCode
 
 from .errors import ServiceError
 
-# services whose work is CPU-bound: run in the pool when the Platform has one
-POOLED = frozenset({
-    "qr_detection", "face_detection", "human_detection", "object_detection_find_objects",
-    "hazard_detection_door_check", "hazard_detection_light_check",
-    "speech_recognition", "speech_noise_profile", "text_to_speech",
-    "path_planning_plan_path_2d", "face_recognition_learn", "face_recognition_recognize",
-})
 START_TIMEOUT_S = 60.0  # for a worker to fork and say it is ready (a loaded machine)
 # base maps a worker keeps (with their cost maps, graphs and landmark tables: ~40 bytes a cell),
 # counted in cells: a few large maps or hundreds of homes of a fleet
@@ -82,7 +76,7 @@ class Job:
     request: Any  # the registered request model (pickled)
     user: str
     stores: dict[str, Any] = field(default_factory=dict)  # named stores the call reads (ServiceState.store)
-    map_key: str = ""  # plan_path_2d: the map's content hash
+    map_key: str = ""  # a service on a map (ServiceSpec.on_map: plan_path_2d): the map's content hash
     map_data: tuple | None = None  # (map_id, packed grid, shape, resolution, origin, shared): sent on a miss
     marks: tuple = ()  # the caller's live obstacle marks on that map
 
@@ -95,8 +89,8 @@ def _worker_main(conn, home: str) -> None:
     from . import SERVICES
     from .context import ServiceContext, ServiceState
     from .maps import GridMap
-    from .navigation import plan_on_map
     from .obstacles import OverlayMap, disc_mask
+    from .state_parts import travel
 
     cv2.setNumThreads(1)  # one worker per core already
     # in the pool's private directory: removed with it (a worker dies by SIGKILL, it cannot clean up)
@@ -131,14 +125,15 @@ def _worker_main(conn, home: str) -> None:
         return over
 
     def serve(job: Job) -> tuple:
+        spec = SERVICES[job.service]
         if job.map_key:
             m = base_map(job)
             if m is None:
                 return ("need-map",)
-            return ("ok", plan_on_map(job.request, m, lambda base: overlay(base, job)), {})
-        state._stores = _rebuild(job.stores)
-        reply = SERVICES[job.service].run(job.request, ServiceContext(user=job.user, state=state))
-        return ("ok", reply, {name: _plain(state._stores[name]) for name in _GIVEN_BACK.get(job.service, ())
+            return ("ok", spec.on_map(job.request, m, lambda base: overlay(base, job)), {})
+        state._stores = {name: travel(name).unpack(part) for name, part in job.stores.items()}
+        reply = spec.run(job.request, ServiceContext(user=job.user, state=state))
+        return ("ok", reply, {name: travel(name).pack(state._stores[name]) for name in spec.writes
                               if name in state._stores})
 
     conn.send(("ready", os.getpid()))
@@ -162,82 +157,18 @@ def _worker_main(conn, home: str) -> None:
             return
 
 
-# what a call takes from the Platform's state and gives back (ServiceState.store names)
-_GIVEN_BACK = {"speech_noise_profile": ("speech_noise_profiles",), "face_recognition_learn": ("faces",)}
+def _taken(spec, req, ctx) -> dict[str, Any]:
+    """The part of the Platform's state a pooled call reads (ServiceSpec.reads: the caller's own entries)."""
+    taken = {name: read(req, ctx) for name, read in spec.reads.items()}
+    return {name: part for name, part in taken.items() if part is not None}
 
 
-def _rebuild(stores: dict[str, Any]) -> dict[str, Any]:
-    """Stores as the services expect them (the learned objects travel as a plain dict)."""
-    out = dict(stores)
-    if "objects" in out:
-        from .vision import ObjectModels
+def _merge(ctx, given: dict[str, Any]) -> None:
+    """What a pooled call stored (ServiceSpec.writes), into the Platform's state (and its saved data)."""
+    from .state_parts import merge
 
-        models = ObjectModels()
-        models.models = out["objects"]
-        out["objects"] = models
-    if "homes" in out:
-        from .home import HomeStore
-
-        out["homes"] = HomeStore.holding(out["homes"])
-    if "faces" in out:
-        from .faces import FaceGallery
-
-        gallery = FaceGallery()
-        gallery.people = out["faces"]
-        out["faces"] = gallery
-    return out
-
-
-def _plain(store: Any) -> Any:
-    from .faces import FaceGallery
-
-    if isinstance(store, FaceGallery):
-        return store.people
-    return dict(store) if isinstance(store, dict) else store
-
-
-def _taken(service: str, req, ctx) -> dict[str, Any]:
-    """The part of the Platform's state a pooled call reads (the caller's own entries only)."""
-    if service == "object_detection_find_objects":
-        from .vision import models
-
-        store = models(ctx)
-        with store.lock:
-            return {"objects": {ctx.user: dict(store.models.get(ctx.user, {}))}}
-    if service == "speech_recognition":
-        out: dict[str, Any] = {}
-        if req.noise_profile:
-            profiles = ctx.state.store("speech_noise_profiles", dict)
-            key = (ctx.user, req.noise_profile)
-            out["speech_noise_profiles"] = {key: profiles[key]} if key in profiles else {}
-        from .speech import needs_rooms
-        if needs_rooms(req):  # the rooms of the caller's homes, and nothing else of them
-            from .home import homes
-            out["homes"] = {key: info.model_copy(update={"hazards": [], "landmarks": {}, "doors": []})
-                            for key, info in homes(ctx.state).of_user(ctx.user).items()}
-        return out
-    if service == "speech_noise_profile":
-        return {"speech_noise_profiles": {}}
-    if service in ("face_recognition_learn", "face_recognition_recognize"):
-        from .faces import gallery
-
-        mine = gallery(ctx).of(ctx.user)
-        if service == "face_recognition_learn":  # the samples it adds to, if any
-            mine = {req.name: mine[req.name]} if req.name in mine else {}
-        return {"faces": {ctx.user: mine}}
-    return {}
-
-
-def _merge(service: str, ctx, given: dict[str, Any]) -> None:
-    """What a pooled call stored, into the Platform's state (and so its saved data)."""
-    for name, entries in given.items():
-        if name == "faces":
-            from .faces import gallery
-
-            for person, descriptors in entries.get(ctx.user, {}).items():
-                gallery(ctx).put(ctx.user, person, descriptors)
-            continue
-        ctx.state.store(name, dict).update(entries)
+    for name, part in given.items():
+        merge(ctx, name, part)
 
 
 # ================================================================================ Platform side
@@ -439,7 +370,7 @@ def _deliver(fut: asyncio.Future, result) -> None:
 
 
 class ServicePool:
-    """Worker processes for the CPU-bound services (POOLED); see the module docstring."""
+    """Worker processes for the CPU-bound services (ServiceSpec.pooled); see the module docstring."""
 
     def __init__(self, size: int | None = None, *, name: str = "platform"):
         self.size = max(1, int(size or os.cpu_count() or 1))
@@ -513,14 +444,15 @@ class ServicePool:
         """The service's reply, computed in a worker process (ServiceError as the service raised it)."""
         if self.closed:
             raise PoolClosed()
-        job = Job(service, req, ctx.user, stores=_taken(service, req, ctx))
-        m = None
-        if service == "path_planning_plan_path_2d":
-            from .navigation import plan_on_map
+        from .registry import SERVICES
 
+        spec = SERVICES[service]
+        job = Job(service, req, ctx.user, stores=_taken(spec, req, ctx))
+        m = None
+        if spec.on_map is not None:
             m = ctx.state.maps.get(ctx.user, req.map_id)
             if m is None:  # answered here: nothing to compute
-                return plan_on_map(req, None, lambda base: base)
+                return spec.on_map(req, None, lambda base: base)
             if req.use_obstacles:
                 job.marks = tuple(sorted(ctx.state.obstacles.marks(ctx.user, m.map_id), key=lambda k: k.shape))
             known = m.peek(("content-key",))
@@ -532,7 +464,7 @@ class ServicePool:
         if out[0] == "error":
             raise ServiceError(out[1], out[2])
         if out[2]:  # written through to the Platform's saved data: off the event loop
-            await asyncio.to_thread(_merge, service, ctx, out[2])
+            await asyncio.to_thread(_merge, ctx, out[2])
         return out[1]
 
     def close(self) -> None:

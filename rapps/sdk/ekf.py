@@ -4,7 +4,8 @@
 The state is the robot's pose (x, y, theta) in the map frame with its 3x3 covariance. `predict` moves
 it by an odometry displacement (robot frame) and grows the covariance by the odometry's error model;
 `update` fuses a pose fix (a QR-code localization) with its covariance, optionally refusing a fix too
-far from the prediction (Mahalanobis gate). numpy only.
+far from the prediction (Mahalanobis gate). numpy only; each robot type's odometry model comes from
+ontology/robot_types.py.
 
     ekf = PoseEKF((x, y, theta), std_m=0.5, std_rad=0.3)          # the start pose, hardly trusted
     ekf.predict_between(odom_before, odom_after, ODOMETRY["nao"], travelled_m=1.2, turned_rad=0.4)
@@ -14,9 +15,12 @@ far from the prediction (Mahalanobis gate). numpy only.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping
+from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from ontology.robot_types import ROBOT_TYPES, Odometry
 
 CHI2_3DOF_99 = 11.34  # chi-square, 3 degrees of freedom, 99 %: a consistent fix is refused 1 time in 100
 
@@ -39,16 +43,10 @@ def compose(a, d) -> tuple[float, float, float]:
 
 
 @dataclass(frozen=True)
-class OdometryModel:
+class OdometryModel(Odometry):
     """How wrong a robot's odometry may be (1 sigma), as a RApp developer calibrates it: random parts grow
-    with the square root of the motion, systematic parts (slip, drift) with the motion itself."""
-
-    trans_std: float  # m per sqrt(m) travelled
-    trans_rel: float  # fraction of the distance (systematic slip)
-    rot_std: float  # rad per sqrt(rad) turned
-    rot_rel: float  # fraction of the turn (systematic slip)
-    heading_std: float  # rad per sqrt(m) travelled
-    heading_drift: float  # rad per m travelled (systematic)
+    with the square root of the motion, systematic parts (slip, drift) with the motion itself (the
+    fields of ontology.robot_types.Odometry)."""
 
     def covariance(self, d: float, r: float) -> np.ndarray:
         """Robot-frame covariance of a displacement over `d` m and `r` rad, straight ahead: slip along it;
@@ -60,14 +58,21 @@ class OdometryModel:
         return np.diag([var_t, self.trans_std ** 2 * d + var_h * d * d / 3, var_th])
 
 
-# What the hazard RApp assumes of each robot's odometry; deliberately generous (a filter that trusts its
-# prediction too much refuses good fixes). The NAO's walk slips far more than the Elektron's wheels.
-ODOMETRY = {
-    "nao": OdometryModel(trans_std=0.02, trans_rel=0.05, rot_std=0.05, rot_rel=0.05, heading_std=0.08,
-                         heading_drift=0.05),
-    "elektron": OdometryModel(trans_std=0.01, trans_rel=0.02, rot_std=0.03, rot_rel=0.04, heading_std=0.02,
-                              heading_drift=0.05),
-}
+class _OdometryByType(Mapping[str, OdometryModel]):
+    """What a RApp assumes of each robot type's odometry: the `odometry` row of
+    ontology/robot_types.py, read there at each look-up (a type added to the table has its model)."""
+
+    def __getitem__(self, robot_type: str) -> OdometryModel:
+        return OdometryModel(**asdict(ROBOT_TYPES[robot_type].odometry))
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(ROBOT_TYPES)
+
+    def __len__(self) -> int:
+        return len(ROBOT_TYPES)
+
+
+ODOMETRY: Mapping[str, OdometryModel] = _OdometryByType()
 
 
 class PoseEKF:

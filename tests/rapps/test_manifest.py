@@ -95,8 +95,12 @@ def test_version_key_orders_numerically():
         version_key("1.2")
 
 
-def test_known_robot_types():
-    assert ROBOT_TYPES == {"nao", "elektron"}
+def test_known_robot_types_are_the_robot_type_table():
+    from ontology import robot_types
+
+    assert ROBOT_TYPES is robot_types.ROBOT_TYPES and list(ROBOT_TYPES) == ["nao", "elektron"]
+    with pytest.raises(ManifestError, match=r"unknown robot type\(s\) \['pepper'\]; known: \['elektron', 'nao'\]"):
+        manifest_from_dict(manifest(robot_types=["pepper"]))
 
 
 _json = st.recursive(st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from ontology.robot import GetGlobalPose, MoveJoint, MoveTo, SetCameraParams
-from robots.failure_modes import (DEFAULTS, NAO_SONAR, CameraNoise, ideal_robots, noisy_ranges)
+from ontology.robot_types import ROBOT_TYPES
+from robots.bodies import ROBOT_SPECS
+from robots.failure_modes import (NAO_SONAR, CameraNoise, ideal_robots, noisy_ranges)
 from robots.odometry import wrap
 from robots.receptors import ImageParams, apply_params
 
@@ -167,5 +169,6 @@ async def test_sonar_and_laser_readings_are_noisy(make_world):
 
 
 def test_every_robot_kind_has_failure_modes():
-    assert set(DEFAULTS) == {"nao", "elektron"}
-    assert DEFAULTS["nao"].camera == CameraNoise() and DEFAULTS["nao"].walk.sway_amplitude_m == 0.02
+    assert all(ROBOT_SPECS[kind].failures is not None for kind in ROBOT_TYPES)
+    nao = ROBOT_SPECS["nao"].failures
+    assert nao.camera == CameraNoise() and nao.walk.sway_amplitude_m == 0.02

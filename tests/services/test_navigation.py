@@ -116,14 +116,14 @@ def test_clearance_kept_where_the_passage_allows(ctx):
     kept = plan(ctx, "nao", map_id="wide", start=start, goal=goal)
     assert bare.plan_found == kept.plan_found == 1
     assert bare.clearance_m == 0.0 and kept.clearance_m == pytest.approx(0.20)  # the default
-    assert clearance(ctx, "wide", bare.path) < navigation.ROBOT_RADIUS["nao"] + 0.04
+    assert clearance(ctx, "wide", bare.path) < navigation.robot_radius("nao") + 0.04
     # within a cell's discretisation (inflation by cell centres, line of sight at half cells)
-    assert clearance(ctx, "wide", kept.path) >= navigation.ROBOT_RADIUS["nao"] + 0.20 - RES / 2
+    assert clearance(ctx, "wide", kept.path) >= navigation.robot_radius("nao") + 0.20 - RES / 2
     # Elektron with 0.30 m + 0.20 m (or 0.10 m) does not fit through 0.75 m: less margin, still a path
     upload(ctx, "mid", passage_map(0.75))
     el = plan(ctx, "elektron", map_id="mid", start=start, goal=goal)
     assert el.plan_found == 1 and 0.0 < el.clearance_m < 0.10
-    assert clearance(ctx, "mid", el.path) >= navigation.ROBOT_RADIUS["elektron"] + el.clearance_m - RES / 2
+    assert clearance(ctx, "mid", el.path) >= navigation.robot_radius("elektron") + el.clearance_m - RES / 2
 
 
 def test_start_against_an_obstacle_escapes(ctx):
@@ -166,8 +166,8 @@ def test_astar_matches_dijkstra_on_house():
 
 @pytest.mark.parametrize("robot", ["nao", "elektron"])
 def test_the_planned_footprint_keeps_the_robots_collision_protection_quiet_beside_a_wall(robot):
-    """navigation.ROBOT_RADIUS is what each robot's collision protection needs (issue 42): a robot
-    whose path keeps that far from a wall, off it by its sway and a leg's slip (NAO: 2 + 4 cm,
+    """The clearance radius (ontology/robot_types.py, navigation.robot_radius) is what each robot's
+    collision protection needs (issue 42): a robot whose path keeps that far from a wall, off it by its sway and a leg's slip (NAO: 2 + 4 cm,
     Elektron: 4 cm) and turned 4 deg towards it, is not stopped by its own protection (the Core's
     0.10 m margin)."""
     import math
@@ -179,12 +179,12 @@ def test_the_planned_footprint_keeps_the_robots_collision_protection_quiet_besid
     world = World.from_file("small", seed=1)  # the bedroom's south wall: its face at y = 0.05
     try:
         with ideal_robots():
-            r = world.add_robot(robot, pose=(4.6, 0.05 + navigation.ROBOT_RADIUS[robot] - off, math.radians(-4)))
+            r = world.add_robot(robot, pose=(4.6, 0.05 + navigation.robot_radius(robot) - off, math.radians(-4)))
         margin = world.run_sync(r.front_margin)
         assert margin > 0.10, margin
         assert not world.run_sync(r.collides, *r.pose[:2])
         with ideal_robots():  # and 3 cm nearer it would be: the radius is not needlessly wide
-            near = world.add_robot(robot, name="near", pose=(4.6, 0.05 + navigation.ROBOT_RADIUS[robot] - off - 0.03,
+            near = world.add_robot(robot, name="near", pose=(4.6, 0.05 + navigation.robot_radius(robot) - off - 0.03,
                                                            math.radians(-4)))
         assert world.run_sync(near.front_margin) <= 0.10 or world.run_sync(near.collides, *near.pose[:2])
     finally:

@@ -13,6 +13,7 @@ from agents.services.errors import ServiceError
 from agents.services.maps import GridMap
 from agents.services.obstacles import MAX_MARKS, ObstacleLayers
 from ontology.errors import ErrorCode
+from ontology.robot_types import ROBOT_TYPES
 from ontology.services.common import Pose2D
 from ontology.services.navigation import (
     PLAN_FOUND, PLAN_NOT_FOUND, AddObstacle, ClearObstacles, ListObstacles, PlanPath2D,
@@ -96,7 +97,7 @@ def test_a_mark_in_one_doorway_sends_the_plan_through_the_other(state):
     assert through(detour, UPPER), door_crossed(detour)
     assert detour.obstacles_used == 1 and detour.length_m > direct.length_m + 1.5
     centre = np.array(LOWER_DOOR)
-    assert min(math.dist((p.x, p.y), centre) for p in detour.path) > 0.3 + navigation.ROBOT_RADIUS["elektron"]
+    assert min(math.dist((p.x, p.y), centre) for p in detour.path) > 0.3 + navigation.robot_radius("elektron")
     assert obstacles.list_obstacles(ListObstacles(map_id="rooms"), alice) == layer.model_copy(update={"added": ""})
 
 
@@ -193,9 +194,9 @@ def test_an_overlays_cost_map_and_components_match_the_full_computation(state):
     layers.add("alice", base, 5.9, 4.9, 0.4, 60.0)  # over the map's corner
     over = layers.overlay("alice", base)
     seen = set()
-    for robot in navigation.ROBOT_RADIUS:
+    for robot in ROBOT_TYPES:
         for margin in (0.0, 0.1):
-            radius = (navigation.ROBOT_RADIUS[robot] + margin) / RES
+            radius = (navigation.robot_radius(robot) + margin) / RES
             free = navigation.free_cells(over, robot, margin)
             assert np.array_equal(free, ~planning.inflate(over.blocked, radius))
             graph = planning.GridGraph(free)
@@ -251,7 +252,7 @@ def test_a_start_inside_a_marks_disc_backs_out_and_plans(state):
     assert through(reply, UPPER) and reply.obstacles_used == 1
     dist = [math.dist((p.x, p.y), centre) for p in reply.path]
     assert dist[0] < radius
-    reach = radius + navigation.ROBOT_RADIUS["elektron"]
+    reach = radius + navigation.robot_radius("elektron")
     out = next(i for i, d in enumerate(dist) if d >= reach - 2 * RES)
     assert all(a <= b + 1e-6 for a, b in zip(dist[:out], dist[1:out + 1]))  # backs straight away
     assert min(dist[out:]) >= reach - 2 * RES
