@@ -275,21 +275,21 @@ class AgentProcess:
             # raised before that, it ran the whole RApp at nice 19 (27 s to start on a loaded machine)
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(worker.confined.wait(), CONFINED_WITHIN_S)
-        self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
-        self._logged_out = worker._logged_out
+        self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login  # noqa: SLF001 - same class
+        self._logged_out = worker._logged_out  # noqa: SLF001 - same class
         self.cgroup, self.runtime_pid, self.refusals = worker.cgroup, worker.runtime_pid, worker.refusals
         worker.cgroup = None  # this run's to clean up now
-        self._report_r, worker._report_r = worker._report_r, None
+        self._report_r, worker._report_r = worker._report_r, None  # noqa: SLF001 - same class
         if self._report_r is not None:  # the worker's events are this run's now
             loop = asyncio.get_running_loop()
             loop.remove_reader(self._report_r)
             loop.add_reader(self._report_r, self._sandbox_said)
         self._waiter.add_done_callback(lambda _: self._after_exit())
-        self._trace, worker._trace = worker._trace, None
+        self._trace, worker._trace = worker._trace, None  # noqa: SLF001 - same class
         if self._trace is not None:
             self._trace.who, self._trace.pid = self.identity, lambda: self.pid
-        spec_w, worker._spec_w = worker._spec_w, None
-        worker._forget_ready()
+        spec_w, worker._spec_w = worker._spec_w, None  # noqa: SLF001 - same class
+        worker._forget_ready()  # noqa: SLF001 - same class
         self.spec, self.warm = self._placed(self._given), True
         try:
             await asyncio.to_thread(self._hand_over, worker.workdir, spec_w, worker.nice)

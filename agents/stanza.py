@@ -23,6 +23,7 @@ from xml.sax.saxutils import escape, quoteattr
 from spade.message import SPADE_X_METADATA, Message
 
 from ontology import acl
+from xmpp_server.compat import metadata_of
 
 _XDATA = "{jabber:x:data}"
 _FORM, _TITLE, _FIELD, _VALUE = _XDATA + "x", _XDATA + "title", _XDATA + "field", _XDATA + "value"
@@ -45,7 +46,7 @@ def _attr(value: str) -> str:
 def message_xml(msg: Message, form: bool = False) -> str:
     """The stanza of `msg`; its metadata compact unless `form` (or a key or value that an attribute
     cannot carry as it is)."""
-    meta = msg._metadata  # SPADE keeps metadata here; there is no public accessor in 4.1.4
+    meta = metadata_of(msg)
     stanza_id = meta.get(acl.REPLY_WITH) or uuid.uuid4().hex
     parts = [f"<message to={_attr(str(msg.to))} from={_attr(str(msg.sender))} type=\"chat\" "
              f"id={_attr(stanza_id)}>"]

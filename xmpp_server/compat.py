@@ -1,17 +1,31 @@
 """Every patch of a third-party internal (SPADE, slixmpp, pyjabber), in one module, installed by one
 explicit call that first checks the installed versions against the pins:
 
-    install_agent_patches()    RappAgent.__init__ (every agent process)
+    install_agent_patches()    AgentDoor.__init__, i.e. RappAgent's (every agent process)
     install_server_patches()   xmpp_server.embedded.build_server (the embedded server process)
 
-Each patch is idempotent and names the upstream code it replaces; docs/spade-pitfalls.md lists them.
-A version other than the pinned one fails with PinMismatch: the patches repeat pinned upstream code.
+and every override of, or read from, their private members:
+
+    AgentDoor         spade.agent.Agent's _async_connect, _message_received and container (mixin)
+    ConnectsTo        spade.agent.Agent's _async_connect alone (the benchmark's bare SPADE floor)
+    metadata_of       spade.message.Message._metadata (no public mapping in 4.1.4)
+    end_filter_task   slixmpp's XMLStream._run_out_filters
+    configure_server  pyjabber's Server._http_server and _host
+
+Each names the upstream code it replaces; docs/spade-pitfalls.md lists them. A version other than
+the pinned one fails with PinMismatch: the patches repeat pinned upstream code. ruff's SLF001
+(private member access) is off for this module only (pyproject.toml): a reach-in anywhere else
+fails the lint.
 """
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import itertools
 import logging
+import operator
 from importlib.metadata import PackageNotFoundError, version
+from typing import Any, Callable
 
 _log = logging.getLogger("rapp.compat")
 PINS = {"spade": "4.1.4", "pyjabber": "0.4.5", "slixmpp-multiplatform": "1.12.0"}
@@ -36,6 +50,15 @@ def check_pins(*dists: str) -> dict[str, str]:
 
 
 _installed: set[str] = set()
+_checked: set[str] = set()
+
+
+def _check_once(*dists: str) -> None:
+    """check_pins, once per process and distribution (agents are built many times in one)."""
+    todo = [d for d in dists if d not in _checked]
+    if todo:
+        check_pins(*todo)
+        _checked.update(todo)
 
 
 def install_agent_patches() -> None:
@@ -43,6 +66,7 @@ def install_agent_patches() -> None:
     if "agent" in _installed:
         return
     check_pins("spade", "slixmpp-multiplatform", "pyjabber")
+    _checked.update(("spade", "slixmpp-multiplatform", "pyjabber"))
     import spade.agent
     from spade.behaviour import CyclicBehaviour
 
@@ -130,6 +154,107 @@ def configure_server(server, bind_host: str):
 
 
 # -- SPADE ------------------------------------------------------------------------------------
+class ConnectsTo:
+    """Mixed in before spade.agent.Agent: log in at `connect_addresses()[0]` (host, port) whatever
+    the JID's domain is, and with more than one address, try the next when one is refused.
+
+    SPADE 4.1.4's Agent._async_connect (pinned) calls `client.connect(host=jid.host, port=...)`: the
+    JID's domain is a name, not where the server listens (loopback, a cluster node). The client's
+    connect is replaced for that call; `reconnect_to(host, port)` calls the original (SPADE never
+    reconnects by itself). slixmpp retries a refused address by itself; with fallback servers the
+    next one is tried instead."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        _check_once("spade", "slixmpp-multiplatform")
+        super().__init__(*args, **kwargs)
+
+    def connect_addresses(self) -> list[tuple[str, int]]:
+        raise NotImplementedError  # the host says where its server is
+
+    def reconnect_to(self, host: str, port: int) -> None:
+        self._connect_original(host=host, port=port)
+
+    async def _async_connect(self) -> None:
+        client = self.client
+        connect = self._connect_original = client.connect
+        addresses = self.connect_addresses()
+        host, port = addresses[0]
+        client.connect = lambda *a, **kw: connect(host=host, port=port)  # SPADE passes the JID's
+        if len(addresses) == 1:
+            await super()._async_connect()
+            return
+        # later: the failed attempt reschedules itself first, and connect() cancels that
+        turn, connecting = itertools.count(1), [True]
+        loop = asyncio.get_running_loop()
+
+        def next_server(_error: object) -> None:
+            h, p = addresses[next(turn) % len(addresses)]
+            loop.call_later(0.2, lambda: connecting[0] and connect(host=h, port=p))
+        client.add_event_handler("connection_failed", next_server)
+        try:
+            await super()._async_connect()
+        finally:
+            connecting[0] = False  # logged in, failed or given up: no further attempt
+            client.del_event_handler("connection_failed", next_server)
+
+
+class _RoutingContainer:
+    """Stands in for SPADE's Container on one agent, so every send passes through the agent."""
+
+    def __init__(self, real: Any, agent: Any) -> None:
+        self._real, self._agent = real, agent
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._real, name)
+
+    async def send(self, msg: Any, behaviour: Any = None) -> None:
+        await self._agent.send(msg)
+
+
+class AgentDoor(ConnectsTo):
+    """Mixed in before spade.agent.Agent (`class RappAgent(AgentDoor, Agent)`): the agent's patches
+    installed (pins checked first), and SPADE's private agent members replaced by public hooks:
+
+    - `stanza_received(node)` gets every message stanza; it replaces Agent._message_received
+      (Message.from_node, then dispatch to the behaviours' queues);
+    - `send(msg)` gets every message a behaviour sends: SPADE's CyclicBehaviour.send goes to
+      `agent.container.send`, which hands an agent of the same process the sender's own object
+      without the agent seeing it; `container` becomes a stand-in whose send is the agent's.
+      `local_agent(jid)` finds a running agent of this process, `leave_container()` forgets this
+      one (SPADE's stop does not; a restarted agent of the same name would be handed messages);
+    - the server address: see ConnectsTo."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        install_agent_patches()
+        super().__init__(*args, **kwargs)
+        self._spade_container = self.container  # set by Agent.__init__
+        self.container = _RoutingContainer(self._spade_container, self)
+
+    def stanza_received(self, node: Any) -> Any:
+        return super()._message_received(node)
+
+    def _message_received(self, node: Any) -> Any:
+        return self.stanza_received(node)
+
+    def local_agent(self, jid: str) -> Any:
+        """The running agent of this process at `jid` (full, else bare), or None."""
+        real = self._spade_container
+        for key in (jid, jid.split("/", 1)[0]):
+            if real.has_agent(key):
+                agent = real.get_agent(key)
+                if agent.is_alive():
+                    return agent
+        return None
+
+    def leave_container(self) -> None:
+        self._spade_container.unregister(str(self.jid))
+
+
+# SPADE's Message.get_metadata, without its call (one per field and message read): its mapping is
+# private in 4.1.4, an attribute getter reads it at C speed
+metadata_of: Callable[[Any], dict[str, str]] = operator.attrgetter("_metadata")
+
+
 async def _cancellable_step(self) -> None:
     """SPADE's CyclicBehaviour._step with one change: cancellation ends the behaviour.
 
@@ -232,6 +357,18 @@ def rapp_xmpp_client_class():
 
 
 # -- slixmpp ----------------------------------------------------------------------------------
+async def end_filter_task(client: Any) -> None:
+    """Cancel and await the client's stanza-filter task. slixmpp 1.12.0 (pinned) keeps it alive
+    across disconnects in the private XMLStream._run_out_filters (for reconnecting), so a stopped
+    client would leave it pending and asyncio would report "Task was destroyed but it is pending!"
+    when the loop closes."""
+    task = getattr(client, "_run_out_filters", None)
+    if task is not None and not task.done():
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, Exception):
+            await task
+
+
 def match_only_its_tag(handler) -> None:
     """A stanza handler whose matcher names its stanza's tag (MatchXPath `{ns}message/...`,
     StanzaPath `iq@type=set/...`) is tried only on stanzas with that tag.

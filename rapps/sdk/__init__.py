@@ -145,15 +145,15 @@ class TaskLog:
     """`self.log.info("...")`: a line in the run's trace (kind "log", with the behaviour state it was
     written in) and in the Dynamic Agent's Python log (its stderr.log in the run directory)."""
 
-    def __init__(self, task: "Task"):
-        self._task = task
+    def __init__(self, task: "Task", trace: Callable[..., None]):
+        self._task, self._trace = task, trace
         self._py = logging.getLogger(f"rapp.task.{task.manifest.name}")
 
     def _write(self, level: str, message: str, *args) -> None:
         text = message % args if args else message
         state = "/".join(self._task.state_path())
         getattr(self._py, level)("[%s] %s", state or "-", text)
-        self._task._trace(RecordKind.LOG, level=level, message=text[:2000], state=state)
+        self._trace(RecordKind.LOG, level=level, message=text[:2000], state=state)
 
     def debug(self, message: str, *args) -> None:
         self._write("debug", message, *args)
@@ -191,7 +191,7 @@ class Task:
                                 runtime.manifest.version, self.cloud_ontology)
         self.root: Behaviour | None = None  # what build() returned (set by the runtime)
         self.memory: dict = getattr(runtime, "memory", {})
-        self.log = TaskLog(self)
+        self.log = TaskLog(self, self._trace)
         self.marks = ObstacleMarks(self)  # obstacles entered into the Platform's map (rapps/sdk/monitor.py)
         self.bb = Blackboard(self.keys, self.memory, writer=lambda: (self.state_path() or [""])[-1],
                              trace=self._trace)

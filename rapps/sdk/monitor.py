@@ -232,8 +232,8 @@ class PlanMonitor:
 
     def _fail(self, ex: Expectation, reason: str):
         obstacle = getattr(ex, "obstacle", None)
-        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.PLAN_FAILED, expectation=ex.name,
-                         reason=reason, obstacle=list(obstacle) if obstacle else None)
+        _record(self.task, event=StructureEvent.PLAN_FAILED, expectation=ex.name,
+                reason=reason, obstacle=list(obstacle) if obstacle else None)
         raise PlanFailed(ex.name, reason, obstacle, backed_off=getattr(ex, "backed_off", False))
 
 
@@ -254,8 +254,8 @@ class ObstacleMarks:
         if not layer.added:
             return ""
         self.marks[layer.added] = (map_id, (x, y))
-        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_MARKED, mark=layer.added,
-                         x=round(x, 3), y=round(y, 3), radius_m=radius_m, note=note)
+        _record(self.task, event=StructureEvent.OBSTACLE_MARKED, mark=layer.added,
+                x=round(x, 3), y=round(y, 3), radius_m=radius_m, note=note)
         return layer.added
 
     def near(self, point: Point, within_m: float) -> list[str]:
@@ -281,8 +281,8 @@ class ObstacleMarks:
         except RequestError as e:
             self.task.log.warning("could not clear the obstacle mark %s: %s", mark_id, e)
             return
-        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,
-                         x=round(x, 3), y=round(y, 3))
+        _record(self.task, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,
+                x=round(x, 3), y=round(y, 3))
 
 
 class _EventsHub:
@@ -299,12 +299,18 @@ class _EventsHub:
 
 
 async def events_hub(task) -> _EventsHub:
+    """The task's one hub, kept in its instance dictionary (a Task knows nothing of monitors)."""
     hub = task.__dict__.get("_events_hub")
     if hub is None:
-        hub = task._events_hub = _EventsHub(task)
+        hub = task.__dict__["_events_hub"] = _EventsHub(task)
         try:
             await task.subscribe(EventTopic.OBSTACLE, EventTopic.OBSTACLE_CLEAR, handler=hub.on_event)
         except BaseException:
-            del task._events_hub  # the next monitor tries again
+            del task.__dict__["_events_hub"]  # the next monitor tries again
             raise
     return hub
+
+
+def _record(task, **fields) -> None:
+    """A structure record in the task's trace (the SDK's own Task: its trace is not RApp API)."""
+    task._trace(RecordKind.STRUCTURE, **fields)  # noqa: SLF001
