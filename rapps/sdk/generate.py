@@ -10,6 +10,7 @@ from __future__ import annotations
 import sys
 import types
 import typing
+from typing import Any
 from pathlib import Path
 
 from pydantic_core import PydanticUndefined
@@ -17,7 +18,7 @@ from pydantic_core import PydanticUndefined
 import ontology.robot  # noqa: F401 - registers the robot actions
 import ontology.services  # noqa: F401 - registers the Platform services
 from ontology.platform import ServiceRequest
-from ontology.registry import actions
+from ontology.registry import Action, actions
 
 OUT = Path(__file__).with_name("calls.py")
 SIMPLE = (int, float, str, bool, type(None))
@@ -25,10 +26,10 @@ HIDDEN = {"token"}  # filled in by the proxy
 
 
 class _Types:
-    def __init__(self):
+    def __init__(self) -> None:
         self.imports: dict[str, set[str]] = {}
 
-    def name(self, tp) -> str:
+    def name(self, tp: Any) -> str:
         origin = typing.get_origin(tp)
         if origin is typing.Literal:
             return "Literal[" + ", ".join(repr(a) for a in typing.get_args(tp)) + "]"
@@ -52,8 +53,9 @@ class _Types:
         return "Any"
 
 
-def _method(name: str, model, t: _Types, hidden: set[str]) -> list[str]:
-    params, doc = [], (model.__doc__ or "").strip().splitlines()
+def _method(name: str, model: type[Action], t: _Types, hidden: set[str]) -> list[str]:
+    params: list[str] = []
+    doc = (model.__doc__ or "").strip().splitlines()
     for field, info in model.model_fields.items():
         if field in hidden:
             continue
