@@ -233,8 +233,8 @@ class PlanMonitor:
 
     def _fail(self, ex: Expectation, reason: str) -> NoReturn:
         obstacle = getattr(ex, "obstacle", None)
-        _record(self.task, event=StructureEvent.PLAN_FAILED, expectation=ex.name,
-                reason=reason, obstacle=list(obstacle) if obstacle else None)
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.PLAN_FAILED, expectation=ex.name,  # noqa: SLF001 - the SDK's own Task
+                         reason=reason, obstacle=list(obstacle) if obstacle else None)
         raise PlanFailed(ex.name, reason, obstacle, backed_off=getattr(ex, "backed_off", False))
 
 
@@ -256,8 +256,8 @@ class ObstacleMarks:
         if not added:
             return ""
         self.marks[added] = (map_id, (x, y))
-        _record(self.task, event=StructureEvent.OBSTACLE_MARKED, mark=added,
-                x=round(x, 3), y=round(y, 3), radius_m=radius_m, note=note)
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_MARKED, mark=added,  # noqa: SLF001 - the SDK's own Task
+                         x=round(x, 3), y=round(y, 3), radius_m=radius_m, note=note)
         return added
 
     def near(self, point: Point, within_m: float) -> list[str]:
@@ -283,8 +283,8 @@ class ObstacleMarks:
         except RequestError as e:
             self.task.log.warning("could not clear the obstacle mark %s: %s", mark_id, e)
             return
-        _record(self.task, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,
-                x=round(x, 3), y=round(y, 3))
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
+                         x=round(x, 3), y=round(y, 3))
 
 
 class _EventsHub:
@@ -313,7 +313,3 @@ async def events_hub(task: Any) -> _EventsHub:
             raise
     return hub
 
-
-def _record(task: Any, **fields: Any) -> None:
-    """A structure record in the task's trace (the SDK's own Task: its trace is not RApp API)."""
-    task._trace(RecordKind.STRUCTURE, **fields)  # noqa: SLF001
