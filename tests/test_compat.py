@@ -1,5 +1,5 @@
 """xmpp_server/compat.py: the patches of SPADE, slixmpp and pyjabber internals are installed by one
-call that checks the pinned versions first."""
+call that checks the pinned versions first, and nothing outside it overrides or patches them."""
 from __future__ import annotations
 
 import ast
