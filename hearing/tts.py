@@ -53,13 +53,10 @@ _collect = _CALLBACK(_on_samples)
 
 @contextlib.contextmanager
 def _fresh_engine() -> Iterator[tuple[ctypes.CDLL, int]]:
-    """The library loaded afresh for one synthesis, under the lock, and unloaded after it. eSpeak
-    NG's wave generator keeps state in static variables (flutter and pitch phases, the echo
-    buffer) that espeak_Terminate does not reset: the same text came out with other samples after
-    other syntheses in the process, and the keyword test's margin moved with the tests run before
-    it. A fresh load costs ~1 ms (measured: 3.5 ms a call with the synthesis of a short command).
-    All under the lock also keeps two first calls from initialising at once (20 NAOs in one
-    process: glibc aborted on a corrupted heap)."""
+    """The library loaded afresh for one synthesis, under the lock, and unloaded after it: eSpeak NG's
+    wave generator keeps state in static variables that espeak_Terminate does not reset, so a text's
+    samples would depend on the syntheses before it; two first calls must not initialise at once
+    (what was seen and what a load costs: docs/sound.md, "Decoders")."""
     try:
         import espeakng_loader
     except ImportError:

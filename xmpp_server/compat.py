@@ -305,9 +305,8 @@ def rapp_xmpp_client_class():
     message data forms left as XML.
 
     slixmpp builds a fresh default SSL context for every client and loads the system CA store into it
-    twice (``create_default_context`` + ``set_default_verify_paths``): ~75 ms of every login, i.e. most
-    of an in-process Dynamic Agent's hand-off, spent on certificates that are never checked on loopback.
-    With ``verify_security`` off every client shares one context without CA paths; with it on, nothing
+    twice (``create_default_context`` + ``set_default_verify_paths``): most of a login's event-loop
+    time, spent on certificates that are never checked on loopback (docs/spade-pitfalls.md). With ``verify_security`` off every client shares one context without CA paths; with it on, nothing
     changes. The body repeats ``spade.xmpp_client.XMPPClient.__init__`` of spade 4.1.4 (pinned) with the
     context passed through; revisit on any SPADE upgrade (docs/spade-pitfalls.md).
     """
@@ -373,10 +372,9 @@ def match_only_its_tag(handler) -> None:
     """A stanza handler whose matcher names its stanza's tag (MatchXPath `{ns}message/...`,
     StanzaPath `iq@type=set/...`) is tried only on stanzas with that tag.
 
-    slixmpp's XMLStream.__spawn_event runs every handler's full matcher on every stanza: 16 of them on
-    an agent's client, 15.6 us of each received message (the iq handlers of disco, ping, roster,
-    OOB and HTTP upload ~1.1 us each), where comparing the tag first costs ~0.1 us. Replaces the
-    instance's BaseHandler.match (slixmpp.xmlstream.handler.base, pinned 1.12.0); a matcher
+    slixmpp's XMLStream.__spawn_event runs every handler's full matcher on every stanza (16 on an
+    agent's client), where comparing the tag first costs a fraction of one (docs/spade-pitfalls.md).
+    Replaces the instance's BaseHandler.match (slixmpp.xmlstream.handler.base, pinned 1.12.0); a matcher
     without a tag (an iq's id) is left as it is."""
     tag = _matcher_tag(getattr(handler, "_matcher", None))
     if tag is None or getattr(handler, "matches_only_its_tag", False):
@@ -601,7 +599,7 @@ def _patch_session_routes() -> None:
     as online. A message to a bare JID goes to the resources of the highest `<priority/>`, compared
     as text, any presence type: SPADE's logout sends `unavailable` with priority 0, a new login's
     presence has none, so every later message to the bare JID went to the old, gone resource only,
-    and was dropped (a Core restarted under its name never heard the Platform nor its owner).
+    and was dropped.
 
     As a standard server does (RFC 6121 8.5.2, XEP-0160): when a client stream
     ends, its resource and peer entry are removed; a message to a bare JID goes to the available,
@@ -611,8 +609,8 @@ def _patch_session_routes() -> None:
     They are stored and delivered here, in the stanza handlers, in the order the server reads
     them: pyjabber's queue worker took a stored message and the recipient's "online" notice in no
     fixed order when both were waiting, and a message stored after the notice waited for a next
-    one that never came (the owner's first command to a restarted Core, about one in two when
-    they met). Stored messages go out oldest first (pyjabber: newest first).
+    one that never came (what that did: docs/spade-pitfalls.md). Stored messages go out oldest
+    first (pyjabber: newest first).
     Resource conflicts cannot arise: pyjabber binds a fresh random resource for every session."""
     from pyjabber.features.presence.Enums import PresenceType
     from pyjabber.features.presence.PresenceFeature import Presence
