@@ -89,7 +89,6 @@ KNOWN_LOOPS = [
     {"agents.process", "agents.runtime", "agents.sandbox", "agents.crash_box", "agents.dynamic_agent",
      "agents.cloud_agent"},  # the spawn loop
     {"agents.core_agent", "agents.core_behaviours", "agents.core_commands"},  # mixins importing their host
-    {"agents.services.context", "agents.services.obstacles"},
     {"robots.controllers", "robots.disturbances", "robots.effectors", "robots.failure_modes", "robots.receptors",
      "robots.render_process", "robots.robot", "robots.world"},  # the body, its sensors and the world
 ]
