@@ -15,7 +15,6 @@ What it adds to spade.agent.Agent:
 from __future__ import annotations
 
 import asyncio
-import itertools
 import logging
 import time
 from typing import Any
@@ -29,8 +28,7 @@ from ontology import core as C
 from ontology.acl import Performative
 from ontology.common import Reason
 from ontology.registry import Action, Content, ContentError, Progress, lookup, parse_json, validate
-from xmpp_server.client_cleanup import end_filter_task
-from xmpp_server.compat import install_agent_patches
+from xmpp_server.compat import AgentDoor, end_filter_task
 from xmpp_server.ports import free_port
 from xmpp_server.settings import XmppSettings
 from ontology.errors import ErrorCode
@@ -53,27 +51,14 @@ MAX_BODY = 256 * 1024  # characters; packages travel in 48 KiB chunks, nothing l
 REPORT_CAP = MAX_BODY  # a RApp's report to its Core is traced whole: it is the run's result
 
 
-class _RoutingContainer:
-    """Stands in for SPADE's Container on one agent, so every send passes through the agent."""
+class RappAgent(AgentDoor, Agent):
+    """AgentDoor (xmpp_server/compat.py) checks the pins, installs the patches and turns SPADE's
+    private members into the hooks below: connect_addresses, stanza_received, send."""
 
-    def __init__(self, real, agent: "RappAgent"):
-        self._real, self._agent = real, agent
-
-    def __getattr__(self, name):
-        return getattr(self._real, name)
-
-    async def send(self, msg: Message, behaviour=None) -> None:
-        await self._agent.send(msg)
-
-
-class RappAgent(Agent):
     def __init__(self, name: str, settings: XmppSettings | None = None, password: str | None = None):
-        install_agent_patches()  # xmpp_server/compat.py: checks the pins, then patches (once)
         self.settings = settings or XmppSettings.from_env()
         super().__init__(self.settings.jid(name), password or self.settings.password_for(name),
                          port=self.settings.port, verify_security=self.settings.verify_tls)
-        self._container_real = self.container
-        self.container = _RoutingContainer(self.container, self)
         self.tracer = tracer_for(self.settings.trace_file)
         self._pending: dict[str, asyncio.Queue] = {}
         self._pending_peer: dict[str, str] = {}  # conversation -> bare JID asked
@@ -139,7 +124,7 @@ class RappAgent(Agent):
                 started = asyncio.get_running_loop().create_future()
                 handler = lambda _e: started.done() or started.set_result(True)  # noqa: E731
                 self.client.add_event_handler("session_start", handler)
-                self._connect_to(host=host, port=port)
+                self.reconnect_to(host, port)
                 try:
                     await asyncio.wait_for(started, max(2.0, delay))
                     self._reconnected_at = time.monotonic()
@@ -155,6 +140,11 @@ class RappAgent(Agent):
                     self.client.del_event_handler("session_start", handler)
         finally:
             self._reconnecting = False
+
+    @property
+    def reconnected_at(self) -> float:
+        """time.monotonic() of the last reconnection; 0.0 before any."""
+        return getattr(self, "_reconnected_at", 0.0)
 
     def _resend_pending(self) -> None:
         """After a reconnect, send every request still waiting for its answer again (same
@@ -184,30 +174,11 @@ class RappAgent(Agent):
                 self.client.disconnect()
             except Exception:  # noqa: BLE001 - best effort on a half-open connection
                 pass
-        self._container_real.unregister(str(self.jid))
+        self.leave_container()
 
-    async def _async_connect(self) -> None:
-        connect = self._connect_to = self.client.connect  # _reconnect picks its address itself
-        host, port = self.settings.host, self.settings.port
-        self.client.connect = lambda *a, **kw: connect(host=host, port=port)  # SPADE passes the JID's
-        addresses = self.settings.addresses()
-        if len(addresses) == 1:
-            await super()._async_connect()
-            return
-        # slixmpp retries a refused address by itself; with fallback servers, try the next instead
-        # (later: the failed attempt reschedules itself first, and connect() cancels that)
-        turn, connecting = itertools.count(1), [True]
-        loop = asyncio.get_running_loop()
-
-        def next_server(_error) -> None:
-            h, p = addresses[next(turn) % len(addresses)]
-            loop.call_later(0.2, lambda: connecting[0] and connect(host=h, port=p))
-        self.client.add_event_handler("connection_failed", next_server)
-        try:
-            await super()._async_connect()
-        finally:
-            connecting[0] = False  # logged in, failed or given up: no further attempt
-            self.client.del_event_handler("connection_failed", next_server)
+    def connect_addresses(self) -> list[tuple[str, int]]:
+        """Where to log in (AgentDoor): settings.host:port, then the cluster's fallback nodes."""
+        return self.settings.addresses()
 
     async def stop(self) -> None:
         self._stopping = True
@@ -215,7 +186,7 @@ class RappAgent(Agent):
             q.put_nowait(None)  # wake waiting requests; they fail as timeouts
         await super().stop()
         await end_filter_task(self.client)
-        self._container_real.unregister(str(self.jid))
+        self.leave_container()
         self.tracer.record(RecordKind.AGENT, event="stopped", agent=self.address, cls=type(self).__name__)
 
     # -- sending ----------------------------------------------------------------------------
@@ -223,7 +194,7 @@ class RappAgent(Agent):
         if msg.empty_sender():
             msg.sender = str(self.jid)
         to = str(msg.to)
-        local = None if self.settings.force_xmpp else self._local_agent(to)
+        local = None if self.settings.force_xmpp else self.local_agent(to)
         self._trace_message("send", msg, "direct" if local else "xmpp")
         if local is not None:
             local.dispatch(copy_message(msg))
@@ -237,17 +208,8 @@ class RappAgent(Agent):
         """Compact metadata, or SPADE's form to a peer that speaks it (a plain SPADE agent)."""
         return message_xml(msg, form=bool(self._form_peers) and bare(str(msg.to)) in self._form_peers)
 
-    def _local_agent(self, to: str):
-        real = self._container_real
-        for key in (to, bare(to)):
-            if real.has_agent(key):
-                agent = real.get_agent(key)
-                if agent.is_alive():
-                    return agent
-        return None
-
     # -- receiving --------------------------------------------------------------------------
-    def _message_received(self, node):
+    def stanza_received(self, node):
         msg = read_message(node)
         if uses_form(msg):
             self._form_peers.add(bare(msg.sender))
@@ -381,7 +343,7 @@ class RappAgent(Agent):
         name = content.action_name
         try:
             await self.send(msg)
-            if bare(to) not in self._heard_from and (self.settings.force_xmpp or self._local_agent(to) is None):
+            if bare(to) not in self._heard_from and (self.settings.force_xmpp or self.local_agent(to) is None):
                 self._first_contact(conv, msg)
             while True:
                 remaining = deadline - loop.time()

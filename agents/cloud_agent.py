@@ -11,7 +11,7 @@ from ontology.errors import ErrorCode
 from .base import RappAgent
 from .errors import Refusal
 from .responder import Responder
-from .runtime import load_entry_point
+from .entry_point import load_entry_point
 
 
 

@@ -478,7 +478,7 @@ class Monitor:
         self.open_connections += 1
         _Link(self, conn, candidates).dial()
 
-    def _upstream_failed(self, target, error) -> None:
+    def upstream_failed(self, target, error) -> None:
         self.report({"event": "upstream", "error": f"{target[0]}:{target[1]}: {error}"})
 
     def closed(self, link: "_Link") -> None:
@@ -507,7 +507,7 @@ class _Link:
                 up.connect_ex(self.target)
             except OSError as e:  # a name that does not resolve (connect_ex raises then)
                 up.close()
-                self.monitor._upstream_failed(self.target, e)
+                self.monitor.upstream_failed(self.target, e)
                 continue
             self.up = up
             self.pending = {self.inner: b"", up: b""}  # bytes waiting to be written to that socket
@@ -522,7 +522,7 @@ class _Link:
             if err:
                 self._want(self.up, 0)
                 self.up.close()
-                self.monitor._upstream_failed(self.target, os.strerror(err))
+                self.monitor.upstream_failed(self.target, os.strerror(err))
                 self.dial()
                 return
             self.connected = True

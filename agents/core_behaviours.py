@@ -286,4 +286,4 @@ class SafetyMonitor(PeriodicBehaviour):
         if nearest is not None and nearest < core.safety_distance:
             await core.emergency_stop(f"obstacle ahead within {core.safety_distance:.2f} m of the "
                                       f"range sensors' minimum", by="safety")
-            core._in_background(core.react_to_obstacle())  # agents/core_strategies.py
+            core._in_background(core.react_to_obstacle())  # noqa: SLF001 - the Core's own part; agents/core_strategies.py

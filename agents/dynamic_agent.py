@@ -25,7 +25,7 @@ from .base import RappAgent
 from .errors import CloudAgentLost, RequestError
 from .messages import bare
 from .platform_directory import PlatformChooser
-from .runtime import load_entry_point
+from .entry_point import load_entry_point
 
 log = logging.getLogger("rapp.dynamic")
 HEARTBEAT_S = 0.25

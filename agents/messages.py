@@ -8,6 +8,7 @@ from spade.message import Message
 from ontology import acl
 from ontology.acl import Performative
 from ontology.registry import Action, Content, encode
+from xmpp_server.compat import metadata_of
 
 
 def make_message(to: str, content: Content | None, *, performative: Performative | str,
@@ -68,7 +69,7 @@ class AclInfo(NamedTuple):
 
     @classmethod
     def of(cls, msg: Message) -> "AclInfo":
-        g = msg._metadata.get  # SPADE's get_metadata, without its call; no public mapping in 4.1.4
+        g = metadata_of(msg).get  # SPADE's get_metadata, without a call per field
         performative = g(acl.PERFORMATIVE) or ""
         return cls(performative, g(acl.ONTOLOGY) or "", g(acl.ACTION) or "",
                    g(acl.CONVERSATION_ID) or msg.thread or "", g(acl.REPLY_WITH) or "",

@@ -14,19 +14,18 @@ import contextlib
 import json
 import logging
 import os
-import resource
 import shutil
 import signal
 import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 from ontology.spawn import SpawnSpec, WarmLogin
 
 from .cgroups import RunGroup, release_if_used
+from .limits import Limits
 from .priority import each_thread, set_priority
 from .sandbox import APP_DIR, CONFINE_ENV, Sandbox, give_tree, open_run_file
 from .tracing import TraceRelay, tracer_for
@@ -138,26 +137,6 @@ def _running(proc: subprocess.Popen) -> bool:
         return os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is None
     except ChildProcessError:  # reaped by someone else
         return False
-
-
-@dataclass(frozen=True)
-class Limits:
-    cpu_seconds: int | None = 600
-    memory_bytes: int | None = 2 * 1024**3
-    open_files: int | None = 1024
-    processes: int | None = 128  # tasks (threads count); only under a sandbox uid of its own
-    file_size_bytes: int | None = 256 * 1024**2
-    cpu_cores: float | None = 1.0  # the run's control group's CPU quota, where there is one
-
-    def apply(self, own_uid: bool = True) -> None:  # by the RApp process itself (agents/sandbox.py confine)
-        limits = [(resource.RLIMIT_CPU, self.cpu_seconds, 5), (resource.RLIMIT_AS, self.memory_bytes, 0),
-                  (resource.RLIMIT_NOFILE, self.open_files, 0),
-                  (resource.RLIMIT_FSIZE, self.file_size_bytes, 0)]
-        if own_uid:  # RLIMIT_NPROC counts every process of the uid: only meaningful for a fresh one
-            limits.append((resource.RLIMIT_NPROC, self.processes, 0))
-        for which, value, slack in limits:
-            if value:
-                resource.setrlimit(which, (value, value + slack))
 
 
 def sweep_run_dirs(workdir: Path, remove_root: bool = False) -> None:
@@ -275,21 +254,21 @@ class AgentProcess:
             # raised before that, it ran the whole RApp at nice 19 (27 s to start on a loaded machine)
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(worker.confined.wait(), CONFINED_WITHIN_S)
-        self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login
-        self._logged_out = worker._logged_out
+        self.uid, self.proc, self._waiter, self.login = worker.uid, worker.proc, worker._waiter, worker.login  # noqa: SLF001 - same class
+        self._logged_out = worker._logged_out  # noqa: SLF001 - same class
         self.cgroup, self.runtime_pid, self.refusals = worker.cgroup, worker.runtime_pid, worker.refusals
         worker.cgroup = None  # this run's to clean up now
-        self._report_r, worker._report_r = worker._report_r, None
+        self._report_r, worker._report_r = worker._report_r, None  # noqa: SLF001 - same class
         if self._report_r is not None:  # the worker's events are this run's now
             loop = asyncio.get_running_loop()
             loop.remove_reader(self._report_r)
             loop.add_reader(self._report_r, self._sandbox_said)
         self._waiter.add_done_callback(lambda _: self._after_exit())
-        self._trace, worker._trace = worker._trace, None
+        self._trace, worker._trace = worker._trace, None  # noqa: SLF001 - same class
         if self._trace is not None:
             self._trace.who, self._trace.pid = self.identity, lambda: self.pid
-        spec_w, worker._spec_w = worker._spec_w, None
-        worker._forget_ready()
+        spec_w, worker._spec_w = worker._spec_w, None  # noqa: SLF001 - same class
+        worker._forget_ready()  # noqa: SLF001 - same class
         self.spec, self.warm = self._placed(self._given), True
         try:
             await asyncio.to_thread(self._hand_over, worker.workdir, spec_w, worker.nice)

@@ -25,37 +25,6 @@ if TYPE_CHECKING:  # imported where used: the sandbox's outer process (agents/co
     from ontology.spawn import SpawnSpec, WarmLogin
 
 
-class EntryPointError(RuntimeError):
-    pass
-
-
-def load_entry_point(package_dir: str | Path, entry_point: str):
-    """Import `module:Class` from the unpacked package directory."""
-    module_name, _, class_name = entry_point.partition(":")
-    root = str(Path(package_dir).resolve())
-    _forget_other_copies(module_name.split(".")[0], root)
-    if root not in sys.path:
-        sys.path.insert(0, root)
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as e:  # noqa: BLE001 - any import failure of RApp code is reported as such
-        raise EntryPointError(f"cannot import {module_name!r} from the package: {type(e).__name__}: {e}") from e
-    cls = getattr(module, class_name, None)
-    if cls is None:
-        raise EntryPointError(f"module {module_name!r} has no {class_name!r}")
-    return cls
-
-
-def _forget_other_copies(top: str, root: str) -> None:
-    """In-process runs import each RApp from its own unpack directory: drop earlier copies."""
-    for name in [n for n in sys.modules if n == top or n.startswith(top + ".")]:
-        origin = getattr(sys.modules[name], "__file__", None) or ""
-        if not origin.startswith(root):
-            del sys.modules[name]
-    sys.path[:] = [p for p in sys.path if not (p.endswith("/package") and p != root and
-                                               Path(p, top).exists())]
-
-
 def build_agent(spec: SpawnSpec, settings=None):
     """The Dynamic or Cloud Agent a spec describes (not started), logging in with the run's own
     account."""

@@ -339,7 +339,7 @@ def confine() -> None:
         return
     try:
         from . import confine as inside
-        from .process import Limits
+        from .limits import Limits
         from .priority import set_group_nice
 
         asked = json.loads(raw)

@@ -4,13 +4,12 @@ Two wire forms of the metadata, both read always:
 - compact (what our agents send each other): one element, the metadata as its attributes,
   `<acl xmlns="urn:rapp:acl:1" performative="inform" conversation_id="c-.." .../>`. SPADE's form
   is two elements per field plus the form and its title; parsing them was most of a message's
-  receive cost (bench/messages.py: expat's feed took 8x the raw-slixmpp floor's per message, and
-  the server parses every element too);
+  receive cost, and the server parses every element too (figures: docs/spade-pitfalls.md);
 - SPADE's XEP-0004 form (`jabber:x:data`, title spade:x:metadata), what spade.message.Message.
   from_node reads: sent to a peer that sent us that form (a plain SPADE agent), so such a peer
   gets its answers in its own dialect (`message_xml(msg, form=True)`).
-SPADE's Message.prepare builds the form through slixmpp's stanza objects (~350 µs a message); the
-XML written as text costs ~15 µs. Form fields carry no `type` (text-single is XEP-0004's default).
+SPADE's Message.prepare builds the form through slixmpp's stanza objects, twenty times the cost of
+writing the XML as text (docs/spade-pitfalls.md). Form fields carry no `type` (text-single is XEP-0004's default).
 In both forms FIPA's reply-with travels as the stanza id, which every stanza has anyway
 (`read_message` puts it back into the metadata).
 """
@@ -23,6 +22,7 @@ from xml.sax.saxutils import escape, quoteattr
 from spade.message import SPADE_X_METADATA, Message
 
 from ontology import acl
+from xmpp_server.compat import metadata_of
 
 _XDATA = "{jabber:x:data}"
 _FORM, _TITLE, _FIELD, _VALUE = _XDATA + "x", _XDATA + "title", _XDATA + "field", _XDATA + "value"
@@ -45,7 +45,7 @@ def _attr(value: str) -> str:
 def message_xml(msg: Message, form: bool = False) -> str:
     """The stanza of `msg`; its metadata compact unless `form` (or a key or value that an attribute
     cannot carry as it is)."""
-    meta = msg._metadata  # SPADE keeps metadata here; there is no public accessor in 4.1.4
+    meta = metadata_of(msg)
     stanza_id = meta.get(acl.REPLY_WITH) or uuid.uuid4().hex
     parts = [f"<message to={_attr(str(msg.to))} from={_attr(str(msg.sender))} type=\"chat\" "
              f"id={_attr(stanza_id)}>"]

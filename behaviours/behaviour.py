@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 from .pause import run_pausable
 
@@ -41,7 +41,7 @@ class Context:
     """What a running behaviour sees: its agent (may be None in tests) and the shared memory."""
 
     agent: Any = None
-    memory: dict = field(default_factory=dict)
+    memory: dict[str, Any] = field(default_factory=dict)
     tracer: Any = None  # agents.tracing.TraceWriter or None
     pause: Any = None  # behaviours.pause.PauseGate or None: the task's emergency-stop pause
 
@@ -50,7 +50,7 @@ class Context:
         if self.pause is not None:
             await self.pause.wait()
 
-    def trace(self, kind: str, **fields) -> None:
+    def trace(self, kind: str, **fields: Any) -> None:
         if self.tracer is not None:
             agent = getattr(self.agent, "address", "")
             self.tracer.record(kind, agent=agent, **fields)
@@ -89,11 +89,11 @@ class Behaviour:
 
     # -- conveniences -----------------------------------------------------------------------
     @property
-    def memory(self) -> dict:
+    def memory(self) -> dict[str, Any]:
         return self.ctx.memory
 
     @property
-    def agent(self):
+    def agent(self) -> Any:
         return self.ctx.agent
 
     # -- engine -----------------------------------------------------------------------------
@@ -104,7 +104,7 @@ class Behaviour:
         self.result = None
         try:
             if self.timeout is not None:  # paused time does not count
-                outcome = await run_pausable(self._loop(), self.timeout, self.ctx.pause)
+                outcome: Outcome = await run_pausable(self._loop(), self.timeout, self.ctx.pause)
             else:
                 outcome = await self._loop()
         except asyncio.TimeoutError:
@@ -156,7 +156,7 @@ class Idle(Behaviour):
 class Wait(Behaviour):
     """Ends when `predicate(memory)` holds (checked every `period` seconds)."""
 
-    def __init__(self, predicate, name: str | None = None, **kw):
+    def __init__(self, predicate: Callable[[dict[str, Any]], object], name: str | None = None, **kw: Any):
         super().__init__(name, **kw)
         self.predicate = predicate
 
@@ -167,7 +167,8 @@ class Wait(Behaviour):
 def active_path(behaviour: Behaviour) -> list[str]:
     """The names of the states/children running now, outermost first (FSMs and composites keep
     `current`; a leaf has none): e.g. ["navigate", "move_leg"]."""
-    path, b = [], behaviour
+    path: list[str] = []
+    b: Any = behaviour
     while b is not None and getattr(b, "current", None):
         path.append(b.current)
         b = getattr(b, "states", {}).get(b.current) or next(

@@ -29,7 +29,7 @@ class GoTo(Behaviour):
         self.memory["pos"] = pos + step
 
     def terminal(self) -> bool:
-        return abs(self.memory.get("pos", 0.0) - self.target) < 1e-9
+        return bool(abs(self.memory.get("pos", 0.0) - self.target) < 1e-9)
 
 
 class Read(OneShot):
@@ -62,7 +62,8 @@ class Pause(Behaviour):
 
 class Report(OneShot):
     async def action(self) -> float:
-        return self.memory["reading"]
+        reading: float = self.memory["reading"]  # Read set it: the FSM reaches "ok" only without error
+        return reading
 
 
 def build(seed: int = 1) -> FSM:
@@ -89,7 +90,9 @@ async def main() -> None:
     fsm = build()
     outcome = await fsm.run()
     print("outcome:", outcome)
-    print("states:", fsm.history, "sub-FSM states:", fsm.states["measure"].history)
+    measure = fsm.states["measure"]
+    assert isinstance(measure, FSM)
+    print("states:", fsm.history, "sub-FSM states:", measure.history)
 
 
 if __name__ == "__main__":

@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 from .behaviour import Behaviour, Context, Idle, Outcome
 
-Condition = Callable[[dict, Outcome], bool]
+Condition = Callable[[dict[str, Any], Outcome], bool]
 
 
 @dataclass

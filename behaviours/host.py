@@ -7,19 +7,21 @@
 from __future__ import annotations
 
 import asyncio
+from typing import Any
 
 from spade.behaviour import OneShotBehaviour
 
 from .behaviour import Behaviour, Context, Outcome
+from .pause import PauseGate
 
 
-class BehaviourHost(OneShotBehaviour):
-    def __init__(self, behaviour: Behaviour, memory: dict | None = None, pause=None):
+class BehaviourHost(OneShotBehaviour):  # type: ignore[misc]  # SPADE ships no type information
+    def __init__(self, behaviour: Behaviour, memory: dict[str, Any] | None = None, pause: PauseGate | None = None):
         super().__init__()
         self.behaviour = behaviour
         self.pause = pause  # a behaviours.pause.PauseGate: the task holds while it is paused
         self.shared_memory = memory if memory is not None else {}
-        self.outcome: asyncio.Future = asyncio.get_event_loop().create_future()
+        self.outcome: asyncio.Future[Outcome] = asyncio.get_event_loop().create_future()
 
     async def run(self) -> None:
         ctx = Context(agent=self.agent, memory=self.shared_memory,

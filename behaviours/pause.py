@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from typing import Awaitable, TypeVar
 
 PAUSE_ALLOWANCE_S = 600.0
 
@@ -53,7 +54,11 @@ class PauseGate:
             await self._running.wait()
 
 
-async def run_pausable(coro, timeout: float, gate: PauseGate | None, allowance_s: float = PAUSE_ALLOWANCE_S):
+T = TypeVar("T")
+
+
+async def run_pausable(coro: Awaitable[T], timeout: float, gate: PauseGate | None,
+                       allowance_s: float = PAUSE_ALLOWANCE_S) -> T:
     """`coro` with a timeout that stops counting while `gate` is paused, for at most `allowance_s`
     (TimeoutError when it expires; while paused only once the allowance is spent too)."""
     if gate is None:

@@ -18,14 +18,14 @@ running now (py_trees-style introspection for the trace and debugging).
 from __future__ import annotations
 
 import asyncio
-from typing import Literal
+from typing import Any, Literal
 
 from .behaviour import Behaviour, Outcome
 from .pause import run_pausable
 
 
 class Composite(Behaviour):
-    def __init__(self, name: str | None, children: list[Behaviour], **kw):
+    def __init__(self, name: str | None, children: list[Behaviour], **kw: Any):
         super().__init__(name, **kw)
         if not children:
             raise ValueError(f"{type(self).__name__} {name!r} needs at least one child")
@@ -40,12 +40,12 @@ class Composite(Behaviour):
 
 class Sequence(Composite):
     async def _loop(self) -> Outcome:
-        last = None
+        last: Outcome | None = None
         for child in self.children:
             last = await self._child(child)
             if last.error:
                 return Outcome(False, f"{child.name}: {last.reason}", last.value, self.name)
-        return Outcome(True, "", last.value, self.name)
+        return Outcome(True, "", last.value if last is not None else None, self.name)
 
 
 class Selector(Composite):
@@ -60,7 +60,8 @@ class Selector(Composite):
 
 
 class Parallel(Composite):
-    def __init__(self, name: str | None, children: list[Behaviour], policy: Literal["all", "one"] = "all", **kw):
+    def __init__(self, name: str | None, children: list[Behaviour], policy: Literal["all", "one"] = "all",
+                 **kw: Any):
         super().__init__(name, children, **kw)
         if policy not in ("all", "one"):
             raise ValueError(f"Parallel policy is 'all' or 'one', not {policy!r}")
@@ -91,7 +92,7 @@ class Parallel(Composite):
 
 
 class Decorator(Behaviour):
-    def __init__(self, child: Behaviour, name: str | None = None, **kw):
+    def __init__(self, child: Behaviour, name: str | None = None, **kw: Any):
         super().__init__(name or f"{type(self).__name__.lower()}({child.name})", **kw)
         self.child = child
 

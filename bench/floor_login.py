@@ -16,16 +16,16 @@ import time
 async def _main(name: str) -> None:
     from spade.agent import Agent
 
+    from xmpp_server.compat import ConnectsTo  # the address override alone: no agent patches
+
     host = os.environ.get("RAPP_XMPP_HOST", "127.0.0.1")
     port = int(os.environ.get("RAPP_XMPP_PORT", "5222"))
     domain = os.environ.get("RAPP_XMPP_DOMAIN", "localhost")
     password = os.environ.get("RAPP_XMPP_PASSWORD", "rapp-secret")
 
-    class Bare(Agent):
-        async def _async_connect(self):  # connect to host:port whatever the JID domain is
-            connect = self.client.connect
-            self.client.connect = lambda *a, **kw: connect(host=host, port=port)
-            await super()._async_connect()
+    class Bare(ConnectsTo, Agent):
+        def connect_addresses(self) -> list[tuple[str, int]]:
+            return [(host, port)]
 
     agent = Bare(f"{name}@{domain}", password, port=port, verify_security=False)
     await asyncio.wait_for(agent.start(auto_register=True), 30)

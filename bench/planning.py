@@ -58,7 +58,8 @@ def make_house(size: int = SIZE, res: float = RES) -> np.ndarray:
         b[int(y0 / res):int(math.ceil(y1 / res)), int(x0 / res):int(math.ceil(x1 / res))] = False
 
     wall = t * res
-    box(0, 0, 20, wall); box(0, 20 - wall, 20, 20); box(0, 0, wall, 20); box(20 - wall, 0, 20, 20)
+    for rect in ((0, 0, 20, wall), (0, 20 - wall, 20, 20), (0, 0, wall, 20), (20 - wall, 0, 20, 20)):
+        box(*rect)
     box(9, 0, 9 + wall, 20)           # west | east
     box(0, 10, 9, 10 + wall)          # west rooms split
     box(9, 12, 20, 12 + wall)         # east: living room / corridor-bedrooms
@@ -177,12 +178,12 @@ def reference_graph(free: np.ndarray, radius: int = 4):
                 for ex in (-0.01, 0.01):
                     for ey in (-0.01, 0.01):
                         touched.add((int(round(tt * dy + ey)), int(round(tt * dx + ex))))
-            ys, xs = planning._src(dy, h), planning._src(dx, w)
+            ys, xs = planning.source_cells(dy, h), planning.source_cells(dx, w)
             ok = free[ys, xs].copy()
             for ty, tx in touched:
                 ok &= padded[radius + ty:radius + ty + h, radius + tx:radius + tx + w][ys, xs]
             rows.append(idx[ys, xs][ok])
-            cols.append(idx[planning._dst(dy, h), planning._dst(dx, w)][ok])
+            cols.append(idx[planning.target_cells(dy, h), planning.target_cells(dx, w)][ok])
             wts.append(np.full(int(ok.sum()), math.hypot(dx, dy)))
     return sparse.csr_matrix((np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(h * w,) * 2)
@@ -197,7 +198,7 @@ def reference_length(free: np.ndarray, s, g, graph=None) -> float:
     w = free.shape[1]
     si, gi = s[1] * w + s[0], g[1] * w + g[0]
     dist, pred = csgraph.dijkstra(graph, indices=si, return_predecessors=True)
-    pts = planning._trace(pred, si, gi, w)
+    pts = planning.path_cells(pred, si, gi, w)
     tight = planning.tighten(free, planning.shortcut(free, pts), rounds=10)
     return min(float(dist[gi]), planning.path_length(tight))
 
@@ -213,7 +214,7 @@ def _runners(m, ompl_time: float) -> dict:
     def scipy_dijkstra(s, g):  # the raw library: full single-source Dijkstra, then the grid path
         si, gi = graph.node(*s), graph.node(*g)
         dist, pred = csgraph.dijkstra(graph.csr, indices=si, return_predecessors=True)
-        return planning._trace(pred, si, gi, graph.shape[1])
+        return planning.path_cells(pred, si, gi, graph.shape[1])
 
     return {
         "scipy_dijkstra": scipy_dijkstra,

@@ -141,7 +141,8 @@ async def replay(settings, workdir: Path, config: str, recorded: list[Recorded],
                 await asyncio.sleep(rec.think_s * time_scale)
                 t0 = time.perf_counter()
                 try:
-                    await proxy._call(rec.action, dict(rec.fields), 300.0)
+                    # by action name, with the recorded fields as sent (the token included)
+                    await proxy._call(rec.action, dict(rec.fields), 300.0)  # noqa: SLF001
                     lat.append(time.perf_counter() - t0)
                 except RequestError as e:
                     errors.append(f"{rec.action}: {e.reason[:100]}")

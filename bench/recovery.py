@@ -123,8 +123,8 @@ class Bench:
         back, back_mono = time.time(), time.monotonic()
         floor = await probe_login(settings.host, settings.port, settings.domain)
         # the Core notes when its session is back (RappAgent._reconnect): no trace polling here
-        await _wait(lambda: getattr(self.core, "_reconnected_at", 0.0) > back_mono - 0.1, 30, "Core reconnected")
-        rec = back + (self.core._reconnected_at - back_mono)  # as wall-clock time
+        await _wait(lambda: self.core.reconnected_at > back_mono - 0.1, 30, "Core reconnected")
+        rec = back + (self.core.reconnected_at - back_mono)  # as wall-clock time
         await _wait(lambda: self.user.is_connected(), 30, "owner reconnected")
         start = len(self.user.received)
         sent = time.time()

@@ -21,10 +21,11 @@ NFFT = 512
 BAND_EDGES_HZ = np.geomspace(150.0, 5000.0, 17)  # 16 bands over the speech band, log spaced
 
 
-def _band_matrix(nfft: int = NFFT, edges=BAND_EDGES_HZ) -> np.ndarray:
+def _band_matrix(nfft: int = NFFT, edges: np.ndarray = BAND_EDGES_HZ) -> np.ndarray:
     f = np.fft.rfftfreq(nfft, 1 / RATE)
     m = np.stack([(f >= lo) & (f < hi) for lo, hi in zip(edges[:-1], edges[1:])]).astype(np.float64)
-    return m / m.sum(axis=1, keepdims=True)
+    bands: np.ndarray = m / m.sum(axis=1, keepdims=True)
+    return bands
 
 
 _BANDS = _band_matrix()
@@ -34,7 +35,7 @@ _WIN = np.hanning(WINDOW)
 class BandSpectra:
     """Streaming log band powers: each 10 ms hop gets the power of the last 25 ms in 16 bands (dB)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._tail = np.zeros(WINDOW - HOP)
 
     def feed_frames(self, frames: np.ndarray) -> np.ndarray:
@@ -45,4 +46,5 @@ class BandSpectra:
         self._tail = x[-(WINDOW - HOP):]
         idx = np.arange(len(frames))[:, None] * HOP + np.arange(WINDOW)[None, :]
         spec = np.abs(np.fft.rfft(x[idx] * _WIN, NFFT, axis=1)) ** 2
-        return 10 * np.log10(spec @ _BANDS.T + 1.0)
+        db: np.ndarray = 10 * np.log10(spec @ _BANDS.T + 1.0)
+        return db

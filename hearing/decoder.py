@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import math
 import re
+from typing import Any, Sequence
 
 import numpy as np
 
 from .errors import InvalidArgument
 
 
-def fresh_front_end(decoder) -> None:
+def fresh_front_end(decoder: Any) -> None:
     """Forget what the front end learnt of earlier utterances: its noise estimate (the model's
     `remove_noise`) carries over from one utterance to the next, so a kept decoder's answer depended
     on the audio it had decoded before (docs/sound.md, "Decoders"). After this, an answer depends on
@@ -26,7 +27,7 @@ def fresh_front_end(decoder) -> None:
     decoder.reinit_feat()
 
 
-def sphinx_config(**kw):
+def sphinx_config(**kw: Any) -> Any:
     """A pocketsphinx configuration of the bundled US English model (no search yet)."""
     from pocketsphinx import Config, get_model_path
     return Config(hmm=get_model_path("en-us/en-us"), dict=get_model_path("en-us/cmudict-en-us.dict"),
@@ -40,7 +41,7 @@ class PhraseDecoder:
     Each `decode` starts from a fresh front end, so its answer depends on that audio alone."""
 
     def __init__(self, phrases: list[str] | None = None, jsgf: str | None = None, trust_search: bool = False,
-                 words: list[str] = (), beams: dict | None = None):
+                 words: Sequence[str] = (), beams: dict[str, float] | None = None):
         from pocketsphinx import Decoder, get_model_path
         self.decoder = Decoder(sphinx_config(**(beams or {})))  # beams: e.g. WIDE_BEAMS
         # trust_search: the search's own best path, when a complete phrase, is the answer (see decode)
@@ -82,7 +83,8 @@ class PhraseDecoder:
         from .pronounce import pronunciation
         missing = [w for w in dict.fromkeys(w for p in phrases for w in normalize(p).split())
                    if not self.decoder.lookup_word(w)]
-        added, failed = [], []
+        added: list[str] = []
+        failed: list[str] = []
         for w in missing:
             phones = pronunciation(w) if len(added) < self.MAX_ADDED else None
             if phones is None:
@@ -92,7 +94,7 @@ class PhraseDecoder:
             added.append(w)
         return added, failed
 
-    def _run(self, search: str, pcm: np.ndarray):
+    def _run(self, search: str, pcm: np.ndarray) -> Any:
         d = self.decoder
         d.activate_search(search)
         d.start_utt()

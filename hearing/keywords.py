@@ -18,7 +18,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Container, Sequence
 
 import numpy as np
 
@@ -52,7 +52,7 @@ class KeywordSpotter:
     # sentence covers less. The supervision words ask 0: "stop, stop!" stops the robot
     MIN_COVER = 0.75
 
-    def __init__(self, keywords: list[str], phrases: list[str] = (), groups: dict[str, str] | None = None,
+    def __init__(self, keywords: list[str], phrases: Sequence[str] = (), groups: dict[str, str] | None = None,
                  accept: float = ACCEPT, min_cover: float = MIN_COVER):
         # accept: ACCEPT but for a threshold under test (bench/speech_offline.py --accept)
         self.accept, self.min_cover = accept, min_cover
@@ -120,22 +120,23 @@ def said_alone(utterance: HeardUtterance, words: list[tuple[int, int]], share: f
         return True
     loud = utterance.loud[:len(utterance.pcm) // 160]
     inside = sum(int(np.count_nonzero(loud[f:la + 1])) for f, la in words)
-    return (np.count_nonzero(loud) - inside) / 100 - echo <= MAX_OTHER_SPEECH_S
+    return bool((np.count_nonzero(loud) - inside) / 100 - echo <= MAX_OTHER_SPEECH_S)
 
 
 def echo_seconds(utterance: HeardUtterance, first: int, last: int) -> float:
     """Speech the detector heard after frame `last` ECHO_DB or more below the loudest frame of
     `first`..`last`: the room's echo of those words (0 when the utterance has no loud frames kept)."""
-    n = 0 if utterance.loud is None else min(len(utterance.loud), len(utterance.pcm) // 160)
-    if first >= n or last < first:
+    loud = utterance.loud
+    n = 0 if loud is None else min(len(loud), len(utterance.pcm) // 160)
+    if loud is None or first >= n or last < first:
         return 0.0
     level = frame_levels(utterance.pcm[:n * 160].reshape(n, 160))
     loudest = level[first:last + 1].max()
     after = slice(last + 1, n)
-    return float(np.count_nonzero(utterance.loud[after] & (level[after] < loudest - ECHO_DB))) / 100
+    return float(np.count_nonzero(loud[after] & (level[after] < loudest - ECHO_DB))) / 100
 
 
-def keyword_in_a_sentence(reply: "Recognition", keywords, utterance: HeardUtterance) -> bool:
+def keyword_in_a_sentence(reply: "Recognition", keywords: Container[str], utterance: HeardUtterance) -> bool:
     """Whether the Platform's answer is a bare keyword (one of `keywords`, normalized) that covers too
     little of the utterance's speech to have been said alone (said_alone, the keyword spotter's rule):
     one word of a sentence, which the general model should hear whole."""
@@ -178,8 +179,8 @@ class LookAhead:
         word, early = await ahead.spot(spotter, utterance)  # the cut: the early answer when it is the same
     """
 
-    def __init__(self):
-        self._pending: tuple[HeardUtterance, KeywordSpotter, asyncio.Future] | None = None
+    def __init__(self) -> None:
+        self._pending: tuple[HeardUtterance, KeywordSpotter, asyncio.Future[str | None]] | None = None
 
     def start(self, spotter: KeywordSpotter, utterance: HeardUtterance) -> None:
         if utterance.too_long or utterance.speech_seconds > spotter.MAX_KEYWORD_SECONDS:
@@ -201,7 +202,7 @@ def _same(a: HeardUtterance, b: HeardUtterance) -> bool:
                       and np.array_equal(a.pcm, b.pcm))
 
 
-def _quietly(future: asyncio.Future) -> None:
+def _quietly(future: asyncio.Future[str | None]) -> None:
     """An early answer nobody takes: its failure is logged, not left unretrieved."""
     if not future.cancelled() and future.exception() is not None:
         logging.getLogger("rapp.core").debug("early keyword spotting failed: %r", future.exception())

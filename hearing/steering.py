@@ -11,9 +11,14 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.signal import get_window, istft, oaconvolve, stft
+
+if TYPE_CHECKING:
+    from .vad import HeardUtterance, VoiceActivity
 
 SPEED_OF_SOUND = 343.0
 RATE = 16000
@@ -25,7 +30,8 @@ DETECTOR_TAPS = 2 * DETECTOR_DELAY
 
 
 def _spectra(x: np.ndarray, rate: int) -> np.ndarray:
-    return stft(x, rate, nperseg=NFFT, noverlap=NFFT - HOP)[2]  # (M, F, T)
+    spectra: np.ndarray = stft(x, rate, nperseg=NFFT, noverlap=NFFT - HOP)[2]  # (M, F, T)
+    return spectra
 
 
 def _noise_covariance(noise: np.ndarray, loading: float, rate: int) -> np.ndarray:
@@ -33,28 +39,31 @@ def _noise_covariance(noise: np.ndarray, loading: float, rate: int) -> np.ndarra
     v = _spectra(noise, rate)
     phi = np.einsum("ift,jft->fij", v, v.conj()) / max(v.shape[2], 1)
     power = np.real(np.trace(phi, axis1=1, axis2=2)) / len(noise)
-    return phi + (loading * power + 1e-12)[:, None, None] * np.eye(len(noise))
+    covariance: np.ndarray = phi + (loading * power + 1e-12)[:, None, None] * np.eye(len(noise))
+    return covariance
 
 
 def _weights(phi: np.ndarray, steer: np.ndarray) -> np.ndarray:
     """MVDR weights (..., F, M) for steering vectors (..., F, M) against noise covariances (F, M, M)."""
     solved = np.linalg.solve(phi, steer[..., None])[..., 0]
-    return solved / np.einsum("...fm,...fm->...f", steer.conj(), solved)[..., None]
+    weights: np.ndarray = solved / np.einsum("...fm,...fm->...f", steer.conj(), solved)[..., None]
+    return weights
 
 
 def _steering(delays: np.ndarray, rate: int) -> np.ndarray:
     f = np.fft.rfftfreq(NFFT, 1 / rate)
-    return np.exp(-2j * np.pi * f[:, None] * np.asarray(delays)[..., None, :])  # (..., F, M)
+    vectors: np.ndarray = np.exp(-2j * np.pi * f[:, None] * np.asarray(delays)[..., None, :])  # (..., F, M)
+    return vectors
 
 
 LOOK_BAND_HZ = (200.0, 4000.0)  # where speech has its power and the array's delays tell directions apart
 
 
 @functools.lru_cache(maxsize=8)
-def _look_directions(offsets: tuple, rate: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _look_directions(offsets: tuple[tuple[float, ...], ...], rate: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(azimuths, elevations, their steering vectors in the look band, the band) locate scans."""
-    az, el = np.meshgrid(np.radians(np.arange(0, 360, 5)), np.radians(np.arange(0, 61, 15)), indexing="ij")
-    az, el = az.ravel(), el.ravel()
+    grid_az, grid_el = np.meshgrid(np.radians(np.arange(0, 360, 5)), np.radians(np.arange(0, 61, 15)), indexing="ij")
+    az, el = grid_az.ravel(), grid_el.ravel()
     towards = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
     delays = -(towards @ np.asarray(offsets).T) / SPEED_OF_SOUND  # (D, M): nearer microphones hear it earlier
     f = np.fft.rfftfreq(NFFT, 1 / rate)
@@ -107,7 +116,8 @@ def nulling_taps(noise: np.ndarray, rate: int = RATE, dominant: float = DOMINANT
     out = np.zeros((len(taps), DETECTOR_TAPS))
     centred = np.roll(taps, NFFT // 2, axis=1) * get_window("hann", NFFT)
     out[:, DETECTOR_DELAY - NFFT // 2:DETECTOR_DELAY + NFFT // 2] = centred
-    return out
+    taps_out: np.ndarray = out
+    return taps_out
 
 
 def _as_it_is(shape: tuple[int, int]) -> np.ndarray:
@@ -121,7 +131,8 @@ def towards_delays(offsets: np.ndarray, azimuth: float, elevation: float) -> np.
     """Seconds sound from a far source in that direction takes to each microphone, less the earliest."""
     u = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)])
     t = -(offsets @ u) / SPEED_OF_SOUND
-    return t - t.min()
+    delays: np.ndarray = t - t.min()
+    return delays
 
 
 def mvdr(channels: np.ndarray, noise: np.ndarray, delays: np.ndarray, loading: float = 1e-2,
@@ -136,7 +147,8 @@ def mvdr(channels: np.ndarray, noise: np.ndarray, delays: np.ndarray, loading: f
 def _beam(x: np.ndarray, phi: np.ndarray, delays: np.ndarray, n: int, rate: int) -> np.ndarray:
     y = np.einsum("fm,mft->ft", _weights(phi, _steering(delays, rate)).conj(), x)
     _, out = istft(y, rate, nperseg=NFFT, noverlap=NFFT - HOP)
-    return out[:n].astype(np.float32)
+    beam: np.ndarray = out[:n].astype(np.float32)
+    return beam
 
 
 class Steering:
@@ -157,27 +169,28 @@ class Steering:
     CHANGED = 0.01  # a new filter this far (its energy's share) from the one in use replaces it
     DELAY = DETECTOR_DELAY  # samples the detector's stream lags the microphones
 
-    def __init__(self, offsets=None, rate: int = RATE):
-        self.rate, self.offsets = rate, None
+    def __init__(self, offsets: ArrayLike | None = None, rate: int = RATE):
+        self.rate = rate
+        self.offsets: np.ndarray | None = None
         self.fed = 0  # samples fed so far
         if offsets is not None:
             self._use(offsets)
 
-    def _use(self, offsets) -> None:
+    def _use(self, offsets: ArrayLike) -> None:
         self.offsets = np.asarray(offsets, float)
-        self.kept = np.zeros((len(self.offsets), 0), np.int16)
-        self.noise = np.zeros((len(self.offsets), 0), np.int16)
+        self.kept: np.ndarray = np.zeros((len(self.offsets), 0), np.int16)
+        self.noise: np.ndarray = np.zeros((len(self.offsets), 0), np.int16)
         self._pending: np.ndarray | None = None
         self.taps: np.ndarray | None = None  # the detector's filter (nulling_taps); None: the first microphone
         self._noise_new = round(self.NULL_EVERY_S * self.rate)  # room's sound since the filter was last judged
         self._tail = np.zeros((len(self.offsets), DETECTOR_TAPS - 1))
 
-    def _follow(self, offsets) -> None:
+    def _follow(self, offsets: ArrayLike | None) -> None:
         """The microphones' offsets, where given: a new array forgets the old one's sound."""
         if offsets is not None and (self.offsets is None or not np.allclose(self.offsets, offsets)):
             self._use(offsets)
 
-    def feed(self, channels: np.ndarray, quiet: bool, offsets=None) -> None:
+    def feed(self, channels: np.ndarray, quiet: bool, offsets: ArrayLike | None = None) -> None:
         """The samples whose first channel the detector was fed (`quiet`: it heard no speech in them);
         `offsets`: the microphones' (_follow)."""
         self._follow(offsets)
@@ -190,10 +203,10 @@ class Steering:
         self._pending = channels if quiet else None
         self.fed += channels.shape[1]
 
-    def _renew_filter(self, vad) -> None:
+    def _renew_filter(self, vad: VoiceActivity) -> None:
         """A new filter for the detector once NULL_EVERY_S more of the room's sound is known, while it
         hears no utterance; it relearns the room's sound as heard through the new filter."""
-        if (len(self.offsets) < 2 or vad.active or self.noise.shape[1] < self.MIN_NOISE_S * self.rate
+        if (self.offsets is None or len(self.offsets) < 2 or vad.active or self.noise.shape[1] < self.MIN_NOISE_S * self.rate
                 or self._noise_new < self.NULL_EVERY_S * self.rate):
             return
         noise = self.noise.astype(np.float64)
@@ -206,10 +219,12 @@ class Steering:
 
     def _filtered(self, x: np.ndarray) -> np.ndarray:
         """The detector's filter over (M, n) samples: n - DETECTOR_TAPS + 1 of them, int16."""
-        y = sum(oaconvolve(x[m], self.taps[m], "valid") for m in range(len(x)))
-        return np.clip(np.round(y), -32768, 32767).astype(np.int16)
+        taps = self.taps if self.taps is not None else _as_it_is((len(x), DETECTOR_TAPS))
+        y = sum(oaconvolve(x[m], taps[m], "valid") for m in range(len(x)))
+        out: np.ndarray = np.clip(np.round(y), -32768, 32767).astype(np.int16)
+        return out
 
-    def for_detector(self, channels: np.ndarray, offsets=None) -> np.ndarray:
+    def for_detector(self, channels: np.ndarray, offsets: ArrayLike | None = None) -> np.ndarray:
         """What the detector hears of these samples (int16, DELAY samples late): the first microphone,
         the room's dominant sound taken out once enough of it is known."""
         self._follow(offsets)
@@ -232,7 +247,8 @@ class Steering:
         out = _beam(x, phi, towards_delays(self.offsets, azimuth, elevation), samples, self.rate)
         return np.clip(np.round(out), -32768, 32767).astype(np.int16), azimuth
 
-    def listen(self, vad, channels: np.ndarray, offsets=None) -> list:
+    def listen(self, vad: VoiceActivity, channels: np.ndarray,
+               offsets: ArrayLike | None = None) -> list[tuple[HeardUtterance, int]]:
         """Feed the detector what it hears of these samples (for_detector) and this every channel
         (`offsets`: as for feed): the utterances it cut, as (utterance, its end counted in samples fed
         here), for `steered` (CPU work, a few ms: call from an executor)."""
@@ -242,13 +258,13 @@ class Steering:
         self._renew_filter(vad)
         return [(u, self._end(vad, u)) for u in heard]
 
-    def ending(self, vad) -> tuple | None:
+    def ending(self, vad: VoiceActivity) -> tuple[HeardUtterance, int] | None:
         """The utterance the detector will cut unless speech comes again (VoiceActivity.ending), as
         `listen` would give it, or None."""
         u = vad.ending()
         return None if u is None else (u, self._end(vad, u))
 
-    def _end(self, vad, u) -> int:
+    def _end(self, vad: VoiceActivity, u: HeardUtterance) -> int:
         """The utterance's end counted in samples fed here."""
         # a detector that outlives listeners may have been fed before this was; it hears DELAY late
         return u.end_sample - (round(vad.heard_s * vad.rate) - self.fed) - self.DELAY

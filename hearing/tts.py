@@ -16,6 +16,7 @@ import contextlib
 import ctypes
 import threading
 from pathlib import Path
+from typing import Any, Iterator
 
 import numpy as np
 from scipy.signal import resample_poly
@@ -41,22 +42,21 @@ _LIBC = ctypes.CDLL(None)  # this process's own symbols, the C library's srand a
 _chunks: list[np.ndarray] = []
 
 
-@_CALLBACK
-def _collect(wav, n, events):  # called by espeak_Synth, in the calling thread, under _lock
+def _on_samples(wav: Any, n: int, events: Any) -> int:  # called by espeak_Synth, in the calling thread, under _lock
     if n > 0:
         _chunks.append(np.ctypeslib.as_array(wav, (n,)).copy())
     return 0
 
 
+_collect = _CALLBACK(_on_samples)
+
+
 @contextlib.contextmanager
-def _fresh_engine():
-    """The library loaded afresh for one synthesis, under the lock, and unloaded after it. eSpeak
-    NG's wave generator keeps state in static variables (flutter and pitch phases, the echo
-    buffer) that espeak_Terminate does not reset: the same text came out with other samples after
-    other syntheses in the process, and the keyword test's margin moved with the tests run before
-    it. A fresh load costs ~1 ms (measured: 3.5 ms a call with the synthesis of a short command).
-    All under the lock also keeps two first calls from initialising at once (20 NAOs in one
-    process: glibc aborted on a corrupted heap)."""
+def _fresh_engine() -> Iterator[tuple[ctypes.CDLL, int]]:
+    """The library loaded afresh for one synthesis, under the lock, and unloaded after it: eSpeak NG's
+    wave generator keeps state in static variables that espeak_Terminate does not reset, so a text's
+    samples would depend on the syntheses before it; two first calls must not initialise at once
+    (what was seen and what a load costs: docs/sound.md, "Decoders")."""
     try:
         import espeakng_loader
     except ImportError:
@@ -90,7 +90,7 @@ def _fresh_engine():
             _ctypes.dlclose(handle)  # the last reference: the next load starts from the file's state
 
 
-def _set_voice(lib, voice: str) -> None:
+def _set_voice(lib: ctypes.CDLL, voice: str) -> None:
     if lib.espeak_SetVoiceByName(voice.encode()) != 0:
         raise InvalidArgument(f"unknown voice {voice!r} (e.g. {', '.join(VOICES)})")
 
@@ -114,7 +114,7 @@ def phonemes(text: str, voice: str = DEFAULT_VOICE) -> list[str]:
         lib.espeak_TextToPhonemes.restype = ctypes.c_char_p
         lib.espeak_TextToPhonemes.argtypes = [ctypes.POINTER(ctypes.c_char_p), ctypes.c_int, ctypes.c_int]
         rest = ctypes.c_char_p(text.encode())  # the call moves it on, clause by clause, to NULL
-        out = []
+        out: list[str] = []
         while rest.value:
             got = lib.espeak_TextToPhonemes(ctypes.byref(rest), _CHARS_UTF8, _IPA | _SEPARATOR)
             out.extend((got or b"").decode(errors="replace").split())
@@ -159,4 +159,5 @@ def synthesize(text: str, voice: str = DEFAULT_VOICE, rate: int = DEFAULT_RATE, 
         raise InvalidArgument(f"eSpeak NG could not synthesise the text (code {err})")
     g = np.gcd(SAMPLE_RATE, native)
     out = resample_poly(pcm.astype(np.float64), SAMPLE_RATE // g, native // g)
-    return np.clip(np.round(out), -32768, 32767).astype(np.int16)
+    speech: np.ndarray = np.clip(np.round(out), -32768, 32767).astype(np.int16)
+    return speech

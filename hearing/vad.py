@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import Iterable
 
 import numpy as np
 
@@ -21,7 +22,8 @@ from .errors import InvalidArgument
 
 def frame_levels(frames: np.ndarray) -> np.ndarray:
     """Each 10 ms frame's level (n, hop) -> (n,) dB of its mean square (+1: silence is 0 dB)."""
-    return 10 * np.log10(np.mean(np.asarray(frames, np.float64) ** 2, axis=1) + 1.0)
+    levels: np.ndarray = 10 * np.log10(np.mean(np.asarray(frames, np.float64) ** 2, axis=1) + 1.0)
+    return levels
 
 
 def speech_segments(pcm: np.ndarray, rate: int = 16000, margin_db: float = 9.0, min_speech: float = 0.15,
@@ -132,7 +134,7 @@ class VoiceActivity:
         self.before.clear()
         self.loud_run = self.quiet_run = self.speech_frames = 0
 
-    def _learn(self, frames) -> None:
+    def _learn(self, frames: Iterable[tuple[float, np.ndarray, float]]) -> None:
         for db, bands, d in frames:
             self.history.append(db)
             self.band_history.append(bands)
@@ -257,10 +259,11 @@ def _shape_distance(bands: np.ndarray, shape: np.ndarray, before: float | None =
     each averaged with the frame's before (`before`: the distance of the one before the first; None:
     not averaged): one odd frame is no voice."""
     rel = bands - bands.mean(axis=1, keepdims=True) - shape
-    distance = np.sqrt(np.mean((rel - rel.mean(axis=1, keepdims=True)) ** 2, axis=1))
+    distance: np.ndarray = np.sqrt(np.mean((rel - rel.mean(axis=1, keepdims=True)) ** 2, axis=1))
     if before is None:
         return distance
-    return np.convolve(np.concatenate([[before], distance]), [0.5, 0.5], "valid")
+    averaged: np.ndarray = np.convolve(np.concatenate([[before], distance]), [0.5, 0.5], "valid")
+    return averaged
 
 
 @dataclass

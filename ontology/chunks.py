@@ -92,7 +92,7 @@ class Reassembler:
         if size is not None and size > max_size:
             raise ChunkError(f"transfer of {size} bytes exceeds limit {max_size}", ErrorCode.TOO_LARGE)
 
-    def add(self, chunk: Chunk | dict) -> bool:
+    def add(self, chunk: Chunk | dict[str, Any]) -> bool:
         """Add one chunk; return True when the transfer is complete. `ChunkError` if invalid."""
         chunk = Chunk.parse(chunk)
         for attr in ("total", "sha256", "size"):
@@ -102,17 +102,18 @@ class Reassembler:
             elif getattr(chunk, attr) != expected:
                 raise ChunkError(f"chunk {chunk.index}: {attr} {getattr(chunk, attr)!r} does not match "
                                  f"the transfer ({expected!r})", ErrorCode.MISMATCH)
-        if self.size > self.max_size:
-            raise ChunkError(f"transfer of {self.size} bytes exceeds limit {self.max_size}", ErrorCode.TOO_LARGE)
-        if chunk.index >= self.total:
+        size, total = chunk.size, chunk.total  # what the transfer's now agree with
+        if size > self.max_size:
+            raise ChunkError(f"transfer of {size} bytes exceeds limit {self.max_size}", ErrorCode.TOO_LARGE)
+        if chunk.index >= total:
             raise ChunkError(f"chunk index {chunk.index} out of range (total {self.total})", ErrorCode.OUT_OF_RANGE)
         raw = chunk.raw()
         if chunk.index in self._parts:
             if self._parts[chunk.index] != raw:
                 raise ChunkError(f"chunk {chunk.index} received twice with different content", ErrorCode.DUPLICATE)
             return self.complete
-        if self._received + len(raw) > self.size:
-            raise ChunkError(f"chunks exceed the announced size {self.size}", ErrorCode.TOO_LARGE)
+        if self._received + len(raw) > size:
+            raise ChunkError(f"chunks exceed the announced size {size}", ErrorCode.TOO_LARGE)
         self._parts[chunk.index] = raw
         self._received += len(raw)
         return self.complete
@@ -139,7 +140,7 @@ class Reassembler:
         return data
 
 
-def join_chunks(chunks: list[Chunk | dict], *, max_size: int = DEFAULT_MAX_TRANSFER) -> bytes:
+def join_chunks(chunks: list[Chunk | dict[str, Any]], *, max_size: int = DEFAULT_MAX_TRANSFER) -> bytes:
     """Reassemble a full list of chunks (any order) into the verified payload."""
     r = Reassembler(max_size=max_size)
     for c in chunks:

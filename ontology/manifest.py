@@ -181,7 +181,8 @@ class Manifest(BaseModel):
 
     def to_yaml(self) -> str:
         """Canonical YAML text (fixed field order) as stored in built archives."""
-        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
+        text: str = yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
+        return text
 
 
 def version_key(version: str) -> tuple[int, int, int]:
@@ -254,7 +255,7 @@ def load_manifest(path: str | Path) -> Manifest:
     return parse_manifest(raw, manifest_format(path.name))
 
 
-def manifest_schema() -> dict:
+def manifest_schema() -> dict[str, Any]:
     """The manifest's JSON Schema, generated from the model (docs/manifest.schema.json is its copy)."""
     schema = Manifest.model_json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"

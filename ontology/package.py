@@ -160,7 +160,7 @@ def private_key_to_pem(key: Ed25519PrivateKey) -> bytes:
                              serialization.NoEncryption())
 
 
-def load_private_key(source: Ed25519PrivateKey | bytes | str | os.PathLike) -> Ed25519PrivateKey:
+def load_private_key(source: Ed25519PrivateKey | bytes | str | os.PathLike[str]) -> Ed25519PrivateKey:
     """Ed25519 private key from a key object, PEM bytes/text, a PEM file path, or base64 raw seed."""
     if isinstance(source, Ed25519PrivateKey):
         return source
@@ -294,7 +294,10 @@ def _sign(digest: str, key: Ed25519PrivateKey) -> bytes:
     return (json.dumps(doc, sort_keys=True, indent=1) + "\n").encode()
 
 
-def _trusted_raw(trusted_keys: Mapping[str, object] | Iterable[object] | None) -> set[bytes] | None:
+TrustedKeys = Mapping[str, object] | Iterable[object] | None  # key objects, PEM or raw (by name or not)
+
+
+def _trusted_raw(trusted_keys: TrustedKeys) -> set[bytes] | None:
     if trusted_keys is None:
         return None
     values = trusted_keys.values() if isinstance(trusted_keys, Mapping) else trusted_keys
@@ -427,7 +430,7 @@ def _check_conflicts(files: Mapping[str, bytes], dirs: set[str]) -> None:
         raise UnsafePathError(f"entry {clash[0]!r} is both a file and a directory")
 
 
-def _package_from_files(data: bytes, files: dict[str, bytes], *, trusted_keys,
+def _package_from_files(data: bytes, files: dict[str, bytes], *, trusted_keys: TrustedKeys,
                         require_signature: bool) -> Package:
     present = [n for n in MANIFEST_NAMES if n in files]
     if not present:
@@ -470,7 +473,7 @@ def _package_from_files(data: bytes, files: dict[str, bytes], *, trusted_keys,
 
 
 def _load(data: bytes, *, max_size: int, max_total: int, max_file: int, max_files: int,
-          trusted_keys, require_signature: bool) -> tuple[Package, dict[str, bytes]]:
+          trusted_keys: TrustedKeys, require_signature: bool) -> tuple[Package, dict[str, bytes]]:
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise TypeError("package data must be bytes")
     data = bytes(data)
@@ -498,7 +501,7 @@ def read_package(data: bytes, *, max_size: int = DEFAULT_MAX_SIZE, max_total: in
     return pkg
 
 
-def unpack_package(data: bytes, dest_dir: str | os.PathLike, *, max_size: int = DEFAULT_MAX_SIZE,
+def unpack_package(data: bytes, dest_dir: str | os.PathLike[str], *, max_size: int = DEFAULT_MAX_SIZE,
                    max_total: int = DEFAULT_MAX_TOTAL, max_file: int = DEFAULT_MAX_FILE,
                    max_files: int = DEFAULT_MAX_FILES,
                    trusted_keys: Mapping[str, object] | Iterable[object] | None = None,
@@ -583,8 +586,8 @@ def _tar_bytes(entries: list[tuple[str, bytes]]) -> bytes:
     return out.getvalue()
 
 
-def build_package_bytes(src_dir: str | os.PathLike,
-                        signing_key: Ed25519PrivateKey | bytes | str | os.PathLike | None = None) -> bytes:
+def build_package_bytes(src_dir: str | os.PathLike[str],
+                        signing_key: Ed25519PrivateKey | bytes | str | os.PathLike[str] | None = None) -> bytes:
     """Archive bytes of a RApp source directory (see module doc); `PackageError` if invalid.
 
     The source must hold ``manifest.yaml`` or ``manifest.json``; hidden files, ``__pycache__``,
@@ -619,8 +622,8 @@ def package_filename(manifest: Manifest) -> str:
     return f"{manifest.name}-{manifest.version}{PACKAGE_SUFFIX}"
 
 
-def build_package(src_dir: str | os.PathLike, out_path: str | os.PathLike | None = None,
-                  signing_key: Ed25519PrivateKey | bytes | str | os.PathLike | None = None) -> Path:
+def build_package(src_dir: str | os.PathLike[str], out_path: str | os.PathLike[str] | None = None,
+                  signing_key: Ed25519PrivateKey | bytes | str | os.PathLike[str] | None = None) -> Path:
     """Build ``src_dir`` into a ``.rapp`` file and return its path.
 
     ``out_path`` may be a file path, an existing directory (file named `package_filename` inside)
@@ -628,7 +631,7 @@ def build_package(src_dir: str | os.PathLike, out_path: str | os.PathLike | None
     """
     data = build_package_bytes(src_dir, signing_key)
     if out_path is None or Path(out_path).is_dir():
-        manifest = load_manifest(src_dir)
+        manifest = load_manifest(Path(src_dir))
         out = Path(out_path or ".") / package_filename(manifest)
     else:
         out = Path(out_path)

@@ -5,6 +5,8 @@ wrong or expired one before the service runs.
 """
 from __future__ import annotations
 
+from typing import Any
+
 from pydantic import Field
 
 from .registry import Action, Content, Done, action
@@ -40,8 +42,8 @@ class Login(Action):
 class ServiceInfo(Content):
     name: str
     group: str
-    request_schema: dict
-    reply_schema: dict | None = None
+    request_schema: dict[str, Any]
+    reply_schema: dict[str, Any] | None = None
 
 
 class ServiceList(Content):

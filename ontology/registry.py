@@ -10,7 +10,7 @@
 from __future__ import annotations
 
 import json
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -53,15 +53,16 @@ class ContentError(ValueError):
 
 
 _actions: dict[tuple[str, str], type[Action]] = {}
+A = TypeVar("A", bound=type[Action])  # an Action class: the decorators return it as it is
 
 
 def action(name: str, *, ontology: str, reply: type[Content] = Done, group: str = "",
-           idempotent: bool = False):
+           idempotent: bool = False) -> Callable[[A], A]:
     """Class decorator registering an Action model under (ontology, name). `idempotent=True` marks a
     read without side effects (the requester re-sends it after a timeout); nothing is inferred from
     the name."""
 
-    def register(cls: type[Action]) -> type[Action]:
+    def register(cls: A) -> A:
         key = (ontology, name)
         if key in _actions and _actions[key].__qualname__ != cls.__qualname__:
             raise ValueError(f"action {name!r} already registered in ontology {ontology!r}")

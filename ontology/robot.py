@@ -7,18 +7,18 @@ Camera optical frame convention: x right, y down, z forward (OpenCV).
 """
 from __future__ import annotations
 
-from typing import Literal
+from typing import Callable, Literal
 
 from pydantic import Field, model_validator
 
-from .registry import Action, Content, Done, action, actions
+from .registry import A, Action, Content, Done, action, actions
 from .robot_actions import ACTION_FACTS
 from .services.common import Pose2D  # noqa: F401 - one Pose2D for robot and Platform messages
 
 ONTOLOGY = "robot"
 
 
-def robot_action(name: str, *, reply: type[Content] = Done):
+def robot_action(name: str, *, reply: type[Content] = Done) -> Callable[[A], A]:
     """@action for the robot ontology: group and idempotency come from the action's row in ACTION_FACTS."""
     row = ACTION_FACTS[name]
     return action(name, ontology=ONTOLOGY, reply=reply, group=row.group, idempotent=row.idempotent)
@@ -170,7 +170,7 @@ class CaptureAudio(Action):
     array: bool = False
 
     @model_validator(mode="after")
-    def _fits_one_message(self):
+    def _fits_one_message(self) -> CaptureAudio:
         if self.array and (self.seconds > MAX_AUDIO_SECONDS / MAX_MICROPHONES or self.sample_rate != 16000):
             raise ValueError(f"capture_audio with array: at most {MAX_AUDIO_SECONDS / MAX_MICROPHONES:g} s, at 16000 Hz")
         return self

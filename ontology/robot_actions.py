@@ -82,7 +82,7 @@ def resumable(name: str) -> bool:
 
 def markdown_table() -> str:
     """The table as docs/architecture-actions.md shows it."""
-    def cell(v) -> str:
+    def cell(v: object) -> str:
         return "yes" if v is True else "no" if v is False else "–" if v is None else f"`{v}`"
 
     rows = ["| action | group | device | motion | idempotent | drive |", "|---|---|---|---|---|---|"]

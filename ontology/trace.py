@@ -275,7 +275,7 @@ TraceRecord = Annotated[Union[MessageRecord, StructureRecord, AgentRecord, Behav
                               TimeoutRecord, RetryRecord, ResendRecord, DroppedRecord, DuplicateRecord,
                               ProgressRecord, LogRecord, BlackboardRecord],
                         Field(discriminator="kind")]
-_ADAPTER: TypeAdapter = TypeAdapter(TraceRecord)
+_ADAPTER: TypeAdapter[TraceRecord] = TypeAdapter(TraceRecord)
 
 
 def parse_record(rec: dict[str, Any]) -> TraceRecord:

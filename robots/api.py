@@ -301,7 +301,7 @@ class RobotAPI:
         named = {"head": r.spec.head_pitch, "neck": r.spec.head_yaw}
         if c in named:
             j = named[c]
-            return r.link_pose(next(link for link, jn in r._link_joint.items() if jn == j))
+            return r.link_pose(r.link_of_joint(j))
         sensors = {s.name: s.spec.link for s in r.sonars}
         if r.laser:
             sensors["laser"] = r.laser.spec.link

@@ -519,7 +519,7 @@ class Disturbances:
                 m.placed = placed
         for d in self.doors:
             if not d.finished and t >= d.at:
-                world._set_door(d.door, d.angle_at(t, next(x.angle for x in world.plan.doors if x.id == d.door)))
+                world.set_door_in_thread(d.door, d.angle_at(t, next(x.angle for x in world.plan.doors if x.id == d.door)))
         self._count_contacts(t, robots)
 
     def _count_contacts(self, t: float, robots: list[Robot]) -> None:

@@ -285,7 +285,7 @@ def add_links(d: Draft) -> None:
         if link is None:
             raise _Retry("no room for a door")
         d.links.append(link)
-    for k, link in enumerate(l for l in d.links if l.door):
+    for k, link in enumerate(ln for ln in d.links if ln.door):
         link.door["id"] = f"d_{d.rooms[link.b if link.kind == 'hazard' else link.a].name}_{k}"
     for link in d.links:  # nothing stands in a doorway, before it or in a leaf's sweep
         centre = link.centre()
@@ -407,16 +407,16 @@ def describe(d: Draft, name: str, landmarks: list[dict] | None = None, robots: d
     return {
         "name": name, "wall": {"height": WALL_H, "thickness": WALL_T},
         "walls": [[_r(v) for v in w] for w in d.walls],
-        "openings": [{"from": [_r(v) for v in l.gap()[0]], "to": [_r(v) for v in l.gap()[1]]}
-                     for l in d.links if l.kind == "opening"],
+        "openings": [{"from": [_r(v) for v in ln.gap()[0]], "to": [_r(v) for v in ln.gap()[1]]}
+                     for ln in d.links if ln.kind == "opening"],
         "rooms": [{"name": r.name, "rect": [_r(r.rect[0] + WALL_T / 2), _r(r.rect[1] + WALL_T / 2),
                                             _r(r.rect[2] - WALL_T / 2), _r(r.rect[3] - WALL_T / 2)]} for r in d.rooms],
-        "doors": [dict(l.door) for l in d.links if l.door],
+        "doors": [dict(ln.door) for ln in d.links if ln.door],
         "lamps": [dict(lp) for lp in d.lamps], "furniture": [dict(f) for f in d.furniture],
         "landmarks": landmarks or [], "robots": robots or {},
-        "hazards": {"doors": {l.door["id"]: "front" for l in d.links if l.kind == "hazard"},
+        "hazards": {"doors": {ln.door["id"]: "front" for ln in d.links if ln.kind == "hazard"},
                     "lamps": {k: list(v) for k, v in d.lamp_dirs.items()},
-                    "passages": [l.door["id"] for l in d.links if l.kind == "passage"]},
+                    "passages": [ln.door["id"] for ln in d.links if ln.kind == "passage"]},
     }
 
 
@@ -472,7 +472,7 @@ def add_landmarks(d: Draft) -> list[dict]:
     out = []
     obstacles = [_rect_of(f) for f in d.furniture]
     lamps = [np.array([lp["x"], lp["y"]]) for lp in d.lamps]
-    hinges = [np.array(l.door["hinge"]) for l in d.links if l.door]
+    hinges = [np.array(ln.door["hinge"]) for ln in d.links if ln.door]
     for room in d.rooms:
         x0, y0, x1, y1 = room.rect
         faces = {  # side: (start point, direction along the wall, normal into the room, length)

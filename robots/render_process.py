@@ -105,7 +105,7 @@ def _mirror_scene_class():
                 for j, a in qs.items():
                     p.resetJointState(uid, joints[j], a, physicsClientId=cid)
             for door_id, angle in job.doors.items():
-                self._set_door(door_id, angle)
+                self.set_door_in_thread(door_id, angle)
             for lamp_id, on in job.lamps.items():
                 self._set_lamp(lamp_id, on)
             for name, (shape, pos, orn) in job.bodies.items():

@@ -15,9 +15,9 @@ from .loudspeaker import Loudspeaker
 from .odometry import Odometry, OdometryNoise
 from .microphones import Microphone
 from .receptors import Camera, RangeSensor, pose_matrix
+from .spec import RobotSpec
 
 AHEAD_RAD = 0.52  # "ahead" for the collision protection: readings within ±30° of the heading
-from .spec import RobotSpec
 
 if TYPE_CHECKING:
     from .controllers import Controller
@@ -185,6 +185,10 @@ class Robot:
 
     def joint_offset_of_link(self, link: str) -> np.ndarray:
         return self.joint_offset(self._link_joint[link])
+
+    def link_of_joint(self, joint: str) -> str:
+        """The link that joint `joint` moves."""
+        return next(link for link, jn in self._link_joint.items() if jn == joint)
 
     def base_in_world(self) -> np.ndarray:
         return self.link_pose(self.root_link)

@@ -164,7 +164,8 @@ class Scene:
         tex = p.loadTexture(str(qr_texture(m.text)), physicsClientId=cid)
         p.changeVisualShape(uid, -1, textureUniqueId=tex, rgbaColor=[1, 1, 1, 1], physicsClientId=cid)
 
-    def _set_door(self, door_id: str, angle_deg: float) -> None:
+    def set_door_in_thread(self, door_id: str, angle_deg: float) -> None:
+        """set_door from the world's pybullet thread (disturbances, the render process)."""
         d = next((d for d in self.plan.doors if d.id == door_id), None)
         if d is None:
             raise InvalidArgument(f"unknown door {door_id!r}")
@@ -289,14 +290,14 @@ class World(Scene):
             out += self.disturbances.bodies_near(x, y, r)
         return out
 
-    def _set_door(self, door_id: str, angle_deg: float) -> None:
-        super()._set_door(door_id, angle_deg)
+    def set_door_in_thread(self, door_id: str, angle_deg: float) -> None:
+        super().set_door_in_thread(door_id, angle_deg)
         uid = self.door_uids[door_id]
         self._obstacle_aabbs[self._obstacle_uids.index(uid)] = self._aabb(uid)
         self._aabb_array = np.array(self._obstacle_aabbs)
 
     async def set_door(self, door_id: str, angle_deg: float) -> None:
-        await self.run(self._set_door, door_id, angle_deg)
+        await self.run(self.set_door_in_thread, door_id, angle_deg)
 
     async def set_lamp(self, lamp_id: str, on: bool) -> None:
         await self.run(self._set_lamp, lamp_id, on)

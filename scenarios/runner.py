@@ -66,8 +66,8 @@ class Owner:
     chat: list[str] = field(default_factory=list)
     transcript: list[str] = field(default_factory=list)  # the chat with each line's sender (chat.txt)
     wall_s: float = 0.0
-    _told_from: int = 0  # the owner client's ends and chat before the command: not this run's
-    _chat_from: int = 0
+    told_from: int = 0  # the owner client's ends and chat before the command: not this run's
+    chat_from: int = 0
 
     @property
     def reports(self) -> list[ReportRecord]:
@@ -133,8 +133,8 @@ class Run:
             self.truth_at_start = self.world.ground_truth()
             sim0, wall0 = self.world.time, time.monotonic()
             for owner in self.owners:
-                owner._told_from = len(owner.handle.user.ended)
-                owner._chat_from = len(owner.handle.user.received)
+                owner.told_from = len(owner.handle.user.ended)
+                owner.chat_from = len(owner.handle.user.received)
                 await (owner.deliver or _chat)(owner)
             side = asyncio.create_task(during(self)) if during is not None else None
             ends = await asyncio.gather(*(self._wait(o, timeout_s, accept) for o in self.owners))
@@ -158,8 +158,8 @@ class Run:
                 side.cancel()
             for owner in self.owners:  # the chat as it was when the run ended
                 if owner.handle is not None:
-                    owner.chat = owner.handle.user.texts()[owner._chat_from:]
-                    owner.transcript = owner.handle.user.transcript(owner._chat_from, owner.handle.core.address)
+                    owner.chat = owner.handle.user.texts()[owner.chat_from:]
+                    owner.transcript = owner.handle.user.transcript(owner.chat_from, owner.handle.core.address)
             with saving():  # a signal now does not cut the stopping short
                 await system.stop()
             for task in samplers:
@@ -203,7 +203,7 @@ class Run:
     async def _wait(self, owner: Owner, timeout_s: float, accept) -> str:
         t0 = time.monotonic()
         try:
-            owner.record = await owner.handle.user.task_end(timeout_s, owner._told_from, accept or (lambda r: True))
+            owner.record = await owner.handle.user.task_end(timeout_s, owner.told_from, accept or (lambda r: True))
             return ""
         except asyncio.TimeoutError:
             return f"{owner.kind}: no end within {timeout_s:g} s"

@@ -21,6 +21,7 @@ from ontology.acl import Performative
 from ontology.registry import actions
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
+from xmpp_server.compat import metadata_of
 
 from .test_lifecycle import FIXTURE, run_command, state, variant, wait_until
 
@@ -98,7 +99,7 @@ def _raw(to, body, ontology, action, performative="request"):
     if performative:
         msg.set_metadata(acl.PERFORMATIVE, performative)
     else:
-        msg._metadata.pop(acl.PERFORMATIVE)  # no performative at all: plain chat
+        metadata_of(msg).pop(acl.PERFORMATIVE)  # no performative at all: plain chat
     return msg
 
 

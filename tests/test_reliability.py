@@ -95,11 +95,11 @@ async def test_dynamic_process_has_resource_limits(system):
                      and "command-server" in core.active_behaviours())
     pid = core.dynamic.process.pid
     limits = open(f"/proc/{pid}/limits").read()
-    cpu = next(l for l in limits.splitlines() if l.startswith("Max cpu time"))
-    mem = next(l for l in limits.splitlines() if l.startswith("Max address space"))
+    cpu = next(ln for ln in limits.splitlines() if ln.startswith("Max cpu time"))
+    mem = next(ln for ln in limits.splitlines() if ln.startswith("Max address space"))
     assert "unlimited" not in cpu and "unlimited" not in mem
     for name in ("Max processes", "Max open files", "Max file size"):
-        line = next(l for l in limits.splitlines() if l.startswith(name))
+        line = next(ln for ln in limits.splitlines() if ln.startswith(name))
         assert "unlimited" not in line, line
     # its working directory is the run's own (seen as /app inside the sandbox: same inode)
     cwd, workdir = os.stat(f"/proc/{pid}/cwd"), os.stat(core.dynamic.workdir)

@@ -1,17 +1,31 @@
 """Every patch of a third-party internal (SPADE, slixmpp, pyjabber), in one module, installed by one
 explicit call that first checks the installed versions against the pins:
 
-    install_agent_patches()    RappAgent.__init__ (every agent process)
+    install_agent_patches()    AgentDoor.__init__, i.e. RappAgent's (every agent process)
     install_server_patches()   xmpp_server.embedded.build_server (the embedded server process)
 
-Each patch is idempotent and names the upstream code it replaces; docs/spade-pitfalls.md lists them.
-A version other than the pinned one fails with PinMismatch: the patches repeat pinned upstream code.
+and every override of, or read from, their private members:
+
+    AgentDoor         spade.agent.Agent's _async_connect, _message_received and container (mixin)
+    ConnectsTo        spade.agent.Agent's _async_connect alone (the benchmark's bare SPADE floor)
+    metadata_of       spade.message.Message._metadata (no public mapping in 4.1.4)
+    end_filter_task   slixmpp's XMLStream._run_out_filters
+    configure_server  pyjabber's Server._http_server and _host
+
+Each names the upstream code it replaces; docs/spade-pitfalls.md lists them. A version other than
+the pinned one fails with PinMismatch: the patches repeat pinned upstream code. ruff's SLF001
+(private member access) is off for this module only (pyproject.toml): a reach-in anywhere else
+fails the lint.
 """
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import itertools
 import logging
+import operator
 from importlib.metadata import PackageNotFoundError, version
+from typing import Any, Callable
 
 _log = logging.getLogger("rapp.compat")
 PINS = {"spade": "4.1.4", "pyjabber": "0.4.5", "slixmpp-multiplatform": "1.12.0"}
@@ -36,6 +50,15 @@ def check_pins(*dists: str) -> dict[str, str]:
 
 
 _installed: set[str] = set()
+_checked: set[str] = set()
+
+
+def _check_once(*dists: str) -> None:
+    """check_pins, once per process and distribution (agents are built many times in one)."""
+    todo = [d for d in dists if d not in _checked]
+    if todo:
+        check_pins(*todo)
+        _checked.update(todo)
 
 
 def install_agent_patches() -> None:
@@ -43,6 +66,7 @@ def install_agent_patches() -> None:
     if "agent" in _installed:
         return
     check_pins("spade", "slixmpp-multiplatform", "pyjabber")
+    _checked.update(("spade", "slixmpp-multiplatform", "pyjabber"))
     import spade.agent
     from spade.behaviour import CyclicBehaviour
 
@@ -130,6 +154,107 @@ def configure_server(server, bind_host: str):
 
 
 # -- SPADE ------------------------------------------------------------------------------------
+class ConnectsTo:
+    """Mixed in before spade.agent.Agent: log in at `connect_addresses()[0]` (host, port) whatever
+    the JID's domain is, and with more than one address, try the next when one is refused.
+
+    SPADE 4.1.4's Agent._async_connect (pinned) calls `client.connect(host=jid.host, port=...)`: the
+    JID's domain is a name, not where the server listens (loopback, a cluster node). The client's
+    connect is replaced for that call; `reconnect_to(host, port)` calls the original (SPADE never
+    reconnects by itself). slixmpp retries a refused address by itself; with fallback servers the
+    next one is tried instead."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        _check_once("spade", "slixmpp-multiplatform")
+        super().__init__(*args, **kwargs)
+
+    def connect_addresses(self) -> list[tuple[str, int]]:
+        raise NotImplementedError  # the host says where its server is
+
+    def reconnect_to(self, host: str, port: int) -> None:
+        self._connect_original(host=host, port=port)
+
+    async def _async_connect(self) -> None:
+        client = self.client
+        connect = self._connect_original = client.connect
+        addresses = self.connect_addresses()
+        host, port = addresses[0]
+        client.connect = lambda *a, **kw: connect(host=host, port=port)  # SPADE passes the JID's
+        if len(addresses) == 1:
+            await super()._async_connect()
+            return
+        # later: the failed attempt reschedules itself first, and connect() cancels that
+        turn, connecting = itertools.count(1), [True]
+        loop = asyncio.get_running_loop()
+
+        def next_server(_error: object) -> None:
+            h, p = addresses[next(turn) % len(addresses)]
+            loop.call_later(0.2, lambda: connecting[0] and connect(host=h, port=p))
+        client.add_event_handler("connection_failed", next_server)
+        try:
+            await super()._async_connect()
+        finally:
+            connecting[0] = False  # logged in, failed or given up: no further attempt
+            client.del_event_handler("connection_failed", next_server)
+
+
+class _RoutingContainer:
+    """Stands in for SPADE's Container on one agent, so every send passes through the agent."""
+
+    def __init__(self, real: Any, agent: Any) -> None:
+        self._real, self._agent = real, agent
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._real, name)
+
+    async def send(self, msg: Any, behaviour: Any = None) -> None:
+        await self._agent.send(msg)
+
+
+class AgentDoor(ConnectsTo):
+    """Mixed in before spade.agent.Agent (`class RappAgent(AgentDoor, Agent)`): the agent's patches
+    installed (pins checked first), and SPADE's private agent members replaced by public hooks:
+
+    - `stanza_received(node)` gets every message stanza; it replaces Agent._message_received
+      (Message.from_node, then dispatch to the behaviours' queues);
+    - `send(msg)` gets every message a behaviour sends: SPADE's CyclicBehaviour.send goes to
+      `agent.container.send`, which hands an agent of the same process the sender's own object
+      without the agent seeing it; `container` becomes a stand-in whose send is the agent's.
+      `local_agent(jid)` finds a running agent of this process, `leave_container()` forgets this
+      one (SPADE's stop does not; a restarted agent of the same name would be handed messages);
+    - the server address: see ConnectsTo."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        install_agent_patches()
+        super().__init__(*args, **kwargs)
+        self._spade_container = self.container  # set by Agent.__init__
+        self.container = _RoutingContainer(self._spade_container, self)
+
+    def stanza_received(self, node: Any) -> Any:
+        return super()._message_received(node)
+
+    def _message_received(self, node: Any) -> Any:
+        return self.stanza_received(node)
+
+    def local_agent(self, jid: str) -> Any:
+        """The running agent of this process at `jid` (full, else bare), or None."""
+        real = self._spade_container
+        for key in (jid, jid.split("/", 1)[0]):
+            if real.has_agent(key):
+                agent = real.get_agent(key)
+                if agent.is_alive():
+                    return agent
+        return None
+
+    def leave_container(self) -> None:
+        self._spade_container.unregister(str(self.jid))
+
+
+# SPADE's Message.get_metadata, without its call (one per field and message read): its mapping is
+# private in 4.1.4, an attribute getter reads it at C speed
+metadata_of: Callable[[Any], dict[str, str]] = operator.attrgetter("_metadata")
+
+
 async def _cancellable_step(self) -> None:
     """SPADE's CyclicBehaviour._step with one change: cancellation ends the behaviour.
 
@@ -180,9 +305,8 @@ def rapp_xmpp_client_class():
     message data forms left as XML.
 
     slixmpp builds a fresh default SSL context for every client and loads the system CA store into it
-    twice (``create_default_context`` + ``set_default_verify_paths``): ~75 ms of every login, i.e. most
-    of an in-process Dynamic Agent's hand-off, spent on certificates that are never checked on loopback.
-    With ``verify_security`` off every client shares one context without CA paths; with it on, nothing
+    twice (``create_default_context`` + ``set_default_verify_paths``): most of a login's event-loop
+    time, spent on certificates that are never checked on loopback (docs/spade-pitfalls.md). With ``verify_security`` off every client shares one context without CA paths; with it on, nothing
     changes. The body repeats ``spade.xmpp_client.XMPPClient.__init__`` of spade 4.1.4 (pinned) with the
     context passed through; revisit on any SPADE upgrade (docs/spade-pitfalls.md).
     """
@@ -232,14 +356,25 @@ def rapp_xmpp_client_class():
 
 
 # -- slixmpp ----------------------------------------------------------------------------------
+async def end_filter_task(client: Any) -> None:
+    """Cancel and await the client's stanza-filter task. slixmpp 1.12.0 (pinned) keeps it alive
+    across disconnects in the private XMLStream._run_out_filters (for reconnecting), so a stopped
+    client would leave it pending and asyncio would report "Task was destroyed but it is pending!"
+    when the loop closes."""
+    task = getattr(client, "_run_out_filters", None)
+    if task is not None and not task.done():
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, Exception):
+            await task
+
+
 def match_only_its_tag(handler) -> None:
     """A stanza handler whose matcher names its stanza's tag (MatchXPath `{ns}message/...`,
     StanzaPath `iq@type=set/...`) is tried only on stanzas with that tag.
 
-    slixmpp's XMLStream.__spawn_event runs every handler's full matcher on every stanza: 16 of them on
-    an agent's client, 15.6 us of each received message (the iq handlers of disco, ping, roster,
-    OOB and HTTP upload ~1.1 us each), where comparing the tag first costs ~0.1 us. Replaces the
-    instance's BaseHandler.match (slixmpp.xmlstream.handler.base, pinned 1.12.0); a matcher
+    slixmpp's XMLStream.__spawn_event runs every handler's full matcher on every stanza (16 on an
+    agent's client), where comparing the tag first costs a fraction of one (docs/spade-pitfalls.md).
+    Replaces the instance's BaseHandler.match (slixmpp.xmlstream.handler.base, pinned 1.12.0); a matcher
     without a tag (an iq's id) is left as it is."""
     tag = _matcher_tag(getattr(handler, "_matcher", None))
     if tag is None or getattr(handler, "matches_only_its_tag", False):
@@ -464,7 +599,7 @@ def _patch_session_routes() -> None:
     as online. A message to a bare JID goes to the resources of the highest `<priority/>`, compared
     as text, any presence type: SPADE's logout sends `unavailable` with priority 0, a new login's
     presence has none, so every later message to the bare JID went to the old, gone resource only,
-    and was dropped (a Core restarted under its name never heard the Platform nor its owner).
+    and was dropped.
 
     As a standard server does (RFC 6121 8.5.2, XEP-0160): when a client stream
     ends, its resource and peer entry are removed; a message to a bare JID goes to the available,
@@ -474,8 +609,8 @@ def _patch_session_routes() -> None:
     They are stored and delivered here, in the stanza handlers, in the order the server reads
     them: pyjabber's queue worker took a stored message and the recipient's "online" notice in no
     fixed order when both were waiting, and a message stored after the notice waited for a next
-    one that never came (the owner's first command to a restarted Core, about one in two when
-    they met). Stored messages go out oldest first (pyjabber: newest first).
+    one that never came (what that did: docs/spade-pitfalls.md). Stored messages go out oldest
+    first (pyjabber: newest first).
     Resource conflicts cannot arise: pyjabber binds a fresh random resource for every session."""
     from pyjabber.features.presence.Enums import PresenceType
     from pyjabber.features.presence.PresenceFeature import Presence

@@ -9,7 +9,7 @@ import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 from .maps import MapStore
 from .obstacles import ObstacleLayers
@@ -57,6 +57,16 @@ class ServiceState:
                 self._stores[name] = SavedArrays(self.saved, name) if self.saved is not None and \
                     name in SAVED_ARRAYS else factory()
             return self._stores[name]
+
+    def replace_stores(self, stores: dict[str, Any]) -> None:
+        """Every named store at once: a pool worker's state gets the caller's with each job."""
+        with self._lock:
+            self._stores = stores
+
+    def stores_named(self, names: Iterable[str]) -> dict[str, Any]:
+        """The named stores that exist (a pool worker gives back what a job changed)."""
+        with self._lock:
+            return {name: self._stores[name] for name in names if name in self._stores}
 
     def preload_maps(self, folder: str | Path) -> list[str]:
         """Register every map_server YAML found in folder as a shared map (id = file stem)."""

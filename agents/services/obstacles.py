@@ -14,7 +14,7 @@ import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -22,10 +22,7 @@ from ontology.errors import ErrorCode
 from ontology.services.navigation import AddObstacle, ClearObstacles, ListObstacles, ObstacleLayer, TempObstacle
 
 from .errors import ServiceError
-from .maps import GridMap
-
-if TYPE_CHECKING:
-    from .context import ServiceContext
+from .maps import GridMap, MapStore
 
 MAX_MARKS = 100  # per (user, map)
 OVERLAYS_PER_LAYER = 3  # cost maps of recent layer states kept per (user, map)
@@ -201,31 +198,50 @@ class ObstacleLayers:
 
 # ---------- the services ----------
 
-def _map(req, ctx: ServiceContext) -> GridMap:
+class _State(Protocol):
+    @property
+    def maps(self) -> MapStore: ...
+
+    @property
+    def obstacles(self) -> ObstacleLayers: ...
+
+
+class MarksContext(Protocol):
+    """What these services read of their ServiceContext (agents/services/context.py, whose
+    state holds the ObstacleLayers above: importing it here would make an import loop)."""
+
+    @property
+    def user(self) -> str: ...
+
+    @property
+    def state(self) -> _State: ...
+
+
+def _map(req, ctx: MarksContext) -> GridMap:
     m = ctx.state.maps.get(ctx.user, req.map_id)
     if m is None:  # plan_path_2d answers PLAN_UNKNOWN_MAP; there is no ErrorCode of that name
         raise ServiceError(f"unknown map {req.map_id!r}", ErrorCode.NOT_FOUND)
     return m
 
 
-def _layer(ctx: ServiceContext, map_id: str, added: str = "") -> ObstacleLayer:
+def _layer(ctx: MarksContext, map_id: str, added: str = "") -> ObstacleLayer:
     store = ctx.state.obstacles
     return ObstacleLayer(map_id=map_id, added=added, obstacles=[
         TempObstacle(id=k.id, x=k.x, y=k.y, radius_m=k.radius_m, expires_in_s=store.expires_in(k), note=k.note)
         for k in store.marks(ctx.user, map_id)])
 
 
-def add_obstacle(req: AddObstacle, ctx: ServiceContext) -> ObstacleLayer:
+def add_obstacle(req: AddObstacle, ctx: MarksContext) -> ObstacleLayer:
     m = _map(req, ctx)
     mark = ctx.state.obstacles.add(ctx.user, m, req.x, req.y, req.radius_m, req.ttl_s, req.note, req.skip_within_m)
     return _layer(ctx, m.map_id, mark.id if mark else "")
 
 
-def clear_obstacles(req: ClearObstacles, ctx: ServiceContext) -> ObstacleLayer:
+def clear_obstacles(req: ClearObstacles, ctx: MarksContext) -> ObstacleLayer:
     m = _map(req, ctx)
     ctx.state.obstacles.clear(ctx.user, m.map_id, req.x, req.y, req.radius_m, everything=req.all)
     return _layer(ctx, m.map_id)
 
 
-def list_obstacles(req: ListObstacles, ctx: ServiceContext) -> ObstacleLayer:
+def list_obstacles(req: ListObstacles, ctx: MarksContext) -> ObstacleLayer:
     return _layer(ctx, _map(req, ctx).map_id)

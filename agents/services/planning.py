@@ -26,11 +26,13 @@ def inflate(blocked: np.ndarray, radius_cells: float) -> np.ndarray:
     return dist <= radius_cells
 
 
-def _src(d: int, n: int) -> slice:
+def source_cells(d: int, n: int) -> slice:
+    """Along an axis of `n` cells, those whose neighbour at offset `d` is inside the grid."""
     return slice(max(0, -d), n - max(0, d))
 
 
-def _dst(d: int, n: int) -> slice:
+def target_cells(d: int, n: int) -> slice:
+    """Those neighbours: source_cells(d, n) moved by `d`."""
     return slice(max(0, -d) + d, n - max(0, d) + d)
 
 
@@ -47,7 +49,7 @@ class GridGraph:
         self.moves = np.zeros((h, w, 8), bool)
         rows, cols, wts = [], [], []
         for k, (dy, dx, c) in enumerate(OFFSETS8):
-            ys, xs, yd, xd = _src(dy, h), _src(dx, w), _dst(dy, h), _dst(dx, w)
+            ys, xs, yd, xd = source_cells(dy, h), source_cells(dx, w), target_cells(dy, h), target_cells(dx, w)
             ok = free[ys, xs] & free[yd, xd]
             if dy and dx:  # both orthogonal neighbours must be free
                 ok &= free[yd, xs] & free[ys, xd]
@@ -64,7 +66,7 @@ class GridGraph:
         return iy * self.shape[1] + ix
 
 
-def _trace(pred: np.ndarray, s: int, g: int, width: int) -> np.ndarray:
+def path_cells(pred: np.ndarray, s: int, g: int, width: int) -> np.ndarray:
     """Cells (x, y) from node s to node g along a predecessor array."""
     nodes = [g]
     while nodes[-1] != s:
@@ -81,7 +83,7 @@ def dijkstra_path(graph: GridGraph, s: int, g: int) -> np.ndarray | None:
     dist, pred = csgraph.dijkstra(graph.csr, indices=s, return_predecessors=True)
     if not np.isfinite(dist[g]):
         return None
-    return _trace(pred, s, g, graph.shape[1])
+    return path_cells(pred, s, g, graph.shape[1])
 
 
 def landmark_distances(graph: GridGraph, count: int = 8) -> np.ndarray:
@@ -182,7 +184,7 @@ def _window_search(graph: GridGraph, s: int, g: int, tables, limit: float, win) 
     dist, pred = csgraph.dijkstra(gr, indices=s_l, return_predecessors=True, limit=limit)
     if not np.isfinite(dist[g_l]):
         return None
-    cells = _trace(pred, s_l, g_l, c)  # window (x, y) -> map (x, y)
+    cells = path_cells(pred, s_l, g_l, c)  # window (x, y) -> map (x, y)
     cells += (x0, y0)
     return cells
 

@@ -131,10 +131,9 @@ def _worker_main(conn, home: str) -> None:
             if m is None:
                 return ("need-map",)
             return ("ok", spec.on_map(job.request, m, lambda base: overlay(base, job)), {})
-        state._stores = {name: travel(name).unpack(part) for name, part in job.stores.items()}
+        state.replace_stores({name: travel(name).unpack(part) for name, part in job.stores.items()})
         reply = spec.run(job.request, ServiceContext(user=job.user, state=state))
-        return ("ok", reply, {name: travel(name).pack(state._stores[name]) for name in spec.writes
-                              if name in state._stores})
+        return ("ok", reply, {name: travel(name).pack(store) for name, store in state.stores_named(spec.writes).items()})
 
     conn.send(("ready", os.getpid()))
     while True:
@@ -250,20 +249,9 @@ class _Worker:
         self.thread = threading.Thread(target=self._loop, name=f"{pool.name}-pool-{index}", daemon=True)
 
     def _spawn(self) -> None:
-        pool = self.pool
-        with pool._accept_lock:  # one connection expected at a time on the pool's socket
-            pid = _fork_worker(pool._listener.address, pool._key)
-            try:
-                conn = pool._listener.accept()
-                if not conn.poll(START_TIMEOUT_S):
-                    raise OSError("no ready message")
-                kind, ready_pid = conn.recv()
-            except OSError as e:
-                _kill(pid)
-                raise WorkerLost(f"service worker {self.index} did not start within {START_TIMEOUT_S:.0f} s: {e}") \
-                    from None
-        self.conn, self.pid, self.maps = conn, ready_pid, set()
-        pool._started(self)
+        self.conn, self.pid = self.pool.connect_worker(self.index)
+        self.maps = set()
+        self.pool.worker_started(self.index)
 
     def alive(self) -> bool:
         """An idle worker never writes: a readable pipe is its end (EOF)."""
@@ -274,7 +262,7 @@ class _Worker:
         except (EOFError, OSError):
             return False
 
-    def _reap(self) -> str:
+    def reap(self) -> str:
         """Close our end and make sure the process is gone (the fork server reaps it)."""
         conn, self.conn = self.conn, None
         if conn is not None:
@@ -288,13 +276,13 @@ class _Worker:
         try:
             self._spawn()
         except Exception as e:  # noqa: BLE001 - retried at the first call
-            pool._note_failure(f"worker {self.index} failed to start: {e}")
+            pool.note_failure(f"worker {self.index} failed to start: {e}")
         while True:
             item = self.jobs.get()
             if item is None or pool.closed:
                 break
             job, fut, loop, grid = item
-            with pool._lock:
+            with pool.counts_lock:
                 self.queued -= 1
                 self.busy = not fut.done()
             if fut.done():  # the caller gave up (cancelled) while the job waited
@@ -306,12 +294,12 @@ class _Worker:
             finally:
                 self.busy = False
             loop.call_soon_threadsafe(_deliver, fut, result)
-        self._reap()
+        self.reap()
 
     def _call(self, job: Job, grid) -> tuple:
         if not self.alive():  # died idle (or never started): replace first
             if self.conn is not None:
-                self.pool._note_failure(f"worker {self.index} (pid {self.pid}) found dead: {self._reap()}")
+                self.pool.note_failure(f"worker {self.index} (pid {self.pid}) found dead: {self.reap()}")
             if self.pool.closed:
                 raise PoolClosed()
             self._spawn()
@@ -327,14 +315,14 @@ class _Worker:
                 out = self._send(job)
         except (EOFError, OSError) as e:
             if self.pool.closed:
-                self._reap()
+                self.reap()
                 raise PoolClosed() from None
-            how = self._reap()
-            self.pool._note_failure(f"worker {self.index} (pid {pid}) died during {job.service}: {how}")
+            how = self.reap()
+            self.pool.note_failure(f"worker {self.index} (pid {pid}) died during {job.service}: {how}")
             try:
                 self._spawn()
             except Exception as err:  # noqa: BLE001 - tried again at the next call
-                self.pool._note_failure(f"worker {self.index} failed to restart: {err}")
+                self.pool.note_failure(f"worker {self.index} failed to restart: {err}")
             raise WorkerLost(f"the service worker process (pid {pid}) running {job.service} died ({how}); "
                              "the Platform has replaced it: send the request again") from e
         if job.map_key:
@@ -377,13 +365,14 @@ class ServicePool:
         self.name = name
         self.closed = False
         self._workers = [_Worker(self, i) for i in range(self.size)]
-        self._lock = threading.Lock()
+        self.counts_lock = threading.Lock()  # the workers' counts: queued, busy, starts
         self._accept_lock = threading.Lock()
         self._key = secrets.token_bytes(16)
         # workers connect here (a socket file in a fresh private directory)
         self._sockdir = tempfile.mkdtemp(prefix="rapp-pool-")
         self._listener = Listener(os.path.join(self._sockdir, "pool"), family="AF_UNIX", authkey=self._key)
-        self._listener._listener._socket.settimeout(START_TIMEOUT_S)  # accept() has no timeout of its own
+        # accept() has no timeout of its own: set on the socket multiprocessing keeps private
+        self._listener._listener._socket.settimeout(START_TIMEOUT_S)  # noqa: SLF001
         self.calls_by_pid: Counter[int] = Counter()  # which process served how many calls
         self.failures: list[str] = []  # worker deaths and failed starts, newest last
         self.restarts = 0
@@ -400,15 +389,30 @@ class ServicePool:
         """Block until every worker has started once (tests, benchmarks)."""
         return self._ready.wait(timeout)
 
-    def _started(self, w: _Worker) -> None:
-        with self._lock:
-            if w.index in self._started_once:
+    def connect_worker(self, index: int):
+        """Fork worker `index` and take its connection: (connection, its pid once it said ready)."""
+        with self._accept_lock:  # one connection expected at a time on the pool's socket
+            pid = _fork_worker(self._listener.address, self._key)
+            try:
+                conn = self._listener.accept()
+                if not conn.poll(START_TIMEOUT_S):
+                    raise OSError("no ready message")
+                kind, ready_pid = conn.recv()
+            except OSError as e:
+                _kill(pid)
+                raise WorkerLost(f"service worker {index} did not start within {START_TIMEOUT_S:.0f} s: {e}") \
+                    from None
+        return conn, ready_pid
+
+    def worker_started(self, index: int) -> None:
+        with self.counts_lock:
+            if index in self._started_once:
                 self.restarts += 1
-            self._started_once.add(w.index)
+            self._started_once.add(index)
             if len(self._started_once) == self.size:
                 self._ready.set()
 
-    def _note_failure(self, text: str) -> None:
+    def note_failure(self, text: str) -> None:
         self.failures.append(text)
         del self.failures[:-50]
 
@@ -428,7 +432,7 @@ class ServicePool:
     def _pick(self, map_key: str) -> _Worker:
         """The least loaded worker; for a plan, the one that has the map's cost maps and landmark
         tables unless it is busier than that by more than one call (then another builds them too)."""
-        with self._lock:
+        with self.counts_lock:
             def load(w: _Worker) -> int:
                 return w.queued + w.busy
             best = min(self._workers, key=load)
@@ -480,7 +484,7 @@ class ServicePool:
         for w in self._workers:
             if w.thread.is_alive():
                 w.thread.join(10)
-            w._reap()
+            w.reap()
         self._listener.close()
         shutil.rmtree(self._sockdir, ignore_errors=True)
         for w in self._workers:  # calls still queued: told, not left waiting

@@ -119,7 +119,7 @@ class ClearObstacles(ServiceRequest):
     all: bool = False
 
     @model_validator(mode="after")
-    def _place_or_all(self):
+    def _place_or_all(self) -> ClearObstacles:
         if not self.all and (self.x is None or self.y is None):
             raise ValueError("give the place seen free (x, y) or all=True")
         return self

@@ -38,12 +38,13 @@ from ontology import core as C
 from ontology import platform as P
 from ontology.acl import Performative
 from ontology.notifications import EventTopic, Notification, NotificationKind, SubscribeEvents
-from ontology.registry import Content, lookup
+from ontology.registry import Content, Progress, lookup
 from ontology.errors import ErrorCode
 
 from ontology.trace import RecordKind
 
 from .blackboard import Blackboard, BlackboardError, Key
+from ._call import _Calls
 from .calls import PlatformCalls, RobotCalls
 from .monitor import ArriveBy, Expectation, Localized, ObstacleMarks, PathFree, PlanFailed, PlanMonitor
 
@@ -53,7 +54,7 @@ __all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "Seque
            "EventTopic", "PlanMonitor", "PlanFailed", "Expectation", "ArriveBy", "PathFree", "Localized"]
 
 
-class _Dynamic:
+class _Dynamic(_Calls):
     """`await proxy.<action>(**fields)` for an action registered after calls.py was generated."""
 
     def __getattr__(self, action: str) -> Callable[..., Awaitable[Content]]:
@@ -61,8 +62,10 @@ class _Dynamic:
             raise AttributeError(action)
         lookup(self._ontology, action)  # ContentError naming the known actions when unknown
 
-        async def call(_timeout: float | None = None, _feedback=None, **fields) -> Content:
-            return await self._call(action, fields, _timeout, _feedback)
+        async def call(_timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None,
+                       **fields: Any) -> Content:
+            reply: Content = await self._call(action, fields, _timeout, _feedback)
+            return reply
 
         call.__name__ = action
         return call
@@ -71,7 +74,7 @@ class _Dynamic:
 class RobotProxy(_Dynamic, RobotCalls):
     """`self.robot`: the robot API, served by the Core (typed methods: rapps/sdk/calls.py)."""
 
-    def __init__(self, agent, core: str, timeout: float = 120.0):
+    def __init__(self, agent: Any, core: str, timeout: float = 120.0):
         super().__init__(agent, core, "robot", timeout)
 
 
@@ -82,13 +85,13 @@ class PlatformProxy(_Dynamic, PlatformCalls):
     services go to the least loaded of two agents offering them (the primary's directory, read at
     the first such call and every few seconds); everything else goes to the primary."""
 
-    def __init__(self, agent, platform: str, token: str, timeout: float = 60.0):
+    def __init__(self, agent: Any, platform: str, token: str, timeout: float = 60.0):
         super().__init__(agent, platform, P.ONTOLOGY, timeout, extra={"token": token})
         # the Dynamic Agent's (agents/platform_directory.py); without one, everything goes to `platform`
         self.chooser = getattr(agent, "platform_chooser", None)
 
-    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None, feedback=None,
-                    to: str | None = None) -> Content:
+    async def _call(self, action: str, fields: dict[str, Any], timeout: float | None,
+                    feedback: Callable[[Progress], Any] | None = None, to: str | None = None) -> Any:
         chooser = self.chooser
         if chooser is None:
             return await super()._call(action, fields, timeout, feedback)
@@ -107,7 +110,7 @@ class PlatformProxy(_Dynamic, PlatformCalls):
 class CloudProxy:
     """The RApp's own Cloud Agent, started on demand through the Platform."""
 
-    def __init__(self, agent, platform: str, token: str, rapp: str, version: str, ontology: str | None):
+    def __init__(self, agent: Any, platform: str, token: str, rapp: str, version: str, ontology: str | None):
         self._agent, self._platform, self._token = agent, platform, token
         self._rapp, self._version, self._ontology = rapp, version, ontology
         self.address: str | None = None
@@ -122,7 +125,7 @@ class CloudProxy:
             self.address = reply.jid
         return self.address
 
-    async def call(self, action: str, _timeout: float = 60.0, **fields) -> Content:
+    async def call(self, action: str, _timeout: float = 60.0, **fields: Any) -> Content:
         """The Cloud Agent's answer; CloudAgentLost when its process died (or, code
         "cloud-restarted", when the Platform restarted it while this call was in flight)."""
         if self.lost:
@@ -131,8 +134,9 @@ class CloudProxy:
             await self.start()
         if not self._ontology:
             raise RuntimeError(f"RApp {self._rapp} declares no cloud ontology")
-        return await self._agent.request(self.address, lookup(self._ontology, action)(**fields),
-                                         timeout=_timeout)
+        reply: Content = await self._agent.request(self.address, lookup(self._ontology, action)(**fields),
+                                                   timeout=_timeout)
+        return reply
 
     async def stop(self) -> None:
         if self.address is not None and not self.lost:
@@ -145,26 +149,26 @@ class TaskLog:
     """`self.log.info("...")`: a line in the run's trace (kind "log", with the behaviour state it was
     written in) and in the Dynamic Agent's Python log (its stderr.log in the run directory)."""
 
-    def __init__(self, task: "Task"):
-        self._task = task
+    def __init__(self, task: "Task", trace: Callable[..., None]):
+        self._task, self._trace = task, trace
         self._py = logging.getLogger(f"rapp.task.{task.manifest.name}")
 
-    def _write(self, level: str, message: str, *args) -> None:
+    def _write(self, level: str, message: str, *args: Any) -> None:
         text = message % args if args else message
         state = "/".join(self._task.state_path())
         getattr(self._py, level)("[%s] %s", state or "-", text)
-        self._task._trace(RecordKind.LOG, level=level, message=text[:2000], state=state)
+        self._trace(RecordKind.LOG, level=level, message=text[:2000], state=state)
 
-    def debug(self, message: str, *args) -> None:
+    def debug(self, message: str, *args: Any) -> None:
         self._write("debug", message, *args)
 
-    def info(self, message: str, *args) -> None:
+    def info(self, message: str, *args: Any) -> None:
         self._write("info", message, *args)
 
-    def warning(self, message: str, *args) -> None:
+    def warning(self, message: str, *args: Any) -> None:
         self._write("warning", message, *args)
 
-    def error(self, message: str, *args) -> None:
+    def error(self, message: str, *args: Any) -> None:
         self._write("error", message, *args)
 
 
@@ -179,7 +183,7 @@ class Task:
     cloud_ontology: str | None = None  # the ontology name of the RApp's Cloud Agent actions
     keys: dict[str, Key] = {}  # the typed blackboard's keys (rapps/sdk/blackboard.py)
 
-    def __init__(self, runtime):
+    def __init__(self, runtime: Any) -> None:
         self.runtime = runtime
         self.agent = runtime  # the DynamicAgent (a SPADE agent)
         self.params: dict[str, Any] = dict(runtime.params)
@@ -190,8 +194,8 @@ class Task:
         self.cloud = CloudProxy(runtime, runtime.platform, runtime.token, runtime.manifest.name,
                                 runtime.manifest.version, self.cloud_ontology)
         self.root: Behaviour | None = None  # what build() returned (set by the runtime)
-        self.memory: dict = getattr(runtime, "memory", {})
-        self.log = TaskLog(self)
+        self.memory: dict[str, Any] = getattr(runtime, "memory", {})
+        self.log = TaskLog(self, self._trace)
         self.marks = ObstacleMarks(self)  # obstacles entered into the Platform's map (rapps/sdk/monitor.py)
         self.bb = Blackboard(self.keys, self.memory, writer=lambda: (self.state_path() or [""])[-1],
                              trace=self._trace)
@@ -278,7 +282,7 @@ class Task:
 class Step(OneShot):
     """A one-shot behaviour running `async fn(memory)`; its return value is the outcome value."""
 
-    def __init__(self, fn: Callable[[dict], Awaitable[Any]], name: str | None = None, **kw):
+    def __init__(self, fn: Callable[[dict[str, Any]], Awaitable[Any]], name: str | None = None, **kw: Any):
         super().__init__(name or getattr(fn, "__name__", "step"), **kw)
         self.fn = fn
 
@@ -291,16 +295,16 @@ class CloudService:
 
     ontology: str = ""
 
-    def __init__(self, runtime):
+    def __init__(self, runtime: Any) -> None:
         self.runtime = runtime
         self.agent = runtime
 
-    def handlers(self) -> dict:
+    def handlers(self) -> dict[str, Callable[[Any, Any], Awaitable[Any]]]:
         """Responder handlers `(request, ctx)` around the author's `async def <action>(self, request)`."""
         from ontology.registry import actions
 
-        def wrap(method):
-            async def handler(req, ctx):
+        def wrap(method: Callable[[Any], Awaitable[Any]]) -> Callable[[Any, Any], Awaitable[Any]]:
+            async def handler(req: Any, ctx: Any) -> Any:
                 return await method(req)
             return handler
 

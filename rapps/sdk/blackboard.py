@@ -41,7 +41,7 @@ class Key:
 
 
 class Blackboard:
-    def __init__(self, keys: dict[str, Key], memory: dict, *, writer: Callable[[], str] = lambda: "",
+    def __init__(self, keys: dict[str, Key], memory: dict[str, Any], *, writer: Callable[[], str] = lambda: "",
                  trace: Callable[..., None] | None = None):
         object.__setattr__(self, "_keys", dict(keys))
         object.__setattr__(self, "_memory", memory)
@@ -53,8 +53,9 @@ class Blackboard:
                 memory[name] = copy.deepcopy(key.default)
 
     def _key(self, name: str) -> Key:
+        keys: dict[str, Key] = self._keys
         try:
-            return self._keys[name]
+            return keys[name]
         except KeyError:
             raise BlackboardError(f"blackboard key {name!r} is not declared (declared: "
                                   f"{', '.join(sorted(self._keys)) or 'none'})") from None

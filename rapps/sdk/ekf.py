@@ -19,6 +19,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ontology.robot_types import ROBOT_TYPES, Odometry
 
@@ -29,17 +30,19 @@ def wrap(a: float) -> float:
     return math.remainder(a, math.tau)
 
 
-def relative(a, b) -> tuple[float, float, float]:
+def relative(a: ArrayLike, b: ArrayLike) -> tuple[float, float, float]:
     """Pose b in the frame of pose a (both (x, y, theta)): the displacement from a to b."""
-    dx, dy = b[0] - a[0], b[1] - a[1]
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    dx, dy = float(b[0] - a[0]), float(b[1] - a[1])
     c, s = math.cos(a[2]), math.sin(a[2])
-    return c * dx + s * dy, -s * dx + c * dy, wrap(b[2] - a[2])
+    return c * dx + s * dy, -s * dx + c * dy, wrap(float(b[2] - a[2]))
 
 
-def compose(a, d) -> tuple[float, float, float]:
+def compose(a: ArrayLike, d: ArrayLike) -> tuple[float, float, float]:
     """Pose a moved by the displacement d (in a's frame)."""
+    a, d = np.asarray(a, float), np.asarray(d, float)
     c, s = math.cos(a[2]), math.sin(a[2])
-    return a[0] + c * d[0] - s * d[1], a[1] + s * d[0] + c * d[1], wrap(a[2] + d[2])
+    return (float(a[0] + c * d[0] - s * d[1]), float(a[1] + s * d[0] + c * d[1]), wrap(float(a[2] + d[2])))
 
 
 @dataclass(frozen=True)
@@ -76,8 +79,9 @@ ODOMETRY: Mapping[str, OdometryModel] = _OdometryByType()
 
 
 class PoseEKF:
-    def __init__(self, pose, std_m: float = 0.5, std_rad: float = 0.3, cov=None):
-        self.x = np.array([float(pose[0]), float(pose[1]), wrap(float(pose[2]))])
+    def __init__(self, pose: ArrayLike, std_m: float = 0.5, std_rad: float = 0.3, cov: ArrayLike | None = None):
+        start = np.asarray(pose, float)
+        self.x = np.array([float(start[0]), float(start[1]), wrap(float(start[2]))])
         self.P = (np.asarray(cov, float).copy() if cov is not None
                   else np.diag([std_m ** 2, std_m ** 2, std_rad ** 2]))
         if self.P.shape != (3, 3) or not np.all(np.isfinite(self.P)):
@@ -104,12 +108,12 @@ class PoseEKF:
         var = float(side @ self.P[:2, :2] @ side) + self.P[2, 2] * distance ** 2
         return math.sqrt(var + model.covariance(distance, 0.0)[1, 1])
 
-    def predict(self, delta, model: OdometryModel, travelled_m: float | None = None,
+    def predict(self, delta: ArrayLike, model: OdometryModel, travelled_m: float | None = None,
                 turned_rad: float | None = None) -> None:
         """Move by the odometry displacement `delta` (dx, dy, dtheta in the robot frame). The error grows
         with the motion actually made, which may be longer than the displacement (a path with corners,
         a turn and back): pass `travelled_m` and `turned_rad` when known."""
-        dx, dy, dth = (float(v) for v in delta)
+        dx, dy, dth = (float(v) for v in np.asarray(delta, float))
         d = max(math.hypot(dx, dy), travelled_m or 0.0)
         r = max(abs(dth), turned_rad or 0.0)
         th = self.x[2]
@@ -119,20 +123,21 @@ class PoseEKF:
         self.x = np.array(compose(self.x, (dx, dy, dth)))
         self.P = F @ self.P @ F.T + G @ model.covariance(d, r) @ G.T
 
-    def predict_between(self, odom_before, odom_after, model: OdometryModel, **kw) -> None:
+    def predict_between(self, odom_before: ArrayLike, odom_after: ArrayLike, model: OdometryModel,
+                        **kw: float | None) -> None:
         """Predict with the displacement between two odometry poses (the robot's own estimate)."""
         self.predict(relative(odom_before, odom_after), model, **kw)
 
-    def mahalanobis2(self, z, R) -> float:
+    def mahalanobis2(self, z: ArrayLike, R: ArrayLike) -> float:
         v = self._innovation(z)
-        return float(v @ np.linalg.solve(self.P + R, v))
+        return float(v @ np.linalg.solve(self.P + np.asarray(R, float), v))
 
-    def _innovation(self, z) -> np.ndarray:
-        v = np.asarray(z, float)[:3] - self.x
+    def _innovation(self, z: ArrayLike) -> np.ndarray:
+        v: np.ndarray = np.asarray(z, float)[:3] - self.x
         v[2] = wrap(float(v[2]))
         return v
 
-    def update(self, z, std_m: float | None = None, std_rad: float | None = None, R=None,
+    def update(self, z: ArrayLike, std_m: float | None = None, std_rad: float | None = None, R: ArrayLike | None = None,
                gate: float | None = None) -> bool:
         """Fuse a pose fix z = (x, y, theta) with standard deviations (or covariance R). With `gate`, a
         fix whose squared Mahalanobis distance from the prediction exceeds it is refused: False."""

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import asyncio
 import math
-from typing import Any, Awaitable, Callable
+from typing import Any, Awaitable, Callable, Iterable, NoReturn
 
 from agents.errors import RequestError, RequestFailed
 from ontology.errors import ErrorCode
@@ -48,7 +48,7 @@ class PlanFailed(Exception):
         self.backed_off = backed_off
 
 
-def echo_point(data: dict) -> Point | None:
+def echo_point(data: dict[str, Any]) -> Point | None:
     """Where an obstacle event's nearest reading is, in the map frame (from the pose the Core sent)."""
     try:
         x, y, theta = data["pose"]
@@ -70,7 +70,7 @@ def distance_to_path(p: Point, path: list[Point]) -> float:
     return best
 
 
-def _xy(poses) -> list[Point]:
+def _xy(poses: Iterable[Any]) -> list[Point]:
     """(x, y) of poses given as Pose2D, {"x", "y"} dicts or (x, y, ...) sequences."""
     return [(p.x, p.y) if hasattr(p, "x") else (float(p["x"]), float(p["y"])) if isinstance(p, dict)
             else (float(p[0]), float(p[1])) for p in poses]
@@ -91,7 +91,7 @@ class Expectation:
         """The motion failed: the reason when this expectation explains it (None: not mine)."""
         return None
 
-    async def on_done(self, task) -> str | None:
+    async def on_done(self, task: Any) -> str | None:
         """The motion finished: the reason when the result breaks this expectation."""
         return None
 
@@ -101,7 +101,7 @@ class Expectation:
 class ArriveBy(Expectation):
     name = "arrive-by"
 
-    def __init__(self, goal, within_s: float, tolerance_m: float = 0.5):
+    def __init__(self, goal: Any, within_s: float, tolerance_m: float = 0.5):
         self.goal = _xy([goal])[0]
         self.within_s, self.tolerance_m = within_s, tolerance_m
 
@@ -110,7 +110,7 @@ class ArriveBy(Expectation):
             return f"not at ({self.goal[0]:.2f}, {self.goal[1]:.2f}) after {self.within_s:.0f} s"
         return None
 
-    async def on_done(self, task) -> str | None:
+    async def on_done(self, task: Any) -> str | None:
         pose = await task.robot.get_global_pose()
         off = math.dist((pose.x, pose.y), self.goal)
         if off > self.tolerance_m:
@@ -121,7 +121,7 @@ class ArriveBy(Expectation):
 class PathFree(Expectation):
     name = "path-free"
 
-    def __init__(self, path, clearance_m: float = 0.35, patience_s: float | None = None):
+    def __init__(self, path: Iterable[Any], clearance_m: float = 0.35, patience_s: float | None = None):
         self.path = _xy(path)
         self.clearance_m, self.patience_s = clearance_m, patience_s
         self.since: float | None = None  # when an obstacle on the path was first seen
@@ -167,7 +167,8 @@ class PlanMonitor:
     emergency stop) does not count against the deadlines for up to `pause_allowance_s` in all; beyond
     it counts, so a motion held for ever still fails its deadline."""
 
-    def __init__(self, task, *expectations: Expectation, period_s: float = 0.25, pause_allowance_s: float = 120.0):
+    def __init__(self, task: Any, *expectations: Expectation, period_s: float = 0.25,
+                 pause_allowance_s: float = 120.0):
         self.task, self.expectations, self.period_s = task, list(expectations), period_s
         self.pause_allowance_s = pause_allowance_s
         self.elapsed_s = 0.0  # time since run() started less the paused time allowed
@@ -204,7 +205,7 @@ class PlanMonitor:
             if not job.done():
                 job.cancel()
 
-    async def _finished(self, job) -> Any:
+    async def _finished(self, job: asyncio.Future[Any]) -> Any:
         await asyncio.sleep(0)  # an event sent just before the motion's answer reaches the expectations first
         try:
             result = job.result()
@@ -224,15 +225,15 @@ class PlanMonitor:
         for ex in self.expectations:
             ex.on_event(note, self.elapsed_s)
 
-    async def _block(self, job) -> None:
+    async def _block(self, job: asyncio.Future[Any]) -> None:
         """Stop the robot where it is: cancelling the motion's request sends the Core a FIPA cancel,
         and the Core stops the motion (rapps/sdk/_call.py)."""
         job.cancel()
         await asyncio.gather(job, return_exceptions=True)
 
-    def _fail(self, ex: Expectation, reason: str):
+    def _fail(self, ex: Expectation, reason: str) -> NoReturn:
         obstacle = getattr(ex, "obstacle", None)
-        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.PLAN_FAILED, expectation=ex.name,
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.PLAN_FAILED, expectation=ex.name,  # noqa: SLF001 - the SDK's own Task
                          reason=reason, obstacle=list(obstacle) if obstacle else None)
         raise PlanFailed(ex.name, reason, obstacle, backed_off=getattr(ex, "backed_off", False))
 
@@ -240,7 +241,7 @@ class PlanMonitor:
 class ObstacleMarks:
     """The obstacles this task entered into the Platform's temporary layer (`task.marks`)."""
 
-    def __init__(self, task):
+    def __init__(self, task: Any) -> None:
         self.task = task
         self.marks: dict[str, tuple[str, Point]] = {}  # mark id -> (map id, where)
 
@@ -251,12 +252,13 @@ class ObstacleMarks:
         await events_hub(self.task)  # so that a place seen free again clears its mark
         layer = await self.task.platform.path_planning_add_obstacle(
             map_id=map_id, x=x, y=y, radius_m=radius_m, ttl_s=ttl_s, note=note, skip_within_m=skip_within_m)
-        if not layer.added:
+        added: str = layer.added
+        if not added:
             return ""
-        self.marks[layer.added] = (map_id, (x, y))
-        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_MARKED, mark=layer.added,
+        self.marks[added] = (map_id, (x, y))
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_MARKED, mark=added,  # noqa: SLF001 - the SDK's own Task
                          x=round(x, 3), y=round(y, 3), radius_m=radius_m, note=note)
-        return layer.added
+        return added
 
     def near(self, point: Point, within_m: float) -> list[str]:
         return [k for k, (_, p) in self.marks.items() if math.dist(p, point) <= within_m]
@@ -281,15 +283,16 @@ class ObstacleMarks:
         except RequestError as e:
             self.task.log.warning("could not clear the obstacle mark %s: %s", mark_id, e)
             return
-        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,
+        self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
                          x=round(x, 3), y=round(y, 3))
 
 
 class _EventsHub:
     """One subscription per task to the obstacle events, handed to the running monitors and marks."""
 
-    def __init__(self, task):
-        self.task, self.monitors = task, set()
+    def __init__(self, task: Any) -> None:
+        self.task = task
+        self.monitors: set[PlanMonitor] = set()
 
     async def on_event(self, note: Notification) -> None:
         for m in list(self.monitors):
@@ -298,13 +301,15 @@ class _EventsHub:
             await self.task.marks.seen_free(note)
 
 
-async def events_hub(task) -> _EventsHub:
-    hub = task.__dict__.get("_events_hub")
+async def events_hub(task: Any) -> _EventsHub:
+    """The task's one hub, kept in its instance dictionary (a Task knows nothing of monitors)."""
+    hub: _EventsHub | None = task.__dict__.get("_events_hub")
     if hub is None:
-        hub = task._events_hub = _EventsHub(task)
+        hub = task.__dict__["_events_hub"] = _EventsHub(task)
         try:
             await task.subscribe(EventTopic.OBSTACLE, EventTopic.OBSTACLE_CLEAR, handler=hub.on_event)
         except BaseException:
-            del task._events_hub  # the next monitor tries again
+            del task.__dict__["_events_hub"]  # the next monitor tries again
             raise
     return hub
+

@@ -47,7 +47,7 @@ def test_process_render_matches_inline_render(make_world):
         # the other robot is in view and rendered by the mirror too
         assert a.std() > 5
     # dynamic state changes reach the render process (only differences are sent)
-    world.run_sync(world._set_door, "d1", 60)
+    world.run_sync(world.set_door_in_thread, "d1", 60)
     world.run_sync(world._set_lamp, "l1", False)
     world.run_sync(nao.set_base_pose, 0.6, 0.2, math.pi / 2 + 0.3)
     world.run_sync(nao.set_joint, "HeadYaw", -0.4)

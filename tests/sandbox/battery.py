@@ -13,7 +13,6 @@ import json
 import os
 import socket
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]

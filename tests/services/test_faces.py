@@ -3,7 +3,6 @@ from registry packages) and on a robot's camera images of simulated people weari
 from __future__ import annotations
 
 import base64
-import math
 import random
 from pathlib import Path
 

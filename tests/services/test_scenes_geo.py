@@ -2,7 +2,6 @@
 validated on a generated house, and the offline geolocation provider (agents/services/geolocation.py)."""
 from __future__ import annotations
 
-import base64
 import math
 import random
 
