@@ -190,7 +190,7 @@ class RobotCommands:
 
     async def command_release(self, memory: dict) -> None:
         """The device's lock freed: the command is done."""
-        req, ctx = memory["request"], memory["ctx"]
+        ctx = memory["ctx"]
         device = memory.pop("locked", None)
         if device is not None:
             self.locks.free(device, ctx.sender)

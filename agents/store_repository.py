@@ -498,7 +498,7 @@ class StoreRepository:
             "SELECT b.name, b.version, b.robot_type, b.state, b.reason, b.started, b.ended, length(b.log) AS log_size "
             "FROM builds b JOIN versions v ON v.name=b.name AND v.version=b.version "
             + (f"WHERE {' AND '.join(where)} " if where else "")
-            + f"ORDER BY b.name, v.major DESC, v.minor DESC, v.patch DESC, b.robot_type", tuple(args))
+            + "ORDER BY b.name, v.major DESC, v.minor DESC, v.patch DESC, b.robot_type", tuple(args))
         return [Build(**dict(r)) for r in rows]
 
     def build_log(self, name: str, version: str, robot_type: str) -> str:

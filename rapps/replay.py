@@ -39,10 +39,9 @@ from spade.behaviour import CyclicBehaviour
 from spade.message import Message
 
 from agents.base import RappAgent
-from agents.messages import AclInfo, bare, is_feedback
+from agents.messages import AclInfo, bare
 from agents.tracing import BLOBS, BODIES, PACKAGES, inflate, is_placeholder, read_trace
 from ontology import acl
-from ontology.acl import Performative
 from ontology.package import build_package_bytes, unpack_package
 from ontology.spawn import RobotInfo, SpawnSpec
 from ontology.trace import RecordKind, StructureEvent
@@ -352,7 +351,7 @@ class Script:
         first = self._first_unmatched()
         actual = _parse(msg.body or "")
         if not candidates:
-            self._diverge("unexpected", "the RApp sent a request the recording does not have",
+            self.diverge("unexpected", "the RApp sent a request the recording does not have",
                           _describe(key, msg.body or ""), first.describe() if first else "(nothing more)",
                           first.n if first else len(self.run.exchange))
             return
@@ -365,12 +364,12 @@ class Script:
                 skipped = e
                 break
         if skipped is not None:  # the recording had that one done before this one was sent
-            self._diverge("unexpected", "the RApp sent a request the recording has only after another one",
+            self.diverge("unexpected", "the RApp sent a request the recording has only after another one",
                           _describe(key, msg.body or ""), skipped.describe(), skipped.n)
             return
         diff = first_difference(_parse(rec.body), actual, self.secrets)
         if diff:
-            self._diverge("different", diff, _describe(key, msg.body or ""), rec.describe(), rec.n)
+            self.diverge("different", diff, _describe(key, msg.body or ""), rec.describe(), rec.n)
             return
         self.matched.add(rec.index)
         candidates.pop(0)
@@ -436,11 +435,11 @@ class Script:
         if self.divergence is None:
             left = [s for s in self.sends if s.index not in self.matched]
             if left:
-                self._diverge("missing", f"the RApp ended without sending {len(left)} request(s) of the recording",
+                self.diverge("missing", f"the RApp ended without sending {len(left)} request(s) of the recording",
                               "", left[0].describe(), left[0].n)
         return self.divergence
 
-    def _diverge(self, kind: str, text: str, replay: str, recorded: str, position: int) -> None:
+    def diverge(self, kind: str, text: str, replay: str, recorded: str, position: int) -> None:
         if self.divergence is None:
             self.divergence = Divergence(kind, text, replay, recorded, position)
 
@@ -512,7 +511,7 @@ class ReplayResult:
                 f"requests matched, {self.delivered} recorded messages given, in {self.wall_s:.1f} s "
                 f"(the original {r.wall_s:.1f} s)")
         if self.divergence is None:
-            return head + f"\nno divergence" + (f" (the RApp ended {self.end})" if self.end else "")
+            return head + "\nno divergence" + (f" (the RApp ended {self.end})" if self.end else "")
         return head + "\n" + str(self.divergence)
 
 
@@ -586,10 +585,10 @@ async def replay(run_dir: str | Path, *, rapp_dir: str | Path | None = None, run
                 text = ("the RApp waits for the answer to a request the recording has none for (the original run "
                         f"ended while it waited): {open_.describe()}" if open_ is not None else
                         "the RApp has not sent the request the recording has next")
-                script._diverge("stalled", text, "", waiting.describe(), waiting.n)
+                script.diverge("stalled", text, "", waiting.describe(), waiting.n)
                 break
             if time.monotonic() > deadline:
-                script._diverge("stalled", f"the replay did not end within {timeout_s:g} s", "", "", 0)
+                script.diverge("stalled", f"the replay did not end within {timeout_s:g} s", "", "", 0)
                 break
         divergence = script.finish() if ended.done() else script.divergence
         end = _last_status(rec, script)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -69,3 +70,33 @@ def unique():
         return f"{prefix}{_counter}"
     return make
 
+
+# -- a page in a real headless browser (the trace viewer, the recording's scene) ----------------
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+
+@pytest.fixture
+def browser_page():
+    sync_api = pytest.importorskip("playwright.sync_api",
+                                   reason="pip package 'playwright' is not installed")
+    exe = CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium")
+    if not exe:
+        pytest.skip("Debian package 'chromium' is not installed (no /usr/bin/chromium)")
+    with sync_api.sync_playwright() as pw:
+        try:
+            browser = pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS, timeout=15000)
+        except Exception as e:  # noqa: BLE001 - a broken browser install is an environment issue
+            pytest.skip(f"chromium at {exe} does not start under playwright: {e}")
+        page = browser.new_page(viewport={"width": 1500, "height": 900})
+        page.set_default_timeout(5000)
+        page.problems = []
+        page.on("console", lambda m: m.type == "error" and page.problems.append(m.text))
+        page.on("pageerror", lambda e: page.problems.append(str(e)))
+        page.route("**/*", lambda route: route.abort() if not route.request.url.startswith("file:")
+                   else route.continue_())  # offline: anything remote would fail loudly
+        try:
+            yield page
+        finally:
+            browser.close()

@@ -22,7 +22,6 @@ from scenarios import resim
 from scenarios.run_rapp import run_rapp
 
 from .test_cli import arapp, rapp
-from .test_trace_view import browser_page  # noqa: F401 - the headless Chromium fixture
 
 APP = Path(__file__).resolve().parent / "fixtures" / "recorded_app"
 

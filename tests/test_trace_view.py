@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import time
 from pathlib import Path
 
@@ -340,36 +339,6 @@ def test_html_is_self_contained_and_escaped(records):
 
 
 # -- the page in a real headless browser -------------------------------------------------------
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-
-
-@pytest.fixture
-def browser_page():
-    sync_api = pytest.importorskip("playwright.sync_api",
-                                   reason="pip package 'playwright' is not installed")
-    exe = CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium")
-    if not exe:
-        pytest.skip("Debian package 'chromium' is not installed (no /usr/bin/chromium)")
-    with sync_api.sync_playwright() as pw:
-        try:
-            browser = pw.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS, timeout=15000)
-        except Exception as e:  # noqa: BLE001 - a broken browser install is an environment issue
-            pytest.skip(f"chromium at {exe} does not start under playwright: {e}")
-        page = browser.new_page(viewport={"width": 1500, "height": 900})
-        page.set_default_timeout(5000)
-        page.problems = []
-        page.on("console", lambda m: m.type == "error" and page.problems.append(m.text))
-        page.on("pageerror", lambda e: page.problems.append(str(e)))
-        page.route("**/*", lambda route: route.abort() if not route.request.url.startswith("file:")
-                   else route.continue_())  # offline: anything remote would fail loudly
-        try:
-            yield page
-        finally:
-            browser.close()
-
-
 def _open(page, tmp_path, records, name="trace.html") -> None:
     path = tmp_path / name
     path.write_text(render_html(records, title="Golden run"), encoding="utf-8")
