@@ -90,9 +90,14 @@ class HomeInfo(Content):
 
 @action("home_upload_info", ontology="platform", reply=HomeInfo, group=GROUP)
 class UploadHomeInfo(ServiceRequest):
+    """Store a home description for this user (replaces one with the same home_id)."""
+
     info: HomeInfo
 
 
 @action("home_get_info", ontology="platform", reply=HomeInfo, group=GROUP, idempotent=True)
 class GetHomeInfo(ServiceRequest):
+    """The home description the owner uploaded (map id, rooms, doors with their check poses, landmarks
+    with their sizes, hazards)."""
+
     home_id: str = "home"
