@@ -234,18 +234,18 @@ class GetCameraInfo(Action):
 class MoveTo(Action):
     """Relative motion in the robot frame at call time."""
 
-    x: float
-    y: float = 0.0
-    theta: float = 0.0
+    x: float  # m forward
+    y: float = 0.0  # m to the left
+    theta: float = 0.0  # rad, counter-clockwise: the heading at the end, relative to now
 
 
 @robot_action("move_vel", reply=Done)
 class MoveVel(Action):
     """Continuous velocity in the robot frame (m/s, rad/s) until move_stop; y must be 0 on diff drive."""
 
-    x: float = 0.0
-    y: float = 0.0
-    theta: float = 0.0
+    x: float = 0.0  # m/s forward
+    y: float = 0.0  # m/s to the left (a NAO only)
+    theta: float = 0.0  # rad/s, counter-clockwise
 
 
 @robot_action("move_stop", reply=Done)
@@ -264,9 +264,9 @@ class MoveAlongPath(Action):
 class LookAtPoint(Action):
     """Turn the head (NAO) or camera so the camera looks at a point of the global frame."""
 
-    x: float
+    x: float  # m, global frame (through the robot's pose estimate)
     y: float
-    z: float
+    z: float  # m above the floor
 
 
 @robot_action("get_global_pose", reply=Pose2D)
@@ -279,9 +279,9 @@ class GetGlobalPose(Action):
 class SetGlobalPose(Action):
     """Correct the robot's pose estimate (after localizing); odometry goes on from there."""
 
-    x: float
+    x: float  # m, global frame
     y: float
-    theta: float = 0.0
+    theta: float = 0.0  # rad, counter-clockwise from +x
 
 
 @robot_action("get_transform", reply=Transform)

@@ -295,8 +295,8 @@ def _entry(name: str, model: type[Action], t: _Types, errors: list[ErrorFact], f
     lines += [f"**Answer** [`{reply.__name__}`](#{_anchor(reply.__name__)})"
               + (": `{\"ok\": true}`" if reply.__name__ == "Done" else ""), ""]
     own = [e for e in errors if e.code in _own_codes(name)]
-    lines += ["**Errors**: " + (", ".join(f"`{e.code}`" for e in own) if own else "none of its own")
-              + " and the common ones (above).", ""]
+    lines += ["**Errors** (besides the common ones above): " + (", ".join(f"`{e.code}`" for e in own) if own
+                                                                 else "none of its own") + ".", ""]
     if own:
         lines += _errors_table(own) + [""]
     body = example(name, model)
@@ -415,7 +415,7 @@ def robot_md() -> str:
             extra = [e for e in robot_errors(n) if e.code not in common and e.code not in _own_codes(n)]
             if extra:
                 i = entry.index("**Example**:")
-                entry[i:i] = [f"Also, as a {'motion' if f.motion else 'device holder'}:", "", *_errors_table(extra), ""]
+                entry[i:i] = [f"As {'a motion' if f.motion else 'the holder of a device'}:", "", *_errors_table(extra), ""]
             lines += entry
     lines += _models_section(t, [robot[n] for n in ACTION_FACTS])
     return "\n".join(lines).rstrip() + "\n"
