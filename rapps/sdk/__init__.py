@@ -46,14 +46,14 @@ from ontology.trace import RecordKind
 
 from .blackboard import Blackboard, BlackboardError, Key
 from .calls import PlatformCalls, RobotCalls
-from .checks import check_door, check_light, door_geometry
+from .checks import check_door, check_light, door_geometry, intrinsics
 from .monitor import ArriveBy, Expectation, Localized, ObstacleMarks, PathFree, PlanFailed, PlanMonitor
 
 __all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "Sequence", "Selector", "Parallel",
            "Timeout", "Retry", "Inverter", "Key", "Blackboard", "BlackboardError", "CloudAgentLost", "RequestError", "RequestFailed",
            "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode", "Notification", "NotificationKind",
            "EventTopic", "PlanMonitor", "PlanFailed", "Expectation", "ArriveBy", "PathFree", "Localized",
-           "check_door", "check_light", "door_geometry"]
+           "check_door", "check_light", "door_geometry", "intrinsics"]
 
 
 class _Dynamic:

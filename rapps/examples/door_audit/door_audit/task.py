@@ -4,12 +4,12 @@ landmarks in sight, check the door, and report the list (which doors are open, b
 The door check's geometry is only as good as the robot's pose estimate, and get_global_pose is
 odometry that drifts (a NAO walking a few metres is tens of centimetres off): so the robot localizes
 by the home's landmarks (qr_detection with each code's own size, compute_global_pose,
-set_global_pose) at the check pose and steps onto it again before it looks."""
+set_global_pose) every few metres and at the check pose, and steps onto it again before it looks."""
 import math
 
 from ontology.services.home import DoorCheckPose, DoorwaySpec, HomeInfo
 from ontology.services.localization import MarkerObservation
-from rapps.sdk import FSM, Key, Sequence, Step, Task, check_door, door_geometry
+from rapps.sdk import FSM, Key, Sequence, Step, Task, check_door, intrinsics
 
 LOCALIZE_RESOLUTION = "1280x960"  # a 0.25 m code decodes to ~4 m, a 0.35 m one to ~5 m
 MAX_CODE_M = 4.5
@@ -59,11 +59,10 @@ class DoorAudit(Task):
         """To the nearest door left, at its check pose in the robot's room (else the nearer one): the
         other side is kept for a second look. Short walks: odometry drifts with the distance."""
         here = await self.robot.get_global_pose()
-        rooms = [r.name for r in self.bb.home.rooms
-                 if r.rect[0] <= here.x <= r.rect[2] and r.rect[1] <= here.y <= r.rect[3]]
+        room = self.room_of(here)
 
         def order(c: DoorCheckPose):
-            return c.room not in rooms, math.hypot(c.stand.x - here.x, c.stand.y - here.y)
+            return c.room != room, math.hypot(c.stand.x - here.x, c.stand.y - here.y)
 
         door = min(self.bb.todo, key=lambda d: min(order(c) for c in d.checks))
         self.bb.door, self.bb.todo = door, [d for d in self.bb.todo if d.id != door.id]
@@ -110,9 +109,7 @@ class DoorAudit(Task):
 
         near = sorted((t for t, m in marks.items() if facing(m) and m.room in (None, room)),
                       key=lambda t: math.hypot(marks[t].x - here.x, marks[t].y - here.y))[:4]
-        info = await self.robot.get_camera_info(resolution=LOCALIZE_RESOLUTION)
-        camera = door_geometry(info, [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)],
-                               self.bb.door).camera  # the intrinsics at that resolution
+        camera = intrinsics(await self.robot.get_camera_info(resolution=LOCALIZE_RESOLUTION))
         fixes = []
         for text in near:
             if len(fixes) == 2:
