@@ -11,6 +11,7 @@
     rapp store publish FILE --owner O --password P | list [--robot-type T] | info NAME | remove NAME
     rapp store builds [NAME] | log NAME --robot-type T [--version V] | serve [--port P]   (builds; a page)
     rapp platform upload-home --house H --user U --password P
+    rapp house check FILE [-o PNG] [--seed N] | rapp house new NAME [-o FILE]   (house files: docs/houses.md)
     rapp trace show|export|html FILE [...]      (rapp trace FILE = show: a summary; --view, --limit)
     rapp trace export --format mcap RUN_DIR [-o FILE] [--no-frames]   (run.mcap of a run folder)
     rapp replay RUN_DIR [--rapp DIR] [--run N]  (a recorded RApp run again, against the recorded answers)
@@ -251,6 +252,22 @@ async def _wait_for_builds(client, store: str, details, timeout_s: float) -> lis
                 or time.monotonic() > deadline:
             return reply.builds
         await asyncio.sleep(1.0)
+
+
+# -- house ------------------------------------------------------------------------------------
+def cmd_house(a) -> int:
+    from scenarios import house_check
+    if a.action == "new":
+        path = house_check.new_file(a.target, a.output)
+        print(f"wrote {path}: check and draw it with `rapp house check {path}` (docs/houses.md)")
+        return 0
+    plan, problems = house_check.check_file(a.target, seed=a.seed)
+    png = house_check.draw(plan, a.output or f"{Path(a.target).stem}.png")
+    print(house_check.summary(plan))
+    for p in problems:
+        print(f"  problem: {p}")
+    print(f"{a.target}: {'valid' if not problems else f'{len(problems)} problem' + 's' * (len(problems) > 1)}; drawn at seed {a.seed} in {png}")
+    return 1 if problems else 0
 
 
 # -- platform ---------------------------------------------------------------------------------
@@ -533,6 +550,19 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--password", help="the owner's Platform password")
     pl.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
 
+    ho = sub.add_parser("house", help="check and draw a house file, or start one (docs/houses.md)",
+                        description="check FILE: validate a house file (its keys and types against "
+                                    "docs/house.schema.json, doors and landmarks on walls, ids that exist, "
+                                    "robots that fit, doors' check poses clear of furniture) and draw it as a PNG; "
+                                    "exit code 1 when it has problems. new NAME: write a house file to start "
+                                    "from (a valid two-room flat).")
+    ho.add_argument("action", choices=["check", "new"], help="what to do")
+    ho.add_argument("target", help="check: the house file (YAML); new: the house's name")
+    ho.add_argument("-o", "--output", help="check: the PNG to write (default: ./FILE_STEM.png); "
+                                           "new: the file or folder to write (default: ./NAME.yaml)")
+    ho.add_argument("--seed", type=int, default=0, help="check: the seed drawing random door angles, lamps "
+                                                        "and robot starts (default 0)")
+
     sy = sub.add_parser("say", help="the owner speaks into a running `rapp run` (the robot hears it)",
                         description="The owner says TEXT aloud in the house of a running `rapp run` (started with "
                                     "--listen or --speak): the robot hears it through its microphone.")
@@ -587,7 +617,7 @@ def main(argv: list[str] | None = None) -> int:
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return {"server": cmd_server, "package": cmd_package, "store": cmd_store,
-                "platform": cmd_platform, "new": cmd_new, "doctor": cmd_doctor, "say": cmd_say}[a.command](a)
+                "platform": cmd_platform, "house": cmd_house, "new": cmd_new, "doctor": cmd_doctor, "say": cmd_say}[a.command](a)
     except KeyboardInterrupt:
         return 130
     except SystemExit:

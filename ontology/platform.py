@@ -87,6 +87,9 @@ class CloudAgentReply(Content):
 
 @action("start_cloud_agent", ontology=ONTOLOGY, reply=CloudAgentReply, group="cloud")
 class StartCloudAgent(ServiceRequest):
+    """Start the run's Cloud Agent (the RApp's cloud part): once per run; the SDK's
+    `self.cloud.start()`."""
+
     rapp: str
     version: str | None = None
     owner_jid: str = ""  # must be the sender (the Dynamic Agent the Cloud Agent lives and dies with)
@@ -94,6 +97,8 @@ class StartCloudAgent(ServiceRequest):
 
 @action("stop_cloud_agent", ontology=ONTOLOGY, reply=Done, group="cloud")
 class StopCloudAgent(ServiceRequest):
+    """Stop a Cloud Agent the sender owns."""
+
     jid: str
 
 

@@ -185,18 +185,25 @@ class PlayAudio(Action):
 
 @robot_action("microphone_energy", reply=MicrophoneLevel)
 class MicrophoneEnergy(Action):
+    """The sound level at the microphone over a short time."""
+
     seconds: float = Field(default=0.2, gt=0, le=2.0)
 
 
 # ---------------------------------------------------------------- vision
 @robot_action("capture_image", reply=Image)
 class CaptureImage(Action):
+    """One image of a camera (PNG, base64) at a resolution; the robot's main camera by default."""
+
     camera: str = ""  # "" = the robot's main camera
     resolution: str = "320x240"  # "WxH" or QQVGA/QVGA/VGA
 
 
 @robot_action("set_camera_param", reply=CameraParams)
 class SetCameraParam(Action):
+    """Set one image adjustment (brightness, contrast, gain, exposure, auto_exposure); answers them
+    all."""
+
     camera: str = ""
     name: str
     value: float
@@ -204,6 +211,8 @@ class SetCameraParam(Action):
 
 @robot_action("set_camera_params", reply=CameraParams)
 class SetCameraParams(Action):
+    """Set the given image adjustments (none given: change nothing); answers them all."""
+
     camera: str = ""
     brightness: float | None = None
     contrast: float | None = None
@@ -214,6 +223,8 @@ class SetCameraParams(Action):
 
 @robot_action("get_camera_info", reply=CameraInfo)
 class GetCameraInfo(Action):
+    """The camera's pinhole intrinsics at a resolution (K, P, fields of view)."""
+
     camera: str = ""
     resolution: str = "320x240"
 
@@ -223,57 +234,69 @@ class GetCameraInfo(Action):
 class MoveTo(Action):
     """Relative motion in the robot frame at call time."""
 
-    x: float
-    y: float = 0.0
-    theta: float = 0.0
+    x: float  # m forward
+    y: float = 0.0  # m to the left
+    theta: float = 0.0  # rad, counter-clockwise: the heading at the end, relative to now
 
 
 @robot_action("move_vel", reply=Done)
 class MoveVel(Action):
     """Continuous velocity in the robot frame (m/s, rad/s) until move_stop; y must be 0 on diff drive."""
 
-    x: float = 0.0
-    y: float = 0.0
-    theta: float = 0.0
+    x: float = 0.0  # m/s forward
+    y: float = 0.0  # m/s to the left (a NAO only)
+    theta: float = 0.0  # rad/s, counter-clockwise
 
 
 @robot_action("move_stop", reply=Done)
 class MoveStop(Action):
-    pass
+    """Stop the base now (a move_vel velocity or a path)."""
 
 
 @robot_action("move_along_path", reply=Done)
 class MoveAlongPath(Action):
+    """Follow a path of global poses (a plan's `path`) to its end; progress comes as feedback."""
+
     poses: list[Pose2D]
 
 
 @robot_action("look_at_point", reply=Done)
 class LookAtPoint(Action):
-    x: float
+    """Turn the head (NAO) or camera so the camera looks at a point of the global frame."""
+
+    x: float  # m, global frame (through the robot's pose estimate)
     y: float
-    z: float
+    z: float  # m above the floor
 
 
 @robot_action("get_global_pose", reply=Pose2D)
 class GetGlobalPose(Action):
-    pass
+    """The robot's own estimate of its pose (odometry, drifting as it moves; set_global_pose corrects
+    it), not the truth."""
 
 
 @robot_action("set_global_pose", reply=Done)
 class SetGlobalPose(Action):
-    x: float
+    """Correct the robot's pose estimate (after localizing); odometry goes on from there."""
+
+    x: float  # m, global frame
     y: float
-    theta: float = 0.0
+    theta: float = 0.0  # rad, counter-clockwise from +x
 
 
 @robot_action("get_transform", reply=Transform)
 class GetTransform(Action):
+    """A frame's pose as a 4x4 matrix, in the robot's base frame or globally (through the estimated
+    pose)."""
+
     chain: str = "camera"  # camera name, "camera", "head", "laser", "sonar_left", "sonar_right"
     space: str = "robot"  # "robot" (base frame) or "global" (via the estimated pose)
 
 
 @robot_action("move_joint", reply=Done)
 class MoveJoint(Action):
+    """Move joints to angles (rad) at a fraction of their maximum speed."""
+
     joints: list[str]
     angles: list[float]
     speed: float = 0.5  # fraction of the joints' maximum speed (0..1]
@@ -281,29 +304,33 @@ class MoveJoint(Action):
 
 @robot_action("get_joint_angles", reply=JointAngles)
 class GetJointAngles(Action):
+    """The angles (rad) of the given joints, or of all."""
+
     joints: list[str] = Field(default_factory=list)  # empty = all
 
 
 @robot_action("take_predefined_posture", reply=Done)
 class TakePredefinedPosture(Action):
+    """Take a named posture of the robot (a NAO's Stand, Crouch, Sit, ...)."""
+
     posture: str
     speed: float = 0.5
 
 
 @robot_action("rest", reply=Done)
 class Rest(Action):
-    pass
+    """Stop the base and take the robot's rest posture."""
 
 
 # ---------------------------------------------------------------- sensors
 @robot_action("get_sonars", reply=SonarReading)
 class GetSonars(Action):
-    pass
+    """The two sonars' ranges (a NAO; an Elektron has a laser scanner)."""
 
 
 @robot_action("get_laser_scan", reply=LaserScan)
 class GetLaserScan(Action):
-    pass
+    """One scan of the laser range finder (an Elektron; a NAO has sonars)."""
 
 
 class LockState(Content):
@@ -324,6 +351,8 @@ class LockResource(Action):
 
 @robot_action("free_resource", reply=LockState)
 class FreeResource(Action):
+    """Release a device lock this run holds (lock_resource)."""
+
     resource: str
 
 

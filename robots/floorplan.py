@@ -264,7 +264,8 @@ def load_plan(source: str | Path | dict, seed: int = 0, overrides: dict | None =
                                   math.radians(float(f.get("yaw", 0))), 0.0,
                                   tuple(f.get("color", (0.45, 0.5, 0.6)))))
     for lamp in desc.get("lamps", []):
-        spec = ov.get("lamps", {}).get(lamp["id"], lamp.get("on", "random"))
+        # YAML 1.1 reads the key `on` as True: a file's `on: true` arrives under the key True
+        spec = ov.get("lamps", {}).get(lamp["id"], lamp.get("on", lamp.get(True, "random")))
         on = bool(plan.rng("lamp", lamp["id"]).random() < 0.5) if spec == "random" else bool(spec)
         plan.lamps.append(Lamp(lamp["id"], float(lamp["x"]), float(lamp["y"]), float(lamp.get("z", 1.4)), on))
     for m in desc.get("landmarks", []):

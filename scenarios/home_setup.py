@@ -22,7 +22,7 @@ import yaml
 from agents.services import home as home_service
 from agents.services import navigation
 from agents.services.context import ServiceContext, ServiceState
-from ontology.services.home import DoorShape, DoorwaySpec, HazardSpec, HomeInfo, LandmarkSpec, RoomSpec, UploadHomeInfo
+from ontology.services.home import DoorCheckPose, DoorShape, DoorwaySpec, HazardSpec, HomeInfo, LandmarkSpec, RoomSpec, UploadHomeInfo
 from ontology.errors import ErrorCode
 from ontology.services.navigation import UploadMap
 from robots import HOUSES as HOUSE_DIR
@@ -121,13 +121,25 @@ def door_shape(door) -> DoorShape:
 
 
 def doorway(plan, door) -> DoorwaySpec:
-    """A door as the home description lists it: where and how wide (its shape), and its rooms."""
+    """A door as the home description lists it: where and how wide (its shape, with the side it swings
+    to), its rooms and a check pose from each side (door_check_pose, as the hazard list's doors)."""
     shape = door_shape(door)
     mid = (door.hinge[0] + 0.5 * door.width * math.cos(door.closed_yaw),
            door.hinge[1] + 0.5 * door.width * math.sin(door.closed_yaw))
     normal = (-math.sin(door.closed_yaw), math.cos(door.closed_yaw))
     rooms = [plan.room_at(mid[0] + s * 0.3 * normal[0], mid[1] + s * 0.3 * normal[1]) for s in (1, -1)]
-    return DoorwaySpec(id=door.id, door=shape, rooms=[r for r in rooms if r])
+    return DoorwaySpec(id=door.id, door=shape, rooms=[r for r in rooms if r],
+                       checks=[door_check(plan, door, side) for side in ("front", "swing")])
+
+
+def door_check(plan, door, side: str) -> DoorCheckPose:
+    """The check pose of `door` on `side`, with its room and its clearance from walls and furniture
+    (the door leaves' positions are the world's state, not the home's)."""
+    h = door_hazard(door, side)
+    statics = plan.obstacles(include_doors=False)
+    clearance = min(b.distance(h.stand.x, h.stand.y) for b in statics) if statics else None
+    return DoorCheckPose(side=side, stand=h.stand, look_at=h.look_at, room=plan.room_at(h.stand.x, h.stand.y),
+                         clearance_m=None if clearance is None else round(clearance, 3))
 
 
 def lamp_hazard(lamp, into_room: tuple[float, float], distance: float = 1.4) -> HazardSpec:

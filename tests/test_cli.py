@@ -49,7 +49,7 @@ def test_top_level_help_lists_every_subcommand():
     res = rapp("--help")
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith("usage: rapp")
-    for cmd in ("server", "run", "package", "store", "trace", "bench", "doctor"):
+    for cmd in ("server", "run", "package", "store", "trace", "bench", "doctor", "house"):
         assert cmd in res.stdout
 
 
@@ -63,6 +63,7 @@ def test_top_level_help_lists_every_subcommand():
     (["trace", "html", "--help"], "usage: rapp trace html"),
     (["bench", "--help"], "usage: "),
     (["doctor", "--help"], "usage: rapp doctor"),
+    (["house", "--help"], "usage: rapp house"),
 ])
 def test_subcommand_help(argv, usage):
     res = rapp(*argv)

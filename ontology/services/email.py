@@ -34,6 +34,8 @@ class EmailList(Content):
 
 @action("email_fetch", ontology="platform", reply=EmailList, group=GROUP)
 class EmailFetch(ServiceRequest):
+    """The user's messages from their local mailbox, oldest first."""
+
     unread_only: bool = False
     max_messages: int = Field(default=20, ge=1, le=500)
     mark_read: bool = True

@@ -19,6 +19,8 @@ class CurrentWeather(Content):
 
 @action("weather_report_current", ontology="platform", reply=CurrentWeather, group=GROUP, idempotent=True)
 class WeatherCurrent(ServiceRequest):
+    """The current weather in a city (offline provider)."""
+
     city: str = Field(min_length=1)
 
 
@@ -36,6 +38,8 @@ class Forecast(Content):
 
 @action("weather_report_forecast", ontology="platform", reply=Forecast, group=GROUP, idempotent=True)
 class WeatherForecast(ServiceRequest):
+    """The weather forecast of a city for the next `days` days (offline provider)."""
+
     city: str = Field(min_length=1)
     days: int = Field(default=3, ge=1, le=10)
 
@@ -53,6 +57,8 @@ class NewsReply(Content):
 
 @action("news_explore", ontology="platform", reply=NewsReply, group=GROUP, idempotent=True)
 class NewsExplore(ServiceRequest):
+    """News stories (offline provider) matching keywords or a topic."""
+
     keywords: list[str] = []
     topic: str = ""
     max_stories: int = Field(default=5, ge=1, le=50)

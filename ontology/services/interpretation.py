@@ -56,6 +56,8 @@ class Interpretation(Content):
 
 @action("interpret_command", ontology="platform", reply=Interpretation, group="speech", idempotent=True)
 class InterpretCommand(ServiceRequest):
+    """Which RApp a spoken or typed command asks for, with its parameters' values."""
+
     text: str = Field(min_length=1, max_length=1000)
     robot_type: str = ""
     rapps: list[RAppDescription] = Field(min_length=1)

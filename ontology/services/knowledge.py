@@ -13,12 +13,16 @@ class ClassList(Content):
 
 @action("ontology_subclasses_of", ontology="platform", reply=ClassList, group="knowledge", idempotent=True)
 class SubclassesOf(ServiceRequest):
+    """The subclasses of `cls` in the household ontology (direct ones, or all with `recursive`)."""
+
     cls: str
     recursive: bool = True
 
 
 @action("ontology_superclasses_of", ontology="platform", reply=ClassList, group="knowledge", idempotent=True)
 class SuperclassesOf(ServiceRequest):
+    """The superclasses of `cls` in the household ontology (direct ones, or all with `recursive`)."""
+
     cls: str
     recursive: bool = True
 
@@ -29,6 +33,8 @@ class IsSubclass(Content):
 
 @action("ontology_is_subclass_of", ontology="platform", reply=IsSubclass, group="knowledge", idempotent=True)
 class IsSubclassOf(ServiceRequest):
+    """Whether `child` is a subclass of `parent` in the household ontology."""
+
     child: str
     parent: str
 
@@ -63,6 +69,8 @@ class ScoreRecord(Content):
 
 @action("cognitive_record_performance", ontology="platform", reply=ScoreRecord, group="cognitive")
 class RecordPerformance(ServiceRequest):
+    """Record the user's score in a test (cognitive_test_chooser's `test_id`)."""
+
     test_id: str
     score: float = Field(ge=0, le=100)
 
@@ -74,4 +82,6 @@ class CognitiveHistory(Content):
 @action("cognitive_get_history", ontology="platform", reply=CognitiveHistory, group="cognitive",
         idempotent=True)
 class GetHistory(ServiceRequest):
+    """The user's recorded cognitive test scores (of one test type, or all)."""
+
     test_type: str = ""

@@ -43,7 +43,7 @@ class MapList(Content):
 
 @action("path_planning_list_maps", ontology="platform", reply=MapList, group=GROUP, idempotent=True)
 class ListMaps(ServiceRequest):
-    pass
+    """The maps this user may plan on (their own and the shared ones)."""
 
 
 class PlanPathReply(Content):

@@ -65,6 +65,8 @@ class Speech(Content):
 
 @action("text_to_speech", ontology="platform", reply=Speech, group=GROUP, idempotent=True)
 class TextToSpeech(ServiceRequest):
+    """Synthesise `text` (eSpeak NG) as a WAV recording."""
+
     text: str = Field(min_length=1, max_length=400)
     language: str = "en"
     voice: str = ""

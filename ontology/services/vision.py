@@ -23,16 +23,22 @@ class Detections(Content):
 
 @action("face_detection", ontology="platform", reply=Detections, group=GROUP, idempotent=True)
 class FaceDetect(ServiceRequest):
+    """The faces in an image (OpenCV's Haar cascade): a box each."""
+
     image_b64: str
 
 
 @action("human_detection", ontology="platform", reply=Detections, group=GROUP, idempotent=True)
 class HumanDetect(ServiceRequest):
+    """The people standing in an image (OpenCV's HOG detector): a box each."""
+
     image_b64: str
 
 
 @action("object_detection_learn_object", ontology="platform", reply=Done, group=GROUP)
 class LearnObject(ServiceRequest):
+    """Learn an object from one image of it (its features), under `name`."""
+
     name: str = Field(min_length=1, max_length=64)
     image_b64: str
 
@@ -49,6 +55,8 @@ class FoundObjects(Content):
 
 @action("object_detection_find_objects", ontology="platform", reply=FoundObjects, group=GROUP, idempotent=True)
 class FindObjects(ServiceRequest):
+    """The learned objects found in an image (feature matching), best first."""
+
     image_b64: str
     limit: int = Field(default=5, ge=1, le=50)
     min_matches: int = Field(default=15, ge=4)
@@ -56,7 +64,7 @@ class FindObjects(ServiceRequest):
 
 @action("object_detection_clear_models", ontology="platform", reply=Done, group=GROUP)
 class ClearObjects(ServiceRequest):
-    pass
+    """Forget every object learned for this user."""
 
 
 # ------------------------------------------------------------------ face recognition
@@ -92,6 +100,8 @@ class RecognizedFaces(Content):
 
 @action("face_recognition_recognize", ontology="platform", reply=RecognizedFaces, group=GROUP, idempotent=True)
 class RecognizeFaces(ServiceRequest):
+    """Who is in an image: each face found, with the closest learned person within `threshold`."""
+
     image_b64: str
     threshold: float = Field(default=0.6, gt=0.0, le=2.0)  # dlib's rule: one person within 0.6
     limit: int = Field(default=10, ge=1, le=50)
@@ -108,7 +118,7 @@ class FacePeople(Content):
 
 @action("face_recognition_list", ontology="platform", reply=FacePeople, group=GROUP, idempotent=True)
 class ListFaces(ServiceRequest):
-    pass
+    """The people learned for this user (face_recognition_learn)."""
 
 
 @action("face_recognition_forget", ontology="platform", reply=FacePeople, group=GROUP)

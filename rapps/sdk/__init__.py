@@ -20,7 +20,8 @@
 Errors arrive as RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (all RequestError),
 re-exported here with their codes (`e.code == ErrorCode.FORBIDDEN`): a RApp package imports only this
 SDK and the ontology (see docs/architecture.md).
-`rapps.sdk.vision` holds the image and QR-geometry helpers the Platform's own services use.
+`rapps.sdk.vision` holds the image and QR-geometry helpers the Platform's own services use;
+`check_door(self, door)` and `check_light(self, lamp)` (rapps/sdk/checks.py) the hazard checks in one call.
 
 A Cloud Agent part subclasses CloudService and registers its actions with @action under
 `ontology=<its ONTOLOGY>`; each handler is `async def <action>(self, request) -> reply`.
@@ -46,12 +47,14 @@ from ontology.trace import RecordKind
 from .blackboard import Blackboard, BlackboardError, Key
 from ._call import _Calls
 from .calls import PlatformCalls, RobotCalls
+from .checks import check_door, check_light, door_geometry, intrinsics
 from .monitor import ArriveBy, Expectation, Localized, ObstacleMarks, PathFree, PlanFailed, PlanMonitor
 
 __all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "Sequence", "Selector", "Parallel",
            "Timeout", "Retry", "Inverter", "Key", "Blackboard", "BlackboardError", "CloudAgentLost", "RequestError", "RequestFailed",
            "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode", "Notification", "NotificationKind",
-           "EventTopic", "PlanMonitor", "PlanFailed", "Expectation", "ArriveBy", "PathFree", "Localized"]
+           "EventTopic", "PlanMonitor", "PlanFailed", "Expectation", "ArriveBy", "PathFree", "Localized",
+           "check_door", "check_light", "door_geometry", "intrinsics"]
 
 
 class _Dynamic(_Calls):

@@ -29,27 +29,35 @@ class RobotCalls(_Calls):
         return await self._call("capture_audio", {"seconds": seconds, "sample_rate": sample_rate, "observe": observe, "since": since, "array": array}, _timeout, _feedback)
 
     async def capture_image(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Image:
+        """One image of a camera (PNG, base64) at a resolution; the robot's main camera by default."""
         return await self._call("capture_image", {"camera": camera, "resolution": resolution}, _timeout, _feedback)
 
     async def free_resource(self, *, resource: str, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LockState:
+        """Release a device lock this run holds (lock_resource)."""
         return await self._call("free_resource", {"resource": resource}, _timeout, _feedback)
 
     async def get_camera_info(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CameraInfo:
+        """The camera's pinhole intrinsics at a resolution (K, P, fields of view)."""
         return await self._call("get_camera_info", {"camera": camera, "resolution": resolution}, _timeout, _feedback)
 
     async def get_global_pose(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pose2D:
+        """The robot's own estimate of its pose (odometry, drifting as it moves; set_global_pose corrects"""
         return await self._call("get_global_pose", {}, _timeout, _feedback)
 
     async def get_joint_angles(self, *, joints: list[str] = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> JointAngles:
+        """The angles (rad) of the given joints, or of all."""
         return await self._call("get_joint_angles", {"joints": joints}, _timeout, _feedback)
 
     async def get_laser_scan(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LaserScan:
+        """One scan of the laser range finder (an Elektron; a NAO has sonars)."""
         return await self._call("get_laser_scan", {}, _timeout, _feedback)
 
     async def get_sonars(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> SonarReading:
+        """The two sonars' ranges (a NAO; an Elektron has a laser scanner)."""
         return await self._call("get_sonars", {}, _timeout, _feedback)
 
     async def get_transform(self, *, chain: str = 'camera', space: str = 'robot', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Transform:
+        """A frame's pose as a 4x4 matrix, in the robot's base frame or globally (through the estimated"""
         return await self._call("get_transform", {"chain": chain, "space": space}, _timeout, _feedback)
 
     async def lock_resource(self, *, resource: str, wait: bool = True, timeout_s: float = 10.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LockState:
@@ -57,18 +65,23 @@ class RobotCalls(_Calls):
         return await self._call("lock_resource", {"resource": resource, "wait": wait, "timeout_s": timeout_s}, _timeout, _feedback)
 
     async def look_at_point(self, *, x: float, y: float, z: float, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Turn the head (NAO) or camera so the camera looks at a point of the global frame."""
         return await self._call("look_at_point", {"x": x, "y": y, "z": z}, _timeout, _feedback)
 
     async def microphone_energy(self, *, seconds: float = 0.2, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MicrophoneLevel:
+        """The sound level at the microphone over a short time."""
         return await self._call("microphone_energy", {"seconds": seconds}, _timeout, _feedback)
 
     async def move_along_path(self, *, poses: list[Pose2D], _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Follow a path of global poses (a plan's `path`) to its end; progress comes as feedback."""
         return await self._call("move_along_path", {"poses": poses}, _timeout, _feedback)
 
     async def move_joint(self, *, joints: list[str], angles: list[float], speed: float = 0.5, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Move joints to angles (rad) at a fraction of their maximum speed."""
         return await self._call("move_joint", {"joints": joints, "angles": angles, "speed": speed}, _timeout, _feedback)
 
     async def move_stop(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Stop the base now (a move_vel velocity or a path)."""
         return await self._call("move_stop", {}, _timeout, _feedback)
 
     async def move_to(self, *, x: float, y: float = 0.0, theta: float = 0.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
@@ -84,6 +97,7 @@ class RobotCalls(_Calls):
         return await self._call("play_audio", {"data_b64": data_b64}, _timeout, _feedback)
 
     async def rest(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Stop the base and take the robot's rest posture."""
         return await self._call("rest", {}, _timeout, _feedback)
 
     async def say(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
@@ -91,15 +105,19 @@ class RobotCalls(_Calls):
         return await self._call("say", {"text": text, "language": language, "voice": voice, "speed": speed}, _timeout, _feedback)
 
     async def set_camera_param(self, *, camera: str = '', name: str, value: float, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CameraParams:
+        """Set one image adjustment (brightness, contrast, gain, exposure, auto_exposure); answers them"""
         return await self._call("set_camera_param", {"camera": camera, "name": name, "value": value}, _timeout, _feedback)
 
     async def set_camera_params(self, *, camera: str = '', brightness: float | None = None, contrast: float | None = None, gain: float | None = None, exposure: float | None = None, auto_exposure: bool | None = None, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CameraParams:
+        """Set the given image adjustments (none given: change nothing); answers them all."""
         return await self._call("set_camera_params", {"camera": camera, "brightness": brightness, "contrast": contrast, "gain": gain, "exposure": exposure, "auto_exposure": auto_exposure}, _timeout, _feedback)
 
     async def set_global_pose(self, *, x: float, y: float, theta: float = 0.0, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Correct the robot's pose estimate (after localizing); odometry goes on from there."""
         return await self._call("set_global_pose", {"x": x, "y": y, "theta": theta}, _timeout, _feedback)
 
     async def take_predefined_posture(self, *, posture: str, speed: float = 0.5, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Take a named posture of the robot (a NAO's Stand, Crouch, Sit, ...)."""
         return await self._call("take_predefined_posture", {"posture": posture, "speed": speed}, _timeout, _feedback)
 
     async def word_spotting(self, *, words: list[str], timeout: float = 10.0, audio: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> WordSpotted:
@@ -111,9 +129,11 @@ class PlatformCalls(_Calls):
     """The Platform services a RApp may be granted (ontology/services/); the token is added."""
 
     async def cognitive_get_history(self, *, test_type: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveHistory:
+        """The user's recorded cognitive test scores (of one test type, or all)."""
         return await self._call("cognitive_get_history", {"token": token, "test_type": test_type}, _timeout, _feedback)
 
     async def cognitive_record_performance(self, *, test_id: str, score: float, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ScoreRecord:
+        """Record the user's score in a test (cognitive_test_chooser's `test_id`)."""
         return await self._call("cognitive_record_performance", {"token": token, "test_id": test_id, "score": score}, _timeout, _feedback)
 
     async def cognitive_test_chooser(self, *, test_type: str, difficulty: int = 0, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CognitiveTest:
@@ -125,6 +145,7 @@ class PlatformCalls(_Calls):
         return await self._call("compute_global_pose", {"token": token, "observations": observations, "camera_to_robot": camera_to_robot, "landmarks": landmarks}, _timeout, _feedback)
 
     async def email_fetch(self, *, unread_only: bool = False, max_messages: int = 20, mark_read: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> EmailList:
+        """The user's messages from their local mailbox, oldest first."""
         return await self._call("email_fetch", {"token": token, "unread_only": unread_only, "max_messages": max_messages, "mark_read": mark_read}, _timeout, _feedback)
 
     async def email_send(self, *, recipients: list[str], subject: str = '', body: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
@@ -132,6 +153,7 @@ class PlatformCalls(_Calls):
         return await self._call("email_send", {"token": token, "recipients": recipients, "subject": subject, "body": body}, _timeout, _feedback)
 
     async def face_detection(self, *, image_b64: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
+        """The faces in an image (OpenCV's Haar cascade): a box each."""
         return await self._call("face_detection", {"token": token, "image_b64": image_b64}, _timeout, _feedback)
 
     async def face_recognition_forget(self, *, name: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FacePeople:
@@ -143,9 +165,11 @@ class PlatformCalls(_Calls):
         return await self._call("face_recognition_learn", {"token": token, "name": name, "images_b64": images_b64}, _timeout, _feedback)
 
     async def face_recognition_list(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FacePeople:
+        """The people learned for this user (face_recognition_learn)."""
         return await self._call("face_recognition_list", {"token": token}, _timeout, _feedback)
 
     async def face_recognition_recognize(self, *, image_b64: str, threshold: float = 0.6, limit: int = 10, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> RecognizedFaces:
+        """Who is in an image: each face found, with the closest learned person within `threshold`."""
         return await self._call("face_recognition_recognize", {"token": token, "image_b64": image_b64, "threshold": threshold, "limit": limit}, _timeout, _feedback)
 
     async def geolocation(self, *, ip: str = '', timezone: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Location:
@@ -161,15 +185,19 @@ class PlatformCalls(_Calls):
         return await self._call("hazard_detection_light_check", {"token": token, "image_b64": image_b64, "on_threshold": on_threshold}, _timeout, _feedback)
 
     async def home_get_info(self, *, home_id: str = 'home', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
+        """The home description the owner uploaded (map id, rooms, doors with their check poses, landmarks"""
         return await self._call("home_get_info", {"token": token, "home_id": home_id}, _timeout, _feedback)
 
     async def home_upload_info(self, *, info: HomeInfo, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> HomeInfo:
+        """Store a home description for this user (replaces one with the same home_id)."""
         return await self._call("home_upload_info", {"token": token, "info": info}, _timeout, _feedback)
 
     async def human_detection(self, *, image_b64: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Detections:
+        """The people standing in an image (OpenCV's HOG detector): a box each."""
         return await self._call("human_detection", {"token": token, "image_b64": image_b64}, _timeout, _feedback)
 
     async def interpret_command(self, *, text: str, robot_type: str = '', rapps: list[RAppDescription], token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Interpretation:
+        """Which RApp a spoken or typed command asks for, with its parameters' values."""
         return await self._call("interpret_command", {"token": token, "text": text, "robot_type": robot_type, "rapps": rapps}, _timeout, _feedback)
 
     async def issue_app_token(self, *, rapp: str, services: list[str], holder_jid: str, ttl_s: float = 3600.0, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> TokenReply:
@@ -177,24 +205,31 @@ class PlatformCalls(_Calls):
         return await self._call("issue_app_token", {"token": token, "rapp": rapp, "services": services, "holder_jid": holder_jid, "ttl_s": ttl_s}, _timeout, _feedback)
 
     async def news_explore(self, *, keywords: list[str] = UNSET, topic: str = '', max_stories: int = 5, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> NewsReply:
+        """News stories (offline provider) matching keywords or a topic."""
         return await self._call("news_explore", {"token": token, "keywords": keywords, "topic": topic, "max_stories": max_stories}, _timeout, _feedback)
 
     async def object_detection_clear_models(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Forget every object learned for this user."""
         return await self._call("object_detection_clear_models", {"token": token}, _timeout, _feedback)
 
     async def object_detection_find_objects(self, *, image_b64: str, limit: int = 5, min_matches: int = 15, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> FoundObjects:
+        """The learned objects found in an image (feature matching), best first."""
         return await self._call("object_detection_find_objects", {"token": token, "image_b64": image_b64, "limit": limit, "min_matches": min_matches}, _timeout, _feedback)
 
     async def object_detection_learn_object(self, *, name: str, image_b64: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Learn an object from one image of it (its features), under `name`."""
         return await self._call("object_detection_learn_object", {"token": token, "name": name, "image_b64": image_b64}, _timeout, _feedback)
 
     async def ontology_is_subclass_of(self, *, child: str, parent: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> IsSubclass:
+        """Whether `child` is a subclass of `parent` in the household ontology."""
         return await self._call("ontology_is_subclass_of", {"token": token, "child": child, "parent": parent}, _timeout, _feedback)
 
     async def ontology_subclasses_of(self, *, cls: str, recursive: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
+        """The subclasses of `cls` in the household ontology (direct ones, or all with `recursive`)."""
         return await self._call("ontology_subclasses_of", {"token": token, "cls": cls, "recursive": recursive}, _timeout, _feedback)
 
     async def ontology_superclasses_of(self, *, cls: str, recursive: bool = True, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ClassList:
+        """The superclasses of `cls` in the household ontology (direct ones, or all with `recursive`)."""
         return await self._call("ontology_superclasses_of", {"token": token, "cls": cls, "recursive": recursive}, _timeout, _feedback)
 
     async def path_planning_add_obstacle(self, *, map_id: str, x: float, y: float, radius_m: float, ttl_s: float = 120.0, note: str = '', skip_within_m: float = 0.0, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ObstacleLayer:
@@ -206,6 +241,7 @@ class PlatformCalls(_Calls):
         return await self._call("path_planning_clear_obstacles", {"token": token, "map_id": map_id, "x": x, "y": y, "radius_m": radius_m, "all": all}, _timeout, _feedback)
 
     async def path_planning_list_maps(self, *, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> MapList:
+        """The maps this user may plan on (their own and the shared ones)."""
         return await self._call("path_planning_list_maps", {"token": token}, _timeout, _feedback)
 
     async def path_planning_list_obstacles(self, *, map_id: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> ObstacleLayer:
@@ -253,16 +289,21 @@ class PlatformCalls(_Calls):
         return await self._call("speech_recognition", {"token": token, "audio_b64": audio_b64, "language": language, "words": words, "sentences": sentences, "grammar": grammar, "noise_profile": noise_profile, "slots": slots}, _timeout, _feedback)
 
     async def start_cloud_agent(self, *, rapp: str, version: str | None = None, owner_jid: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CloudAgentReply:
+        """Start the run's Cloud Agent (the RApp's cloud part): once per run; the SDK's"""
         return await self._call("start_cloud_agent", {"token": token, "rapp": rapp, "version": version, "owner_jid": owner_jid}, _timeout, _feedback)
 
     async def stop_cloud_agent(self, *, jid: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Done:
+        """Stop a Cloud Agent the sender owns."""
         return await self._call("stop_cloud_agent", {"token": token, "jid": jid}, _timeout, _feedback)
 
     async def text_to_speech(self, *, text: str, language: str = 'en', voice: str = '', speed: int = 160, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Speech:
+        """Synthesise `text` (eSpeak NG) as a WAV recording."""
         return await self._call("text_to_speech", {"token": token, "text": text, "language": language, "voice": voice, "speed": speed}, _timeout, _feedback)
 
     async def weather_report_current(self, *, city: str, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CurrentWeather:
+        """The current weather in a city (offline provider)."""
         return await self._call("weather_report_current", {"token": token, "city": city}, _timeout, _feedback)
 
     async def weather_report_forecast(self, *, city: str, days: int = 3, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Forecast:
+        """The weather forecast of a city for the next `days` days (offline provider)."""
         return await self._call("weather_report_forecast", {"token": token, "city": city, "days": days}, _timeout, _feedback)

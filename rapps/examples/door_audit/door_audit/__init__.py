@@ -1,0 +1,1 @@
+"""Door audit: a RApp written from the docs (docs/sdk.md)."""

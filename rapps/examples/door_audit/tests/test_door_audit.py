@@ -1,0 +1,25 @@
+"""Runs door-audit in the full house on both robots, as `rapp run rapp rapps/examples/door_audit`
+does, and scores its per-door list against the world's truth (result.json's `truth`). Each robot
+audits the two doors of the room it starts in (the whole house takes minutes), at a seed drawn now
+(DOOR_AUDIT_SEED=N repeats one)."""
+import os
+import random
+from pathlib import Path
+
+import pytest
+
+from scenarios.run_rapp import run_rapp
+
+HERE = Path(__file__).resolve().parent.parent
+pytestmark = pytest.mark.asyncio  # async tests run under pytest-asyncio, in or out of this checkout
+
+
+@pytest.mark.parametrize("robot, room", [("nao", "hall"), ("elektron", "living")])
+async def test_door_audit_reports_each_door_of_the_room_right(tmp_path, robot, room):
+    seed = int(os.environ.get("DOOR_AUDIT_SEED") or random.randrange(1, 10_000))
+    result = await run_rapp(HERE, robot, "house", seed, f"audit the doors of the {room}", tmp_path, timeout_s=280)
+    assert result["ok"], (seed, result["end"])
+    doors, truth = result["reports"][-1]["data"]["doors"], result["truth"]["doors"]
+    assert len(doors) == 2, (seed, doors)
+    for door, row in doors.items():
+        assert row["open"] == truth[door]["open"], (seed, door, row, truth[door])
