@@ -45,7 +45,6 @@ START_STD_M, START_STD_RAD = 0.5, 0.3  # the start pose the robot was given is h
 FIX_FLOOR_M, FIX_FLOOR_RAD = 0.004, 0.002
 FUSE_MAX_STD_M, FUSE_MAX_STD_RAD = 0.10, 0.05  # a fix less certain than this is no fix at all
 YAW_STEP = 0.05  # rad between the head angles considered
-ROOM_MARGIN_M = 0.3  # the robot is "in" every room within this of its estimate (doorways)
 TURNS_DEG = (45, -45, 90, -90, 135, -135, 180)  # body turns tried when the head cannot reach a code
 
 
@@ -61,7 +60,7 @@ class LocalizeSettings:
     max_distance_m: float = 6.0  # [max_marker_distance_m] farther codes are ignored (too inaccurate)
     turn_body: bool = True  # [look_behind] no certain fix within the head's reach: turn the body, once
     max_frames: int = 6  # [localize_max_frames] frames per localization at most
-    min_code_px: float = 65.0  # a code smaller than this in the image (its side, px) may not decode
+    min_code_px: float = 75.0  # a code smaller than this in the image (its side, px) may not decode
     max_view_deg: float = 60.0  # ... nor one seen further than this off its normal
 
     PARAMS = {"resolution": "localize_resolution", "std_m": "localize_std_m", "std_rad": "localize_std_rad",
@@ -129,30 +128,52 @@ class HeadCamera:
         return np.linalg.inv(ax @ R @ back @ self.robot_from_cam0)
 
 
-def robot_rooms(x: float, y: float, rooms, margin: float) -> set[str]:
-    return {r.name for r in rooms if r.rect[0] - margin <= x <= r.rect[2] + margin
-            and r.rect[1] - margin <= y <= r.rect[3] + margin}
+DOORWAY_M = 0.12  # a sight line crosses a wall within this of a doorway's line: through the doorway
+
+
+def in_sight(p, q, rooms, doors, end_m: float = 0.1) -> bool:
+    """Whether the walls leave the segment from p to the code at q (on a wall) free: every point of it
+    inside a room's rectangle or in a doorway (a door's closed line: the door may still be shut). Without
+    rooms in the home description, everything is in sight."""
+    if not rooms:
+        return True
+    p, q = np.asarray(p[:2], float), np.asarray(q[:2], float)
+    d = float(np.linalg.norm(q - p))
+    t = np.linspace(0.0, max(0.0, 1.0 - end_m / max(d, 1e-6)), max(2, int(d / 0.05)))
+    pts = p + t[:, None] * (q - p)
+    R = np.array([r.rect for r in rooms], float)
+    inside = ((pts[:, None, 0] >= R[:, 0]) & (pts[:, None, 0] <= R[:, 2])
+              & (pts[:, None, 1] >= R[:, 1]) & (pts[:, None, 1] <= R[:, 3])).any(1)
+    out = pts[~inside]
+    if not len(out):
+        return True
+    near = np.zeros(len(out), bool)
+    for door in doors:
+        a = np.asarray(door.door.hinge, float)
+        yaw = math.radians(door.door.closed_yaw_deg)
+        ab = door.door.width_m * np.array([math.cos(yaw), math.sin(yaw)])
+        s = np.clip(((out - a) @ ab) / (ab @ ab), 0.0, 1.0)
+        near |= np.linalg.norm(out - (a + s[:, None] * ab), axis=1) <= DOORWAY_M
+    return bool(near.all())
 
 
 def candidates(pose, landmarks: dict, rooms, camera: HeadCamera, settings: LocalizeSettings,
-               std_m: float = 0.0) -> dict[str, object]:
-    """The landmarks that could be seen from `pose` with some head angle: in a room the robot is in
-    (walls hide the others; without rooms in the home description every one counts), near enough to
-    decode at their printed size and not seen too obliquely."""
+               doors=()) -> dict[str, object]:
+    """The landmarks that could be seen from `pose` with some head angle: in sight (walls hide codes
+    of other rooms but through a doorway), near enough to decode at their own printed size and not
+    seen too obliquely."""
     x, y, _ = pose
     f = float(camera.K[1, 1])
-    here = robot_rooms(x, y, rooms, ROOM_MARGIN_M + std_m) if rooms else None
     out = {}
     for text, lm in landmarks.items():
-        if here is not None and lm.room is not None and lm.room not in here:
-            continue
         d = math.hypot(lm.x - x, lm.y - y)
         if d > settings.max_distance_m or f * lm.size_m / max(d, 1e-6) < settings.min_code_px:
             continue
         off = math.atan2(y - lm.y, x - lm.x) - lm.yaw
         if abs(math.remainder(off, math.tau)) > math.radians(settings.max_view_deg):
             continue
-        out[text] = lm
+        if in_sight((x, y), (lm.x, lm.y), rooms, doors):
+            out[text] = lm
     return out
 
 
@@ -205,13 +226,14 @@ class Look:
 
 def plan_looks(pose, std_m: float, std_rad: float, landmarks: dict, rooms, camera: HeadCamera,
                settings: LocalizeSettings, seen: np.ndarray | None = None, seen_codes=(),
-               current_yaw: float = 0.0) -> list[Look]:
+               current_yaw: float = 0.0, doors=(), missed=()) -> list[Look]:
     """Head angles to capture at, in order: each the one whose codes add most to what the frames before
     it (and `seen`, the information of the codes already found) tell of the pose, until the predicted
     fix is certain enough or `max_frames`; a look must show a code not planned or seen yet. Margins
-    keep the codes inside the frame for the pose's uncertainty."""
+    keep the codes inside the frame for the pose's uncertainty. `missed`: codes expected in a frame of
+    this localization that held none (hidden by something the map does not know): not expected again."""
     pose = tuple(float(v) for v in pose)
-    near = candidates(pose, landmarks, rooms, camera, settings, std_m)
+    near = {t: lm for t, lm in candidates(pose, landmarks, rooms, camera, settings, doors).items() if t not in missed}
     if not near:
         return []
     texts = list(near)
@@ -397,8 +419,11 @@ class Localizer:
         home = self.home
         seen = [o for o in self.state["observations"]]
         seen_info = information(pose, observed_views(seen, home.landmarks)) if seen else None
+        if self.state["frames"] >= self.settings.max_frames:
+            return []
         return plan_looks(pose, std_m, std_rad, home.landmarks, home.rooms, self.camera, self.settings,
-                          seen=seen_info, seen_codes={o.text for o in seen}, current_yaw=self.state.get("yaw", 0.0))
+                          seen=seen_info, seen_codes={o.text for o in seen}, current_yaw=self.state.get("yaw", 0.0),
+                          doors=home.doors, missed=self.state["missed"])
 
     def _best_turn(self) -> float | None:
         """The smallest body turn after which the head could fix the pose (or the best fix, when none
@@ -407,7 +432,8 @@ class Localizer:
         best = None
         for deg in TURNS_DEG:
             plan = plan_looks((x, y, th + math.radians(deg)), std_m, std_rad + 0.05, self.home.landmarks,
-                              self.home.rooms, self.camera, self.settings)
+                              self.home.rooms, self.camera, self.settings, doors=self.home.doors,
+                              missed=self.state["missed"])
             s = predicted(plan)
             if not plan:
                 continue
@@ -423,7 +449,7 @@ class Localizer:
         if self.camera is None:
             await self._setup()
         self.state = dict(observations=[], localization=None, prior=None, frames=0, empty=0, turned=0.0, yaw=0.0,
-                          turn=None, turn_done=False)
+                          turn=None, turn_done=False, missed=set(), look=None)
         await self.track()
         self.state["looks"] = await asyncio.to_thread(self._plan)  # numpy: off the event loop
         s = predicted(self.state["looks"])
@@ -436,10 +462,12 @@ class Localizer:
     async def turn_head(self, memory) -> str:
         """The next planned head angle ("look"); "turn" when none is left but a body turn would show
         codes, "done" when nothing is left to try."""
+        if self.state["frames"] >= self.settings.max_frames:
+            return "done"
         if not self.state["looks"]:
             return "turn" if self.state["turn"] is not None else "done"
         look = self.state["looks"].pop(0)
-        self.state["yaw"] = look.yaw
+        self.state["yaw"], self.state["look"] = look.yaw, look
         await self._head_to(look.yaw)
         return "look"
 
@@ -477,6 +505,7 @@ class Localizer:
             reply = None
         if reply is None or not reply.items:
             self.state["empty"] += 1
+            self.state["missed"] |= set(self.state["look"].codes)  # not expected again in this localization
             await asyncio.to_thread(self._replan)
             return False
         self.state["observations"].extend(reply.items)
@@ -492,7 +521,8 @@ class Localizer:
 
     def _replan(self) -> None:
         self.state["looks"] = self._plan()
-        if not self.state["looks"] and self.settings.turn_body and not self.state.get("turn_done"):
+        if (not self.state["looks"] and self.settings.turn_body and not self.state["turn_done"]
+                and self.state["frames"] < self.settings.max_frames):
             found = self.state.get("localization")
             if not self._certain(found, self.settings.max_std_m, self.settings.max_std_rad):
                 self.state["turn"] = self._best_turn()

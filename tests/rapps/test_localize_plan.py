@@ -8,7 +8,8 @@ import pytest
 
 from ontology.services.home import RoomSpec
 from rapps.sdk.landmarks import corners_world, project
-from rapps.sdk.localize import HeadCamera, LocalizeSettings, candidates, plan_looks, views_at
+from ontology.services.home import DoorShape, DoorwaySpec
+from rapps.sdk.localize import HeadCamera, LocalizeSettings, candidates, in_sight, plan_looks, views_at
 from robots.floorplan import load_plan
 from robots.nao import SPEC as NAO
 from robots.elektron import SPEC as ELEKTRON
@@ -50,9 +51,19 @@ def test_every_planned_frame_shows_codes_of_the_room_inside_the_real_field_of_vi
             assert lm.room == room  # walls hide the other rooms' codes
             uv, depth = project(pose, views_at(pose, look.yaw, {text: lm}, camera, 0.0)[0][1])
             assert np.all(depth > 0) and np.all((uv >= 0) & (uv <= [camera.width, camera.height]))
-    assert looks[-1].predicted_std_m <= SETTINGS.std_m and looks[-1].predicted_std_rad <= SETTINGS.std_rad
+    assert looks[-1].predicted_std_m <= SETTINGS.max_std_m and looks[-1].predicted_std_rad <= SETTINGS.max_std_rad
     assert len(looks) <= 3  # not a sweep: a few frames, each with a code not seen before
     assert len({c for look in looks for c in look.codes}) >= 2
+
+
+def test_walls_hide_codes_but_through_a_doorway():
+    d_living = next(d for d in PLAN.doors if d.id == "d_living")  # hinge (4, 10), 1 m along x
+    doors = [DoorwaySpec(id="d_living", door=DoorShape(hinge=list(d_living.hinge), width_m=d_living.width,
+                                                       closed_yaw_deg=math.degrees(d_living.closed_yaw)))]
+    assert in_sight((4.5, 12.0), (4.5, 2.0), ROOMS, doors)  # hall -> living through the door's gap
+    assert not in_sight((4.5, 12.0), (4.5, 2.0), ROOMS, [])  # the same line, no door there: a wall
+    assert not in_sight((7.0, 12.0), (7.0, 2.0), ROOMS, doors)  # beside the door: the wall
+    assert in_sight((7.0, 12.0), (2.0, 11.0), ROOMS, doors) and in_sight((1, 1), (2, 2), [], [])
 
 
 def test_each_code_is_judged_at_its_own_printed_size():
@@ -61,7 +72,7 @@ def test_each_code_is_judged_at_its_own_printed_size():
     kitchen, living = LANDMARKS["QR-KITCHEN-E"], LANDMARKS["QR-LIVING-W3"]
     assert (kitchen.size_m, living.size_m) == (0.25, 0.35)
     for lm, room_x in ((kitchen, -1), (living, 1)):
-        for d, seen in ((3.5, True), (5.5, lm.size_m == 0.35)):
+        for d, seen in ((3.0, True), (4.5, lm.size_m == 0.35)):
             pose = (lm.x + room_x * d, lm.y, 0.0)
             near = candidates(pose, {"c": lm}, ROOMS, camera, SETTINGS)
             assert bool(near) == seen, (lm.size_m, d)

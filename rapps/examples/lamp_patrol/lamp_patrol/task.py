@@ -64,7 +64,8 @@ class LampPatrol(Task):
                 goal=self.bb.lamp.stand)
             if not plan.path:
                 raise RuntimeError(f"no path to {self.bb.lamp.id}: {plan.reason}")  # the Sequence fails: skipped
-            leg = first_leg(plan.path, float(self.params["leg_m"]))
+            # as far as the pose filter expects to stay within 5 cm of the path (1 sigma), at most leg_m
+            leg = first_leg(plan.path, self.localizer.leg_length(float(self.params["leg_m"]), 0.05))
             await self.robot.move_along_path(poses=leg, _timeout=600.0, _feedback=walking)
             if leg is plan.path:  # the whole rest of it: there
                 break
@@ -80,7 +81,8 @@ class LampPatrol(Task):
         (self.outputs / f"{self.bb.lamp.id}.png").write_bytes(base64.b64decode(image.data_b64))
         self.bb.found = {**self.bb.found, self.bb.lamp.id: level.lamp_on}
         await self.report(f"Lamp {self.bb.lamp.id}: {'on' if level.lamp_on else 'off'}",
-                          lamp=self.bb.lamp.id, on=level.lamp_on, level=level.light_level)
+                          lamp=self.bb.lamp.id, on=level.lamp_on, level=level.light_level,
+                          stand=[self.bb.lamp.stand.x, self.bb.lamp.stand.y])  # where it meant to stand
 
     async def skip(self, memory):
         self.log.warning("lamp %s not checked: %s", self.bb.lamp.id, self.root.last_outcome.reason)
@@ -89,4 +91,5 @@ class LampPatrol(Task):
     async def finish(self, memory):
         on = sorted(k for k, v in self.bb.found.items() if v)
         self.progress(1.0, "done")
-        await self.report(f"{len(self.bb.found)} lamps checked; on: {', '.join(on) or 'none'}", lamps=self.bb.found)
+        await self.report(f"{len(self.bb.found)} lamps checked; on: {', '.join(on) or 'none'}", lamps=self.bb.found,
+                          localization=self.localizer.stats())
