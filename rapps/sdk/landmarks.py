@@ -14,19 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.services.transforms import invert, transform
+
 PIXEL_NOISE = 0.5  # px, standard deviation of a refined corner (rendered codes, measured)
-
-
-def transform(R, t) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.ravel(t)
-    return T
-
-
-def invert(T: np.ndarray) -> np.ndarray:
-    R, t = T[:3, :3], T[:3, 3]
-    return transform(R.T, -R.T @ t)
 
 
 def planar_transform(x: float, y: float, theta: float) -> np.ndarray:
