@@ -16,7 +16,9 @@
 `self.platform.<service>(**fields)` a Platform service (the token is added for you),
 `self.marks` the obstacles it entered into the Platform's map (plan monitoring: rapps/sdk/monitor.py),
 `self.cloud` the RApp's own Cloud Agent (`await self.cloud.start()` then
-`await self.cloud.call("action", **fields)`), `self.params` the parameters of the user's command.
+`await self.cloud.call("action", **fields)`), `self.params` the parameters of the user's command,
+`await self.localize()` where the robot is by the home's QR landmarks (rapps/sdk/localize.py; its
+odometry, `self.robot.get_global_pose()`, drifts).
 Errors arrive as RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (all RequestError),
 re-exported here with their codes (`e.code == ErrorCode.FORBIDDEN`): a RApp package imports only this
 SDK and the ontology (see docs/architecture.md).

@@ -353,7 +353,8 @@ class Localizer:
 
     # -- one call ----------------------------------------------------------------------------
     async def localize(self) -> PoseEstimate:
-        """Localize once (the sub-FSM run on its own); RequestError when a request fails."""
+        """Localize once (the sub-FSM run on its own); RuntimeError saying why when a request failed
+        (the robot, the Platform or the Cloud Agent refused or did not answer)."""
         runtime = self.task.runtime
         memory: dict = {}
         outcome = await self.build().run(Context(agent=runtime, memory=memory, tracer=getattr(runtime, "tracer", None),
