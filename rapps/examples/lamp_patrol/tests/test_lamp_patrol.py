@@ -29,6 +29,7 @@ async def test_lamp_patrol_checks_every_lamp_and_keeps_pictures(tmp_path, robot)
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 @pytest.mark.parametrize("robot", ["nao", "elektron"])
 async def test_lamp_patrol_in_the_full_house_gets_every_lamp_right_and_stands_where_it_meant(tmp_path, robot):
     result = await run_rapp(HERE, robot, "house", 1, "patrol the lamps", tmp_path, timeout_s=1500)
