@@ -359,8 +359,9 @@ class Localizer:
         memory: dict = {}
         outcome = await self.build().run(Context(agent=runtime, memory=memory, tracer=getattr(runtime, "tracer", None),
                                                  pause=getattr(runtime, "pause", None)))
-        if not outcome.ok:
-            raise RuntimeError(f"localization failed: {memory.get('error') or outcome.reason}")
+        if not outcome.ok:  # a failed request left "(localization failed: why)"
+            raise RuntimeError(memory["error"].strip("()") if "error" in memory else
+                               f"localization failed: {outcome.reason}")
         return memory["estimate"]
 
     # -- the sub-FSM -------------------------------------------------------------------------
