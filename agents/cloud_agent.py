@@ -42,9 +42,13 @@ class CloudAgent(RappAgent):
     def _serve(self) -> None:
         cls = load_entry_point(self.package_dir, self.manifest.cloud_entry_point)
         self.service = cls(self)
-        handlers = {action: self._boxed(h) for action, h in self.service.handlers().items()}
-        responder = Responder(self.service.ontology, handlers, check=self._taken)
-        self.activate("cloud-service", responder, responder.make_template())
+        # every ontology the part serves (its own, the SDK's localization it extends), a responder each
+        served = (self.service.served() if hasattr(self.service, "served")
+                  else {self.service.ontology: self.service.handlers()})
+        for i, (ontology, handlers) in enumerate(served.items()):
+            responder = Responder(ontology, {a: self._boxed(h) for a, h in handlers.items()}, check=self._taken)
+            self.activate("cloud-service" if i == 0 else f"cloud-service-{ontology}", responder,
+                          responder.make_template())
 
     def _taken(self, req, ctx) -> None:
         """Its owner's requests only."""

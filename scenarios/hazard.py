@@ -124,6 +124,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 "all_correct": all(r["true_state"] == r["reported_state"] for r in rows),
                 "localization_error_m": finite(recorder.localization_error()),
                 "max_tracking_error_m": finite(recorder.tracking_error()),
+                "frames": frame_counts(owner.reports, recorder.captures),
                 "duration_sim_s": round(run.sim_s, 2), "duration_wall_s": round(run.wall_s, 2),
                 "finished": finished(run, owner), "end": run.end_text(owner),
                 "trigger": owner.record.trigger.value if owner.record is not None else None,
@@ -177,6 +178,14 @@ def schedule_owner(world, at: str):
     return command, deliver, {"clock": clock}
 
 
+def frame_counts(reports: list[ReportRecord], captures: int) -> dict:
+    """Camera frames of the run: every capture the robot made (counted by the scenario), and the
+    RApp's own count of its localizations' frames and of those in which no code was found (the
+    closing report's `localization`, rapps/sdk/localize.py Localizer.stats)."""
+    stats = next((r.data["localization"] for r in reversed(reports) if "localization" in r.data), {})
+    return {"captured": captures, **stats}
+
+
 def monitoring(records: list[dict]) -> dict:
     """From the trace: the reactive strategies the Core ran (in order), the plans that failed (the
     plan monitor's `plan-failed`: the task re-planned) and the obstacles it entered into the map."""
@@ -204,6 +213,11 @@ def summary(result: dict) -> str:
              f"tracking {cm(result['max_tracking_error_m'])}, "
              f"{result['duration_sim_s']:.0f} s sim / {result['duration_wall_s']:.0f} s wall"
              + (" (started by its schedule)" if result.get("trigger") == "scheduled" else "")]
+    f = result.get("frames") or {}
+    if f.get("frames"):
+        lines.append(f"  frames: {f['captured']} captured; localization {f['frames']} in {f['localizations']} "
+                     f"localizations ({f['frames_per_localization']} each), {f['frames_without_code']} without a code "
+                     f"({f['no_code_share'] * 100:.0f} %)")
     if not result["ok"]:
         lines.append(f"  {result['reason']}")
     for h in result["hazards"]:

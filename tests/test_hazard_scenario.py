@@ -18,7 +18,7 @@ from scenarios.home_setup import hazard_list, hazard_overrides
 RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
                "duration_sim_s", "duration_wall_s", "trace", "plot", "finished", "end", "routes_blocked",
                "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops",
-               "ok", "reason"}
+               "ok", "reason", "frames"}
 
 
 def structure_events(trace: list[dict], rapp: str) -> list[str]:
@@ -50,6 +50,9 @@ async def test_hazard_detection_small_house(tmp_path, robot):
     check_run(result, tmp_path, {"d1", "l1"})
     assert result["localization_error_m"] <= 0.05
     assert result["max_tracking_error_m"] <= 0.10
+    frames = result["frames"]  # localization looks where the codes are: few frames, nearly all with a code
+    assert frames["captured"] >= frames["frames"] + len(result["hazards"])  # the rest: the checks
+    assert frames["no_code_share"] <= 0.10 and frames["frames_per_localization"] <= 3
     door = next(h for h in result["hazards"] if h["type"] == "door")
     assert abs(door["estimated_angle"] - door["true_angle"]) <= 10
 

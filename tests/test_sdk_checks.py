@@ -4,7 +4,6 @@ restored afterwards; answers scored against the world's truth."""
 from __future__ import annotations
 
 import asyncio
-import math
 
 import pytest
 

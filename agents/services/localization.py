@@ -20,6 +20,7 @@ from ontology.errors import ErrorCode
 from .context import ServiceContext
 from .errors import ServiceError
 from .images import decode_image
+from .transforms import invert, transform
 
 
 def camera_matrix(cam: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -31,18 +32,6 @@ def code_corners_3d(size: float) -> np.ndarray:
     """Code-frame corners in the detector's order (TL, TR, BR, BL), as IPPE_SQUARE expects."""
     h = size / 2.0
     return np.array([[-h, h, 0], [h, h, 0], [h, -h, 0], [-h, -h, 0]], np.float64)
-
-
-def transform(R: np.ndarray, t) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.ravel(t)
-    return T
-
-
-def invert(T: np.ndarray) -> np.ndarray:
-    R, t = T[:3, :3], T[:3, 3]
-    return transform(R.T, -R.T @ t)
 
 
 def code_pose(corners: np.ndarray, size: float, K: np.ndarray, dist: np.ndarray) -> np.ndarray:

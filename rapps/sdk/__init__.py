@@ -16,7 +16,9 @@
 `self.platform.<service>(**fields)` a Platform service (the token is added for you),
 `self.marks` the obstacles it entered into the Platform's map (plan monitoring: rapps/sdk/monitor.py),
 `self.cloud` the RApp's own Cloud Agent (`await self.cloud.start()` then
-`await self.cloud.call("action", **fields)`), `self.params` the parameters of the user's command.
+`await self.cloud.call("action", **fields)`), `self.params` the parameters of the user's command,
+`await self.localize()` where the robot is by the home's QR landmarks (rapps/sdk/localize.py; its
+odometry, `self.robot.get_global_pose()`, drifts).
 Errors arrive as RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (all RequestError),
 re-exported here with their codes (`e.code == ErrorCode.FORBIDDEN`): a RApp package imports only this
 SDK and the ontology (see docs/architecture.md).
@@ -48,13 +50,15 @@ from .blackboard import Blackboard, BlackboardError, Key
 from ._call import _Calls
 from .calls import PlatformCalls, RobotCalls
 from .checks import check_door, check_light, door_geometry, intrinsics
+from .localize import Localizer, LocalizeSettings, PoseEstimate
+from .step import Step
 from .monitor import ArriveBy, Expectation, Localized, ObstacleMarks, PathFree, PlanFailed, PlanMonitor
 
 __all__ = ["Task", "Step", "CloudService", "FSM", "Behaviour", "OneShot", "Sequence", "Selector", "Parallel",
            "Timeout", "Retry", "Inverter", "Key", "Blackboard", "BlackboardError", "CloudAgentLost", "RequestError", "RequestFailed",
            "RequestRefused", "NotUnderstood", "RequestTimeout", "ErrorCode", "Notification", "NotificationKind",
            "EventTopic", "PlanMonitor", "PlanFailed", "Expectation", "ArriveBy", "PathFree", "Localized",
-           "check_door", "check_light", "door_geometry", "intrinsics"]
+           "check_door", "check_light", "door_geometry", "intrinsics", "Localizer", "LocalizeSettings", "PoseEstimate"]
 
 
 class _Dynamic(_Calls):
@@ -128,17 +132,18 @@ class CloudProxy:
             self.address = reply.jid
         return self.address
 
-    async def call(self, action: str, _timeout: float = 60.0, **fields: Any) -> Content:
+    async def call(self, action: str, _timeout: float = 60.0, _ontology: str | None = None, **fields: Any) -> Content:
         """The Cloud Agent's answer; CloudAgentLost when its process died (or, code
-        "cloud-restarted", when the Platform restarted it while this call was in flight)."""
+        "cloud-restarted", when the Platform restarted it while this call was in flight).
+        `_ontology`: an action of another ontology the Cloud part serves (the SDK's localization)."""
         if self.lost:
             raise CloudAgentLost(self.lost, code=ErrorCode.CLOUD_LOST, peer=self.address or "")
+        ontology = _ontology or self._ontology
+        if not ontology:
+            raise RuntimeError(f"RApp {self._rapp} declares no cloud ontology")
         if self.address is None:
             await self.start()
-        if not self._ontology:
-            raise RuntimeError(f"RApp {self._rapp} declares no cloud ontology")
-        reply: Content = await self._agent.request(self.address, lookup(self._ontology, action)(**fields),
-                                                   timeout=_timeout)
+        reply: Content = await self._agent.request(self.address, lookup(ontology, action)(**fields), timeout=_timeout)
         return reply
 
     async def stop(self) -> None:
@@ -197,11 +202,29 @@ class Task:
         self.cloud = CloudProxy(runtime, runtime.platform, runtime.token, runtime.manifest.name,
                                 runtime.manifest.version, self.cloud_ontology)
         self.root: Behaviour | None = None  # what build() returned (set by the runtime)
+        self._localizer: Localizer | None = None
         self.memory: dict[str, Any] = getattr(runtime, "memory", {})
         self.log = TaskLog(self, self._trace)
         self.marks = ObstacleMarks(self)  # obstacles entered into the Platform's map (rapps/sdk/monitor.py)
         self.bb = Blackboard(self.keys, self.memory, writer=lambda: (self.state_path() or [""])[-1],
                              trace=self._trace)
+
+    @property
+    def localizer(self) -> Localizer:
+        """The task's localization (rapps/sdk/localize.py): its pose filter, settings (from the
+        manifest's params), the home's landmarks and statistics; `localize()` runs it."""
+        if self._localizer is None:
+            self._localizer = Localizer(self)
+        return self._localizer
+
+    async def localize(self) -> PoseEstimate:
+        """Where the robot is, by the home's QR landmarks: looks where codes should be in view, has the
+        Cloud Agent find them and solve the pose, fuses that with the odometry in the pose filter, sets
+        the result on the robot (get_global_pose gives it from now on) and returns it with its
+        uncertainty (`std_m`, `std_rad`, `cov`; `fixed` False: no code seen, the odometry's prediction).
+        Needs `home_get_info` in the manifest's services, `vision` and `navigation` in its robot_api, and
+        a Cloud part that is a `LandmarkCloud` (docs/sdk.md, "Where the robot is")."""
+        return await self.localizer.localize()
 
     def _trace(self, kind: RecordKind, **fields: Any) -> None:
         tracer = getattr(self.runtime, "tracer", None)
@@ -282,17 +305,6 @@ class Task:
         return True
 
 
-class Step(OneShot):
-    """A one-shot behaviour running `async fn(memory)`; its return value is the outcome value."""
-
-    def __init__(self, fn: Callable[[dict[str, Any]], Awaitable[Any]], name: str | None = None, **kw: Any):
-        super().__init__(name or getattr(fn, "__name__", "step"), **kw)
-        self.fn = fn
-
-    async def action(self) -> Any:
-        return await self.fn(self.memory)
-
-
 class CloudService:
     """Base class of a RApp's Cloud Agent part: handlers named after its actions."""
 
@@ -302,8 +314,9 @@ class CloudService:
         self.runtime = runtime
         self.agent = runtime
 
-    def handlers(self) -> dict[str, Callable[[Any, Any], Awaitable[Any]]]:
-        """Responder handlers `(request, ctx)` around the author's `async def <action>(self, request)`."""
+    def handlers(self, ontology: str | None = None) -> dict[str, Callable[[Any, Any], Awaitable[Any]]]:
+        """Responder handlers `(request, ctx)` around the author's `async def <action>(self, request)`
+        (of its `ontology`, or of another one it serves)."""
         from ontology.registry import actions
 
         def wrap(method: Callable[[Any], Awaitable[Any]]) -> Callable[[Any, Any], Awaitable[Any]]:
@@ -311,4 +324,14 @@ class CloudService:
                 return await method(req)
             return handler
 
-        return {name: wrap(getattr(self, name)) for name in actions(self.ontology) if hasattr(self, name)}
+        return {name: wrap(getattr(self, name)) for name in actions(ontology or self.ontology) if hasattr(self, name)}
+
+    def served(self) -> dict[str, dict]:
+        """Handlers by ontology: the part's own and those of the classes it extends (a part that is
+        a LandmarkCloud also serves the SDK's localization), each served by a responder of its own."""
+        out: dict[str, dict] = {}
+        for cls in type(self).__mro__:
+            ontology = cls.__dict__.get("ontology")
+            if ontology and ontology not in out:
+                out[ontology] = self.handlers(ontology)
+        return out

@@ -20,7 +20,6 @@ from typing import Any
 
 from annotated_types import Ge, Gt, Le, Lt, MaxLen, MinLen
 from pydantic import BaseModel, TypeAdapter, ValidationError
-from pydantic_core import PydanticUndefined
 
 import ontology.robot  # noqa: F401 - registers the robot actions
 import ontology.services  # noqa: F401 - registers the Platform services

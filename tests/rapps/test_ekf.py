@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from rapps.hazard_detection.hazard_detection.localize import Localizer
+from rapps.sdk.localize import Localizer
 from rapps.sdk.ekf import CHI2_3DOF_99, ODOMETRY, PoseEKF, compose, relative
 
 NAO = ODOMETRY["nao"]
@@ -80,10 +80,8 @@ class _Task:
     """What Localizer.leg_length asks of its task: the robot type."""
 
     def __init__(self, kind):
-        self.kind = kind
-
-    def robot_type(self):
-        return self.kind
+        self.robot_info = type("RobotInfo", (), {"robot_type": kind})()
+        self.params = {}
 
 
 def test_leg_length_keeps_the_predicted_sideways_error_within_budget():

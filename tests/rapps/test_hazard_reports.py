@@ -74,6 +74,7 @@ async def go_to_hazard(runtime: FakeRuntime) -> tuple[HazardTask, dict]:
     assert any(t.source == "s4_5_go_to_hazard" and t.target == "s5_unreachable" and t.on_error
                for t in top.transitions)
     memory = memory_at_start()
+    task.localizer.home = memory["home"]  # as s1_get_home hands it over
     outcome = await task.build_navigation().run(Context(memory=memory))
     assert outcome.error, "the navigation was meant to fail"
     await task.unreachable(memory)

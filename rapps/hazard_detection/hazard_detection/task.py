@@ -10,7 +10,6 @@ from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.hazard import DoorGeometry
 from rapps.sdk import FSM, ArriveBy, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
 
-from .localize import Localizer
 from .models import ONTOLOGY, CameraSpec, HazardReport
 
 PLAN_FOUND = 1
@@ -77,7 +76,7 @@ class HazardTask(Task):
     cloud_ontology = ONTOLOGY
 
     def build(self) -> FSM:
-        self.localizer = Localizer(self)
+        # s2 and n3 are the SDK's localization sub-FSM (rapps/sdk/localize.py), its settings from params
         fsm = FSM("hazard_detection", initial="s1_get_home")
         fsm.add_state("s1_get_home", Step(self.get_home))
         fsm.add_state("s2_localize", self.localizer.build("s2_localize"))
@@ -135,6 +134,7 @@ class HazardTask(Task):
     async def get_home(self, memory):
         info = await self.platform.home_get_info(home_id=str(self.params.get("home", "home")))
         memory["home"] = info
+        self.localizer.home = info  # its landmarks and rooms
         memory["todo"] = list(info.hazards)
         memory["results"] = []
         self.log.info("%d possible hazards in home %s", len(info.hazards), info.home_id)
@@ -210,7 +210,8 @@ class HazardTask(Task):
         if memory["replans"] > 40:
             memory["error"] = "(gave up after 40 plans)"
             raise RuntimeError(f"could not reach {hazard.id}")
-        localized = bool(memory.get("localizations")) and memory["localizations"][-1] is not None
+        history = self.localizer.history
+        localized = bool(history) and history[-1].fixed
         longest = self.localizer.leg_length(
             float(self.params["leg_length_m"]),
             float(self.params.get("leg_cross_track_std_m", LEG_CROSS_TRACK_STD_M)))
@@ -392,7 +393,8 @@ class HazardTask(Task):
             text = "No hazards found, but not everything could be checked."
         self.progress(1.0, f"{len(results)} hazards checked, {len(found)} found")
         await self.report(text, hazards=[r.model_dump() for r in results],
-                          localizations=memory.get("localizations", []))
+                          localizations=[e.as_dict() for e in self.localizer.history],
+                          localization=self.localizer.stats())
 
     async def done(self, memory):
         await self.say("Hazard check finished.")

@@ -1,8 +1,22 @@
 """Lamp patrol: for each lamp of the home, go there, look, check the light, keep the picture."""
 import base64
+import math
 
+from ontology.services.common import Pose2D
 from ontology.services.home import HazardSpec, HomeInfo
 from rapps.sdk import FSM, Key, Retry, Sequence, Step, Task
+
+
+def first_leg(path: list[Pose2D], length: float) -> list[Pose2D]:
+    """The path up to `length` metres along it (all of it when shorter)."""
+    run = 0.0
+    for i, (a, b) in enumerate(zip(path, path[1:]), 1):
+        step = math.hypot(b.x - a.x, b.y - a.y)
+        if run + step >= length:
+            t = (length - run) / step
+            return path[:i] + [Pose2D(x=a.x + t * (b.x - a.x), y=a.y + t * (b.y - a.y), theta=math.atan2(b.y - a.y, b.x - a.x))]
+        run += step
+    return path
 
 
 class LampPatrol(Task):
@@ -39,15 +53,23 @@ class LampPatrol(Task):
     async def go(self, memory):
         self.bb.lamp, self.bb.todo = self.bb.todo[0], self.bb.todo[1:]
         done, total = len(self.bb.found), len(self.bb.found) + len(self.bb.todo) + 1
-        plan = await self.platform.path_planning_plan_path_2d(
-            map_id=self.bb.home.map_id, robot_type=self.robot_info.robot_type,
-            start=await self.robot.get_global_pose(), goal=self.bb.lamp.stand)
-        if not plan.path:
-            raise RuntimeError(f"no path to {self.bb.lamp.id}: {plan.reason}")  # the Sequence fails: skipped
         def walking(p):  # the motion's progress informs (an action with feedback): shown live
             self.progress((done + (p.fraction or 0.0)) / total, f"to {self.bb.lamp.id}: {p.text}")
 
-        await self.robot.move_along_path(poses=plan.path, _timeout=600.0, _feedback=walking)
+        while True:  # odometry drifts: localize, plan from there, walk one leg; again until at the lamp
+            here = await self.localize()  # by the home's QR codes: the pose and its uncertainty
+            self.log.info("at (%.2f, %.2f) +- %.3f m", here.x, here.y, here.std_m)
+            plan = await self.platform.path_planning_plan_path_2d(
+                map_id=self.bb.home.map_id, robot_type=self.robot_info.robot_type, start=here.pose,
+                goal=self.bb.lamp.stand)
+            if not plan.path:
+                raise RuntimeError(f"no path to {self.bb.lamp.id}: {plan.reason}")  # the Sequence fails: skipped
+            # as far as the pose filter expects to stay within 5 cm of the path (1 sigma), at most leg_m
+            leg = first_leg(plan.path, self.localizer.leg_length(float(self.params["leg_m"]), 0.05))
+            await self.robot.move_along_path(poses=leg, _timeout=600.0, _feedback=walking)
+            if leg is plan.path:  # the whole rest of it: there
+                break
+        await self.localize()  # at the lamp: the camera aims from the pose the codes give
 
     async def look(self, memory):
         x, y, z = self.bb.lamp.look_at
@@ -59,7 +81,8 @@ class LampPatrol(Task):
         (self.outputs / f"{self.bb.lamp.id}.png").write_bytes(base64.b64decode(image.data_b64))
         self.bb.found = {**self.bb.found, self.bb.lamp.id: level.lamp_on}
         await self.report(f"Lamp {self.bb.lamp.id}: {'on' if level.lamp_on else 'off'}",
-                          lamp=self.bb.lamp.id, on=level.lamp_on, level=level.light_level)
+                          lamp=self.bb.lamp.id, on=level.lamp_on, level=level.light_level,
+                          stand=[self.bb.lamp.stand.x, self.bb.lamp.stand.y])  # where it meant to stand
 
     async def skip(self, memory):
         self.log.warning("lamp %s not checked: %s", self.bb.lamp.id, self.root.last_outcome.reason)
@@ -68,4 +91,5 @@ class LampPatrol(Task):
     async def finish(self, memory):
         on = sorted(k for k, v in self.bb.found.items() if v)
         self.progress(1.0, "done")
-        await self.report(f"{len(self.bb.found)} lamps checked; on: {', '.join(on) or 'none'}", lamps=self.bb.found)
+        await self.report(f"{len(self.bb.found)} lamps checked; on: {', '.join(on) or 'none'}", lamps=self.bb.found,
+                          localization=self.localizer.stats())

@@ -1,5 +1,7 @@
-"""Runs lamp-patrol on the simulated robots, as `rapp run rapp rapps/examples/lamp_patrol` does."""
+"""Runs lamp-patrol on the simulated robots, as `rapp run rapp rapps/examples/lamp_patrol` does: in the
+small house (quick), and in the full house, scored against the world's truth (slow: minutes each)."""
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -22,3 +24,20 @@ async def test_lamp_patrol_checks_every_lamp_and_keeps_pictures(tmp_path, robot)
     assert any(r["kind"] == "log" and "1 lamps to check in the living" in r["message"] for r in trace)
     progress = [(r["fraction"], r["text"]) for r in trace if r["kind"] == "progress"]
     assert progress[-1][0] == 1.0 and any(t.startswith("to l1: at (") for _, t in progress)  # the walk's feedback
+    looked = final["data"]["localization"]  # localized by the QR codes on the way and at the lamp
+    assert looked["fixed"] >= 2 and looked["frames_without_code"] <= looked["frames"] // 4
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+@pytest.mark.parametrize("robot", ["nao", "elektron"])
+async def test_lamp_patrol_in_the_full_house_gets_every_lamp_right_and_stands_where_it_meant(tmp_path, robot):
+    result = await run_rapp(HERE, robot, "house", 1, "patrol the lamps", tmp_path, timeout_s=1500)
+    assert result["ok"], result["end"]
+    truth, lamps = result["truth"], result["reports"][-1]["data"]["lamps"]
+    assert lamps and all(on == truth["lamps"][lamp]["on"] for lamp, on in lamps.items())
+    stands = {r["data"]["lamp"]: r["data"]["stand"] for r in result["reports"] if "stand" in r["data"]}
+    assert stands.keys() == lamps.keys()
+    for lamp, (x, y) in stands.items():  # the odometry alone would be tens of cm off after these walks
+        nearest = min(math.hypot(px - x, py - y) for _, px, py, _ in truth["trajectory"])
+        assert nearest < 0.25, (lamp, nearest)
