@@ -146,16 +146,16 @@ def _reach(funcs, start) -> set:
 
 
 def test_each_services_errors_are_the_codes_its_implementation_raises():
-    from agents.services.pool import POOLED
-    from agents.services.registry import _IMPLS
+    from agents.services.registry import SERVICES
     exact, upper = _functions("agents/services", False), _functions("agents/services", True)
     pool = {c for (m, _), (codes, _) in upper.items() if m == "pool" for c in codes}
     common = {e.code for e in SERVICE_COMMON}
-    for name, fn in _IMPLS.items():
+    for name, spec in SERVICES.items():
+        fn = spec.run
         start = (fn.__module__.rsplit(".", 1)[1], fn.__name__)
         declared = {e.code for e in service_errors(name)}
         assert _reach(exact, start) <= declared, f"{name} raises codes ontology/action_errors.py does not list"
-        possible = _reach(upper, start) | (pool if name in POOLED else set()) | common
+        possible = _reach(upper, start) | (pool if spec.pooled else set()) | common
         assert set(SERVICE_ERRORS[name]) <= possible, f"{name}: listed codes its implementation never raises"
 
 
