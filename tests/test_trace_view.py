@@ -326,7 +326,8 @@ def test_note_categories_of_the_real_events(records):
 def test_html_is_self_contained_and_escaped(records):
     page = render_html(with_hostile_answer(records), title="run <1>")
     assert page.count("</script>") == 2  # the data script and the code script, nothing injected
-    assert "<img" not in page and "<b>bold" not in page
+    assert "<img src=x" not in page and "<b>bold" not in page  # (the page's own
+    # <img> elements are the scene's map and camera frame, filled by its script)
     assert "<title>run &lt;1&gt;</title>" in page
     assert not re.search(r"(src|href)=\"?(https?:)?//", page)  # no CDN or remote resource
     assert 'const OPENING = ["request", "query-ref", "subscribe", "chat"];' in page
