@@ -25,6 +25,10 @@ EXCEPTION = {"refuse": "RequestRefused", "failure": "RequestFailed", "not-unders
              "timeout": "RequestTimeout"}
 
 
+# {code: when} answered as failure, or {code: (answer, when)}
+Errors = dict[str, str | tuple[Answer, str]]
+
+
 class ErrorFact(NamedTuple):
     code: str
     answer: Answer
@@ -61,12 +65,12 @@ ROBOT_BASE = (F(E.BLOCKED, "failure", "an obstacle stopped the base (the safety 
 ROBOT_RELATIVE = (F(E.ESTOP, "failure", "the emergency stop cut it: a relative motion is not issued again "
                     "after the resume (issue it again from where the robot stands)"),)
 
-_IMAGE = {E.BAD_IMAGE: "`image_b64` is not base64 or not a PNG/JPEG image"}
-_CLASS = {E.UNKNOWN_CLASS: "the class is not in the household ontology"}
-_MAP = {E.NOT_FOUND: "no map `map_id` for this user (path_planning_upload_map)"}
+_IMAGE: Errors = {E.BAD_IMAGE: "`image_b64` is not base64 or not a PNG/JPEG image"}
+_CLASS: Errors = {E.UNKNOWN_CLASS: "the class is not in the household ontology"}
+_MAP: Errors = {E.NOT_FOUND: "no map `map_id` for this user (path_planning_upload_map)"}
 
 # service -> {code: when} answered as failure, or {code: (answer, when)}
-SERVICE_ERRORS: dict[str, dict[str, str | tuple[Answer, str]]] = {
+SERVICE_ERRORS: dict[str, Errors] = {
     "ping": {},
     "issue_app_token": {E.UNKNOWN_SERVICE: ("refuse", "the RApp declares a service the Platform does not know")},
     "start_cloud_agent": {
@@ -137,10 +141,10 @@ SERVICE_ERRORS: dict[str, dict[str, str | tuple[Answer, str]]] = {
     "text_to_speech": {},
 }
 
-_AUDIO = {E.MALFORMED: "`data_b64` is not base64 or not a 16-bit mono WAV"}
-_CAMERA = {E.INVALID_ARGUMENT: "unknown camera or resolution"}
+_AUDIO: Errors = {E.MALFORMED: "`data_b64` is not base64 or not a 16-bit mono WAV"}
+_CAMERA: Errors = {E.INVALID_ARGUMENT: "unknown camera or resolution"}
 # robot action -> {code: when} answered as failure, or {code: (answer, when)}
-ROBOT_ERRORS: dict[str, dict[str, str | tuple[Answer, str]]] = {
+ROBOT_ERRORS: dict[str, Errors] = {
     "say": {E.UNSUPPORTED: "the robot has no speech synthesis (an Elektron: report the text instead)"},
     "word_spotting": {E.INVALID_ARGUMENT: "no word given"},
     "capture_audio": {E.INVALID_ARGUMENT: "`since` is later than the simulation time"},
@@ -170,7 +174,7 @@ ROBOT_ERRORS: dict[str, dict[str, str | tuple[Answer, str]]] = {
 del F
 
 
-def _fact(code: str, spec) -> ErrorFact:
+def _fact(code: str, spec: str | tuple[Answer, str]) -> ErrorFact:
     return ErrorFact(code, "failure", spec) if isinstance(spec, str) else ErrorFact(code, *spec)
 
 

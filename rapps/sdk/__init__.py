@@ -326,10 +326,10 @@ class CloudService:
 
         return {name: wrap(getattr(self, name)) for name in actions(ontology or self.ontology) if hasattr(self, name)}
 
-    def served(self) -> dict[str, dict]:
+    def served(self) -> dict[str, dict[str, Callable[[Any, Any], Awaitable[Any]]]]:
         """Handlers by ontology: the part's own and those of the classes it extends (a part that is
         a LandmarkCloud also serves the SDK's localization), each served by a responder of its own."""
-        out: dict[str, dict] = {}
+        out: dict[str, dict[str, Callable[[Any, Any], Awaitable[Any]]]] = {}
         for cls in type(self).__mro__:
             ontology = cls.__dict__.get("ontology")
             if ontology and ontology not in out:

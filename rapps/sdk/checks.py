@@ -13,15 +13,29 @@ bright, and restores the camera's parameters whatever happens.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Protocol, Sequence
 
 from ontology.robot import CameraInfo, Transform
 from ontology.services.common import CameraIntrinsics
 from ontology.services.hazard import DoorAngle, DoorGeometry, DoorMethod, LightLevel
 from ontology.services.home import DoorShape, DoorwaySpec, HazardSpec
 
+from .calls import PlatformCalls, RobotCalls
+
 Matrix4 = list[list[float]]
 Door = DoorwaySpec | HazardSpec | DoorShape
+
+
+class TaskCalls(Protocol):
+    """What the checks use of a Task (rapps.sdk.Task): its robot and Platform calls."""
+
+    @property
+    def robot(self) -> RobotCalls: ...
+
+    @property
+    def platform(self) -> PlatformCalls: ...
+
+
 LIGHT_EXPOSURE = 0.2  # the hazard RApp's: a lit lamp's shade stays bright, a lit wall does not
 
 
@@ -69,7 +83,7 @@ def door_look_point(door: Door, method: DoorMethod, at: tuple[float, float] | No
     return hinge
 
 
-async def check_door(task, door: Door, *, method: DoorMethod = "geometry", resolution: str = "640x480",
+async def check_door(task: TaskCalls, door: Door, *, method: DoorMethod = "geometry", resolution: str = "640x480",
                      look_at: Sequence[float] | None = None) -> DoorAngle:
     """Check a door from where the robot stands: turn the camera to it, take a picture and ask the
     Platform's hazard_detection_door_check. `task`: the RApp's Task (its `robot` and `platform`);
@@ -90,13 +104,13 @@ async def check_door(task, door: Door, *, method: DoorMethod = "geometry", resol
     geometry = None
     if method == "geometry":
         info = await robot.get_camera_info(resolution=resolution)
-        pose = await robot.get_transform(chain="camera", space="global")
-        geometry = door_geometry(info, pose, door)
+        camera_pose = await robot.get_transform(chain="camera", space="global")
+        geometry = door_geometry(info, camera_pose, door)
     return await task.platform.hazard_detection_door_check(image_b64=image.data_b64, method=method,
                                                            geometry=geometry)
 
 
-async def check_light(task, lamp: HazardSpec | Sequence[float], *, exposure: float = LIGHT_EXPOSURE,
+async def check_light(task: TaskCalls, lamp: HazardSpec | Sequence[float], *, exposure: float = LIGHT_EXPOSURE,
                       on_threshold: int = 30, resolution: str = "320x240") -> LightLevel:
     """Check a lamp from where the robot stands: turn the camera to it (a lamp's HazardSpec's
     `look_at`, or a point x, y, z), take a picture at a low `exposure` (the camera's parameters are

@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import asyncio
 import math
+from typing import cast
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
 from ontology.landmarks import ONTOLOGY, Localization, Observation, Observations, Observe, SolvePose
+from ontology.services.common import Pose2D
 
 from . import CloudService
 from . import vision as L
@@ -89,14 +91,14 @@ def solve_pose(req: SolvePose) -> Localization:
 
 
 def _worst_marker(req: SolvePose, loc: Localization) -> str:
-    p = loc.pose
-    errs = {}
+    p = cast(Pose2D, loc.pose)  # a found localization's
+    errs: dict[str, float] = {}
     for o in req.observations:
         v = observed_views([o], req.landmarks)
         if v:
             r = residuals(np.array([p.x, p.y, p.theta]), v)
             errs[o.text] = max(errs.get(o.text, 0.0), float(np.sqrt(np.mean(r ** 2))))
-    return max(errs, key=errs.get) if errs else loc.markers[-1]
+    return max(errs, key=errs.__getitem__) if errs else loc.markers[-1]
 
 
 def _solve(req: SolvePose) -> Localization:
@@ -108,7 +110,7 @@ def _solve(req: SolvePose) -> Localization:
     if (len(distinct) == 1 and loc.method == "single"
             and min(o.distance_m for o in obs if o.text == loc.markers[0]) > SINGLE_MAX_M):
         return Localization(found=False, markers=loc.markers, method="single-too-far")
-    p = loc.pose
+    p = cast(Pose2D, loc.pose)  # a found localization's
     starts = [(p.x, p.y, p.theta)]
     if loc.method == "single":  # both planar-ambiguity solutions of the code as starts
         starts += [(q.x, q.y, q.theta) for o in obs if o.text == loc.markers[0] for q in o.poses]
@@ -144,8 +146,9 @@ def initial_pose(req: SolvePose) -> Localization:
                                 method="points")
     o = obs[0]  # nearest; codes too close together for a points fit still all enter the refinement
     pose = o.poses[0]
-    if req.prior is not None:  # the solution whose heading agrees with the current estimate
-        pose = min(o.poses, key=lambda p: abs(math.remainder(p.theta - req.prior.theta, math.tau)))
+    prior = req.prior
+    if prior is not None:  # the solution whose heading agrees with the current estimate
+        pose = min(o.poses, key=lambda p: abs(math.remainder(p.theta - prior.theta, math.tau)))
     return Localization(found=True, pose=pose, markers=[x.text for x in obs], method="single")
 
 

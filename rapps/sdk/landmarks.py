@@ -10,11 +10,20 @@ x right, y down, z forward; robot frame x forward, z up."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from agents.services.transforms import invert, transform
+
+if TYPE_CHECKING:
+    from ontology.landmarks import Observation
+    from ontology.services.common import CameraIntrinsics
+    from ontology.services.home import LandmarkSpec
+
+Pose = Sequence[float] | np.ndarray  # (x, y, theta)
 
 PIXEL_NOISE = 0.5  # px, standard deviation of a refined corner (rendered codes, measured)
 
@@ -25,7 +34,7 @@ def planar_transform(x: float, y: float, theta: float) -> np.ndarray:
     return transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [x, y, 0.0])
 
 
-def corners_world(lm) -> np.ndarray:
+def corners_world(lm: LandmarkSpec) -> np.ndarray:
     """The 4 corners (TL, TR, BR, BL as the detector orders them) of a landmark (x, y, z, yaw,
     size_m) in the world, 4x3."""
     h = lm.size_m / 2.0
@@ -47,11 +56,11 @@ class View:
     measured: np.ndarray | None = None
 
 
-def intrinsics_matrix(camera) -> np.ndarray:
+def intrinsics_matrix(camera: CameraIntrinsics) -> np.ndarray:
     return np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1]], float)
 
 
-def observed_views(observations, landmarks) -> list[View]:
+def observed_views(observations: Iterable[Observation], landmarks: Mapping[str, LandmarkSpec]) -> list[View]:
     """The views of the observations that carry their corners and camera (ontology.landmarks.Observation)."""
     out = []
     for o in observations:
@@ -62,7 +71,7 @@ def observed_views(observations, landmarks) -> list[View]:
     return out
 
 
-def project(q, view: View) -> tuple[np.ndarray, np.ndarray]:
+def project(q: Pose, view: View) -> tuple[np.ndarray, np.ndarray]:
     """Pixels (4x2) of the view's corners from the robot pose q = (x, y, theta), and their depths."""
     T = view.cam_from_robot @ invert(planar_transform(*q))
     pc = (T[:3, :3] @ view.corners.T).T + T[:3, 3]
@@ -71,7 +80,7 @@ def project(q, view: View) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([K[0, 0] * pc[:, 0] / z + K[0, 2], K[1, 1] * pc[:, 1] / z + K[1, 2]], 1), pc[:, 2]
 
 
-def residuals(q, views: list[View]) -> np.ndarray:
+def residuals(q: Pose, views: list[View]) -> np.ndarray:
     """Projected minus measured corners of every view (a view without measurements counts as 0)."""
     out = []
     for v in views:
@@ -80,7 +89,7 @@ def residuals(q, views: list[View]) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def information(q, views: list[View]) -> np.ndarray:
+def information(q: Pose, views: list[View]) -> np.ndarray:
     """J^T J / noise^2 of the views' corners at pose q: the information they give about (x, y, theta)."""
     q = np.asarray(q, float)
     info = np.zeros((3, 3))
@@ -107,7 +116,7 @@ def std_from_information(info: np.ndarray) -> tuple[float, float]:
     return (float(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0))), float(math.sqrt(max(cov[2, 2], 0.0))))
 
 
-def pose_std(q, views: list[View]) -> tuple[float, float]:
+def pose_std(q: Pose, views: list[View]) -> tuple[float, float]:
     """Standard deviations of a pose fitted to the views' corners (m along the worst direction, rad)
     from the corners' pixel noise: two codes close together or one far code leave the pose poorly fixed
     even when the residual is small."""

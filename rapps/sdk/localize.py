@@ -19,7 +19,9 @@ from __future__ import annotations
 import asyncio
 import functools
 import math
+from collections.abc import Awaitable, Callable, Collection, Coroutine, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Protocol, TypedDict, TypeVar, cast
 
 import numpy as np
 
@@ -27,14 +29,53 @@ from agents.errors import RequestError, RequestFailed
 from behaviours import FSM
 from behaviours.behaviour import Context
 from ontology.landmarks import ONTOLOGY as LANDMARKS
+from ontology.landmarks import Localization, Observations
+from ontology.registry import Content
 from ontology.services.common import Pose2D
+from ontology.services.home import DoorwaySpec, HomeInfo, LandmarkSpec, RoomSpec
 
 from .ekf import CHI2_3DOF_99, ODOMETRY, OdometryModel, PoseEKF
 from .landmarks import PIXEL_NOISE, View, corners_world, information, observed_views, std_from_information
+from .calls import PlatformCalls, RobotCalls
 from .step import Step
 
+
+class _Cloud(Protocol):
+    async def call(self, action: str, _timeout: float = 60.0, _ontology: str | None = None,
+                   **fields: Any) -> Content: ...
+
+
+class LocalizingTask(Protocol):
+    """What the localization uses of a Task (rapps.sdk.Task, which imports this module)."""
+
+    @property
+    def runtime(self) -> Any: ...  # the DynamicAgent
+
+    @property
+    def params(self) -> Mapping[str, Any]: ...
+
+    @property
+    def robot_info(self) -> Any: ...  # ontology.spawn.RobotInfo
+
+    @property
+    def robot(self) -> RobotCalls: ...
+
+    @property
+    def platform(self) -> PlatformCalls: ...
+
+    @property
+    def cloud(self) -> _Cloud: ...
+
+
+class Head(TypedDict):
+    yaw: str  # the head's joints
+    pitch: str
+    limit: float
+    tilt: float
+
+
 # head joints, reach (rad) and the pitch to look at landmarks at 0.7 m (positive = down), per robot model
-HEADS = {
+HEADS: dict[str, Head] = {
     "HeadYaw": {"yaw": "HeadYaw", "pitch": "HeadPitch", "limit": 2.0, "tilt": -0.12},  # camera ~0.5 m: look up
     "HeadPan": {"yaw": "HeadPan", "pitch": "HeadTilt", "limit": 2.7, "tilt": 0.12},
 }
@@ -69,11 +110,11 @@ class LocalizeSettings:
               "max_frames": "localize_max_frames"}
 
     @classmethod
-    def from_params(cls, params: dict) -> "LocalizeSettings":
-        kw = {}
+    def from_params(cls, params: Mapping[str, Any]) -> "LocalizeSettings":
+        kw: dict[str, Any] = {}
         for f in fields(cls):
             key = cls.PARAMS.get(f.name)
-            if key in params:
+            if key is not None and key in params:
                 kw[f.name] = type(getattr(cls, f.name))(params[key])
         return cls(**kw)
 
@@ -101,7 +142,7 @@ class PoseEstimate:
         """The pose as the planner and the robot API take it."""
         return Pose2D(x=self.x, y=self.y, theta=self.theta)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
@@ -131,7 +172,8 @@ class HeadCamera:
 DOORWAY_M = 0.12  # a sight line crosses a wall within this of a doorway's line: through the doorway
 
 
-def in_sight(p, q, rooms, doors, end_m: float = 0.1) -> bool:
+def in_sight(p: Sequence[float] | np.ndarray, q: Sequence[float] | np.ndarray, rooms: Sequence[RoomSpec],
+             doors: Iterable[DoorwaySpec], end_m: float = 0.1) -> bool:
     """Whether the walls leave the segment from p to the code at q (on a wall) free: every point of it
     inside a room's rectangle or in a doorway (a door's closed line: the door may still be shut). Without
     rooms in the home description, everything is in sight."""
@@ -157,14 +199,15 @@ def in_sight(p, q, rooms, doors, end_m: float = 0.1) -> bool:
     return bool(near.all())
 
 
-def candidates(pose, landmarks: dict, rooms, camera: HeadCamera, settings: LocalizeSettings,
-               doors=()) -> dict[str, object]:
+def candidates(pose: Sequence[float], landmarks: Mapping[str, LandmarkSpec], rooms: Sequence[RoomSpec],
+               camera: HeadCamera, settings: LocalizeSettings, doors: Iterable[DoorwaySpec] = ()
+               ) -> dict[str, LandmarkSpec]:
     """The landmarks that could be seen from `pose` with some head angle: in sight (walls hide codes
     of other rooms but through a doorway), near enough to decode at their own printed size and not
     seen too obliquely."""
     x, y, _ = pose
     f = float(camera.K[1, 1])
-    out = {}
+    out: dict[str, LandmarkSpec] = {}
     for text, lm in landmarks.items():
         d = math.hypot(lm.x - x, lm.y - y)
         if d > settings.max_distance_m or f * lm.size_m / max(d, 1e-6) < settings.min_code_px:
@@ -177,7 +220,8 @@ def candidates(pose, landmarks: dict, rooms, camera: HeadCamera, settings: Local
     return out
 
 
-def views_at(pose, yaw: float, landmarks: dict, camera: HeadCamera, margin_px: float) -> list[tuple[str, View]]:
+def views_at(pose: Sequence[float], yaw: float, landmarks: Mapping[str, LandmarkSpec], camera: HeadCamera,
+             margin_px: float) -> list[tuple[str, View]]:
     """The codes wholly inside the frame (by `margin_px` from its edges) at head yaw `yaw`."""
     texts = list(landmarks)
     seen, _ = in_frame(pose, np.array([yaw]), [landmarks[t] for t in texts], camera, margin_px)
@@ -185,8 +229,8 @@ def views_at(pose, yaw: float, landmarks: dict, camera: HeadCamera, margin_px: f
     return [(t, View(corners_world(landmarks[t]), camera.K, cam)) for t, ok in zip(texts, seen[0]) if ok]
 
 
-def in_frame(pose, yaws: np.ndarray, landmarks: list, camera: HeadCamera, margin_px: float
-             ) -> tuple[np.ndarray, np.ndarray]:
+def in_frame(pose: Sequence[float], yaws: np.ndarray, landmarks: Sequence[LandmarkSpec], camera: HeadCamera,
+             margin_px: float) -> tuple[np.ndarray, np.ndarray]:
     """For every head yaw and landmark: whether its 4 corners fall inside the frame (by `margin_px`
     from the sides, half that from top and bottom), and the information (3x3, on x, y, theta) its
     corners would give of the pose (their pixel noise, PIXEL_NOISE; the analytic Jacobian of the
@@ -224,9 +268,10 @@ class Look:
     predicted_std_rad: float
 
 
-def plan_looks(pose, std_m: float, std_rad: float, landmarks: dict, rooms, camera: HeadCamera,
-               settings: LocalizeSettings, seen: np.ndarray | None = None, seen_codes=(),
-               current_yaw: float = 0.0, doors=(), missed=()) -> list[Look]:
+def plan_looks(pose: Iterable[float], std_m: float, std_rad: float, landmarks: Mapping[str, LandmarkSpec],
+               rooms: Sequence[RoomSpec], camera: HeadCamera, settings: LocalizeSettings,
+               seen: np.ndarray | None = None, seen_codes: Iterable[str] = (), current_yaw: float = 0.0,
+               doors: Iterable[DoorwaySpec] = (), missed: Collection[str] = ()) -> list[Look]:
     """Head angles to capture at, in order: each the one whose codes add most to what the frames before
     it (and `seen`, the information of the codes already found) tell of the pose, until the predicted
     fix is certain enough or `max_frames`; a look must show a code not planned or seen yet. Margins
@@ -244,9 +289,10 @@ def plan_looks(pose, std_m: float, std_rad: float, landmarks: dict, rooms, camer
     options = [(float(yaw), [t for t, ok in zip(texts, row) if ok], infos[i][row].sum(0))
                for i, (yaw, row) in enumerate(zip(yaws, inside)) if row.any()]
     info = np.array(seen, float) if seen is not None else np.zeros((3, 3))
-    known, plan = set(seen_codes), []
+    known = set(seen_codes)
+    plan: list[Look] = []
     while options and len(plan) < settings.max_frames:
-        def score(opt):
+        def score(opt: tuple[float, list[str], np.ndarray]) -> tuple[float, float]:
             s_m, s_r = std_from_information(info + opt[2])
             return (s_m + 0.5 * s_r, abs(opt[0] - current_yaw))
         fresh = [o for o in options if set(o[1]) - known]
@@ -267,12 +313,17 @@ def predicted(plan: list[Look]) -> tuple[float, float]:
     return (plan[-1].predicted_std_m, plan[-1].predicted_std_rad) if plan else (math.inf, math.inf)
 
 
-def noting_failure(step):
+_L = TypeVar("_L", bound="Localizer")
+_T = TypeVar("_T")
+
+
+def noting_failure(step: Callable[[_L, dict[str, Any]], Awaitable[_T]]
+                   ) -> Callable[[_L, dict[str, Any]], Coroutine[Any, Any, _T]]:
     """A localization step that, when a request fails, leaves why in memory["error"] (a RApp may say
     it to its user) and raises."""
 
     @functools.wraps(step)
-    async def run(self, memory):
+    async def run(self: _L, memory: dict[str, Any]) -> _T:
         try:
             return await step(self, memory)
         except RequestError as e:
@@ -288,21 +339,21 @@ class Localizer:
     l3_capture, l4_detect, l6_turn_around, l5_set_pose), leaving a PoseEstimate in memory["estimate"].
     Tell it the base's motions the task commands (`moved`) so that the filter knows how far it went."""
 
-    def __init__(self, task, settings: LocalizeSettings | None = None, home=None):
+    def __init__(self, task: LocalizingTask, settings: LocalizeSettings | None = None, home: HomeInfo | None = None):
         self.task = task
         self.settings = settings or LocalizeSettings.from_params(getattr(task, "params", {}))
         self.home = home  # ontology.services.home.HomeInfo; fetched with home_get_info when None
-        self.head: dict | None = None
+        self.head: Head | None = None
         self.camera: HeadCamera | None = None
-        self.intrinsics: dict | None = None
+        self.intrinsics: dict[str, float] | None = None
         self.ekf: PoseEKF | None = None
         self.odom_ref: tuple[float, float, float] | None = None  # the robot's odometry pose the filter matched last
         self.travelled = self.turned = 0.0  # motion since then (m, rad), as commanded
         self.history: list[PoseEstimate] = []  # every localization's result
-        self.state: dict = {}  # the localization running now (its own, not the task's memory)
+        self.state: dict[str, Any] = {}  # the localization running now (its own, not the task's memory)
 
     # -- statistics --------------------------------------------------------------------------
-    def stats(self) -> dict:
+    def stats(self) -> dict[str, Any]:
         """Localizations, frames captured and frames without a code, over the task's run."""
         frames = sum(e.frames for e in self.history)
         empty = sum(e.frames_without_code for e in self.history)
@@ -313,7 +364,8 @@ class Localizer:
 
     # -- the pose filter ---------------------------------------------------------------------
     def robot_type(self) -> str:
-        return self.task.robot_info.robot_type
+        robot_type: str = self.task.robot_info.robot_type  # ontology.spawn.RobotInfo's
+        return robot_type
 
     def odometry_model(self) -> OdometryModel:
         return ODOMETRY.get(self.robot_type(), ODOMETRY["nao"])
@@ -330,7 +382,8 @@ class Localizer:
         if self.ekf is None:
             self.ekf = PoseEKF(odom, START_STD_M, START_STD_RAD)
         else:
-            self.ekf.predict_between(self.odom_ref, odom, self.odometry_model(), travelled_m=self.travelled,
+            odom_ref = cast("tuple[float, float, float]", self.odom_ref)  # set with the filter
+            self.ekf.predict_between(odom_ref, odom, self.odometry_model(), travelled_m=self.travelled,
                                      turned_rad=self.turned)
         self.odom_ref, self.travelled, self.turned = odom, 0.0, 0.0
         return self.ekf
@@ -356,13 +409,14 @@ class Localizer:
         """Localize once (the sub-FSM run on its own); RuntimeError saying why when a request failed
         (the robot, the Platform or the Cloud Agent refused or did not answer)."""
         runtime = self.task.runtime
-        memory: dict = {}
+        memory: dict[str, Any] = {}
         outcome = await self.build().run(Context(agent=runtime, memory=memory, tracer=getattr(runtime, "tracer", None),
                                                  pause=getattr(runtime, "pause", None)))
         if not outcome.ok:  # a failed request left "(localization failed: why)"
             raise RuntimeError(memory["error"].strip("()") if "error" in memory else
                                f"localization failed: {outcome.reason}")
-        return memory["estimate"]
+        estimate: PoseEstimate = memory["estimate"]
+        return estimate
 
     # -- the sub-FSM -------------------------------------------------------------------------
     def build(self, name: str = "localize") -> FSM:
@@ -384,7 +438,7 @@ class Localizer:
         fsm.add_transition("l4_detect", "l2_turn_head", when=lambda m, o: not o.value)
         return fsm
 
-    async def _home(self):
+    async def _home(self) -> HomeInfo:
         if self.home is None:
             self.home = await self.task.platform.home_get_info(home_id=str(self.task.params.get("home", "home")))
         return self.home
@@ -403,27 +457,31 @@ class Localizer:
         self.camera = HeadCamera(K, w, h, cam, (float(neck[0, 3]), float(neck[1, 3])), self.head["limit"])
 
     async def _head_to(self, yaw: float) -> None:
-        await self.task.robot.move_joint(joints=[self.head["yaw"], self.head["pitch"]],
-                                         angles=[yaw, self.head["tilt"]], speed=0.8)
+        head = cast(Head, self.head)  # _setup's, before any head motion
+        await self.task.robot.move_joint(joints=[head["yaw"], head["pitch"]],
+                                         angles=[yaw, head["tilt"]], speed=0.8)
 
     def _belief(self) -> tuple[tuple[float, float, float], float, float]:
         """The pose to plan from and its uncertainty: this localization's fix once it is better than the filter's."""
         found, ekf = self.state.get("localization"), self.ekf
+        if ekf is None:  # what reading its pose would have raised: prepare() starts the filter (track)
+            raise AttributeError("the pose filter has not started")
         if (found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None
                 and math.isfinite(found.std_m) and found.std_m < ekf.std_m):
             p = found.pose
             return (p.x, p.y, p.theta), found.std_m, min(found.std_theta_rad, ekf.std_rad)
         return ekf.pose, ekf.std_m, ekf.std_rad
 
-    def _plan(self, pose=None) -> list[Look]:
+    def _plan(self, pose: tuple[float, float, float] | None = None) -> list[Look]:
         belief, std_m, std_rad = self._belief()
         pose = pose or belief
-        home = self.home
+        home = cast(HomeInfo, self.home)  # prepare() fetched it
         seen = [o for o in self.state["observations"]]
         seen_info = information(pose, observed_views(seen, home.landmarks)) if seen else None
         if self.state["frames"] >= self.settings.max_frames:
             return []
-        return plan_looks(pose, std_m, std_rad, home.landmarks, home.rooms, self.camera, self.settings,
+        camera = cast(HeadCamera, self.camera)  # _setup's
+        return plan_looks(pose, std_m, std_rad, home.landmarks, home.rooms, camera, self.settings,
                           seen=seen_info, seen_codes={o.text for o in seen}, current_yaw=self.state.get("yaw", 0.0),
                           doors=home.doors, missed=self.state["missed"])
 
@@ -431,10 +489,11 @@ class Localizer:
         """The smallest body turn after which the head could fix the pose (or the best fix, when none
         can make it certain); None when no turn shows a code."""
         (x, y, th), std_m, std_rad = self._belief()
-        best = None
+        home, camera = cast(HomeInfo, self.home), cast(HeadCamera, self.camera)  # prepare()'s
+        best: tuple[float, float] | None = None
         for deg in TURNS_DEG:
-            plan = plan_looks((x, y, th + math.radians(deg)), std_m, std_rad + 0.05, self.home.landmarks,
-                              self.home.rooms, self.camera, self.settings, doors=self.home.doors,
+            plan = plan_looks((x, y, th + math.radians(deg)), std_m, std_rad + 0.05, home.landmarks,
+                              home.rooms, camera, self.settings, doors=home.doors,
                               missed=self.state["missed"])
             s = predicted(plan)
             if not plan:
@@ -446,7 +505,7 @@ class Localizer:
         return best[0] if best is not None and best[1] <= self.settings.max_std_m else None
 
     @noting_failure
-    async def prepare(self, memory):
+    async def prepare(self, memory: dict[str, Any]) -> None:
         await self._home()
         if self.camera is None:
             await self._setup()
@@ -461,7 +520,7 @@ class Localizer:
                 self.state["looks"], self.state["turn"] = [], turn  # nothing worth a frame from here: turn first
 
     @noting_failure
-    async def turn_head(self, memory) -> str:
+    async def turn_head(self, memory: dict[str, Any]) -> str:
         """The next planned head angle ("look"); "turn" when none is left but a body turn would show
         codes, "done" when nothing is left to try."""
         if self.state["frames"] >= self.settings.max_frames:
@@ -474,7 +533,7 @@ class Localizer:
         return "look"
 
     @noting_failure
-    async def turn_around(self, memory):
+    async def turn_around(self, memory: dict[str, Any]) -> None:
         """No certain fix within the head's reach: turn the body toward the codes and plan again (codes
         seen before the turn are dropped: their camera-to-robot transforms no longer hold)."""
         turn, self.state["turn"] = self.state["turn"], None
@@ -487,22 +546,24 @@ class Localizer:
         self.state["looks"] = await asyncio.to_thread(self._plan)
 
     @noting_failure
-    async def capture(self, memory):
+    async def capture(self, memory: dict[str, Any]) -> None:
         robot = self.task.robot
         self.state["frame"] = await robot.capture_image(resolution=self.settings.resolution)
         self.state["camera_to_robot"] = (await robot.get_transform(chain="camera", space="robot")).matrix
         self.state["frames"] += 1
 
     @noting_failure
-    async def detect(self, memory) -> bool:
+    async def detect(self, memory: dict[str, Any]) -> bool:
         """Landmarks in this frame (on the Cloud Agent), then the pose from every code seen so far;
         True when that pose is certain enough to stop looking. Otherwise the looks left are planned
         again from what is known now."""
-        home, cloud = self.home, self.task.cloud
+        home, cloud = cast(HomeInfo, self.home), self.task.cloud  # prepare() fetched the home
+        reply: Observations | None
         try:
-            reply = await cloud.call("observe", _ontology=LANDMARKS, image_b64=self.state.pop("frame").data_b64,
-                                     camera=self.intrinsics, camera_to_robot=self.state["camera_to_robot"],
-                                     landmarks=home.landmarks, max_distance_m=self.settings.max_distance_m)
+            reply = cast(Observations, await cloud.call(
+                "observe", _ontology=LANDMARKS, image_b64=self.state.pop("frame").data_b64, camera=self.intrinsics,
+                camera_to_robot=self.state["camera_to_robot"], landmarks=home.landmarks,
+                max_distance_m=self.settings.max_distance_m))
         except RequestFailed:  # a frame the Cloud Agent could not process: look elsewhere
             reply = None
         if reply is None or not reply.items:
@@ -513,8 +574,9 @@ class Localizer:
         self.state["observations"].extend(reply.items)
         if self.state.get("prior") is None:
             self.state["prior"] = await self.task.robot.get_global_pose()
-        found = await cloud.call("solve_pose", _ontology=LANDMARKS, observations=self.state["observations"],
-                                 landmarks=home.landmarks, prior=self.state["prior"].model_dump())
+        found = cast(Localization, await cloud.call("solve_pose", _ontology=LANDMARKS,
+                                                    observations=self.state["observations"],
+                                                    landmarks=home.landmarks, prior=self.state["prior"].model_dump()))
         self.state["localization"] = found
         if self._certain(found, self.settings.std_m, self.settings.std_rad):
             return True
@@ -530,20 +592,22 @@ class Localizer:
                 self.state["turn"] = self._best_turn()
 
     @staticmethod
-    def _certain(found, std_m: float, std_rad: float) -> bool:
+    def _certain(found: Localization | None, std_m: float, std_rad: float) -> bool:
         """Position and heading certain enough: a heading off by 0.01 rad puts the end of a 1 m leg
         1 cm off the path."""
         return bool(found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None
                     and found.std_m <= std_m and found.std_theta_rad <= std_rad)
 
     @noting_failure
-    async def set_pose(self, memory):
+    async def set_pose(self, memory: dict[str, Any]) -> None:
         """Fuse the fix into the filter and set the filter's pose on the robot. A fix certain enough
         (max_std_m/rad) is always taken; a less certain one only while it agrees with the prediction
         (Mahalanobis gate); without a fix the odometry's prediction stays."""
         ekf = await self.track()
         found = self.state.get("localization")
         fixed = False
+        markers: list[str] = []  # the fix's, once fused
+        fix_std_m: float | None = None
         if found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None:
             certain = self._certain(found, self.settings.max_std_m, self.settings.max_std_rad)
             usable = found.std_m <= FUSE_MAX_STD_M and found.std_theta_rad <= FUSE_MAX_STD_RAD
@@ -554,12 +618,12 @@ class Localizer:
                 x, y, theta = ekf.pose
                 await self.task.robot.set_global_pose(x=x, y=y, theta=theta)
                 self.odom_ref = ekf.pose
-                fixed = True
+                fixed, markers, fix_std_m = True, list(found.markers), found.std_m
         x, y, theta = ekf.pose
         estimate = PoseEstimate(x=x, y=y, theta=theta, std_m=ekf.std_m, std_rad=ekf.std_rad, cov=ekf.P.tolist(),
-                                fixed=fixed, markers=list(found.markers) if fixed else [],
-                                fix_std_m=found.std_m if fixed else None, frames=self.state["frames"],
+                                fixed=fixed, markers=markers, fix_std_m=fix_std_m, frames=self.state["frames"],
                                 frames_without_code=self.state["empty"], turned_rad=self.state["turned"])
         self.history.append(estimate)
         memory["estimate"] = estimate
-        await self.task.robot.move_joint(joints=[self.head["yaw"], self.head["pitch"]], angles=[0.0, 0.0], speed=0.8)
+        head = cast(Head, self.head)  # _setup's
+        await self.task.robot.move_joint(joints=[head["yaw"], head["pitch"]], angles=[0.0, 0.0], speed=0.8)

@@ -15,11 +15,13 @@ import re
 import sys
 import types
 import typing
+from collections.abc import Callable, Iterable, Sequence, Set
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from annotated_types import Ge, Gt, Le, Lt, MaxLen, MinLen
 from pydantic import BaseModel, TypeAdapter, ValidationError
+from pydantic.fields import FieldInfo
 
 import ontology.robot  # noqa: F401 - registers the robot actions
 import ontology.services  # noqa: F401 - registers the Platform services
@@ -61,8 +63,8 @@ def _comments(cls: type) -> dict[str, str]:
     return out
 
 
-def _constraints(info) -> str:
-    parts = []
+def _constraints(info: FieldInfo) -> str:
+    parts: list[str] = []
     for m in info.metadata:
         for kind, sym in ((Gt, ">"), (Ge, ">="), (Lt, "<"), (Le, "<=")):
             if isinstance(m, kind):
@@ -77,16 +79,18 @@ def _constraints(info) -> str:
     return ", ".join(parts)
 
 
-def _default(info) -> str:
+def _default(info: FieldInfo) -> str:
     if info.is_required():
         return "required"
-    value = info.default_factory() if info.default_factory is not None else info.default
+    # the models' default factories take no argument (none reads the fields validated before it)
+    factory = cast("Callable[[], Any] | None", info.default_factory)
+    value = factory() if factory is not None else info.default
     if isinstance(value, BaseModel):
         value = value.model_dump()
     return f"`{json.dumps(value)}`" if value is not None else "`null`"
 
 
-def _nested(tp) -> list[type[Content]]:
+def _nested(tp: Any) -> list[type[BaseModel]]:
     """The Content models a type refers to (list[Pose2D] -> [Pose2D])."""
     if isinstance(tp, type) and issubclass(tp, BaseModel):
         return [tp]
@@ -97,14 +101,14 @@ def _anchor(name: str) -> str:
     return name.lower().replace("_", "-")
 
 
-def _type_cell(tp, t: _Types) -> str:
+def _type_cell(tp: Any, t: _Types) -> str:
     text = t.name(tp)
     for m in _nested(tp):
         text = re.sub(rf"\b{m.__name__}\b", f"[{m.__name__}](#{_anchor(m.__name__)})", text)
     return text.replace("|", "\\|")
 
 
-def field_table(model: type[BaseModel], t: _Types, hidden=frozenset()) -> list[str]:
+def field_table(model: type[BaseModel], t: _Types, hidden: Set[str] = frozenset()) -> list[str]:
     fields = [(n, i) for n, i in model.model_fields.items() if n not in hidden]
     if not fields:
         return ["(no fields)"]
@@ -131,10 +135,10 @@ NAMED: dict[str, Any] = {  # example values by field name, where a type alone sa
     "angles": [0.3], "words": ["yes", "no"], "test_type": "ArithmeticCts", "recipients": ["owner@example.org"],
     "query": "robots", "class_name": "Lamp", "parent": "Furniture", "child": "Lamp", "data_b64": "UklGRg==",
 }
-_SIMPLE = {float: [1.0, 0.5, 2.0, 50.0], int: [1, 2, 50, 160, 16000], bool: [False, True], str: ["example"]}
+_SIMPLE: dict[type, list[Any]] = {float: [1.0, 0.5, 2.0, 50.0], int: [1, 2, 50, 160, 16000], bool: [False, True], str: ["example"]}
 
 
-def _fits(tp, metadata, value) -> bool:
+def _fits(tp: Any, metadata: Sequence[Any], value: Any) -> bool:
     try:
         TypeAdapter(typing.Annotated[tp, *metadata] if metadata else tp).validate_python(value)
         return True
@@ -142,7 +146,7 @@ def _fits(tp, metadata, value) -> bool:
         return False
 
 
-def _candidates(tp, name: str) -> list:
+def _candidates(tp: Any, name: str) -> list[Any]:
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is typing.Annotated:
         return _candidates(args[0], name)
@@ -162,11 +166,11 @@ def _candidates(tp, name: str) -> list:
     if tp is Any:
         return [{}]
     if isinstance(tp, type) and issubclass(tp, str) and tp is not str:  # a StrEnum
-        return [next(iter(tp))]
+        return [next(iter(cast("Iterable[Any]", tp)))]
     return list(_SIMPLE.get(tp, ["example"]))
 
 
-def sample_value(tp, name: str = "", metadata=()) -> Any:
+def sample_value(tp: Any, name: str = "", metadata: Sequence[Any] = ()) -> Any:
     """A value of type `tp` that passes the field's constraints (by name where NAMED has one)."""
     for value in ([NAMED[name]] if name in NAMED else []) + _candidates(tp, name):
         if _fits(tp, metadata, value):
@@ -174,10 +178,10 @@ def sample_value(tp, name: str = "", metadata=()) -> Any:
     raise ValueError(f"no example value of {tp} for {name!r}")
 
 
-def sample(model: type[BaseModel], everything: bool = False) -> dict:
+def sample(model: type[BaseModel], everything: bool = False) -> dict[str, Any]:
     """Example content: every required field (with `everything`, every field) with a value that fits;
     a request's token is left to the SDK."""
-    out = {}
+    out: dict[str, Any] = {}
     for name, info in model.model_fields.items():
         if (name in HIDDEN and issubclass(model, ServiceRequest)) or not (everything or info.is_required()):
             continue
@@ -230,7 +234,7 @@ IMPORTS = {"DoorGeometry": "ontology.services.hazard", "CameraIntrinsics": "onto
            "base64": None}
 
 
-def _py(value) -> str:
+def _py(value: Any) -> str:
     return json.dumps(value).replace("true", "True").replace("false", "False").replace("null", "None")
 
 
@@ -286,7 +290,7 @@ def _errors_table(errors: list[ErrorFact]) -> list[str]:
 
 def _entry(name: str, model: type[Action], t: _Types, errors: list[ErrorFact], facts_line: str) -> list[str]:
     doc = inspect.cleandoc(model.__doc__ or "") if "Base of" not in (model.__doc__ or "") else ""
-    reply = model.reply_model
+    reply = _reply(model)
     lines = [f"### `{name}`", ""]
     if doc:
         lines += [doc, ""]
@@ -305,6 +309,13 @@ def _entry(name: str, model: type[Action], t: _Types, errors: list[ErrorFact], f
     return lines
 
 
+def _reply(model: type[Action]) -> type[Content]:
+    """The action's answer model (`ontology.registry.action` gives every action one)."""
+    if model.reply_model is None:  # what reading the answer's name would have raised
+        raise AttributeError(f"{model.__name__} has no reply model")
+    return model.reply_model
+
+
 def _own_codes(name: str) -> set[str]:
     return set(SERVICE_ERRORS.get(name) or ROBOT_ERRORS.get(name) or {})
 
@@ -312,7 +323,7 @@ def _own_codes(name: str) -> set[str]:
 def _models_section(t: _Types, requests: list[type[Action]]) -> list[str]:
     """The answers and every model a request or answer holds."""
     seen: dict[str, type[BaseModel]] = {}
-    todo = [m.reply_model for m in requests] + [n for m in requests for i in m.model_fields.values()
+    todo = [_reply(m) for m in requests] + [n for m in requests for i in m.model_fields.values()
                                                  for n in _nested(i.annotation)]
     while todo:
         m = todo.pop()
@@ -330,7 +341,7 @@ def _models_section(t: _Types, requests: list[type[Action]]) -> list[str]:
     return lines
 
 
-def _summary(model) -> str:
+def _summary(model: type[Action]) -> str:
     """The first paragraph of a request's docstring, else of its answer's."""
     for m in (model, model.reply_model):
         doc = m.__doc__ or "" if m is not None else ""
@@ -345,7 +356,7 @@ HEAD = "<!-- GENERATED by `python -m rapps.sdk.reference` from the ontology: do 
 def services_md() -> str:
     t = _Types()
     services = sorted((n, m) for n, m in actions("platform").items() if issubclass(m, ServiceRequest))
-    groups: dict[str, list] = {}
+    groups: dict[str, list[tuple[str, type[ServiceRequest]]]] = {}
     for n, m in services:
         groups.setdefault(m.group, []).append((n, m))
     lines = [HEAD, "# Platform services: the reference", "",

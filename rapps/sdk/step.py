@@ -9,7 +9,7 @@ from behaviours import OneShot
 class Step(OneShot):
     """A one-shot behaviour running `async fn(memory)`; its return value is the outcome value."""
 
-    def __init__(self, fn: Callable[[dict], Awaitable[Any]], name: str | None = None, **kw):
+    def __init__(self, fn: Callable[[dict[str, Any]], Awaitable[Any]], name: str | None = None, **kw: Any) -> None:
         super().__init__(name or getattr(fn, "__name__", "step"), **kw)
         self.fn = fn
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 from agents.services.hazard import HORIZONTAL as FLOOR_LINE_RAD
 from agents.services.hazard import DoorLineParams, floor_line_score
 from agents.services.images import decode_image, encode_image
-from agents.services.localization import (camera_matrix, code_corners_3d, code_pose, detect_qr, invert,
-                                          landmark_transform, planar, refine_corners, robot_pose_from_code,
-                                          transform)
+from agents.services.localization import (camera_matrix, code_corners_3d, code_pose, detect_qr, landmark_transform,
+                                          planar, refine_corners, robot_pose_from_code)
+from agents.services.transforms import invert, transform
 
 __all__ = ["FLOOR_LINE_RAD", "DoorLineParams", "floor_line_score", "decode_image", "encode_image", "camera_matrix", "code_corners_3d", "code_pose", "detect_qr",
            "invert", "landmark_transform", "planar", "refine_corners", "robot_pose_from_code", "transform"]
