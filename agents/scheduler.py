@@ -42,6 +42,7 @@ from typing import Protocol
 from ontology import store as S
 from ontology.results import ScheduleChanged, ScheduleEvent, ScheduleRecord
 from ontology.services.interpretation import ScheduleAction, ScheduleRequest, When
+from ontology.trace import StructureEvent
 
 from .errors import RequestError
 from .schema import migrate
@@ -378,7 +379,12 @@ class Scheduler:
     async def _tell(self, event: ScheduleEvent, text: str, schedules: list[ScheduleRecord], *, reason: str = "",
                     command: str = "") -> None:
         core = self.core
-        core.record_structure(f"schedule-{event.value}", schedules=[r.id for r in schedules],
+        core.record_structure(StructureEvent.SCHEDULE_KEPT if event == ScheduleEvent.KEPT
+                              else StructureEvent.SCHEDULE_CANCELLED if event == ScheduleEvent.CANCELLED
+                              else StructureEvent.SCHEDULE_LISTED if event == ScheduleEvent.LISTED
+                              else StructureEvent.SCHEDULE_REFUSED if event == ScheduleEvent.REFUSED
+                              else StructureEvent.SCHEDULE_MISSED,  # (literal names: tests/test_trace_records.py)
+                              schedules=[r.id for r in schedules],
                               rapps=[r.rapp for r in schedules], reason=reason[:300], command=command[:200])
         await core.tell_user(text)
         await core.tell_watchers(ScheduleChanged(robot_id=core.robot_id, event=event, schedules=schedules,

@@ -9,10 +9,11 @@ from pathlib import Path
 
 import yaml
 
+from ontology.robot_types import ROBOT_TYPES
 from robots.floorplan import load_plan
 from robots.house_file import check, template
 
-ROBOT_RADIUS_M = {"nao": 0.17, "elektron": 0.26}  # robots/nao.py, robots/elektron.py: the footprints
+ROBOT_RADIUS_M = {name: row.body_radius_m for name, row in ROBOT_TYPES.items()}  # the bodies' footprints
 
 
 def read(path: str | Path) -> dict:
@@ -38,7 +39,7 @@ def check_file(path: str | Path, seed: int = 0) -> tuple[object, list[str]]:
         for c in doorway(plan, d).checks:
             if c.room is None:
                 problems.append(f"door {d.id!r}: its {c.side} check pose ({c.stand.x:.2f}, {c.stand.y:.2f}) is in no room")
-            elif c.clearance_m is not None and c.clearance_m < ROBOT_RADIUS_M["elektron"]:
+            elif c.clearance_m is not None and c.clearance_m < max(ROBOT_RADIUS_M.values()):
                 problems.append(f"door {d.id!r}: its {c.side} check pose is {c.clearance_m:.2f} m from a wall or "
                                 "furniture: a robot cannot stand there")
     for name, spec in plan.robots.items():

@@ -14,6 +14,7 @@ import argparse
 import asyncio
 import math
 
+from ontology import robot_types
 from ontology.robot import MoveAlongPath
 from ontology.services.common import Pose2D
 from robots import OdometryNoise, RobotAPI, World
@@ -47,7 +48,7 @@ async def walk(kind: str, seed: int, noise: OdometryNoise | None) -> list[tuple[
 
 async def measure(seeds: int) -> list[dict]:
     rows = []
-    for kind in ("nao", "elektron"):
+    for kind in robot_types.names():
         for label, noise in (("rapp run rapp", None), ("hazard-detection", OdometryNoise.typical())):
             runs = [await walk(kind, seed, noise) for seed in range(1, seeds + 1)]
             row = {"robot": kind, "odometry": label}
