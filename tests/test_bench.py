@@ -21,6 +21,7 @@ def test_table_and_selection():
         runner.select(["nonsense"])
 
 
+@pytest.mark.slow  # 60 s: `rapp bench --quick` runs the same
 def test_runner_tiny_json_shape(tmp_path, capsys):
     out = tmp_path / "bench.json"
     code = runner.main(["--quick", "--tiny", "--json", str(out),
@@ -64,6 +65,7 @@ def test_runner_tiny_fleet(tmp_path):
     assert next(m for m in metrics if m["name"] == "fleet_service_p95")["n"] > 0
 
 
+@pytest.mark.slow  # 25 s and a 2 s bound the suite's own load breaks: `python -m bench --only recovery` measures it
 def test_recovery_tiny(tmp_path):
     """Faults injected from outside (SIGKILL, a hang, a server restart): every recovery metric is
     measured and judged against the issue's goal; the test allows twice the goal for a loaded CI

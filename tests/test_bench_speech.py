@@ -1,5 +1,7 @@
 """The speech benchmark, tiny: spoken keywords and sentences in a quiet room reach the right RApps
 through the Core, and the result rows carry accuracy and latency."""
+import pytest
+
 from bench import speech
 
 
@@ -10,6 +12,7 @@ def test_commands_cycle_conditions():
     assert all(r[0] in speech.VOCABULARY[r[1]][1] for r in rows)
 
 
+@pytest.mark.slow  # 25 s: `rapp bench` measures it
 async def test_speech_bench_tiny():
     # two sentences, at least one right: under CI's load (4 workers on 2 cores) one sentence in a
     # few was not understood (a quiet full run: 9 of 10); a broken Platform path gets neither

@@ -120,6 +120,7 @@ class Deployment(LoggedProcesses):
         self.run("store", "publish", str(pkg), "--owner", "dev", "--password", "dev-pw")
 
 
+@pytest.mark.slow  # 130 s: the hazard run itself is in the default suite (test_hazard_scenario), the deployment too (a Core crash)
 async def test_deployment_runs_hazard_detection_for_a_plain_chat_owner(tmp_path):
     """The route of docs/deployment.md end to end: `rapp agent core --house small` uploads the
     home description and map for its owner; the owner, a plain XMPP client, asks in words and

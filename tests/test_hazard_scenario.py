@@ -18,7 +18,7 @@ from scenarios.home_setup import hazard_list, hazard_overrides
 RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
                "duration_sim_s", "duration_wall_s", "trace", "plot", "finished", "end", "routes_blocked",
                "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops",
-               "ok", "reason", "frames"}
+               "ok", "reason", "frames", "trigger", "house"}
 
 
 def structure_events(trace: list[dict], rapp: str) -> list[str]:

@@ -78,6 +78,7 @@ def test_rapp_say_refuses_a_finished_run_and_an_unknown_voice(tmp_path, capsys):
     assert len(list((out / "inbox").glob("*.json"))) == 1  # only the first line was posted
 
 
+@pytest.mark.slow  # 60 s: the inbox and the script are each tested alone above
 async def test_inbox_and_script_play_one_line_after_another(tmp_path):
     world = World.from_file("small", seed=3)
     try:

@@ -92,7 +92,8 @@ def test_an_interrupted_run_writes_its_result_and_ends_every_process(tmp_path, s
     assert [r["text"] for r in result["reports"]] == ["subscribed"]  # what was known
     assert result["truth"]["doors"] and result["truth"]["trajectory"]
     assert (out / "run.png").read_bytes()[:4] == b"\x89PNG" and (out / "chat.txt").read_text().strip()
-    assert f"wrote in {out}: chat.txt, result.json, run.png" in text  # the closing summary names the files
+    wrote = next((line.split(f"wrote in {out}: ", 1)[1] for line in text.splitlines() if f"wrote in {out}: " in line), "")
+    assert {"chat.txt", "result.json", "run.png", "trace.jsonl", "run.mcap"} <= set(wrote.split(", ")), text[-3000:]
     deadline = time.monotonic() + 10
     while (group_alive(proc.pid) or any(alive(p) for p in pids)) and time.monotonic() < deadline:
         time.sleep(0.2)
