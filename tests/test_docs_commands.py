@@ -2,6 +2,7 @@
 --help, and each option it shows must be one the command knows, so a renamed option fails CI."""
 from __future__ import annotations
 
+import functools
 import re
 import shlex
 from pathlib import Path
@@ -44,10 +45,16 @@ def test_the_docs_show_commands():
     assert len(COMMANDS) >= 15 and any("rapp agent core" in c for _, c in COMMANDS)
 
 
+@functools.cache
+def _help(prefix: tuple[str, ...]):
+    """`rapp PREFIX --help`, once per prefix (132 commands shown, 34 prefixes: each a process start)."""
+    return rapp(*prefix, "--help", timeout=60)
+
+
 @pytest.mark.parametrize("doc, cmd", COMMANDS, ids=[f"{d}:{c[:60]}" for d, c in COMMANDS])
 def test_documented_command_and_its_options_exist(doc, cmd):
     prefix, options = _split(cmd)
-    res = rapp(*prefix, "--help", timeout=60)
+    res = _help(tuple(prefix))
     assert res.returncode == 0, f"{doc}: `{cmd}`: {res.stdout[-500:]}{res.stderr[-500:]}"
     text = res.stdout + res.stderr
     missing = [o for o in options if o not in text and o != "--help"]
