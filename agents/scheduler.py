@@ -45,7 +45,7 @@ from ontology.services.interpretation import ScheduleAction, ScheduleRequest, Wh
 from ontology.trace import StructureEvent
 
 from .errors import RequestError
-from .schema import migrate
+from .schema import open_migrated
 
 log = logging.getLogger("rapp.scheduler")
 LATE_S = 600.0  # a schedule starts up to this late (robot busy, Core stopped); later it is missed
@@ -138,17 +138,7 @@ class ScheduleBook:
         if path is not None:
             path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
-        self._db = sqlite3.connect(str(path) if path else ":memory:", check_same_thread=False,
-                                   isolation_level=None, timeout=10)
-        self._db.row_factory = sqlite3.Row
-        if path is not None:
-            self._db.execute("PRAGMA journal_mode=WAL")
-            path.chmod(0o600)
-        try:
-            migrate(self._db, MIGRATIONS, f"the Core's schedules {path or '(in memory)'}")
-        except BaseException:
-            self._db.close()
-            raise
+        self._db = open_migrated(path, MIGRATIONS, f"the Core's schedules {path or '(in memory)'}")
 
     def close(self) -> None:
         with self._lock:

@@ -10,8 +10,10 @@ untouched: an older program must not write a newer layout.
 """
 from __future__ import annotations
 
+import os
 import sqlite3
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 Step = str | Callable[[sqlite3.Connection], None]
 
@@ -50,3 +52,26 @@ def migrate(db: sqlite3.Connection, steps: Sequence[Step], what: str) -> tuple[i
             raise
         db.execute("COMMIT")
     return found, len(steps)
+
+
+def open_migrated(path: Path | None, steps: Sequence[Step], what: str,
+                  pragmas: Sequence[str] = ()) -> sqlite3.Connection:
+    """An autocommit connection (rows as sqlite3.Row, usable from any thread under the caller's lock)
+    to `path` at this code's schema; None: in memory. A file is created 0600 before SQLite opens it
+    (never readable by others, not even for a moment) and runs in WAL mode, then each of `pragmas`."""
+    if path is not None:
+        os.close(os.open(path, os.O_CREAT | os.O_WRONLY, 0o600))
+        os.chmod(path, 0o600)  # a file that existed keeps no wider mode
+    db = sqlite3.connect(str(path) if path is not None else ":memory:", check_same_thread=False,
+                         isolation_level=None, timeout=10)
+    db.row_factory = sqlite3.Row
+    try:
+        if path is not None:
+            db.execute("PRAGMA journal_mode=WAL")
+        for pragma in pragmas:
+            db.execute(f"PRAGMA {pragma}")
+        migrate(db, steps, what)
+    except BaseException:
+        db.close()
+        raise
+    return db
