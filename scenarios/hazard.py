@@ -32,7 +32,8 @@ from robots import OdometryNoise, RobotAPI
 from .home_setup import DOOR_OPEN_DEG, HOUSES, home_description, home_map, scenario_world
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
-from .runner import Owner, Run, RunInterrupted, check_interrupted, files_written, main_loop, saving
+from .runner import (Owner, Run, RunInterrupted, add_recording_options, check_interrupted, files_written, main_loop,
+                     saving)
 
 RAPP_DIR = Path(__file__).resolve().parent.parent / "rapps" / "hazard_detection"
 COMMAND = "check the hazards"
@@ -245,13 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for the RApp's end")
     ap.add_argument("--quiet", action="store_true", help="no progress while it runs, only the closing summary")
     ap.add_argument("--plain", action="store_true", help="progress as plain lines, even on a terminal")
-    ap.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
-                                                              "packages/ nor run.mcap (docs/recordings.md)")
-    ap.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
-    ap.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run (its robot, seed and house), "
-                    "then compare the hazards' reports and the trajectory with it (docs/recordings.md)")
-    ap.add_argument("--tolerance", type=float, default=None, metavar="M",
-                    help="--replay: how far (m) the trajectories may be apart (default 0.25)")
+    add_recording_options(ap)
     ap.add_argument("--scheduled", nargs="?", const="22:00", metavar="HH:MM",
                     help="started by a schedule, not a command: the owner writes 'check the hazards every day at "
                          "HH:MM' (default 22:00) and the robot's simulated clock comes to it")

@@ -34,7 +34,7 @@ from scenarios.owner_voice import OwnerVoice, ScriptError, SpokenLine, announce_
 from scenarios.plots import plot_hazard_run
 from scenarios.progress import RunView
 from scenarios.recorder import RecordingAPI
-from scenarios.runner import (Owner, Run, RunInterrupted, check_interrupted, files_written, main_loop, plot_grid,
+from scenarios.runner import (Owner, Run, RunInterrupted, add_recording_options, check_interrupted, files_written, main_loop, plot_grid,
                               saving)
 from scenarios.system import wait_until
 from scenarios.watch import DEFAULT_PORT, WatchServer, WatchState
@@ -194,13 +194,7 @@ def main(argv: list[str] | None = None) -> int:
                                                           "(`rapp say TEXT` while it runs, or --scenario lines)")
     p.add_argument("--allow-unsandboxed", action="store_true",
                    help="run the RApp without the sandbox where the kernel allows none (the reason is printed)")
-    p.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
-                                                             "packages/ nor run.mcap (docs/recordings.md)")
-    p.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
-    p.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run: its robot, house, seed and "
-                   "command (at its simulated time), then compare reports and trajectory with it (docs/recordings.md)")
-    p.add_argument("--tolerance", type=float, default=None, metavar="M",
-                   help="--replay: how far (m) the trajectories may be apart (default 0.25)")
+    add_recording_options(p)
     a = p.parse_args(argv)
     if not allow_unsandboxed(a.allow_unsandboxed, "rapp run rapp"):
         return 2

@@ -349,3 +349,16 @@ def main_loop(coro) -> Any:
 
     _STATE.signum, _STATE.count, _STATE.saving = None, 0, 0
     return asyncio.run(main())
+
+
+def add_recording_options(parser) -> None:
+    """--no-record, --no-frames, --replay, --tolerance: the recording options every `rapp run` scenario
+    that records takes (docs/recordings.md)."""
+    parser.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
+                                                                  "packages/ nor run.mcap (docs/recordings.md)")
+    parser.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
+    parser.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run (its robot, house, seed and "
+                        "command, at its simulated time), then compare reports and trajectory with it "
+                        "(docs/recordings.md)")
+    parser.add_argument("--tolerance", type=float, default=None, metavar="M",
+                        help="--replay: how far (m) the trajectories may be apart (default 0.25)")
