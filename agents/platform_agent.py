@@ -64,6 +64,17 @@ log = logging.getLogger("rapp.platform")
 CLOUD_NICE = 10
 # what every RApp token may call besides the services its manifest declares
 ALWAYS_ALLOWED = {"start_cloud_agent", "stop_cloud_agent", "ping", "list_services"}
+# one Cloud Agent per run; a start that failed (30 s without "ready" on a loaded host) may be tried
+# again, a few times, so a retry is not refused but a RApp cannot spawn processes without end
+CLOUD_START_ATTEMPTS = 3
+
+
+@dataclass
+class CloudClaim:
+    """What one run (a Dynamic Agent) did with its right to a Cloud Agent."""
+    attempts: int = 0
+    starting: bool = False
+    started: bool = False
 
 
 @dataclass
@@ -117,7 +128,7 @@ class PlatformAgent(RappAgent):
         self.accounts = EphemeralAccounts(self.settings, owner=name)
         self.sandbox = sandbox or Sandbox()
         self.robots: dict[str, P.RegisterRobot] = {}
-        self._cloud_runs: dict[str, float] = {}  # Dynamic Agents that started their Cloud Agent (one per run)
+        self._cloud_runs: dict[str, CloudClaim] = {}  # per Dynamic Agent: its Cloud Agent (one per run)
         self._refused: dict[str, list[P.Refused]] = {}  # run (Dynamic Agent) -> what was refused it
         self.clouds: dict[str, CloudSession] = {}
         self._cleanups: set[asyncio.Task] = set()  # stopped Cloud Agents' accounts and directories
@@ -461,16 +472,26 @@ class PlatformAgent(RappAgent):
         if owner in self.clouds or ctx.token.services is None or ctx.token.issuer not in cores:
             # a Cloud Agent's own token was issued by its Dynamic Agent, a user's by nobody
             raise Refusal("only a Dynamic Agent (a token its Core asked for) starts a Cloud Agent", ErrorCode.FORBIDDEN)
-        if owner in self._cloud_runs:
+        claim = self._cloud_runs.get(owner) or CloudClaim()
+        if claim.started:
             raise Refusal(f"{owner} has started its Cloud Agent already: one per run", ErrorCode.FORBIDDEN)
-        self._cloud_runs[owner] = time.monotonic()
+        if claim.starting:
+            raise Refusal(f"{owner}'s Cloud Agent is starting: one per run", ErrorCode.FORBIDDEN)
+        if claim.attempts >= CLOUD_START_ATTEMPTS:
+            raise Refusal(f"{owner}'s Cloud Agent failed to start {claim.attempts} times: no more tries this run",
+                          ErrorCode.FORBIDDEN)
+        claim.attempts, claim.starting = claim.attempts + 1, True
+        self._cloud_runs[owner] = claim
         while len(self._cloud_runs) > 10_000:  # the oldest runs' entries go (their tokens are long dead)
             self._cloud_runs.pop(next(iter(self._cloud_runs)))
+        memory["claim"] = claim
         try:
             info, data = await download_package(self, self.store, req.rapp, req.version)
         except RequestError as e:
+            claim.starting = False
             raise Failure(f"cannot fetch {req.rapp} from the Store: {e.reason}", ErrorCode.STORE) from None
         if not info.manifest.get("cloud_entry_point"):
+            claim.starting = False
             raise Refusal(f"{req.rapp} has no Cloud Agent part", ErrorCode.NO_CLOUD_PART)
         memory["owner"], memory["info"], memory["data"] = owner, info, data
 
@@ -481,11 +502,25 @@ class PlatformAgent(RappAgent):
         info = memory["info"]
         n = next(self._serial)
         workdir = self.workdir / f"{n:04d}-{info.name}"
-        await asyncio.to_thread(unpack_package, memory.pop("data"), workdir / "package")
+        try:
+            await asyncio.to_thread(unpack_package, memory.pop("data"), workdir / "package")
+        except BaseException:
+            memory["claim"].starting = False
+            raise
         memory["workdir"] = workdir
 
     async def cloud_start(self, memory: dict) -> P.CloudAgentReply:
-        """s5, start: its account and token, its process in the sandbox, until it says it serves."""
+        """s5, start: its account and token, its process in the sandbox, until it says it serves.
+        A start that fails leaves the run free to try again (CLOUD_START_ATTEMPTS in all)."""
+        claim: CloudClaim = memory["claim"]
+        try:
+            reply = await self._cloud_start(memory)
+        finally:
+            claim.starting = False
+        claim.started = True
+        return reply
+
+    async def _cloud_start(self, memory: dict) -> P.CloudAgentReply:
         req, ctx, info, workdir, owner = (memory[k] for k in ("request", "ctx", "info", "workdir", "owner"))
         prefix = f"cloud-{info.name}".replace("_", "-")
         worker = self._cloud_worker()

@@ -302,6 +302,7 @@ async def test_m_one_cloud_agent_per_run_and_never_from_a_cloud_agent(system):
     report, end = await attack(system, "cloud_cloud")
     assert "second" in report, end
     assert "one per run" in report["second"], report
+    assert "Store" in report["failed"] and report["first"], report  # a failed start left its try
     assert report["grandchild"]["ok"] is False and "only a Dynamic Agent" in report["grandchild"]["detail"], report
     assert "refused" in end and "start_cloud_agent" in end, end  # the Platform told the Core at the end
     await wait_until(lambda: not any(c.rapp == "hostile-cloud-cloud" for c in system.platform.clouds.values()),
