@@ -19,6 +19,7 @@ import json
 import math
 import sys
 import tempfile
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from agents.services.context import ServiceState
@@ -28,6 +29,7 @@ from ontology.results import ReportRecord, TaskStage
 from ontology.trace import RecordKind, StructureEvent
 from rapps.hazard_detection.hazard_detection.models import HazardReport
 from robots import OdometryNoise, RobotAPI
+from xmpp_server.link import LinkFaults
 
 from .home_setup import DOOR_OPEN_DEG, HOUSES, home_description, home_map, scenario_world
 from .plots import plot_hazard_run
@@ -91,7 +93,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0,
                                progress: bool = False, disturbances=None, during=None,
                                live: bool | None = None, record: bool = True, frames: bool = True,
-                               scheduled: str | None = None) -> dict:
+                               scheduled: str | None = None, link: LinkFaults | None = None) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
@@ -100,7 +102,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     the run's recording and run.mcap (`frames`: with the camera's frames; docs/recordings.md).
     `scheduled` ("22:00"): the owner writes "check the hazards every day at 22:00" at the start
     instead of the command; the robot's simulated clock reads SCHEDULE_LEAD_S before it, and the
-    Core starts the RApp when that time comes (agents/scheduler.py)."""
+    Core starts the RApp when that time comes (agents/scheduler.py). `link`: the robot reaches the
+    server over a flaky link (xmpp_server/link.py), named with what it did in the result's `link`."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances)
@@ -108,7 +111,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
                                 frames_dir=out / "frames")
         home = home_description(world, house, out)
-        owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home)
+        owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home, link=link)
         if scheduled:
             owner.command, owner.deliver, owner.core_kw = schedule_owner(world, scheduled)
         run = Run(out, world, RAPP_DIR, [owner], settings=settings,
@@ -134,6 +137,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 "person_contacts": world.person_contacts(), "object_contacts": world.object_contacts(),
                 **monitoring(read_trace(run.trace, validate=True)),
                 "trace": str(run.trace), "plot": str(out / "hazard_run.png"),
+                "link": link_result(run, owner, link),
             }
             plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
                             info.landmarks, rows, info.hazards,
@@ -150,6 +154,19 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         world.close()
     check_interrupted(result)
     return result
+
+
+def link_faults(text: str) -> LinkFaults:
+    try:
+        return LinkFaults.parse(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def link_result(run: Run, owner: Owner, link: LinkFaults | None) -> dict | None:
+    """The flaky link's faults as asked and what it did (None: a perfect link)."""
+    relay = run.system.links.get(owner.handle.robot_id) if link and run.system and owner.handle else None
+    return None if link is None else {**link.describe(), **(asdict(relay.stats) if relay else {})}
 
 
 def schedule_owner(world, at: str):
@@ -250,6 +267,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scheduled", nargs="?", const="22:00", metavar="HH:MM",
                     help="started by a schedule, not a command: the owner writes 'check the hazards every day at "
                          "HH:MM' (default 22:00) and the robot's simulated clock comes to it")
+    ap.add_argument("--link", type=link_faults, default=None, metavar="FAULTS",
+                    help="the robot's connection to the server is flaky, e.g. "
+                         "'delay=80ms,jitter=30ms,loss=2%%,outage=5s@40s,drop' (seeded by --seed; "
+                         "xmpp_server/link.py); every agent then talks over the server")
     args = ap.parse_args(argv)
     if args.replay:
         from .resim import ResimError, recorded_result
@@ -264,7 +285,8 @@ def main(argv: list[str] | None = None) -> int:
         result = main_loop(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
                                                 args.rtf, timeout_s=args.timeout, progress=not args.quiet,
                                                 live=False if args.plain else None, record=not args.no_record,
-                                                frames=not args.no_frames, scheduled=args.scheduled))
+                                                frames=not args.no_frames, scheduled=args.scheduled,
+                                                link=args.link and replace(args.link, seed=args.seed)))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

@@ -31,6 +31,7 @@ from typing import Any
 
 from ontology.manifest import load_manifest
 from ontology.results import ReportRecord, TaskRecord
+from xmpp_server.link import LinkFaults
 from robots.gridmap import build_grid_map
 
 from .home_setup import DOOR_OPEN_DEG, has_layout, home_map
@@ -60,6 +61,7 @@ class Owner:
     home: tuple | None = None  # (HomeInfo, png bytes, yaml text): uploaded for the owner before the run
     core_kw: dict = field(default_factory=dict)
     deliver: Callable[["Owner"], Awaitable[None]] | None = None  # how the command is given (default: chat)
+    link: LinkFaults | None = None  # the robot's connection to the server (xmpp_server/link.py); None: perfect
     # filled in by the run
     handle: RobotHandle | None = None
     record: TaskRecord | None = None
@@ -112,8 +114,9 @@ class Run:
         shutil.rmtree(self.out / "system", ignore_errors=True)  # a fresh Store and XMPP accounts
         samplers = [asyncio.create_task(self._sample(o)) for o in self.owners]
         side: asyncio.Task | None = None
+        linked = any(o.link is not None for o in self.owners)  # then no agent takes the in-process shortcut
         self.system = system = RappSystem(self.out / "system", settings=self.settings, trace_file=self.trace,
-                                          platform_kw=self.platform_kw)
+                                          platform_kw=self.platform_kw, force_xmpp=True if linked else None)
         if self.recording is not None:
             for stale in ("run.mcap", "robot.jsonl"):
                 (self.out / stale).unlink(missing_ok=True)
@@ -196,7 +199,7 @@ class Run:
         if owner.home is not None:  # the owner's home description, as the Platform keeps it
             upload_home(self.system.platform.state, owner.user, *owner.home)
         owner.handle = handle = await self.system.add_robot(owner.kind, api=owner.api, user=owner.user,
-                                                            **owner.core_kw)
+                                                            link=owner.link, **owner.core_kw)
         await handle.user.watch_tasks(handle.core.address)
         await wait_until(lambda: listening(handle.core), 30, f"Core of {owner.kind} listening", interval=0.05)
 

@@ -24,6 +24,7 @@ from agents.store_client import publish_package
 from ontology.package import build_package_bytes, generate_keypair
 from xmpp_server import EmbeddedServer, XmppSettings
 from xmpp_server.credentials import generate_password
+from xmpp_server.link import FaultyLink, LinkFaults
 
 from .owner import OwnerClient
 
@@ -80,6 +81,7 @@ class RappSystem:
         self.platform: PlatformAgent | None = None
         self.publisher: RappAgent | None = None
         self.robots: list[RobotHandle] = []
+        self.links: dict[str, FaultyLink] = {}  # robot id -> its flaky link (add_robot's `link`)
         self._on_stop: list = []  # callbacks run first at stop (e.g. ending a progress display)
         # this run's package signer: what publish() builds is signed, what its Cores run must be
         self.signing_key, self.public_key = generate_keypair()
@@ -131,7 +133,9 @@ class RappSystem:
         return f"{details.summary.name} {details.summary.version}"
 
     async def add_robot(self, robot_type: str, *, api, robot_id: str | None = None,
-                        user: str | None = None, **core_kw) -> RobotHandle:
+                        user: str | None = None, link: LinkFaults | None = None, **core_kw) -> RobotHandle:
+        """`link`: the robot's connection to the server is a flaky one (xmpp_server/link.py): its Core
+        and the Dynamic Agents it starts connect through it; the owner's chat client does not."""
         n = len(self.robots) + 1
         robot_id = robot_id or f"{robot_type}{n}"
         user_name = user or f"owner-{robot_id}"
@@ -140,9 +144,16 @@ class RappSystem:
         core_kw.setdefault("trusted_keys", [self.public_key])
         core_kw.setdefault("require_signature", True)
         core_kw.setdefault("warm_imports", DYNAMIC_WARM_IMPORTS)
+        settings = self.settings
+        if link is not None:
+            if not settings.force_xmpp:  # agents of one process would talk past the server and the link
+                raise ValueError("a robot's flaky link needs the system's force_xmpp=True")
+            relay = await FaultyLink(settings.addresses()[0], link).start()
+            self.links[robot_id] = relay
+            settings = settings.model_copy(update={"host": relay.address[0], "port": relay.port, "fallback": []})
         core = CoreAgent(f"core-{robot_id}", robot_id=robot_id, robot_type=robot_type, robot_api=api,
                          owner=user_name, platform="platform", store="store", user=user_name,
-                         password=generate_password(), settings=self.settings,
+                         password=generate_password(), settings=settings,
                          workdir=self.workdir / f"core-{robot_id}", limits=self.limits, **core_kw)
         await core.start()
         handle = RobotHandle(robot_id, robot_type, core, chat, api)
@@ -162,6 +173,8 @@ class RappSystem:
                 await r.core.stop()
             with contextlib.suppress(Exception):
                 await r.user.stop()
+        for relay in self.links.values():
+            await relay.stop()
         for agent in (self.publisher, self.platform, self.store):
             if agent is not None:
                 with contextlib.suppress(Exception):
