@@ -187,7 +187,23 @@ class RappAgent(AgentDoor, Agent):
         await super().stop()
         await end_filter_task(self.client)
         self.leave_container()
+        here = asyncio.current_task()
+        for task in [t for t in self._submitted if t is not here and not t.done()]:
+            task.cancel()  # e.g. a deactivated behaviour still waiting for its next message
         self.tracer.record(RecordKind.AGENT, event="stopped", agent=self.address, cls=type(self).__name__)
+
+    @property
+    def _submitted(self) -> set[asyncio.Task]:
+        return self.__dict__.setdefault("_submitted_tasks", set())
+
+    def submit(self, coro) -> asyncio.Task:
+        """SPADE's submit keeps no reference to the task: a behaviour removed while it waited for a
+        message was garbage-collected pending ("Task was destroyed but it is pending!" at the end of
+        every run). The agent holds its tasks until they end, and cancels what is left at its stop."""
+        task = super().submit(coro)
+        self._submitted.add(task)
+        task.add_done_callback(self._submitted.discard)
+        return task
 
     # -- sending ----------------------------------------------------------------------------
     async def send(self, msg: Message) -> None:
