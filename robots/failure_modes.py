@@ -171,6 +171,7 @@ class Locomotion:
     def __init__(self, spec: "RobotSpec", rng: np.random.Generator):
         self.spec, self.rng = spec, rng
         self.offset = 0.0  # lateral sway of the body off its gait line, m (robot frame, + = left)
+        self.surface = 1.0  # the floor's slip under the robot, times the bare floor's
 
     def slip(self, dx: float, dy: float, dth: float, dt: float) -> tuple[float, float, float]:
         """The true displacement (robot frame) for a commanded one."""
@@ -189,6 +190,7 @@ class Locomotion:
         robot.base.command = (vx, vy, wz)
         x, y, th = robot.pose
         cdx, cdy = _arc(vx * dt, vy * dt, wz * dt)  # commanded, robot frame
+        self.surface = robot.world.plan.slip_at(x, y)  # a rug (robots/lived_in.py): the feet slip more
         tdx, tdy, tdth = self.slip(vx * dt, vy * dt, wz * dt, dt)
         tdx, tdy = _arc(tdx, tdy, tdth)
         s0, c0 = math.sin(th), math.cos(th)
@@ -252,7 +254,8 @@ class NaoGait(Locomotion):
         d = math.hypot(dx, dy)
         if d > 0:
             ux, uy = dx / d, dy / d
-            e_along, e_across = -w.slip_bias + w.slip_std * along, w.slip_std * across
+            k = self.surface
+            e_along, e_across = k * (-w.slip_bias + w.slip_std * along), k * w.slip_std * across
             dx, dy = dx + (e_along * ux - e_across * uy) * d, dy + (e_along * uy + e_across * ux) * d
         # heading noise of a whole step, spread over it: larger for bigger and turning steps
         fraction = dt / w.step_period_s

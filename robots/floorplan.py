@@ -143,6 +143,12 @@ class Plan:
     robots: dict[str, dict[str, Any]] = field(default_factory=dict)
     hazards: dict[str, Any] = field(default_factory=dict)  # the description's `hazards` section
     rt60_s: float = 0.0  # the rooms' reverberation time: 0 = anechoic (robots/sound.py)
+    rugs: list[Box] = field(default_factory=list)  # on the floor, no obstacle: feet slip more (robots/lived_in.py)
+    rug_slip: float = 1.0  # foot slip on a rug, times the slip on the floor
+
+    def slip_at(self, x: float, y: float) -> float:
+        """How much more a walking robot's feet slip at (x, y) than on the bare floor."""
+        return self.rug_slip if any(r.distance(x, y) == 0.0 for r in self.rugs) else 1.0
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:

@@ -105,6 +105,8 @@ class Scene:
             self._set_lamp(lamp.id, lamp.on)
         for m in plan.landmarks:
             self._landmark_body(m)
+        for rug in plan.rugs:  # seen by the camera, felt by the feet only (Plan.slip_at)
+            self._box_body(rug, collision=False)
 
     def _door_body(self, d) -> int:
         cid = self.cid
@@ -209,6 +211,8 @@ class World(Scene):
         self._stepper: asyncio.Task | None = None
         self._closed = False
         self.disturbances: Disturbances | None = None
+        self.mapped_plan: Plan = plan  # the house as mapped (from_file's `lived_in` makes them differ)
+        self.lived_in: dict | None = None  # what changed since (robots/lived_in.py live_in's account)
         self.run_sync(self._build)
         if render == "process":
             self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name)
@@ -222,18 +226,25 @@ class World(Scene):
     @classmethod
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
                   time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None,
-                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None) -> "World":
+                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None,
+                  lived_in: "Callable[[Plan], tuple[Plan, dict]] | None" = None) -> "World":
         """Build from a YAML house description; `path` may also be a bare name in robots/houses, or
         "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest).
-        `disturbances`: a disturbance file (or bare name in robots/houses) or spec, see attach_disturbances."""
+        `disturbances`: a disturbance file (or bare name in robots/houses) or spec, see attach_disturbances.
+        `lived_in`: what changed since the house was mapped (robots/lived_in.py): the world is built
+        from the plan it returns, `mapped_plan` keeps the plan as the map knows it."""
         path = Path(path)
         source: Path | dict = path
         if not path.exists() and (HOUSES / f"{path}.yaml").exists():
             source = HOUSES / f"{path}.yaml"
         elif not path.exists() and str(path) == GENERATED:
             source = generate(seed)
-        return cls(load_plan(source, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step, render=render,
-                   render_workers=render_workers, disturbances=disturbances)
+        mapped = load_plan(source, seed=seed, overrides=overrides)
+        plan, changes = lived_in(mapped) if lived_in is not None else (mapped, None)
+        world = cls(plan, rtf=rtf, time_step=time_step, render=render, render_workers=render_workers,
+                    disturbances=disturbances)
+        world.mapped_plan, world.lived_in = mapped, changes
+        return world
 
     # ------------------------------------------------------------------ thread plumbing
     def _mark_worker(self) -> None:

@@ -29,6 +29,7 @@ from ontology.results import ReportRecord, TaskStage
 from ontology.trace import RecordKind, StructureEvent
 from rapps.hazard_detection.hazard_detection.models import HazardReport
 from robots import OdometryNoise, RobotAPI
+from robots.lived_in import LivedIn
 from xmpp_server.link import LinkFaults
 
 from .home_setup import DOOR_OPEN_DEG, HOUSES, home_description, home_map, scenario_world
@@ -93,7 +94,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                out_dir=None, rtf: float = 0.0, settings=None, timeout_s: float = 1800.0,
                                progress: bool = False, disturbances=None, during=None,
                                live: bool | None = None, record: bool = True, frames: bool = True,
-                               scheduled: str | None = None, link: LinkFaults | None = None) -> dict:
+                               scheduled: str | None = None, link: LinkFaults | None = None,
+                               lived_in: LivedIn | None = None) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
@@ -103,10 +105,11 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     `scheduled` ("22:00"): the owner writes "check the hazards every day at 22:00" at the start
     instead of the command; the robot's simulated clock reads SCHEDULE_LEAD_S before it, and the
     Core starts the RApp when that time comes (agents/scheduler.py). `link`: the robot reaches the
-    server over a flaky link (xmpp_server/link.py), named with what it did in the result's `link`."""
+    server over a flaky link (xmpp_server/link.py), named with what it did in the result's `link`.
+    `lived_in`: the house changed since its map was made (robots/lived_in.py; the result's `lived_in`)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
-    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances)
+    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances, lived_in=lived_in)
     try:
         recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
                                 frames_dir=out / "frames")
@@ -137,14 +140,14 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 "person_contacts": world.person_contacts(), "object_contacts": world.object_contacts(),
                 **monitoring(read_trace(run.trace, validate=True)),
                 "trace": str(run.trace), "plot": str(out / "hazard_run.png"),
-                "link": link_result(run, owner, link),
+                "link": link_result(run, owner, link), "lived_in": world.lived_in,
             }
             plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
                             info.landmarks, rows, info.hazards,
                             title=f"{robot} seed {seed} ({house}): localization {cm(result['localization_error_m'])},"
                                   f" tracking {cm(result['max_tracking_error_m'])}"
                                   + (f" ({run.interrupted})" if run.signum else ""),
-                            trajectory=[p[1:3] for p in run.trajectories[robot]])
+                            trajectory=[p[1:3] for p in run.trajectories[robot]], unmapped=unmapped(world))
             (out / "chat.txt").write_text("\n".join(owner.transcript) + "\n")
             (out / "recording.json").write_text(json.dumps({"localizations": recorder.localizations,
                                                             "paths": recorder.paths}))
@@ -154,6 +157,17 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         world.close()
     check_interrupted(result)
     return result
+
+
+def unmapped(world) -> list:
+    """What stands in the world but not on the map: furniture moved or left since it was made, the
+    passage doors' leaves where they are now."""
+    mapped = {(b.name, b.x, b.y, b.yaw) for b in world.mapped_plan.furniture}
+    moved = [b for b in world.plan.furniture if (b.name, b.x, b.y, b.yaw) not in mapped]
+    doors = {d.id: d.angle for d in world.mapped_plan.doors}
+    changes = world.lived_in or {}
+    return moved + [d.leaf_box() for d in world.plan.doors if any(c["id"] == d.id for c in changes.get("doors", []))
+                    and doors.get(d.id) != d.angle]
 
 
 def link_faults(text: str) -> LinkFaults:
@@ -267,6 +281,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scheduled", nargs="?", const="22:00", metavar="HH:MM",
                     help="started by a schedule, not a command: the owner writes 'check the hazards every day at "
                          "HH:MM' (default 22:00) and the robot's simulated clock comes to it")
+    ap.add_argument("--lived-in", action="store_true",
+                    help="the house changed since its map was made: furniture moved, boxes left, a passage door "
+                         "half closed, a rug (seeded by --seed; robots/lived_in.py)")
     ap.add_argument("--link", type=link_faults, default=None, metavar="FAULTS",
                     help="the robot's connection to the server is flaky, e.g. "
                          "'delay=80ms,jitter=30ms,loss=2%%,outage=5s@40s,drop' (seeded by --seed; "
@@ -286,7 +303,8 @@ def main(argv: list[str] | None = None) -> int:
                                                 args.rtf, timeout_s=args.timeout, progress=not args.quiet,
                                                 live=False if args.plain else None, record=not args.no_record,
                                                 frames=not args.no_frames, scheduled=args.scheduled,
-                                                link=args.link and replace(args.link, seed=args.seed)))
+                                                link=args.link and replace(args.link, seed=args.seed),
+                                                lived_in=LivedIn(seed=args.seed) if args.lived_in else None))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

@@ -27,6 +27,7 @@ from ontology.errors import ErrorCode
 from ontology.services.navigation import UploadMap
 from robots import HOUSES as HOUSE_DIR
 from robots.gridmap import OCCUPIED, build_grid_map
+from robots.lived_in import LivedIn, live_in
 from robots.house_gen import GENERATED, PASSAGE_OPEN_DEG, door_check_pose, generate, lamp_check_pose
 
 # per hand-made house: doors checked (and from which side), lamps checked (and the direction into the
@@ -42,7 +43,8 @@ DOOR_OPEN_DEG = 10.0  # ground truth: a door opened more than this is "open"
 
 
 def _plan(world_or_plan):
-    return getattr(world_or_plan, "plan", world_or_plan)
+    """The plan as the owner mapped it: a World's `mapped_plan` (robots/lived_in.py), else its plan."""
+    return getattr(world_or_plan, "mapped_plan", None) or getattr(world_or_plan, "plan", world_or_plan)
 
 
 def layout(house: str, world_or_plan=None, seed: int | None = None) -> dict:
@@ -89,20 +91,34 @@ def hazard_overrides(house: str, seed: int) -> dict:
     return {"doors": doors, "lamps": lamps}
 
 
-def scenario_world(house: str, seed: int, **world_kw):
+def scenario_world(house: str, seed: int, lived_in: LivedIn | None = None, **world_kw):
     """The world of `house` at `seed`, the same in every scenario (`rapp run rapp`, hazard-detection,
     two-robots, the disturbance suite): where the house has a hazard layout (small, house, generated,
     or a file with a `hazards:` section) its hazard doors, passages and lamps are drawn by
     hazard_overrides; every other door and lamp from the house file's own ranges (robots/floorplan.py),
-    also from `seed`. `world_kw`: World.from_file's (rtf, disturbances, ...)."""
+    also from `seed`. `lived_in`: the house changed since its map was made (robots/lived_in.py; the
+    world's `lived_in` says how). `world_kw`: World.from_file's (rtf, disturbances, ...)."""
     from robots import World
 
-    name = Path(house).stem if Path(house).stem in LAYOUTS else house  # robots/houses/small.yaml is "small"
+    name = Path(house).stem if Path(house).stem in LAYOUTS else house  # robots/small.yaml is "small"
     try:
         overrides = hazard_overrides(name, seed)
     except KeyError:  # no hazard layout: the house file alone draws the world
         overrides = None
-    return World.from_file(house, seed=seed, overrides=overrides, **world_kw)
+    edit = None if lived_in is None else (lambda mapped: lived_in_plan(mapped, name, lived_in))
+    return World.from_file(house, seed=seed, overrides=overrides, lived_in=edit, **world_kw)
+
+
+def lived_in_plan(mapped, house: str, knobs: LivedIn):
+    """robots.lived_in.live_in with what must stay clear: the robots' start poses and the hazards'
+    stands, reachable as they were on the map."""
+    from ontology.robot_types import ROBOT_TYPES
+
+    lay = layout(house, mapped) if has_layout(house, mapped) else {"passages": []}
+    radius = max(row.clearance_radius_m for row in ROBOT_TYPES.values())
+    starts = [tuple(mapped.start_pose(kind, kind, row.body_radius_m)[:2]) for kind, row in ROBOT_TYPES.items()]
+    stands = [(h.stand.x, h.stand.y) for h in hazard_list(mapped, house)] if has_layout(house, mapped) else []
+    return live_in(mapped, knobs, passages=lay["passages"], keep_clear=[*starts, *stands], clearance_m=radius)
 
 
 def door_hazard(door, side: str) -> HazardSpec:

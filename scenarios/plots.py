@@ -13,16 +13,20 @@ import numpy as np  # noqa: E402
 
 def plot_hazard_run(path: str | Path, grid, paths: list[dict], localizations: list[dict],
                     landmarks: dict, hazards: list[dict], hazard_specs: list, title: str = "",
-                    trajectory: list | None = None) -> Path:
+                    trajectory: list | None = None, unmapped: list | None = None) -> Path:
     """grid: robots.gridmap.GridMap; paths: recorder paths (poses, trajectory); hazards: result rows;
     hazard_specs: HazardSpec list (standing poses and look-at points); trajectory: the whole run's
-    true (x, y) poses, drawn under the rest."""
+    true (x, y) poses, drawn under the rest; unmapped: boxes (robots.floorplan.Box) in the world but
+    not on the map (robots/lived_in.py), outlined."""
     path = Path(path)
     h, w = grid.image.shape
     x0, y0 = grid.origin[0], grid.origin[1]
     extent = (x0, x0 + w * grid.resolution, y0, y0 + h * grid.resolution)
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
     ax.imshow(grid.image, cmap="gray", vmin=0, vmax=255, extent=extent, origin="upper")
+    for i, box in enumerate(unmapped or []):
+        c = np.vstack([box.corners(), box.corners()[:1]])
+        ax.plot(c[:, 0], c[:, 1], "-", color="tab:brown", lw=1.2, label="not on the map" if i == 0 else None)
     if trajectory:
         t = np.asarray(trajectory, float)
         ax.plot(t[:, 0], t[:, 1], "-", color="tab:gray", lw=0.8, alpha=0.8, label="whole run (true)")
