@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from .qr import Wear
 from .reverb import checked_rt60
 
 WALL_COLOR = (0.92, 0.90, 0.82)
@@ -105,6 +106,7 @@ class Landmark:
     z: float
     yaw: float  # radians, panel normal
     size: float
+    wear: Wear | None = None  # a worn print (robots/lived_in.py); None: as printed
 
     def corners(self) -> list[list[float]]:
         """Symbol corners in the world frame, as a viewer facing the panel sees them: TL, TR, BR, BL."""

@@ -25,6 +25,7 @@ from scipy import ndimage
 
 from .floorplan import Box, Plan
 from .gridmap import OCCUPIED, build_grid_map
+from .qr import Wear
 
 CLEAR_OF_POINTS_M = 0.6  # a moved piece stays this far from a stand or a start pose
 GAP_M = 0.08  # and this far from walls and other furniture
@@ -40,6 +41,9 @@ class LivedIn:
     doors: int = 1  # passage doors at 30-60 degrees where the map shows them open
     rugs: int = 1
     rug_slip: float = 2.5  # foot slip on a rug, times the slip on the floor
+    codes_worn: int = 6  # QR labels faded, blurred, glossy or partly covered (robots/qr.py Wear)
+    codes_moved: int = 2  # labels re-stuck 0.1-0.3 m along their wall since they were measured
+    codes_missing: int = 1  # labels gone
 
     def describe(self) -> dict:
         return asdict(self)
@@ -101,7 +105,33 @@ def live_in(mapped: Plan, knobs: LivedIn, *, passages: list[str], keep_clear: li
         plan = replace(plan, rugs=[*plan.rugs, rug], rug_slip=knobs.rug_slip)
         changes["rugs"].append({"name": rug.name, "room": room.name, "at": [round(rug.x, 2), round(rug.y, 2)],
                                 "size": [round(sx, 2), round(sy, 2)], "slip_x": knobs.rug_slip})
+    plan, changes["codes"] = _wear_codes(plan, knobs, rng)
     return plan, changes
+
+
+def _wear_codes(plan: Plan, knobs: LivedIn, rng: np.random.Generator) -> tuple[Plan, list[dict]]:
+    """The QR labels as years left them; the landmark list (the map's) still has them as measured."""
+    marks = list(plan.landmarks)
+    order = [int(i) for i in rng.permutation(len(marks))]
+    missing = set(order[:knobs.codes_missing])
+    moved = order[knobs.codes_missing:knobs.codes_missing + knobs.codes_moved]
+    worn = order[knobs.codes_missing + knobs.codes_moved:][:knobs.codes_worn]
+    out: list[dict] = []
+    for i in moved:
+        m = marks[i]
+        shift = float(rng.choice([-1, 1]) * rng.uniform(0.1, 0.3))  # along the wall: the panel's right
+        marks[i] = replace(m, x=m.x - shift * math.sin(m.yaw), y=m.y + shift * math.cos(m.yaw))
+        out.append({"code": m.text, "change": "moved", "by_m": round(abs(shift), 3)})
+    for i in worn:
+        wear = Wear(fade=float(rng.uniform(0.1, 0.45)), blur_modules=float(rng.uniform(0.05, 0.3)),
+                    glare=float(rng.uniform(0.0, 0.6)), glare_at=(float(rng.uniform(0.2, 0.8)), float(rng.uniform(0.2, 0.8))),
+                    cover=float(rng.choice([0.0, rng.uniform(0.05, 0.25)])),
+                    cover_side=str(rng.choice(["left", "right", "top", "bottom"])))
+        marks[i] = replace(marks[i], wear=wear)
+        out.append({"code": marks[i].text, "change": "worn", **{k: (round(v, 3) if isinstance(v, float) else v)
+                                                               for k, v in asdict(wear).items()}})
+    out += [{"code": marks[i].text, "change": "missing"} for i in sorted(missing)]
+    return replace(plan, landmarks=[m for i, m in enumerate(marks) if i not in missing]), out
 
 
 def _points(box: Box, n: int = 5) -> np.ndarray:

@@ -163,7 +163,7 @@ class Scene:
                                    normals=[[1, 0, 0]] * 4, physicsClientId=cid)
         uid = p.createMultiBody(0, -1, quad, [m.x + nx * PRINT_OFFSET_M, m.y + ny * PRINT_OFFSET_M, m.z], yaw_quat(m.yaw),
                                 physicsClientId=cid)
-        tex = p.loadTexture(str(qr_texture(m.text)), physicsClientId=cid)
+        tex = p.loadTexture(str(qr_texture(m.text, m.wear)), physicsClientId=cid)
         p.changeVisualShape(uid, -1, textureUniqueId=tex, rgbaColor=[1, 1, 1, 1], physicsClientId=cid)
 
     def set_door_in_thread(self, door_id: str, angle_deg: float) -> None:

@@ -170,6 +170,18 @@ def unmapped(world) -> list:
                     and doors.get(d.id) != d.angle]
 
 
+REALISM = ("none", "full")  # full: every realism knob this build has (docs/realism.md)
+FULL_LINK = "delay=40ms,jitter=20ms,loss=1%,outage=5s@60s,drop"  # a home Wi-Fi that drops once
+
+
+def realism(level: str, seed: int, lived_in: bool = False, link: LinkFaults | None = None) -> dict:
+    """run_hazard_detection's realism keywords for `--realism LEVEL` plus the single knobs given."""
+    full = level == "full"
+    link = link or (LinkFaults.parse(FULL_LINK) if full else None)
+    return {"lived_in": LivedIn(seed=seed) if lived_in or full else None,
+            "link": link and replace(link, seed=seed)}
+
+
 def link_faults(text: str) -> LinkFaults:
     try:
         return LinkFaults.parse(text)
@@ -281,6 +293,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scheduled", nargs="?", const="22:00", metavar="HH:MM",
                     help="started by a schedule, not a command: the owner writes 'check the hazards every day at "
                          "HH:MM' (default 22:00) and the robot's simulated clock comes to it")
+    ap.add_argument("--realism", choices=REALISM, default="none",
+                    help="'full': every realism knob on (--lived-in and a --link of " + FULL_LINK.replace("%", "%%") + "; docs/realism.md)")
     ap.add_argument("--lived-in", action="store_true",
                     help="the house changed since its map was made: furniture moved, boxes left, a passage door "
                          "half closed, a rug (seeded by --seed; robots/lived_in.py)")
@@ -303,8 +317,7 @@ def main(argv: list[str] | None = None) -> int:
                                                 args.rtf, timeout_s=args.timeout, progress=not args.quiet,
                                                 live=False if args.plain else None, record=not args.no_record,
                                                 frames=not args.no_frames, scheduled=args.scheduled,
-                                                link=args.link and replace(args.link, seed=args.seed),
-                                                lived_in=LivedIn(seed=args.seed) if args.lived_in else None))
+                                                **realism(args.realism, args.seed, args.lived_in, args.link)))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

@@ -20,14 +20,12 @@ import random
 import statistics
 import sys
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 from ontology import robot_types
-from robots.lived_in import LivedIn
 from xmpp_server.link import LinkFaults
 
-from .hazard import link_faults, run_hazard_detection
+from .hazard import REALISM, link_faults, realism, run_hazard_detection
 from .home_setup import DOOR_OPEN_DEG, GENERATED, HOUSES, hazard_overrides, layout
 from .runner import RunInterrupted, main_loop
 
@@ -131,11 +129,11 @@ def markdown(results: list[dict], title: str) -> str:
 
 
 async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path,
-                    results: list[dict] | None = None, lived_in: bool = False,
+                    results: list[dict] | None = None, level: str = "none", lived_in: bool = False,
                     link: LinkFaults | None = None) -> list[dict]:
     """`runs`: (house, seed) pairs, each run on every robot; each result appended to `results` as it
     comes (an interrupted table keeps the runs done, and the interrupted run's result). `lived_in`,
-    `link`: realism (robots/lived_in.py, xmpp_server/link.py), seeded by each run's seed."""
+    `link`, `level` (--realism): realism (docs/realism.md), seeded by each run's seed."""
     results = [] if results is None else results
     print(f"seeds: {' '.join(f'{h}:{s}' for h, s in runs)} (repeat: --seed-list {' '.join(f'{h}:{s}' for h, s in runs)})",
           flush=True)
@@ -145,9 +143,7 @@ async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path,
         for house, seed in runs:
             try:
                 r = await run_hazard_detection(robot, seed, house, out_dir=out / f"{robot}-{house}-{seed}",
-                                               timeout_s=RUN_TIMEOUT_S,
-                                               lived_in=LivedIn(seed=seed) if lived_in else None,
-                                               link=link and replace(link, seed=seed))
+                                               timeout_s=RUN_TIMEOUT_S, **realism(level, seed, lived_in, link))
             except RunInterrupted as stop:  # Ctrl-C: its result (written) joins the table, which stops
                 if stop.result:
                     results.append({**stop.result, "house": house})
@@ -219,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markdown", metavar="FILE", help="also write the table as Markdown")
     ap.add_argument("--from-json", nargs="+", metavar="TABLE_JSON",
                     help="no runs: merge and rewrite earlier table.json files")
+    ap.add_argument("--realism", choices=REALISM, default="none",
+                    help="'full': every realism knob on, in every run (as `rapp run hazard-detection --realism`)")
     ap.add_argument("--lived-in", action="store_true", help="every house changed since its map was made "
                                                             "(as `rapp run hazard-detection --lived-in`)")
     ap.add_argument("--link", type=link_faults, default=None, metavar="FAULTS",
@@ -235,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(args.out or tempfile.mkdtemp(prefix="hazard-table-"))
         results: list[dict] = []
         try:
-            main_loop(run_table(runs, args.robots, out, results, lived_in=args.lived_in, link=args.link))
+            main_loop(run_table(runs, args.robots, out, results, args.realism, args.lived_in, args.link))
         except RunInterrupted as stop:  # the runs done so far are kept, the table says it was cut short
             (out / "table.json").write_text(json.dumps(results, indent=1))
             print(f"interrupted ({stop.signum}) after {len(results)} of {len(runs) * len(args.robots)} runs; "

@@ -44,6 +44,38 @@ def test_the_world_differs_from_its_map_and_keeps_every_stand_clear(house, seeds
             world.close()
 
 
+def test_codes_wear_move_and_go_missing_while_the_landmark_list_keeps_them_as_measured():
+    from scenarios.home_setup import landmark_specs
+
+    world = scenario_world("house", 5, lived_in=LivedIn(seed=5), render="inline")
+    try:
+        codes = {c["change"]: c for c in world.lived_in["codes"]}
+        assert set(codes) == {"worn", "moved", "missing"}, world.lived_in["codes"]
+        listed = landmark_specs(world)  # what the owner's home description says
+        in_world = {m.text: m for m in world.plan.landmarks}
+        assert codes["missing"]["code"] in listed and codes["missing"]["code"] not in in_world
+        moved = codes["moved"]["code"]
+        assert math.dist((listed[moved].x, listed[moved].y), (in_world[moved].x, in_world[moved].y)) == \
+            pytest.approx(codes["moved"]["by_m"], abs=1e-3)
+        worn = [m for m in world.plan.landmarks if m.wear]
+        assert len(worn) == LivedIn().codes_worn and all(m.text in listed for m in worn)
+    finally:
+        world.close()
+
+
+def test_a_worn_label_is_fainter_blurred_and_may_be_covered():
+    from robots.qr import Wear, qr_texture
+
+    import cv2
+    new = cv2.imread(str(qr_texture("L7")), cv2.IMREAD_GRAYSCALE).astype(float)
+    worn = cv2.imread(str(qr_texture("L7", Wear(fade=0.4, blur_modules=0.2, cover=0.2, cover_side="left"))),
+                      cv2.IMREAD_GRAYSCALE).astype(float)
+    w = new.shape[1]
+    visible = np.s_[:, int(0.25 * w):]
+    assert worn[visible].min() > 0.35 * 255 and worn[visible].std() < new[visible].std()  # faded, softer
+    assert worn[:, :int(0.19 * w)].std() < 1.0 and abs(worn[:, :int(0.19 * w)].mean() - new[:, :int(0.19 * w)].mean()) > 20
+
+
 def test_the_same_seed_lives_in_the_same_way():
     a = scenario_world("house", 11, lived_in=LivedIn(seed=11), render="inline")
     b = scenario_world("house", 11, lived_in=LivedIn(seed=11), render="inline")
