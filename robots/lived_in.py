@@ -38,7 +38,7 @@ class LivedIn:
     seed: int = 0
     moved: int = 2  # furniture pieces pushed 0.2-0.6 m and turned
     added: int = 2  # boxes left on the floor, not on the map
-    doors: int = 1  # passage doors at 30-60 degrees where the map shows them open
+    doors: int = 1  # passage doors at 45-70 degrees where the map shows them open
     rugs: int = 1
     rug_slip: float = 2.5  # foot slip on a rug, times the slip on the floor
     codes_worn: int = 6  # QR labels faded, blurred, glossy or partly covered (robots/qr.py Wear)
@@ -59,7 +59,7 @@ def live_in(mapped: Plan, knobs: LivedIn, *, passages: list[str], keep_clear: li
 
     for door_id in list(rng.permutation(passages))[:knobs.doors]:
         i = next(k for k, d in enumerate(plan.doors) if d.id == door_id)
-        angle = float(rng.uniform(30.0, 60.0))
+        angle = float(rng.uniform(45.0, 70.0))
         trial = replace(plan, doors=[*plan.doors[:i], replace(plan.doors[i], angle=angle), *plan.doors[i + 1:]])
         if check(trial):
             plan = trial
@@ -175,7 +175,7 @@ class _Reachability:
             return [True] * len(self.points)
         grid = build_grid_map(plan, include_doors=True)
         blocked = grid.image == OCCUPIED
-        radius = max(1, int(round(self.clearance * 0.8 / grid.resolution)))  # the planner's tolerance
+        radius = max(1, int(round(self.clearance / grid.resolution)))  # as the planner keeps it
         yy, xx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
         free = ~ndimage.binary_dilation(blocked, structure=xx ** 2 + yy ** 2 <= radius ** 2)
         labels, _ = ndimage.label(free)
