@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from ontology.errors import ErrorCode
 
-from .schema import migrate
+from .schema import open_migrated
 from .store_repository import _check_password, hash_password
 
 _USER = re.compile(r"[A-Za-z0-9._@-]{1,64}")
@@ -68,18 +68,12 @@ class UserDirectory:
             if not parent.exists():
                 parent.mkdir(mode=0o700, parents=True, exist_ok=True)
                 os.chmod(parent, 0o700)  # mkdir's mode is filtered by the umask
-            os.close(os.open(self.path, os.O_CREAT | os.O_WRONLY, 0o600))  # never world-readable
-            os.chmod(self.path, 0o600)  # also an older file made with a looser mode
-        self._db = sqlite3.connect(str(self.path or ":memory:"), check_same_thread=False, timeout=10)
+        # a commit per token issued or revoked (each Cloud Agent start and stop): the write-ahead log
+        # without an fsync per commit keeps the file consistent after a crash and lets a power cut
+        # lose only the last tokens (1.1 ms -> 0.05 ms an issue and revoke, more under IO load)
+        self._db = open_migrated(self.path, (_SCHEMA,), f"the Platform's users database {self.path or ':memory:'}",
+                                 pragmas=("synchronous=NORMAL",) if self.path is not None else ())
         self._lock = threading.Lock()
-        if self.path is not None:
-            # a commit per token issued or revoked (each Cloud Agent start and stop): the write-ahead
-            # log without an fsync per commit keeps the file consistent after a crash and lets a
-            # power cut lose only the last tokens (1.1 ms -> 0.05 ms an issue and revoke, more under IO load)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=NORMAL")
-        with self._lock:
-            migrate(self._db, (_SCHEMA,), f"the Platform's users database {self.path or ':memory:'}")
         if self.path is not None:  # SQLite gives its journals the database's mode; make sure
             for suffix in _SIDECARS:
                 side = self.path.with_name(self.path.name + suffix)
@@ -92,8 +86,8 @@ class UserDirectory:
             self._db.close()
 
     def _run(self, sql: str, args: tuple = ()) -> tuple[list[tuple], int]:
-        """One statement in its own transaction (committed on return): (rows, rowcount)."""
-        with self._lock, self._db:
+        """One statement, committed on return (autocommit): (rows, rowcount)."""
+        with self._lock:
             cursor = self._db.execute(sql, args)
             return cursor.fetchall(), cursor.rowcount
 

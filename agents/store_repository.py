@@ -33,8 +33,8 @@ from ontology.manifest import ROBOT_TYPES, Manifest, version_key
 from ontology.package import (DEFAULT_MAX_SIZE, Package, PackageError, load_public_key, public_key_b64,
                            read_package, sha256_hex)
 from ontology.errors import ErrorCode
+from .schema import open_migrated
 
-from .schema import migrate
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS owners (
@@ -210,18 +210,8 @@ class StoreRepository:
         self.max_package_size = max_package_size
         self.require_signature = require_signature
         self._lock = threading.RLock()
-        self._db = sqlite3.connect(self.data_dir / "store.db", check_same_thread=False,
-                                   isolation_level=None, timeout=10)
-        self._db.row_factory = sqlite3.Row
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")
-        self._db.execute("PRAGMA foreign_keys=ON")
-        with self._lock:
-            try:
-                migrate(self._db, MIGRATIONS, f"the Store's database {self.data_dir / 'store.db'}")
-            except BaseException:
-                self._db.close()
-                raise
+        self._db = open_migrated(self.data_dir / "store.db", MIGRATIONS, f"the Store's database {self.data_dir / 'store.db'}",
+                                 pragmas=("synchronous=NORMAL", "foreign_keys=ON"))
 
     # ------------------------------------------------------------------ plumbing
     def close(self) -> None:

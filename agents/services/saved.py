@@ -18,15 +18,14 @@ import io
 import json
 import logging
 import os
-import sqlite3
 import threading
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from ..schema import open_migrated
 
-from ..schema import migrate
 
 log = logging.getLogger("rapp.platform")
 
@@ -66,17 +65,10 @@ class SavedData:
         self.blob_dir = self.folder / "blobs"
         _private_dir(self.blob_dir)
         path = self.folder / "services.db"
-        os.close(os.open(path, os.O_CREAT | os.O_WRONLY, 0o600))
-        os.chmod(path, 0o600)
         self._lock = threading.RLock()
-        self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None, timeout=10)
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")  # a commit survives the process killed; a power cut may lose the last
-        try:
-            migrate(self._db, MIGRATIONS, f"the Platform's services database {path}")
-        except BaseException:
-            self._db.close()
-            raise
+        # synchronous=NORMAL: a commit survives the process killed; a power cut may lose the last
+        self._db = open_migrated(path, MIGRATIONS, f"the Platform's services database {path}",
+                                 pragmas=("synchronous=NORMAL",))
         self.sweep()
 
     def close(self) -> None:
