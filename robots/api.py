@@ -26,7 +26,7 @@ from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, MAX_MICROPHONES, 
                             MoveVel, PlayAudio, Pose2D, Rest, Say, SetCameraParam, SetCameraParams, SetGlobalPose,
                             SonarReading, TakePredefinedPosture, Transform, WordSpotted, WordSpotting)
 from .controllers import GoToPose, JointMotion, LookAt, PathFollower, VelocityController
-from .depth_camera import encode_depth
+from .depth_png import encode_depth
 from .errors import InvalidArgument, MotionInterrupted, UnsupportedOperation
 from .loudspeaker import check_speech
 from .microphones import AudioInput, spot_in_audio
@@ -34,6 +34,7 @@ from .receptors import Camera, encode_frame, parse_resolution
 from .robot import Robot
 from .sound import house_sound
 
+MAX_DEPTH_PIXELS = 320 * 240
 CAMERA_PARAM_NAMES = ("brightness", "contrast", "gain", "exposure", "auto_exposure")
 
 
@@ -396,6 +397,8 @@ class RobotAPI:
         if cam is None:
             raise InvalidArgument(f"unknown depth camera {req.camera!r} on {r.kind} (known: {', '.join(r.depth_cameras)})")
         w, h = parse_resolution(req.resolution)
+        if w * h > MAX_DEPTH_PIXELS:  # a noisy VGA depth image's PNG is ~230 K base64 characters: not one message
+            raise InvalidArgument(f"depth resolution {w}x{h} is larger than the Kinect's 320x240 mode")
         stamp = self.world.time
         mount = await self.world.run(lambda: r.in_base(cam.optical_pose()))
         z = await self.world.capture(cam, w, h)  # type: ignore[arg-type] - a DepthCamera renders as a Camera does

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .depth_png import decode_depth, encode_depth  # noqa: F401 - the depth image's encoding, beside its camera
 from .failure_modes import seed_sequence
 from .pybullet_quiet import p
 from .receptors import R_LINK_OPTICAL
@@ -159,19 +160,3 @@ class DepthCamera:
         """The depth image rendered in this thread (World's inline rendering)."""
         view, proj = self.view_projection(width, height)
         return self.params.render_depth(self.robot.world.cid, width, height, view, proj)
-
-
-def encode_depth(z: np.ndarray) -> bytes:
-    """A 16-bit PNG of millimetres (0 = no return), as ROS's 16UC1 depth images."""
-    import cv2
-    ok, buf = cv2.imencode(".png", np.clip(np.round(z * 1000.0), 0, 65535).astype(np.uint16))
-    return buf.tobytes()
-
-
-def decode_depth(data: bytes) -> np.ndarray:
-    """Metres (float32, 0 = no return) from encode_depth's PNG."""
-    import cv2
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None or img.dtype != np.uint16 or img.ndim != 2:
-        raise ValueError("not a 16-bit single-channel PNG")
-    return img.astype(np.float32) / 1000.0
