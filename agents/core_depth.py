@@ -13,7 +13,7 @@ import asyncio
 import base64
 import logging
 import math
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,18 +21,21 @@ from ontology.robot import CaptureDepth, DepthImage
 from robots.depth_png import decode_depth
 from robots.errors import RobotError
 
-if TYPE_CHECKING:
-    from .core_commands import ObstacleEcho
 
 log = logging.getLogger("rapp.core")
+AHEAD_RAD = 0.52  # ±30°, the range readings' cone (agents/core_commands.py, which imports this module's user)
 RESOLUTION = "160x120"  # a 3 cm box 2 m ahead still covers a few pixels; a quarter of QVGA's rendering
 FLOOR_M, HEIGHT_M = 0.06, 1.2
 
 
+class ObstacleEcho(NamedTuple):  # the fields of agents/core_commands.ObstacleEcho, which publish_echo reads
+    margin_m: float
+    range_m: float
+    bearing_rad: float
+
+
 def nearest_point(img: DepthImage) -> ObstacleEcho | None:
     """The nearest obstacle point ahead in a depth image, None when there is none."""
-    from .core_commands import AHEAD_RAD, ObstacleEcho  # (core_commands imports core_events, which imports this)
-
     z = decode_depth(base64.b64decode(img.data_b64))
     K, T = np.asarray(img.K), np.asarray(img.camera_to_robot)
     v, u = np.nonzero(z > 0)
@@ -48,8 +51,9 @@ def nearest_point(img: DepthImage) -> ObstacleEcho | None:
     return ObstacleEcho(float(margin[i]), math.hypot(px, py), math.atan2(py, px))
 
 
-async def with_depth(robot, echo: ObstacleEcho | None) -> ObstacleEcho | None:
-    """`echo` (the range sensors' nearest reading), or the depth camera's nearest point when nearer."""
+async def with_depth(robot, echo):
+    """`echo` (the range sensors' nearest reading, an ObstacleEcho), or the depth camera's nearest point
+    when nearer."""
     if "depth" not in robot.capabilities():
         return echo
     try:
