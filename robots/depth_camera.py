@@ -29,7 +29,7 @@ import numpy as np
 from .depth_png import decode_depth, encode_depth  # noqa: F401 - the depth image's encoding, beside its camera
 from .failure_modes import seed_sequence
 from .pybullet_quiet import p
-from .receptors import R_LINK_OPTICAL
+from .receptors import R_LINK_OPTICAL, Camera
 from .spec import DepthCameraSpec
 
 if TYPE_CHECKING:
@@ -146,15 +146,9 @@ class DepthCamera:
         T[:3, :3] = T[:3, :3] @ R_LINK_OPTICAL
         return T
 
-    def view_projection(self, width: int, height: int) -> tuple[list[float], list[float]]:
-        T = self.link_pose()
-        eye, fwd, up = T[:3, 3], T[:3, 0], T[:3, 2]
-        vfov = 2 * math.atan(math.tan(math.radians(self.spec.hfov_deg) / 2) * height / width)
-        cid = self.robot.world.cid
-        view = p.computeViewMatrix(eye.tolist(), (eye + fwd).tolist(), up.tolist(), physicsClientId=cid)
-        proj = p.computeProjectionMatrixFOV(math.degrees(vfov), width / height, self.spec.near, self.spec.far,
-                                            physicsClientId=cid)
-        return list(view), list(proj)
+    # the colour camera's geometry, on this camera's pose, field of view and clipping planes
+    fov = Camera.fov
+    view_projection = Camera.view_projection
 
     def capture(self, width: int, height: int) -> np.ndarray:
         """The depth image rendered in this thread (World's inline rendering)."""
