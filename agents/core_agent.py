@@ -66,6 +66,7 @@ from .base import RappAgent
 from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
                               UserChat, heartbeat_template)
 from .core_commands import RobotCommands
+from .core_localizer import CoreLocalizer
 from .core_hearing import Continuation
 from .core_events import CoreEvents
 from .core_strategies import Strategies
@@ -199,6 +200,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.data_dir = Path(data_dir) if data_dir else None
         self.scheduler = Scheduler(self, self.data_dir / "schedules.db" if self.data_dir else None, clock)
         self._trigger: ScheduledStart | None = None  # the schedule the command in hand came from
+        self.localizer = CoreLocalizer(self.robot, robot_type)  # its own pose estimate (paper 001)
 
     # -- setup and behaviours ------------------------------------------------------------
     async def setup(self) -> None:
@@ -216,6 +218,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.supervisor = BehaviourHost(build_core_fsm(), self.memory)
         self.activate("supervisor", self.supervisor)
         self.scheduler.start()
+        self.localizer.start()
 
     def _listen_to_microphone(self) -> None:
         mic = self.robot.microphone
@@ -542,6 +545,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def stop(self) -> None:
         await self.scheduler.stop()
+        await self.localizer.stop()
         for task in list(self._background):
             task.cancel()
         await self.warm_pool.close()  # idle workers killed and reaped

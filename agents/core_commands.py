@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from robots.api import RobotAPI
 
     from .core_agent import DynamicSession
+    from .core_localizer import CoreLocalizer
 
 log = logging.getLogger("rapp.core")
 FEEDBACK_EVERY_S = 0.5
@@ -87,6 +88,7 @@ class RobotCommands:
     fail_held: tuple[str, str] | None = None  # (code, reason): held motions fail at the release
     driving: bool  # a move_vel velocity is in force
     safety_distance: float | None  # the safety check's margin (None: off)
+    localizer: CoreLocalizer | None = None  # the Core's pose estimate (agents/core_localizer.py)
 
     def _command_server(self) -> Responder:
         handlers = {name: self._robot_call for name in actions("robot")}
@@ -147,6 +149,11 @@ class RobotCommands:
         else from where the stop left the robot)."""
         req, ctx = memory["request"], memory["ctx"]
         name = req.action_name
+        if self.localizer is not None and (facts(name).core or name == "set_global_pose"):
+            # the Core's pose estimate: served by it; a set pose resets the odometry it follows
+            memory["reply"] = await (self.localizer.handle(req) if facts(name).core
+                                     else self.localizer.set_global_pose(req, self.robot.handle))
+            return "done"
         if not facts(name).motion:
             memory["reply"] = await self.robot.handle(req)
             return "done"

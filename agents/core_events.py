@@ -17,6 +17,10 @@ sends each matching Notification one way. Subscriptions end with the Dynamic Age
                                 clockwise, from the box centre and the camera's field of view), box
                                 [x, y, w, h] in pixels of the image (image_size [w, h]), score, camera.
                                 Only what the camera sees: never where people really are.
+    bumper / touch              a foot bumper or a head/hand touch sensor pressed or released
+                                (agents/core_contacts.py)
+On a robot with a depth camera (an Elektron's Kinect) the obstacle events also take the nearest point
+ahead of its depth image (agents/core_depth.py): what lies below or above the laser's plane.
 """
 from __future__ import annotations
 
@@ -33,6 +37,8 @@ from ontology.notifications import ONTOLOGY, EventTopic, Notification, Notify, S
 from ontology.registry import Done
 from ontology.robot import CaptureImage, GetCameraInfo, GetGlobalPose
 
+from .core_contacts import watch_contacts
+from .core_depth import with_depth
 from .errors import Refusal
 from .messages import bare
 from .responder import Responder
@@ -66,6 +72,7 @@ class CoreEvents:
                 self.activate("person-events", PersonEvents(self))
             else:
                 log.info("%s subscribed to person events, but the robot has no camera", ctx.sender)
+        watch_contacts(self, req.topics)  # bumper, touch: agents/core_contacts.py
         return Done()
 
     def end_subscriptions(self) -> None:
@@ -73,6 +80,7 @@ class CoreEvents:
         self.subscriptions = {}
         self.deactivate("obstacle-events")
         self.deactivate("person-events")
+        self.deactivate("contact-events")
 
     async def publish(self, topic: EventTopic, ttl_s: float | None, **data) -> Notification | None:
         jids = self.subscriptions.get(topic)
@@ -107,7 +115,7 @@ class ObstacleEvents(PeriodicBehaviour):
         self.core, self.close = core, False
 
     async def run(self) -> None:
-        echo = await self.core.nearest_echo()
+        echo = await with_depth(self.core.robot, await self.core.nearest_echo())  # agents/core_depth.py
         if echo is None:
             return
         close = echo.margin_m < self.core.warn_distance

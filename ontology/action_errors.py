@@ -168,6 +168,11 @@ ROBOT_ERRORS: dict[str, Errors] = {
     "rest": {},
     "get_sonars": {E.UNSUPPORTED: "the robot has no sonars (an Elektron: get_laser_scan)"},
     "get_laser_scan": {E.UNSUPPORTED: "the robot has no laser scanner (a NAO: get_sonars)"},
+    "get_contacts": {E.UNSUPPORTED: "the robot has no contact sensors (an Elektron)"},
+    "capture_depth": {E.UNSUPPORTED: "the robot has no depth camera (a NAO)",
+                      E.INVALID_ARGUMENT: "unknown depth camera, or a resolution above the Kinect's 320x240"},
+    "get_pose_estimate": {},
+    "add_pose_fix": {},
     "lock_resource": {E.UNKNOWN_RESOURCE: ("refuse", "not a device (base, head, joints, camera, speaker, microphone)")},
     "free_resource": {E.NOT_HOLDER: "the sender does not hold the lock"},
 }

@@ -33,6 +33,8 @@ class EventTopic(StrEnum):
     OBSTACLE_CLEAR = "obstacle-clear"  # ... and later nothing any more
     ESTOP = "estop"  # the emergency stop latched or was released (data: latched, reason, by)
     PERSON = "person"  # a people detector finds someone in the robot's camera image (data: count, bearing_rad, box)
+    BUMPER = "bumper"  # a foot bumper was pressed or released (data: ontology.robot.ContactChange's fields)
+    TOUCH = "touch"  # a head or hand touch sensor was pressed or released (data: as bumper)
 
 
 class Notification(Content):

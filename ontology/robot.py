@@ -110,6 +110,52 @@ class SonarReading(Content):
     bearing: float = 0.0  # each sonar's axis from the heading (rad): left +bearing, right -bearing
 
 
+class ContactChange(Content):
+    """A contact sensor pressed or released (a NAO's foot bumper or head/hand touch sensor)."""
+
+    sensor: str  # of Contacts.pressed: bumper_left, bumper_right, head_front, head_middle, head_rear, hand_left, hand_right
+    kind: Literal["bumper", "touch"]
+    pressed: bool
+    stamp: float  # simulation time
+    seq: int  # 1, 2, ... in the order the robot's contact sensors changed
+
+
+class Contacts(Content):
+    """The robot's contact sensors now, and their changes after a given one."""
+
+    pressed: dict[str, bool]  # every contact sensor of the robot: pressed now
+    changes: list[ContactChange] = Field(default_factory=list)  # oldest first (the last CONTACT_BUFFER kept)
+    last: int = 0  # the newest change's seq: the next request's `after`
+    stamp: float = 0.0  # simulation time of the reading
+
+
+class DepthImage(Content):
+    """A depth camera's image: z along the optical axis (m) per pixel, as a 16-bit PNG of millimetres, 0 where
+    the sensor had no return (too near, too far, too oblique). Optical frame as the cameras'."""
+
+    camera: str
+    width: int
+    height: int
+    encoding: str = "png16mm"
+    data_b64: str
+    stamp: float = 0.0
+    range_min: float  # m: nearer returns are missing, as farther than range_max
+    range_max: float
+    K: list[list[float]]  # pinhole intrinsics of this image (pixel centres at integer coordinates)
+    camera_to_robot: list[list[float]]  # optical frame -> robot base frame (4x4) when it was taken
+
+
+class PoseEstimate(Content):
+    """The Core's pose estimate (odometry fused with the global fixes it was given), with its covariance."""
+
+    pose: Pose2D
+    covariance: list[list[float]]  # 3x3, of (x m, y m, theta rad)
+    std_m: float  # position standard deviation, worst direction
+    std_rad: float
+    fixes: int = 0  # fixes fused since the Core started
+    accepted: bool = True  # add_pose_fix: False when the fix was refused (too far from the estimate)
+
+
 class LaserScan(Content):
     angle_min: float
     angle_max: float
@@ -333,6 +379,46 @@ class GetLaserScan(Action):
     """One scan of the laser range finder (an Elektron; a NAO has sonars)."""
 
 
+CONTACT_BUFFER = 100  # contact changes a robot keeps for get_contacts `after`
+
+
+@robot_action("get_contacts", reply=Contacts)
+class GetContacts(Action):
+    """The contact sensors (a NAO's foot bumpers, head and hand touch sensors): which are pressed now and
+    every press and release after the change numbered `after` (a reply's `last`; None: no past changes)."""
+
+    after: int | None = Field(default=None, ge=0)
+
+
+@robot_action("capture_depth", reply=DepthImage)
+class CaptureDepth(Action):
+    """One image of a depth camera (an Elektron's Kinect), with a real sensor's noise and missing returns."""
+
+    camera: str = ""  # "" = the robot's first depth camera
+    resolution: str = "320x240"  # "WxH" or QQVGA/QVGA/VGA
+
+
+# ---------------------------------------------------------------- localization (served by the Core)
+@robot_action("get_pose_estimate", reply=PoseEstimate)
+class GetPoseEstimate(Action):
+    """The Core's own estimate of the robot's pose and its covariance: the robot's odometry fused with the
+    global fixes given by add_pose_fix (paper 001's relative localization in the Core). Served by the Core."""
+
+
+@robot_action("add_pose_fix", reply=PoseEstimate)
+class AddPoseFix(Action):
+    """A global pose fix (e.g. from QR landmarks) for the Core's estimate, with its standard deviations;
+    answers the fused estimate. A fix too far from the estimate for both uncertainties is refused
+    (accepted=False) unless `gate` is False. Served by the Core."""
+
+    x: float  # m, global frame
+    y: float
+    theta: float  # rad
+    std_m: float = Field(gt=0, le=100)
+    std_rad: float = Field(gt=0, le=10)
+    gate: bool = True
+
+
 class LockState(Content):
     resource: str
     held: bool
@@ -356,5 +442,5 @@ class FreeResource(Action):
     resource: str
 
 
-ROBOT_ACTIONS: dict[str, type[Action]] = {
-    n: m for n, m in actions(ONTOLOGY).items() if m.group != "resources"}
+ROBOT_ACTIONS: dict[str, type[Action]] = {  # served by the robot (RobotAPI); the others by the Core itself
+    n: m for n, m in actions(ONTOLOGY).items() if not ACTION_FACTS[n].core}

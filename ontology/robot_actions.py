@@ -8,7 +8,9 @@
 - `idempotent`: a read without side effects, sent again after a timeout (agents/base.py `request`);
 - `drive`: its effect on the base's velocity after the call returns, watched by the Core's safety
   monitor: "sets" (move_vel: driving while the velocity is not zero), "ends" (no velocity in force
-  afterwards), None (no effect).
+  afterwards), None (no effect);
+- `core`: served by the Core itself, never by the robot (the locks; the Core's pose estimate,
+  agents/core_localizer.py).
 
 ontology/robot.py registers each action with the group and idempotency of its row;
 docs/architecture-actions.md shows this table (`python -m ontology.robot_actions` prints it) and
@@ -28,11 +30,12 @@ class ActionFacts(NamedTuple):
     motion: bool = False
     idempotent: bool = False
     drive: Literal["sets", "ends"] | None = None
+    core: bool = False
 
 
 F = ActionFacts
 ACTION_FACTS: dict[str, ActionFacts] = {
-    # action                     group            device        motion  idempotent drive
+    # action                     group            device        motion  idempotent drive  core
     "say":                     F("communication", "speaker",    False, False),
     "word_spotting":           F("communication", "microphone", False, False),
     "capture_audio":           F("communication", "microphone", False, True),
@@ -42,12 +45,15 @@ ACTION_FACTS: dict[str, ActionFacts] = {
     "set_camera_param":        F("vision",        "camera",     False, False),
     "set_camera_params":       F("vision",        "camera",     False, False),
     "get_camera_info":         F("vision",        None,         False, True),
+    "capture_depth":           F("vision",        None,         False, True),
     "move_to":                 F("navigation",    "base",       True,  False, "ends"),
     "move_vel":                F("navigation",    "base",       True,  False, "sets"),
     "move_stop":               F("navigation",    None,         False, False, "ends"),
     "move_along_path":         F("navigation",    "base",       True,  False, "ends"),
     "look_at_point":           F("navigation",    "head",       True,  False),
     "get_global_pose":         F("navigation",    None,         False, True),
+    "get_pose_estimate":       F("navigation",    None,         False, True,  None,  True),
+    "add_pose_fix":            F("navigation",    None,         False, False, None,  True),
     "set_global_pose":         F("navigation",    None,         False, False),
     "get_transform":           F("navigation",    None,         False, True),
     "move_joint":              F("navigation",    "joints",     True,  False),
@@ -56,8 +62,9 @@ ACTION_FACTS: dict[str, ActionFacts] = {
     "rest":                    F("navigation",    "joints",     True,  False),
     "get_sonars":              F("sensors",       None,         False, True),
     "get_laser_scan":          F("sensors",       None,         False, True),
-    "lock_resource":           F("resources",     None,         False, False),
-    "free_resource":           F("resources",     None,         False, False),
+    "get_contacts":            F("sensors",       None,         False, True),
+    "lock_resource":           F("resources",     None,         False, False, None,  True),
+    "free_resource":           F("resources",     None,         False, False, None,  True),
 }
 del F
 
@@ -85,7 +92,8 @@ def markdown_table() -> str:
     def cell(v: object) -> str:
         return "yes" if v is True else "no" if v is False else "–" if v is None else f"`{v}`"
 
-    rows = ["| action | group | device | motion | idempotent | drive |", "|---|---|---|---|---|---|"]
+    rows = ["| action | group | device | motion | idempotent | drive | served by the Core |",
+            "|---|---|---|---|---|---|---|"]
     rows += [f"| `{name}` | " + " | ".join(cell(v) for v in f) + " |" for name, f in ACTION_FACTS.items()]
     return "\n".join(rows)
 

@@ -15,7 +15,8 @@ class RobotInfo(BaseModel):
 
     robot_id: str
     robot_type: str
-    # what the robot has, of robots.interface.CAPABILITIES: speech, microphone, camera, head, sonars, laser
+    # what the robot has, of robots.interface.CAPABILITIES: speech, microphone, camera, head, sonars, laser,
+    # depth, bumpers, touch
     capabilities: list[str] = Field(default_factory=list)
 
 

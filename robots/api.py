@@ -20,12 +20,13 @@ from hearing.wav import decode_wav, encode_wav, level_dbfs
 from ontology.errors import ErrorCode
 from ontology.registry import Done
 from ontology.robot import (AUDIO_BUFFER_S, MAX_AUDIO_SECONDS, MAX_MICROPHONES, Audio, CameraInfo, CameraParams,
-                            CaptureAudio, CaptureImage, GetCameraInfo, GetGlobalPose, GetJointAngles, GetLaserScan, GetSonars,
+                            CaptureAudio, CaptureDepth, CaptureImage, ContactChange, Contacts, DepthImage, GetContacts, GetCameraInfo, GetGlobalPose, GetJointAngles, GetLaserScan, GetSonars,
                             GetTransform, Image, JointAngles, LaserScan,
                             LookAtPoint, MicrophoneEnergy, MicrophoneLevel, MoveAlongPath, MoveJoint, MoveStop, MoveTo,
                             MoveVel, PlayAudio, Pose2D, Rest, Say, SetCameraParam, SetCameraParams, SetGlobalPose,
                             SonarReading, TakePredefinedPosture, Transform, WordSpotted, WordSpotting)
 from .controllers import GoToPose, JointMotion, LookAt, PathFollower, VelocityController
+from .depth_png import encode_depth
 from .errors import InvalidArgument, MotionInterrupted, UnsupportedOperation
 from .loudspeaker import check_speech
 from .microphones import AudioInput, spot_in_audio
@@ -33,6 +34,7 @@ from .receptors import Camera, encode_frame, parse_resolution
 from .robot import Robot
 from .sound import house_sound
 
+MAX_DEPTH_PIXELS = 320 * 240
 CAMERA_PARAM_NAMES = ("brightness", "contrast", "gain", "exposure", "auto_exposure")
 
 
@@ -85,7 +87,8 @@ class RobotAPI:
         r = self.robot
         have = {"speech": r.loudspeaker is not None, "microphone": r.microphone is not None,
                 "camera": bool(r.cameras), "head": bool(r.spec.head_yaw), "sonars": bool(r.sonars),
-                "laser": r.laser is not None}
+                "laser": r.laser is not None, "depth": bool(r.depth_cameras), "bumpers": bool(r.spec.bumpers),
+                "touch": bool(r.spec.touch_sensors)}
         return frozenset(k for k, v in have.items() if v)
 
     def moving_forward(self, min_speed: float = 0.02) -> bool:
@@ -305,11 +308,13 @@ class RobotAPI:
         sensors = {s.name: s.spec.link for s in r.sonars}
         if r.laser:
             sensors["laser"] = r.laser.spec.link
+        if c in r.depth_cameras:
+            return r.depth_cameras[c].optical_pose()
         if c in sensors:
             return r.link_pose(sensors[c])
         if c in ("base", "base_link", "robot"):
             return r.base_in_world()
-        known = ["camera", *r.cameras, "head", "neck", *sensors, "base"]
+        known = ["camera", *r.cameras, *r.depth_cameras, "head", "neck", *sensors, "base"]
         raise InvalidArgument(f"unknown chain {chain!r} (known: {', '.join(known)})")
 
     async def get_transform(self, req: GetTransform) -> Transform:
@@ -373,6 +378,34 @@ class RobotAPI:
         return LaserScan(angle_min=s.angle_min, angle_max=s.angle_max,
                          angle_increment=(s.angle_max - s.angle_min) / (s.rays - 1), range_min=s.range_min,
                          range_max=s.range_max, ranges=[float(v) for v in ranges], mount_x=round(mount[0], 4))
+
+    async def get_contacts(self, req: GetContacts) -> Contacts:
+        r = self.robot
+        if r.contacts is None:
+            raise UnsupportedOperation(f"{r.kind} has no contact sensors (bumpers, touch)")
+        last, pressed = r.contacts.last, dict(r.contacts.pressed)
+        changes = [ContactChange(sensor=c.sensor, kind=c.kind, pressed=c.pressed, stamp=c.stamp, seq=c.seq)  # type: ignore[arg-type]
+                   for c in r.contacts.after(req.after) if c.seq <= last]
+        return Contacts(pressed=pressed, changes=changes, last=last, stamp=self.world.time)
+
+    async def capture_depth(self, req: CaptureDepth) -> DepthImage:
+        r = self.robot
+        if not r.depth_cameras:
+            raise UnsupportedOperation(f"{r.kind} has no depth camera")
+        name = req.camera or next(iter(r.depth_cameras))
+        cam = r.depth_cameras.get(name)
+        if cam is None:
+            raise InvalidArgument(f"unknown depth camera {req.camera!r} on {r.kind} (known: {', '.join(r.depth_cameras)})")
+        w, h = parse_resolution(req.resolution)
+        if w * h > MAX_DEPTH_PIXELS:  # a noisy VGA depth image's PNG is ~230 K base64 characters: not one message
+            raise InvalidArgument(f"depth resolution {w}x{h} is larger than the Kinect's 320x240 mode")
+        stamp = self.world.time
+        mount = await self.world.run(lambda: r.in_base(cam.optical_pose()))
+        z = await self.world.capture(cam, w, h)  # type: ignore[arg-type] - a DepthCamera renders as a Camera does
+        data = await asyncio.get_running_loop().run_in_executor(None, encode_depth, z)
+        return DepthImage(camera=name, width=w, height=h, data_b64=base64.b64encode(data).decode(), stamp=stamp,
+                          range_min=cam.spec.range_min, range_max=cam.spec.range_max,
+                          K=cam.intrinsics(w, h).tolist(), camera_to_robot=mount.tolist())
 
     # ------------------------------------------------------------------ generic dispatch
     async def handle(self, req) -> Any:

@@ -116,6 +116,7 @@ class BaseController(Controller):
 def drive_base(robot: "Robot", vx: float, vy: float, wz: float, dt: float) -> bool:
     """One step of the base: exact (ideal robot) or with the robot's slip and sway (robots/failure_modes.py);
     True when an obstacle blocked the translation."""
+    robot.base.steps += 1
     if robot.locomotion is None:
         return robot.base.drive(vx, vy, wz, dt)
     return robot.locomotion.drive(robot, vx, vy, wz, dt)

@@ -22,6 +22,7 @@ class BaseEffector:
     def __init__(self, robot: "Robot"):
         self.robot, self.spec = robot, robot.spec
         self.command = (0.0, 0.0, 0.0)  # the velocity of the last step driven (robot frame)
+        self.steps = 0  # steps driven so far (controllers.drive_base): the contact sensors see whether it walks
 
     def check_velocity(self, vx: float, vy: float, wz: float) -> tuple[float, float, float]:
         s = self.spec

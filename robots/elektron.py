@@ -1,5 +1,7 @@
 """Elektron-like mobile base: differential drive (0.25 m/s), pan-tilt head with a narrow camera
-(45 deg hfov), a 240 deg laser scanner at 0.26 m, no speech synthesis."""
+(45 deg hfov), a 240 deg laser scanner at 0.26 m, two fixed Kinect depth cameras (paper 000, table 1:
+the bottom one looks at the floor ahead, where the laser's plane misses low obstacles; the top one, on
+the mast, ahead at table height), no speech synthesis."""
 from __future__ import annotations
 
 import math
@@ -7,7 +9,7 @@ import math
 from ontology.robot_types import robot_type
 
 from .failure_modes import ElektronFailures
-from .spec import CameraSpec, RangeSpec, RobotSpec
+from .spec import CameraSpec, DepthCameraSpec, RangeSpec, RobotSpec
 from .urdf import JointDef, UrdfBuilder, box, cylinder
 
 BODY = (0.2, 0.25, 0.4, 1)
@@ -43,5 +45,7 @@ SPEC = RobotSpec(
     head_yaw="HeadPan", head_pitch="HeadTilt", look_camera="head", joint_speed=1.5,
     postures=POSTURES, rest_posture="Zero",
     laser=RangeSpec("laser", "laser", -math.radians(120), math.radians(120), 241, 0.02, 5.6),
+    depth_cameras=(DepthCameraSpec("kinect_bottom", "base_link", (0.14, 0.0, 0.42), pitch_deg=25.0),
+                   DepthCameraSpec("kinect_top", "base_link", (-0.08, 0.0, 0.95), pitch_deg=10.0)),
     speech=False, failures=ElektronFailures(),
 )

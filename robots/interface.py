@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any, Protocol, runtime_checkable
 
 # What a RApp may ask its runtime about (ontology.spawn.RobotInfo.capabilities)
-CAPABILITIES = ("speech", "microphone", "camera", "head", "sonars", "laser")
+CAPABILITIES = ("speech", "microphone", "camera", "head", "sonars", "laser", "depth", "bumpers", "touch")
 
 
 @runtime_checkable

@@ -6,6 +6,7 @@ import math
 
 from ontology.robot_types import robot_type
 
+from .contact_sensors import BumperSpec
 from .failure_modes import NaoFailures
 from .mic_array import NAO_MICS
 from .spec import CameraSpec, RangeSpec, RobotSpec
@@ -101,6 +102,8 @@ SPEC = RobotSpec(
     postures=POSTURES, rest_posture="Crouch",
     sonars=[RangeSpec("sonar_left", "SonarLeft", -0.26, 0.26, 5, 0.25, 2.55),
             RangeSpec("sonar_right", "SonarRight", -0.26, 0.26, 5, 0.25, 2.55)],
+    bumpers=(BumperSpec("bumper_left", "LFoot"), BumperSpec("bumper_right", "RFoot")),
+    touch_sensors=("head_front", "head_middle", "head_rear", "hand_left", "hand_right"),
     speech=True, microphones=NAO_MICS, lift_joint="BaseLift", lift_height=lift_height, hidden_joints=("BaseLift",),
     failures=NaoFailures(),
 )

@@ -116,6 +116,8 @@ def _mirror_scene_class():
 
         def render(self, job: RenderJob) -> np.ndarray:
             self.apply(job)
+            if hasattr(job.params, "render_depth"):  # a depth image (robots/depth_camera.py), not colour
+                return job.params.render_depth(self.cid, job.width, job.height, job.view, job.proj)
             radiance = render_radiance(self.cid, job.width, job.height, job.view, job.proj, self.emissive_colors)
             return apply_params(radiance, job.params)
 

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from .pybullet_quiet import p
 
+from .contact_sensors import ContactSensors
+from .depth_camera import DepthCamera
 from .effectors import BaseEffector, HeadEffector, JointsEffector
 from .failure_modes import Locomotion, defaults_for, make_locomotion
 from .loudspeaker import Loudspeaker
@@ -77,6 +79,9 @@ class Robot:
         self.protection_m: float | None = None  # the collision protection's margin (RobotAPI.protect)
         self.sonars = [RangeSensor(self, s) for s in spec.sonars]
         self.laser = RangeSensor(self, spec.laser) if spec.laser else None
+        self.depth_cameras = {d.name: DepthCamera(self, d) for d in spec.depth_cameras}
+        self.contacts = (ContactSensors(self, spec.bumpers, spec.touch_sensors)
+                         if spec.bumpers or spec.touch_sensors else None)
         self.microphone = Microphone()
         self.controllers: dict[str, "Controller"] = {}
         self.locomotion: Locomotion | None = None
@@ -97,6 +102,8 @@ class Robot:
             sonar.noise = getattr(params, "sonar", None)
         if self.laser is not None:
             self.laser.noise = getattr(params, "laser", None)
+        for depth in self.depth_cameras.values():
+            depth.set_noise(params is not None)
 
     # ------------------------------------------------------------ kinematics (pybullet thread)
     def _probe_z(self) -> float:

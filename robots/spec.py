@@ -28,6 +28,22 @@ class RangeSpec:
     range_max: float
 
 
+@dataclass(frozen=True)
+class DepthCameraSpec:
+    """A depth camera (a Kinect) fixed on `link`, `xyz` (m) ahead/left/up of it, pitched `pitch_deg` down;
+    its noise model is robots/depth_camera.py's."""
+
+    name: str
+    link: str
+    xyz: tuple[float, float, float]
+    pitch_deg: float
+    hfov_deg: float = 57.0  # Kinect v1: 57 x 43 deg
+    range_min: float = 0.5  # m: nearer, no return
+    range_max: float = 4.5
+    near: float = 0.05  # the render's clipping planes
+    far: float = 12.0
+
+
 @dataclass
 class RobotSpec:
     """A body (robots/nao.py, robots/elektron.py) of a robot type of ontology/robot_types.py."""
@@ -55,5 +71,8 @@ class RobotSpec:
     lift_joint: str | None = None  # virtual prismatic joint keeping the feet on the floor
     lift_height: Callable[[dict[str, float]], float] | None = None
     hidden_joints: tuple[str, ...] = ()
+    bumpers: tuple[Any, ...] = ()  # robots.contact_sensors.BumperSpec: a foot's toe
+    touch_sensors: tuple[str, ...] = ()  # touch sensors a scenario presses (World.touch)
+    depth_cameras: tuple[DepthCameraSpec, ...] = ()
     # how it fails like a real one (robots/failure_modes.py NaoFailures, ElektronFailures); None: ideal
     failures: Any = None

@@ -341,6 +341,15 @@ class World(Scene):
         """Touching episodes between robots (or `robot`) and dropped boxes so far."""
         return self.disturbances.contacts("box", robot) if self.disturbances is not None else 0
 
+    async def touch(self, robot: str, sensor: str, seconds: float = 0.3) -> None:
+        """Press a robot's touch sensor (a NAO's head_front, head_middle, head_rear, hand_left, hand_right)
+        now, for `seconds` of simulation time: what a person touching it does (RobotAPI.get_contacts and
+        the Core's "touch" events report it). InvalidArgument for an unknown robot or sensor."""
+        r = self.robots.get(robot)
+        if r is None or r.contacts is None:
+            raise InvalidArgument(f"no robot {robot!r} with touch sensors (robots: {', '.join(self.robots) or 'none'})")
+        await self.run(lambda: r.contacts.touch(sensor, self.clock.time, seconds))
+
     def contact_events(self) -> "list[ContactEvent]":
         return list(self.disturbances.events) if self.disturbances is not None else []
 
@@ -453,6 +462,9 @@ class World(Scene):
             self.clock.time += dt
             if self.disturbances is not None:
                 self.disturbances.advance(self.clock.time)
+            for r in self.robots.values():
+                if r.contacts is not None:  # bumpers against what the step moved, touches that end
+                    r.contacts.step(self.clock.time)
             if any(c.blocking for c in finished):
                 break
         return finished

@@ -40,7 +40,11 @@ OLD_GROUP = {
     "get_joint_angles": "navigation", "take_predefined_posture": "navigation", "rest": "navigation",
     "get_sonars": "sensors", "get_laser_scan": "sensors",
     "lock_resource": "resources", "free_resource": "resources",
+    # issue 47: the contact sensors, the depth camera and the Core's pose estimate, added after the freeze
+    "get_contacts": "sensors", "capture_depth": "vision", "get_pose_estimate": "navigation",
+    "add_pose_fix": "navigation",
 }
+CORE_SERVED = {"lock_resource", "free_resource", "get_pose_estimate", "add_pose_fix"}
 OLD_DEVICE = {  # agents/locks.py ACTION_DEVICE; every other action: None
     "capture_audio": "microphone", "microphone_energy": "microphone", "play_audio": "speaker",
     "move_to": "base", "move_vel": "base", "move_along_path": "base",
@@ -89,6 +93,8 @@ OLD_IDEMPOTENT = {
     ("robot", "rest"): False, ("robot", "say"): False, ("robot", "set_camera_param"): False,
     ("robot", "set_camera_params"): False, ("robot", "set_global_pose"): False,
     ("robot", "take_predefined_posture"): False, ("robot", "word_spotting"): False,
+    ("robot", "get_contacts"): True, ("robot", "capture_depth"): True, ("robot", "get_pose_estimate"): True,
+    ("robot", "add_pose_fix"): False,
     ("store", "catalogue_changed"): False, ("store", "delete"): False, ("store", "download_chunk"): True,
     ("store", "download_info"): True, ("store", "info"): True, ("store", "list_packages"): True,
     ("store", "publish"): False, ("store", "register_owner"): False, ("store", "register_robot"): False,
@@ -180,8 +186,9 @@ async def test_the_core_holds_motion_during_an_estop_and_locks_the_device(name):
     ctx = _ctx()
     core = _core(estop="bumper")
     core._only_supervisor(_request(name), ctx)  # not refused: a motion waits for the resume
-    if ACTION_FACTS[name].group == "resources":
-        return  # served by the Core itself
+    assert ACTION_FACTS[name].core is (name in CORE_SERVED)
+    if ACTION_FACTS[name].core:
+        return  # served by the Core itself (the locks; its pose estimate: tests/test_core_localizer.py)
     call = asyncio.create_task(core._robot_call(_request(name), ctx))
     await asyncio.sleep(0.05)
     assert call.done() is (name not in OLD_MOTION)  # a motion is held, anything else is served

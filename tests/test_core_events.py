@@ -3,6 +3,7 @@ when the camera's people detector finds someone, and the typed notification's ex
 (ontology/notifications.py)."""
 import asyncio
 import time
+from types import SimpleNamespace
 
 import pytest
 from pydantic import ValidationError
@@ -17,6 +18,7 @@ class _Core:
 
     def __init__(self, readings):
         self.readings, self.sent = list(readings), []
+        self.robot = SimpleNamespace(capabilities=frozenset)  # no depth camera: the range sensors alone
 
     async def nearest_echo(self):
         margin = self.readings.pop(0)

@@ -88,7 +88,8 @@ def rapp_escapes() -> list[str]:
 KNOWN_LOOPS = [
     {"agents.core_agent", "agents.core_behaviours", "agents.core_commands"},  # mixins importing their host
     {"robots.controllers", "robots.disturbances", "robots.effectors", "robots.failure_modes", "robots.receptors",
-     "robots.render_process", "robots.robot", "robots.world"},  # the body, its sensors and the world
+     "robots.render_process", "robots.robot", "robots.world", "robots.contact_sensors",
+     "robots.depth_camera"},  # the body, its sensors and the world
 ]
 
 

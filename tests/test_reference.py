@@ -162,8 +162,8 @@ def test_each_services_errors_are_the_codes_its_implementation_raises():
 def test_each_robot_actions_errors_are_the_codes_the_robot_raises():
     exact, upper = _functions("robots", False), _functions("robots", True)
     for name in ACTION_FACTS:
-        if ACTION_FACTS[name].group == "resources":
-            continue  # served by the Core (agents/core_commands.py `_lock`, `_free`)
+        if ACTION_FACTS[name].core:
+            continue  # served by the Core (agents/core_commands.py `_lock`, `_free`; agents/core_localizer.py)
         start = ("api", f"RobotAPI.{name}")
         assert start in exact, name
         declared = {e.code for e in robot_errors(name)}

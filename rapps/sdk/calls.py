@@ -5,7 +5,7 @@ from typing import Any, Callable, Literal
 
 from ontology.platform import CloudAgentReply, Pong, Released, TokenReply
 from ontology.registry import Done, Progress
-from ontology.robot import Audio, CameraInfo, CameraParams, Image, JointAngles, LaserScan, LockState, MicrophoneLevel, SonarReading, Transform, WordSpotted
+from ontology.robot import Audio, CameraInfo, CameraParams, Contacts, DepthImage, Image, JointAngles, LaserScan, LockState, MicrophoneLevel, PoseEstimate, SonarReading, Transform, WordSpotted
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.email import EmailList
 from ontology.services.hazard import DoorAngle, DoorGeometry, LightLevel
@@ -24,9 +24,17 @@ from ._call import UNSET, _Calls
 class RobotCalls(_Calls):
     """The robot API: one method per action the Core serves (ontology/robot.py)."""
 
+    async def add_pose_fix(self, *, x: float, y: float, theta: float, std_m: float, std_rad: float, gate: bool = True, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> PoseEstimate:
+        """A global pose fix (e.g. from QR landmarks) for the Core's estimate, with its standard deviations;"""
+        return await self._call("add_pose_fix", {"x": x, "y": y, "theta": theta, "std_m": std_m, "std_rad": std_rad, "gate": gate}, _timeout, _feedback)
+
     async def capture_audio(self, *, seconds: float = 3.0, sample_rate: Literal[8000, 16000] = 16000, observe: bool = False, since: float | None = None, array: bool = False, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Audio:
         """Record the microphone for `seconds` of simulation time."""
         return await self._call("capture_audio", {"seconds": seconds, "sample_rate": sample_rate, "observe": observe, "since": since, "array": array}, _timeout, _feedback)
+
+    async def capture_depth(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> DepthImage:
+        """One image of a depth camera (an Elektron's Kinect), with a real sensor's noise and missing returns."""
+        return await self._call("capture_depth", {"camera": camera, "resolution": resolution}, _timeout, _feedback)
 
     async def capture_image(self, *, camera: str = '', resolution: str = '320x240', _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Image:
         """One image of a camera (PNG, base64) at a resolution; the robot's main camera by default."""
@@ -40,6 +48,10 @@ class RobotCalls(_Calls):
         """The camera's pinhole intrinsics at a resolution (K, P, fields of view)."""
         return await self._call("get_camera_info", {"camera": camera, "resolution": resolution}, _timeout, _feedback)
 
+    async def get_contacts(self, *, after: int | None = None, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Contacts:
+        """The contact sensors (a NAO's foot bumpers, head and hand touch sensors): which are pressed now and"""
+        return await self._call("get_contacts", {"after": after}, _timeout, _feedback)
+
     async def get_global_pose(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Pose2D:
         """The robot's own estimate of its pose (odometry, drifting as it moves; set_global_pose corrects"""
         return await self._call("get_global_pose", {}, _timeout, _feedback)
@@ -51,6 +63,10 @@ class RobotCalls(_Calls):
     async def get_laser_scan(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> LaserScan:
         """One scan of the laser range finder (an Elektron; a NAO has sonars)."""
         return await self._call("get_laser_scan", {}, _timeout, _feedback)
+
+    async def get_pose_estimate(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> PoseEstimate:
+        """The Core's own estimate of the robot's pose and its covariance: the robot's odometry fused with the"""
+        return await self._call("get_pose_estimate", {}, _timeout, _feedback)
 
     async def get_sonars(self, *, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> SonarReading:
         """The two sonars' ranges (a NAO; an Elektron has a laser scanner)."""

@@ -14,9 +14,10 @@ from .conftest import api_at
 
 
 def test_every_action_has_a_method_and_a_group():
-    # every robot action is served by the robot API; the Core serves the resource locks itself
-    assert ROBOT_ACTIONS == {n: m for n, m in actions("robot").items() if m.group != "resources"}
-    assert set(actions("robot")) - set(ROBOT_ACTIONS) == {"lock_resource", "free_resource"}
+    # every robot action is served by the robot API; the Core serves the resource locks and its pose
+    # estimate itself
+    assert set(actions("robot")) - set(ROBOT_ACTIONS) == {"lock_resource", "free_resource", "get_pose_estimate",
+                                                          "add_pose_fix"}
     for name, model in ROBOT_ACTIONS.items():
         assert callable(getattr(RobotAPI, name)), name
         assert model.group in {"communication", "vision", "navigation", "sensors"}

@@ -1,0 +1,85 @@
+"""The Core's own pose estimate (agents/core_localizer.py, paper 001): the odometry followed by the pose EKF,
+fused with the fixes a RApp sends (add_pose_fix), served with its covariance (get_pose_estimate) through the
+Core's command server; a RApp's set_global_pose resets the odometry without moving the estimate."""
+import asyncio
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from agents.core_commands import RobotCommands
+from agents.core_localizer import CoreLocalizer
+from agents.locks import ResourceLocks
+from ontology.robot import AddPoseFix, GetGlobalPose, GetPoseEstimate, MoveTo, SetGlobalPose
+from ontology.robot_actions import ROBOT_API_GROUPS
+
+LEGS = [(1.2, math.pi / 2), (1.0, math.pi / 2), (1.2, math.pi / 2), (1.0, math.pi / 2)] * 2  # twice round a rectangle
+
+
+def _err(pose, truth) -> float:
+    return math.hypot(pose[0] - truth[0], pose[1] - truth[1])
+
+
+async def test_fixes_make_the_cores_estimate_better_than_odometry_and_shrink_its_covariance():
+    from robots import OdometryNoise, RobotAPI, World
+
+    rng = np.random.default_rng()  # the fixes' noise, drawn at run time
+    world = World.from_file("small", seed=int(rng.integers(1000)), render="inline")
+    try:
+        api = RobotAPI(world.add_robot("nao", pose=(0.9, 1.9, 0.0), odometry_noise=OdometryNoise.typical()))
+        loc = CoreLocalizer(api, "nao")
+        loc.start()
+        first = await loc.handle(GetPoseEstimate())
+        assert first.fixes == 0 and math.isclose(first.std_m, 0.5) and np.allclose(first.covariance, np.diag([0.25, 0.25, 0.09]))
+        shrunk = []
+        for i, (ahead, turn) in enumerate(LEGS):
+            await api.move_to(MoveTo(x=ahead, theta=turn))
+            await asyncio.sleep(0.15)  # a sample of the odometry between legs, at least
+            if i % 3 == 2 or i == len(LEGS) - 1:  # a QR fix every third leg and at the end: the truth with 3 cm / 2 deg of noise
+                x, y, th = world.ground_truth().robots["nao"]
+                before = await loc.handle(GetPoseEstimate())
+                fix = await loc.handle(AddPoseFix(x=x + rng.normal(0, 0.03), y=y + rng.normal(0, 0.03),
+                                                  theta=th + rng.normal(0, 0.035), std_m=0.03, std_rad=0.035))
+                assert fix.accepted and fix.fixes == before.fixes + 1
+                shrunk.append((np.trace(np.asarray(before.covariance)[:2, :2]), np.trace(np.asarray(fix.covariance)[:2, :2])))
+        await api.move_to(MoveTo(x=0.5))
+        truth = world.ground_truth().robots["nao"]
+        odometry = await api.get_global_pose(GetGlobalPose())
+        core = await loc.handle(GetPoseEstimate())
+        assert all(after < before / 2 for before, after in shrunk), shrunk
+        e_core, e_odo = _err((core.pose.x, core.pose.y), truth), _err((odometry.x, odometry.y), truth)
+        assert e_core < e_odo and e_core < 0.12, (e_core, e_odo)
+        assert e_core < 3 * core.std_m + 0.03  # its covariance says how far off it may be
+        wrong = await loc.handle(AddPoseFix(x=truth[0] + 2.0, y=truth[1], theta=truth[2], std_m=0.03, std_rad=0.03))
+        assert not wrong.accepted and wrong.fixes == core.fixes  # 2 m off: refused by the gate
+        await loc.stop()
+    finally:
+        world.close()
+
+
+async def test_set_global_pose_resets_the_odometry_not_the_estimate_and_the_command_server_serves_it():
+    from robots import RobotAPI, World
+
+    world = World.from_file("small", seed=1, render="inline")
+    try:
+        api = RobotAPI(world.add_robot("elektron", pose=(1.0, 2.4, 0.0)))
+        core = RobotCommands()  # the Core's command server, with the robot and the localizer a CoreAgent gives it
+        core.robot, core.robot_id, core.locks, core.driving = api, "el-1", ResourceLocks(), False
+        core.estop_reason, core.estop_by, core._estop_released = None, None, asyncio.Event()
+        core._estop_released.set()
+        core.record_structure = lambda *a, **k: None
+        core.dynamic = SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
+                                       manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS)))
+        core.localizer = CoreLocalizer(api, "elektron")
+        ctx = SimpleNamespace(sender="dyn@x", wants_feedback=False, feedback=None,
+                              info=SimpleNamespace(conversation_id="c-1"))
+        await core._robot_call(AddPoseFix(x=1.0, y=2.4, theta=0.0, std_m=0.02, std_rad=0.02), ctx)
+        await api.move_to(MoveTo(x=0.5))
+        await core._robot_call(SetGlobalPose(x=5.0, y=1.0, theta=1.0), ctx)  # a RApp's own (wrong) pose
+        assert (await api.get_global_pose(GetGlobalPose())).x == 5.0  # the robot's odometry was set ...
+        await api.move_to(MoveTo(x=0.4))
+        est = await core._robot_call(GetPoseEstimate(), ctx)
+        assert abs(est.pose.x - 1.9) < 0.03 and abs(est.pose.y - 2.4) < 0.03  # ... the Core's estimate followed the motion
+        assert est.fixes == 1 and 0.02 < est.std_m < 0.1
+    finally:
+        world.close()
