@@ -55,12 +55,11 @@ from .warm_pool import WarmPool
 log = logging.getLogger("rapp.platform")
 # once serving, a Cloud Agent in a process of its own (RApp code, its OpenCV work included) yields
 # the CPU to the Platform's services and to Cloud Agents still starting: the Platform is shared by
-# every robot, a Cloud Agent is one owner's RApp. The Platform sets it, as root, for the process's
-# threads and its session's group (agents/priority.py: the threads' nice alone changed nothing across
-# sessions). Each Cloud Agent is a group of its own, so their weights add up: 20 at +5 outweighed the
-# Platform 6.5 to 1, at +10 2 to 1 (bench/RESULTS.md H4, H5 and the full run: with this and the warm
-# refills at 19, the 20-robot service p95 was 53-70 ms against 76-108 ms before, and the rounds took
-# 182-188 s against 192-196 s). An in-process one leaves its host alone.
+# every robot, a Cloud Agent is one owner's RApp. Set for the process's threads and its session's
+# scheduling group (agents/priority.py: the threads' nice alone does nothing across sessions); each
+# Cloud Agent is a group of its own, so many of them add up against the Platform, hence +10, not +5
+# (the fleet's service p95 with each: bench/RESULTS.md, "Full run, 2026-11-26"). An in-process one
+# leaves its host alone.
 CLOUD_NICE = 10
 # what every RApp token may call besides the services its manifest declares
 ALWAYS_ALLOWED = {"start_cloud_agent", "stop_cloud_agent", "ping", "list_services"}

@@ -254,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     confine()  # first: the sandbox, as the Core or Platform asked (it never forks with a preexec_fn)
     say_confined()
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    # a crash in native code (a Cloud Agent's OpenCV work, 2026-11-26) leaves its Python stack in stderr.log,
+    # a crash in native code (a Cloud Agent's OpenCV work, say) leaves its Python stack in stderr.log,
     # which the Core or Platform quotes in its record of the loss
     faulthandler.enable()
     global _logged_out_fd

@@ -35,15 +35,14 @@ from .sandbox import Sandbox
 log = logging.getLogger("rapp.warm")
 MAX_BACKOFF_S = 30.0
 # a refill waits this long after a hand-off: the new worker's start and imports would otherwise slow
-# the hand-off it follows (measured when spawns still forked the Core's whole process with a
-# preexec_fn, holding the GIL) (bench/handoff.py: download -> spawn 23 ms without the wait, 10 ms with it)
+# the hand-off it follows (bench/handoff.py measures the hand-off; bench/RESULTS.md has the figures)
 REFILL_AFTER_S = 0.5
 # a refill's worker imports at this lower priority (nice increment, for its threads and its session's
 # scheduling group: agents/priority.py) until its own hand-off: after a burst of hand-offs the pool
-# refills many at once (~1 s of CPU each), which competed with the runs just started (bench/fleet.py,
-# start_cloud_agent). The lowest: each refill is a group of its own, and 20 groups at nice 10 still
-# outweighed the Platform's 2 to 1 (20 refills took 14 of the 20 CPU-seconds of a fleet's first 10 s);
-# at 19, 0.3 to 1. A worker handed a run before its imports are done finishes them at its parent's
+# refills many at once (~1 s of CPU each), which competes with the runs just started (bench/fleet.py,
+# start_cloud_agent). The lowest nice: each refill is a group of its own, so many of them together
+# still outweigh the Platform at a middle value (bench/RESULTS.md, the fleet's first seconds). A worker
+# handed a run before its imports are done finishes them at its parent's
 # priority, no later than a cold start would (a hand-off waits for a just-started refill to have lowered
 # itself first: agents/process.py CONFINED_WITHIN_S). The first fill runs at normal priority: nothing is
 # waiting for a hand-off yet, and the owner waits for it.

@@ -105,8 +105,8 @@ class RappSystem:
             return self
         self.store = StoreAgent("store", self.workdir / "store", self.settings, **self._store_kw)
         # cloud_nice 0: this Platform shares its process with the simulated robots, which stand for
-        # the robots' own CPUs; a Cloud Agent below it yielded to the simulation too, and the README's
-        # hazard run took 243 s instead of 223 s. A Platform of its own (`rapp agent platform`) keeps
+        # the robots' own CPUs; a Cloud Agent below it would yield to the simulation too, which a real
+        # robot's CPU never asks of it. A Platform of its own (`rapp agent platform`) keeps
         # agents/platform_agent.py CLOUD_NICE.
         self.platform = PlatformAgent("platform", store="store", settings=self.settings, services=self._services,
                                       workdir=self.workdir / "platform", limits=self.limits,
