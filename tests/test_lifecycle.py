@@ -34,12 +34,11 @@ class SpyAPI:
 
     def __init__(self, api: RobotAPI):
         self.api, self.core, self.calls = api, None, []
-        # the simulated robot too: the Core cuts its own voice from what it hears by its loudspeaker's
-        # times (without them it drops the pieces heard while it spoke, which a late piece escapes)
-        self.robot = api.robot
         self.microphone = api.microphone
         self.moving_forward, self.capabilities, self.halt = api.moving_forward, api.capabilities, api.halt
-        self.protect = api.protect
+        # the Core cuts its own voice from what it hears by its loudspeaker's times (without them it
+        # drops the pieces heard while it spoke, which a late piece escapes)
+        self.protect, self.loudspeaker_timing = api.protect, api.loudspeaker_timing
 
     async def handle(self, req):
         self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
