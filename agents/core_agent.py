@@ -191,6 +191,7 @@ class CoreAgent(RappAgent):
         self._trigger: ScheduledStart | None = None  # the schedule the command in hand came from
 
     async def _publish(self, topic, ttl_s, **data):
+        """RobotCommands' way to the events (built after it: they read the range sensors through it)."""
         return await self.events.publish(topic, ttl_s, **data)
 
     @property
