@@ -17,8 +17,17 @@ Behaviours and when they are active (see `active_behaviours()`):
                   microphone's sound is still spotted for "stop" / "cancel" / "resume", as the chat's)
   safety          while a Dynamic Agent supervises: an obstacle closer than `safety_distance`
                   latches the emergency stop (paper 003); nothing moves until "resume"
-The listener, heartbeat and safety behaviours are in agents/core_behaviours.py; the command
-server, the emergency stop and the safety check are the RobotCommands mixin (agents/core_commands.py).
+The listener, heartbeat and safety behaviours are in agents/core_behaviours.py.
+
+The Core is composed of members, each built with a narrow interface of what it needs (the Protocols
+of agents/core_parts.py), none importing the Core back:
+  hearing         CoreHearing (agents/core_hearing.py): the microphone's sound, keyword spotting,
+                  the supervision words during a task, the robot's own voice cut out
+  robot_commands  RobotCommands (agents/core_commands.py): the command server, locks, the emergency
+                  stop and the safety check's range readings
+  events          CoreEvents (agents/core_events.py): sensor events to the supervising Dynamic Agent
+  strategies      Strategies (agents/core_strategies.py): what a safety stop does before the hand-back
+How it runs (trust, Dynamic Agents, hearing, safety, where it keeps things) is one CoreOptions.
 
 Rights: robot commands are executed only for the current Dynamic Agent, only in the robot-API
 groups its manifest declares, and each takes the lock of its device (agents/locks.py); see
@@ -30,13 +39,13 @@ import asyncio
 import base64
 import itertools
 import logging
-import math
 import re
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from spade.message import Message
 
@@ -50,34 +59,31 @@ from ontology.acl import Performative
 from ontology.registry import Done
 from ontology.spawn import RobotInfo, SpawnSpec
 from robots.interface import check_robot
-from ontology.manifest import Manifest
 from ontology.package import Package, read_package, unpack_package
 from ontology.errors import ErrorCode
 from ontology.results import (RefusalRecord, ReportRecord, ScheduleChanged, SubscribeTasks, TaskEnded, TaskRecord,
                               TaskReported, TaskStage, TaskTrigger)
 from ontology.services.interpretation import InterpretCommand, Interpretation, RAppDescription
 from ontology.services.speech import SpeechRecognition
-from hearing.keywords import KeywordSpotter, LookAhead, keyword_in_a_sentence
-from hearing.steering import Steering
-from hearing.vad import HeardUtterance, VoiceActivity
+from hearing.keywords import keyword_in_a_sentence
+from hearing.vad import HeardUtterance
 from hearing.wav import encode_wav
 
 from .base import RappAgent
-from .core_behaviours import (AudioListener, HeartbeatMonitor, MicrophoneListener, MicrophoneStream, SafetyMonitor,
-                              UserChat, heartbeat_template)
+from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template
 from .core_commands import RobotCommands
 from .core_localizer import CoreLocalizer
-from .core_hearing import Continuation
+from .core_hearing import CoreHearing
 from .core_events import CoreEvents
+from .core_parts import DynamicSession
 from .core_strategies import Strategies
-from .core_fsm import build_core_fsm
+from .core_fsm import LISTEN, build_core_fsm
 from .scheduler import ScheduledStart, Scheduler
 from .errors import Refusal, RequestError, RequestFailed
-from .locks import ResourceLocks
 from .messages import bare
-from .identity import EphemeralAccounts, Identity, trace_refusal
+from .identity import EphemeralAccounts, trace_refusal
 from .liveness import GRACE_S, MARK_AFTER_S, SilenceWatch, sample_main_thread
-from .process import (AgentProcess, InProcessAgent, Limits, check_spawn_mode, crash_summary, spawn_agent,
+from .process import (AgentProcess, Limits, check_spawn_mode, crash_summary, spawn_agent,
                       sweep_run_dirs)
 from .sandbox import Sandbox
 from .responder import Responder
@@ -100,77 +106,63 @@ SUPERVISION_WORDS = {**{w: "stop" for w in STOP_WORDS}, **{w: "cancel" for w in 
                      **{w: "resume" for w in RESUME_WORDS}}  # heard by voice during a task too
 
 
-@dataclass
-class DynamicSession:
-    """The running Dynamic Agent: who it is, its process, and what it said last."""
-
-    jid: str
-    rapp: str
-    version: str
-    manifest: Manifest
-    workdir: Path
-    process: AgentProcess | InProcessAgent | None = None
-    state: str = "Spawned"
-    detail: str = ""
-    last_beat: float = field(default_factory=time.monotonic)
-    silence: SilenceWatch | None = None  # the looks at its process during the current silence
-    forgiven_s: float = 0.0  # silence not held against it: the Core's own loop stalls and link outages
-    ended: asyncio.Event = field(default_factory=asyncio.Event)
-    hung: bool = False  # ended for missing heartbeats: killed without a grace period
-    ready: asyncio.Event = field(default_factory=asyncio.Event)
-    end_reason: str = ""
-    account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
-    command: str = ""  # the owner's command that started it (text; "" when heard as sound)
-    started: float | None = None  # when supervision was handed to it (s since the epoch)
-    reports: list[ReportRecord] = field(default_factory=list)  # what it reported, in order
-    # what was refused it (by this Core, its sandbox, the Platform): {by, what, why, count}, told at its end
-    refusals: list[dict] = field(default_factory=list)
-    trigger: TaskTrigger = TaskTrigger.COMMAND  # what started it: the owner's command, or a schedule
-    schedule_id: int | None = None
+__all__ = ["CoreAgent", "CoreOptions", "DynamicSession"]  # DynamicSession: agents/core_parts.py
 
 
-class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
-    """The Core Agent; its robot-API server (supervisor-only commands, locks, e-stop, safety
-    check) is the RobotCommands mixin (agents/core_commands.py)."""
+@dataclass(frozen=True)
+class CoreOptions:
+    """How a Core runs, beside who it is and whom it talks to; every field has its default (a
+    scenario passes the few it changes by name: CoreOptions(**core_kw))."""
+
+    # packages: the keys a package may be signed with, and whether it must be
+    trusted_keys: Any = None
+    require_signature: bool = False
+    # Dynamic Agents: how each runs (agents/process.py), its limits and sandbox, processes started ahead
+    # (agents/warm_pool.py; 0: each starts cold) and the modules they import ahead
+    dynamic_mode: str = "process"
+    limits: Limits = Limits()
+    sandbox: Sandbox | None = None
+    warm_workers: int = 1
+    warm_imports: tuple[str, ...] = ()
+    # hearing and talking (agents/core_hearing.py): the microphone's sound, the supervision words
+    # during a task, and the RApps' reports said aloud
+    hear_audio: bool = True
+    voice_supervision: bool = False
+    say_reports: bool = True
+    # safety (paper 003): the margin of the range sensors' check (None: off) and its period
+    safety_distance: float | None = 0.10
+    safety_period: float = 0.2
+    # where it keeps things: its work directory (None: a temporary one, removed whole at stop) and what
+    # survives a restart, the owner's schedules (None: in memory, for this run only); the schedules' clock
+    workdir: str | Path | None = None
+    data_dir: str | Path | None = None
+    clock: Any = None
+
+
+class CoreAgent(RappAgent):
+    """The Core Agent: the FSM of fig. 5 (agents/core_fsm.py) calls its steps; its members (hearing,
+    robot_commands, events, strategies) do the rest."""
 
     def __init__(self, name: str, *, robot_id: str, robot_type: str, robot_api, owner: str,
                  platform: str, store: str, user: str, password: str, settings=None,
-                 workdir: str | Path | None = None, trusted_keys=None, require_signature: bool = False,
-                 limits: Limits = Limits(), say_reports: bool = True,
-                 safety_distance: float | None = 0.10, safety_period: float = 0.2,
-                 dynamic_mode: str = "process", sandbox: Sandbox | None = None, hear_audio: bool = True,
-                 warm_workers: int = 1, warm_imports: tuple[str, ...] = (), voice_supervision: bool = False,
-                 data_dir: str | Path | None = None, clock=None):
+                 options: CoreOptions = CoreOptions()):
         super().__init__(name, settings)
+        o = self.options = options
         self.accounts = EphemeralAccounts(self.settings, owner=name)
-        self.sandbox = sandbox or Sandbox()
+        self.sandbox = o.sandbox or Sandbox()
         self.robot_id, self.robot_type, self.robot = robot_id, robot_type, check_robot(robot_api)
         self.owner = self.settings.jid(owner)
         self.platform, self.store = self.settings.jid(platform), self.settings.jid(store)
         self.user, self.password = user, password
         self.token = ""
-        self._own_workdir = workdir is None  # a temporary one: removed whole at stop
-        self.workdir = Path(workdir or tempfile.mkdtemp(prefix=f"rapp-core-{robot_id}-"))
-        self.trusted_keys, self.require_signature = trusted_keys, require_signature
-        self.limits, self.say_reports = limits, say_reports
+        self._own_workdir = o.workdir is None  # a temporary one: removed whole at stop
+        self.workdir = Path(o.workdir or tempfile.mkdtemp(prefix=f"rapp-core-{robot_id}-"))
+        self.trusted_keys, self.require_signature = o.trusted_keys, o.require_signature
+        self.limits, self.say_reports = o.limits, o.say_reports
         self.memory: dict = {}
         self.vocabulary: dict[str, str] = {}
         self.catalogue: list[S.PackageSummary] = []
         self.commands: asyncio.Queue[str | HeardUtterance | ScheduledStart] = asyncio.Queue()
-        self.hear_audio = hear_audio  # listen to the microphone's sound (when the robot has a microphone)
-        # also spot "stop" / "cancel" / "resume" in the microphone's sound while a RApp runs. Off by
-        # default: the cognitive game by voice once heard 1 of 2 answers with it on under load; that miss
-        # was later found in the phrase decoder (it happened with it off too, and is fixed), but the
-        # game with supervision on has not been re-measured under load since
-        self.voice_supervision = voice_supervision
-        self.keywords = KeywordSpotter([])
-        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), groups=SUPERVISION_WORDS, min_cover=0.0)
-        self._voice_supervision: asyncio.Task | None = None  # listening for them while a RApp runs
-        # the voice detectors of s3 and of a task's supervision words: kept across tasks, they know the room
-        self._voices = VoiceActivity(max_seconds=5.0), VoiceActivity(max_seconds=5.0)
-        self._steerings = Steering(), Steering()  # the array beside each detector, as long-lived
-        self.continuation = Continuation(self._voices[0])  # a sentence the owner pauses in (s4b)
-        self.look_ahead = LookAhead()  # s4a's spotting begun before the detector's cut
         self.dynamic: DynamicSession | None = None
         self.told: list[str] = []  # everything said to the user, in order
         self.last_refusals: list[dict] = []  # what the last RApp run was refused (told to the owner at its end)
@@ -181,26 +173,34 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self._speech: asyncio.Task | None = None  # the last utterance queued on the loudspeaker
         self.sentences_begun = 0  # sentences given to the loudspeaker so far (the listener drops sound meanwhile)
         self._heard_apologies = 0  # apologies in a row for heard sound not understood (see apology_aloud)
-        self.locks = ResourceLocks()
-        check_spawn_mode(dynamic_mode, "dynamic_mode")
-        self.dynamic_mode = dynamic_mode
-        # Dynamic Agent processes started ahead of time (agents/warm_pool.py); 0: each starts cold
-        self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
-                                  preload=warm_imports)  # modules its Dynamic Agents import ahead
-        self.estop_reason: str | None = None
-        self.estop_by: str | None = None
-        self.subscriptions: dict[str, set[str]] = {}  # sensor events (agents/core_events.py)
+        check_spawn_mode(o.dynamic_mode, "dynamic_mode")
+        self.dynamic_mode = o.dynamic_mode
+        self.warm_pool = WarmPool(self.workdir, self.settings, size=o.warm_workers, limits=o.limits,
+                                  sandbox=self.sandbox, preload=o.warm_imports)
         self.task_watchers: set[str] = set()  # the owner's clients told of reports and ends (ontology/results.py)
         self._command_told: tuple[str, int] | None = None  # the command in hand and len(told) when it came
-        self._estop_released = asyncio.Event()
-        self._estop_released.set()
-        self.driving = False  # a move_vel velocity is in force
-        self.safety_distance, self.safety_period = safety_distance, safety_period
-        # what survives a restart: the owner's schedules (None: kept in memory, for this run only)
-        self.data_dir = Path(data_dir) if data_dir else None
-        self.scheduler = Scheduler(self, self.data_dir / "schedules.db" if self.data_dir else None, clock)
+        self.safety_period = o.safety_period
+        # the members (agents/core_parts.py says what each needs of the Core)
+        self.hearing = CoreHearing(self, SUPERVISION_WORDS, hear_audio=o.hear_audio,
+                                   voice_supervision=o.voice_supervision)
+        self.robot_commands = RobotCommands(self, self._publish, safety_distance=o.safety_distance)
+        self.events = CoreEvents(self, self.robot_commands.nearest_echo)
+        self.strategies = Strategies(self, self.robot_commands, self.events.publish_echo)
+        self.robot_commands.on_safety_stop = self.strategies.react_to_obstacle
+        self.data_dir = Path(o.data_dir) if o.data_dir else None
+        self.scheduler = Scheduler(self, self.data_dir / "schedules.db" if self.data_dir else None, o.clock)
         self._trigger: ScheduledStart | None = None  # the schedule the command in hand came from
         self.localizer = CoreLocalizer(self.robot, robot_type)  # its own pose estimate (paper 001)
+        self.robot_commands.localizer = self.localizer  # serves get_pose_estimate, add_pose_fix
+
+    async def _publish(self, topic, ttl_s, **data):
+        """RobotCommands' way to the events (built after it: they read the range sensors through it)."""
+        return await self.events.publish(topic, ttl_s, **data)
+
+    @property
+    def listening(self) -> bool:
+        """The Core waits for its owner's next command (fig. 5's s3)."""
+        return self.supervisor is not None and self.supervisor.behaviour.current == LISTEN
 
     # -- setup and behaviours ------------------------------------------------------------
     async def setup(self) -> None:
@@ -210,7 +210,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         service = Responder(C.ONTOLOGY, {"task_status": self._on_status, "report": self._on_report,
                                          "get_state": self._on_get_state, "release_stop": self._on_release_stop})
         self.activate("core-service", service, service.make_template())
-        events = self._events_service()  # FIPA subscribe to sensor events (agents/core_events.py)
+        events = self.events.service()  # FIPA subscribe to sensor events (agents/core_events.py)
         events.handlers[SubscribeTasks.action_name] = self._on_subscribe_tasks  # and to task records
         self.activate("core-events", events, events.make_template())
         self.activate("user-listener", UserChat(self.owner, self._command_heard))
@@ -224,92 +224,30 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         mic = self.robot.microphone
         if mic is not None:
             self.activate("microphone-listener", MicrophoneListener(mic, self._command_heard))
-        if self.hear_audio and "microphone" in self.robot.capabilities():
-            self.activate("audio-listener", AudioListener(self.robot, self._speech_heard, self.speaking,
-                                                          vad=self._voices[0], sentences=lambda: self.sentences_begun,
-                                                          spoke_during=self._own_voice_times(),
-                                                          steering=self._steerings[0], on_ending=self._speech_ending))
+        audio = self.hearing.audio_listener()
+        if audio is not None:
+            self.activate("audio-listener", audio)
 
-    def _listen_for_supervision_words(self) -> None:
-        """While a RApp runs, the microphone is also the Core's for its supervision words (a real NAO
-        spots keywords beside an app's own use of the audio): a stream of its own, so a RApp that
-        captures audio meanwhile gets the same samples."""
-        if not (self.voice_supervision and self.hear_audio and "microphone" in self.robot.capabilities()):
-            return
-        # longer pieces than s3's: a RApp's own work delays the Core's requests, and a "stop" may take
-        # a few tenths of a second more
-        self._voices[1].learn_room_from(self._voices[0])  # s3's detector knows the room: hear a "stop" at once
-        stream = MicrophoneStream(self.robot, self._heard_during_task, self._robot_talking, chunk_s=0.3,
-                                  vad=self._voices[1], observe=True, spoke_during=self._own_voice_times(),
-                                  steering=self._steerings[1])
-        self._voice_supervision = asyncio.create_task(stream.run_forever())
-        self._background.add(self._voice_supervision)
-        self._voice_supervision.add_done_callback(self._background.discard)
+    async def heard_command(self, utterance: HeardUtterance) -> None:
+        """An utterance the Core's hearing took as a command (in s3)."""
+        await self.commands.put(utterance)
 
-    async def _heard_during_task(self, utterance: HeardUtterance) -> None:
-        if not utterance.too_long:  # spotted beside the stream, which goes on listening meanwhile
-            self._in_background(self._spot_supervision_word(utterance))
-
-    async def _spot_supervision_word(self, utterance: HeardUtterance) -> None:
-        word = await asyncio.get_running_loop().run_in_executor(None, self.supervision_words.spot, utterance)
-        self.record_structure("supervision-spotting", word=word, seconds=round(utterance.seconds, 2))
-        if word is not None and self.dynamic is not None:
-            await self._busy_chat(word)  # the same as the owner's chat "stop" / "cancel" / "resume"
-
-    def _robot_talking(self) -> bool:
-        """The Core's own sentences, or the RApp's on the loudspeaker (the Core never hears the robot)."""
-        if self.speaking():
-            return True
-        speaker = self._simulated_loudspeaker()
-        if speaker is None:
-            return False
-        now = speaker.robot.world.time
-        return speaker.sounding_until(now, now, tail=0.3) is not None
-
-    def _simulated_loudspeaker(self):
-        """The loudspeaker of the simulated robot behind a RobotAPI, or None (a real robot, no speech)."""
-        return getattr(getattr(self.robot, "robot", None), "loudspeaker", None)
-
-    def _loudspeaker_during(self, t0: float, t1: float) -> float | None:
-        """When the simulated robot's loudspeaker sound within [t0, t1] of simulation time ends (+ 0.05 s:
-        its way to the microphone), or None: none."""
-        return self._simulated_loudspeaker().sounding_until(t0, t1, tail=0.05)
-
-    def _own_voice_times(self):
-        """What a microphone stream cuts the robot's own voice by: its loudspeaker's simulation times where
-        the robot can tell them, else None (the stream then drops what it heard while the Core spoke)."""
-        return self._loudspeaker_during if self._simulated_loudspeaker() is not None else None
+    async def heard_supervision_word(self, word: str) -> None:
+        """A supervision word heard during a task: as the owner's chat "stop" / "cancel" / "resume"."""
+        if self.dynamic is not None:
+            await self._busy_chat(word)
 
     def speaking(self) -> bool:
         """The robot's loudspeaker is busy with the Core's own sentences."""
         return self._speech is not None and not self._speech.done()
 
-    async def _speech_heard(self, utterance: HeardUtterance) -> None:
-        # sound is a command only while we listen for one (s3): heard while we start a RApp, it was
-        # queued and taken as a command when the task ended (in a two-robot house, the other robot's
-        # spoken report, 18 s old, started hazard-detection a second time)
-        listening = self.supervisor is not None and self.supervisor.behaviour.current == "s3_listen"
-        # outside s3 it may be the rest of the sentence s4b recognises (agents/core_hearing.py)
-        fate = {} if listening else {"continues": True} if self.continuation.offer(utterance) \
-            else {"dropped": "not listening"}
-        where = {} if utterance.bearing is None else {"bearing_deg": round(math.degrees(utterance.bearing))}
-        self.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
-                              speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long, **where, **fate)
-        if listening:
-            await self.commands.put(utterance)
-
-    async def _speech_ending(self, utterance: HeardUtterance) -> None:
-        """The detector is about to cut `utterance` (0.1 s ahead): in s3, s4a's spotting begins now."""
-        if self.supervisor is not None and self.supervisor.behaviour.current == "s3_listen":
-            self.look_ahead.start(self.keywords, utterance)
-
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
         word = text.lower().strip(" .!")
         if word in STOP_WORDS | CANCEL_WORDS:
-            await self.emergency_stop("stopped by the user")
+            await self.robot_commands.emergency_stop("stopped by the user")
         elif word in RESUME_WORDS:
-            await self.resume_motion()
+            await self.robot_commands.resume_motion()
         else:
             await self.commands.put(text)
 
@@ -345,7 +283,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         await self.request(self.store, S.RegisterRobot(robot_id=self.robot_id, robot_type=self.robot_type,
                                                        owner=self.user, token=self.token))
         self.record_structure("register", robot=self.robot_id, platform=self.platform, store=self.store)
-        self._in_background(self._sweep_accounts(self.accounts.pending()))
+        self.in_background(self._sweep_accounts(self.accounts.pending()))
 
     async def _sweep_accounts(self, leftovers: dict[str, str]) -> None:
         """Delete the ephemeral accounts a crashed earlier run of this Core left behind."""
@@ -367,17 +305,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     def set_catalogue(self, packages: list[S.PackageSummary]) -> None:
         self.catalogue = list(packages)
         self.vocabulary = {kw.lower(): p.name for p in packages for kw in p.keywords}
-        self.keywords = KeywordSpotter(sorted(self.vocabulary), [ph for p in packages for ph in p.phrases],
-                                       groups=self.vocabulary)
-        # during a task only the supervision words count; the Store's words compete so that a command
-        # or a keyword is heard as what it is, not squeezed into "stop"
-        self.supervision_words = KeywordSpotter(sorted(SUPERVISION_WORDS), sorted(self.vocabulary) + [
-            ph for p in packages for ph in p.phrases], groups=SUPERVISION_WORDS, min_cover=0.0)
-        if self.hear_audio and self.vocabulary and "microphone" in self.robot.capabilities():
-            # its decoder loads in the background, not at the first word (and only where it can hear)
-            self._in_background(asyncio.to_thread(self.keywords.warm_up))
-            if self.voice_supervision:  # a second decoder: only built where it is used
-                self._in_background(asyncio.to_thread(self.supervision_words.warm_up))
+        self.hearing.set_vocabulary(self.vocabulary, [ph for p in packages for ph in p.phrases])
         self.record_structure("vocabulary", rapps=[p.name for p in packages],
                               keywords=sorted(self.vocabulary))
 
@@ -394,7 +322,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     async def on_unhandled(self, msg, info) -> None:
         if (info.ontology, info.action) == (S.ONTOLOGY, "catalogue_changed") and bare(msg.sender) == self.store:
             self.record_structure("catalogue-changed", content=(msg.body or "")[:200])
-            self._in_background(self.refresh_catalogue())
+            self.in_background(self.refresh_catalogue())
             return
         await super().on_unhandled(msg, info)
 
@@ -418,39 +346,13 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
 
     async def spot_keyword(self, utterance: HeardUtterance) -> str | None:
         """s4a for speech: the RApp of an isolated keyword (pocketsphinx on this robot), else None."""
-        word, early = await self.look_ahead.spot(self.keywords, utterance)
-        self.record_structure("keyword-spotting", word=word, **({"early": True} if early else {}))
+        word = await self.hearing.spot(utterance)
         return self.vocabulary.get(word.lower()) if word else None
 
     async def recognise_sentence(self, utterance: HeardUtterance) -> str:
-        """s4b for speech: `recognition`, and when the owner goes on after a pause (agents/core_hearing.py),
-        the two parts recognised as one (the first part's answer if the whole is not understood). A
-        Store phrase recognised whole, with nothing said since, is taken without waiting for more."""
-        first = asyncio.ensure_future(self.recognition(utterance))
-        first.add_done_callback(lambda f: f.cancelled() or f.exception())  # its failure may go unused
-        going_on = asyncio.ensure_future(self.continuation.after())
-        try:
-            await asyncio.wait({first, going_on}, return_when=asyncio.FIRST_COMPLETED)
-            if first.done() and first.exception() is None and first.result()[1] == "sentences" \
-                    and not self.continuation.owner_speaking:
-                going_on.cancel()
-                return first.result()[0]
-            more = await going_on
-        except BaseException:
-            first.cancel()
-            going_on.cancel()
-            raise
-        if more is None:
-            return (await first)[0]
-        self.record_structure("speech-joined", seconds=round(utterance.seconds + more.seconds, 2))
-        try:
-            whole, _ = await self.recognition(utterance.then(more))
-        except RequestError:
-            whole = ""
-        if whole:
-            first.cancel()
-            return whole
-        return (await first)[0]
+        """s4b for speech: the Platform's `recognition`, a sentence the owner paused in recognised whole
+        (CoreHearing.recognise_sentence)."""
+        return await self.hearing.recognise_sentence(utterance, self.recognition)
 
     async def recognition(self, utterance: HeardUtterance) -> tuple[str, str]:
         """The Platform's speech_recognition of one utterance, first against the Store's command phrases
@@ -470,7 +372,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
                 self.record_structure("speech-recognition", text="", search="sentences", error=e.reason)
                 continue
             # a bare keyword heard in a longer utterance: the general model hears the sentence whole
-            part = bool(allowed) and keyword_in_a_sentence(reply, self.keywords.keywords, utterance)
+            part = bool(allowed) and keyword_in_a_sentence(reply, self.hearing.keywords.keywords, utterance)
             self.record_structure("speech-recognition", text=reply.text, search=reply.search,
                                   confidence=reply.confidence, **({"keyword_alone": False} if part else {}))
             if reply.text.strip() and not part:
@@ -562,10 +464,12 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     def _dynamic_prefix(self, rapp: str) -> str:
         return f"dyn-{self.robot_id}-{rapp}".replace("_", "-")
 
-    def _in_background(self, coro) -> None:
+    def in_background(self, coro) -> asyncio.Task:
+        """Run `coro` beside the Core's behaviours (cancelled at stop)."""
         task = asyncio.create_task(coro)
         self._background.add(task)
         task.add_done_callback(self._background.discard)
+        return task
 
     async def _delete_account(self, session: DynamicSession) -> None:
         # after the reaping, which its destroy did not wait for: this record carries its exit code
@@ -578,19 +482,20 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.deactivate("user-listener")
         self.deactivate("microphone-listener")  # the RApp may use the microphone (word_spotting)
         self.deactivate("audio-listener")
-        server = self._command_server()
+        server = self.robot_commands.service()
         self.activate("command-server", server, server.make_template())
         self.activate("busy-chat", UserChat(self.owner, self._busy_chat))
         self.activate("heartbeats", HeartbeatMonitor(self._beat), heartbeat_template())
-        self._listen_for_supervision_words()
-        if self.safety_distance:
-            self.activate("safety", SafetyMonitor(self, period=self.safety_period))
-            self.robot.protect(self.safety_distance)  # the same margin, checked by the robot at its own rate
+        self.hearing.start_task_listening()
+        safety_distance = self.robot_commands.safety_distance
+        if safety_distance:
+            self.activate("safety", SafetyMonitor(self.robot_commands, period=self.safety_period))
+            self.robot.protect(safety_distance)  # the same margin, checked by the robot at its own rate
         self.record_structure("handoff", to=self.dynamic.jid, rapp=self.dynamic.rapp, trigger=self.dynamic.trigger,
                               **({"schedule": self.dynamic.schedule_id} if self.dynamic.schedule_id else {}))
         self.dynamic.started = time.time()
         # the owner knows at once (chat only: the loudspeaker is the RApp's now)
-        self._in_background(self.tell_user(f"Starting {self.dynamic.rapp}.", speak=False))
+        self.in_background(self.tell_user(f"Starting {self.dynamic.rapp}.", speak=False))
 
     def _beat(self, sender: str) -> None:
         d = self.dynamic
@@ -602,9 +507,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         self.deactivate("busy-chat")
         self.deactivate("heartbeats")
         self.deactivate("safety")
-        if self._voice_supervision is not None:
-            self._voice_supervision.cancel()
-            self._voice_supervision = None
+        self.hearing.stop_task_listening()
         self.robot.protect(None)
         self.activate("user-listener", UserChat(self.owner, self._command_heard))
         self._listen_to_microphone()
@@ -642,7 +545,7 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         while not session.ended.is_set():
             now = time.monotonic()
             stall = now - prev - 0.1
-            if self.estop_reason is not None:
+            if self.robot_commands.estop_reason is not None:
                 paused += now - prev  # a paused task's time limit does not run (up to an allowance)
             prev = now
             if stall > 0.2:  # our own loop was stalled (GIL, CPU): the Dynamic Agent is not to blame
@@ -656,8 +559,8 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             if silence > HEARTBEAT_TIMEOUT_S and session.state != "Finished" and not late:
                 session.hung = True  # its loop does not run: it cannot log out, no grace
                 self._end(session, f"no heartbeat for {silence:.1f}s (hung?)")
-            elif charged_seconds(now - start, paused, self.pause_allowance_s) > limit:
-                waiting = self.waiting_for()  # agents/core_strategies.py
+            elif charged_seconds(now - start, paused, self.strategies.pause_allowance_s) > limit:
+                waiting = self.strategies.waiting_for()
                 self._end(session, f"time limit of {limit:g}s exceeded" + (f" while waiting for {waiting}"
                                                                           if waiting else ""))
             try:
@@ -696,9 +599,9 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
             return
         if "command-server" in self.active_behaviours():
             self.deactivate("command-server")  # no more robot commands from it, from now on
-        self.end_subscriptions()
-        await self._stop_robot()
-        self.locks.free_all(session.jid)
+        self.events.end_subscriptions()
+        await self.robot_commands.stop_robot()
+        self.robot_commands.locks.free_all(session.jid)
         code = None
         if session.process is not None:
             if session.state in ("Finished", "Error"):  # it is logging out by itself: let it
@@ -821,11 +724,12 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
     async def _on_release_stop(self, req: C.ReleaseStop, ctx) -> Done:
         """The supervising RApp releases a stop its robot's safety latched (never the owner's)."""
         self._from_dynamic(ctx)
-        if self.estop_reason is None:
+        latch = self.robot_commands
+        if latch.estop_reason is None:
             return Done()
-        if self.estop_by == "owner":
+        if latch.estop_by == "owner":
             raise Refusal("the owner stopped the robot: only the owner can resume it", ErrorCode.PERMISSION)
-        await self.resume_motion(by=bare(ctx.sender))
+        await latch.resume_motion(by=bare(ctx.sender))
         return Done()
 
     async def _on_get_state(self, req: C.GetState, ctx) -> C.CoreState:
@@ -867,17 +771,17 @@ class CoreAgent(RobotCommands, CoreEvents, Strategies, RappAgent):
         if word in CANCEL_WORDS:
             if d is not None:
                 self._end(d, "cancelled by the user")  # the reason, before the task's own failure
-            await self._stop_robot(everything=True)
+            await self.robot_commands.stop_robot(everything=True)
             return
         if word in STOP_WORDS:  # the task pauses (its motions are held) until "resume" or "cancel"
-            await self.emergency_stop("stopped by the user")
+            await self.robot_commands.emergency_stop("stopped by the user")
             return
         if word in RESUME_WORDS:
-            await self.resume_motion()
+            await self.robot_commands.resume_motion()
             return
         if await self._schedule_while_busy(text):
             return
-        waiting = self.waiting_for()
+        waiting = self.strategies.waiting_for()
         await self.tell_user(f"I am busy with {d.rapp if d else 'a task'}" + (f", waiting for {waiting}" if waiting
                                                                                else "")
                              + "; say \"stop\" to pause it, \"cancel\" to end it.")

@@ -15,7 +15,6 @@ import base64
 import dataclasses
 import logging
 import time
-from typing import TYPE_CHECKING
 
 from spade.behaviour import CyclicBehaviour, PeriodicBehaviour
 from spade.message import Message
@@ -28,10 +27,8 @@ from hearing.vad import HeardUtterance, VoiceActivity
 from hearing.wav import decode_wav
 from robots.errors import UnsupportedOperation
 
+from .core_parts import SafetyLatch
 from .messages import AclInfo, bare
-
-if TYPE_CHECKING:
-    from .core_agent import CoreAgent
 
 
 class UserChat(CyclicBehaviour):
@@ -272,18 +269,17 @@ class SafetyMonitor(PeriodicBehaviour):
     """Reads the range sensors; an obstacle closer than the safety distance latches the e-stop, then
     the reactive strategies (agents/core_strategies.py) decide how to hand the robot back."""
 
-    def __init__(self, core: CoreAgent, period: float):
+    def __init__(self, latch: SafetyLatch, period: float):
         super().__init__(period=period)
-        self.core = core
+        self.latch = latch
 
     async def run(self) -> None:
-        core = self.core
-        if core.estop_reason is not None or (core.locks.holder("base") is None and not core.driving):
+        latch = self.latch
+        if latch.estop_reason is not None or (latch.locks.holder("base") is None and not latch.driving):
             return  # latched already, or the base is not being driven
-        if not core.robot.moving_forward():
+        if not latch.robot.moving_forward():
             return  # turning on the spot or standing: a wall beside a sideways-angled sonar is no danger
-        nearest = await core.nearest_obstacle()
-        if nearest is not None and nearest < core.safety_distance:
-            await core.emergency_stop(f"obstacle ahead within {core.safety_distance:.2f} m of the "
-                                      f"range sensors' minimum", by="safety")
-            core._in_background(core.react_to_obstacle())  # noqa: SLF001 - the Core's own part; agents/core_strategies.py
+        nearest = await latch.nearest_obstacle()
+        distance = latch.safety_distance or 0.0
+        if nearest is not None and nearest < distance:
+            await latch.safety_stop(f"obstacle ahead within {distance:.2f} m of the range sensors' minimum")

@@ -4,7 +4,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING, Any
 
 import ontology.robot  # also registers the robot-API models the command server serves
 from ontology.registry import Progress, actions
@@ -18,15 +19,13 @@ from robots.errors import MotionBlocked, MotionInterrupted, RobotError
 from .errors import Failure, Refusal
 from .core_events import ESTOP_TTL_S
 from .core_fsm import build_command_fsm
+from .core_parts import AHEAD_RAD, CommandsHost, ObstacleEcho
 from .locks import LockError, ResourceLocks, device_of
 from .passes import run_pass
 from .messages import bare
 from .responder import Responder
 
 if TYPE_CHECKING:
-    from robots.api import RobotAPI
-
-    from .core_agent import DynamicSession
     from .core_localizer import CoreLocalizer
 
 log = logging.getLogger("rapp.core")
@@ -47,19 +46,16 @@ def path_progress(path: list[tuple[float, float]], x: float, y: float) -> float:
     return max(0.0, min(1.0, best[1] / total))
 
 
-AHEAD_RAD = 0.52  # the safety check's cone: readings within ±30° of straight ahead
 SONAR_BEARING_RAD = 0.44  # a NAO sonar looks 25° to its side (robots/nao.py), when the reading does not say
 
 
-class ObstacleEcho(NamedTuple):
-    margin_m: float  # beyond the sensor's minimum range
-    range_m: float  # from the base's centre (the robot's pose)
-    bearing_rad: float  # from the robot's heading, counter-clockwise
+Publish = Callable[..., Awaitable[Any]]  # CoreEvents.publish(topic, ttl_s, **data)
 
 
 class RobotCommands:
-    """The Core's robot-API server, mixed into CoreAgent: while a Dynamic Agent supervises, the
-    "command-server" behaviour (`_command_server()`) executes its robot-API requests on the robot.
+    """The Core's robot-API server, a member of the CoreAgent (`core.robot_commands`): while a
+    Dynamic Agent supervises, the "command-server" behaviour (`service()`) executes its robot-API
+    requests on the robot.
 
     - supervisor-only commands: a request is served only for the current, not yet ended Dynamic
       Agent, and only in the robot-API groups its manifest declares (`_only_supervisor`);
@@ -71,33 +67,39 @@ class RobotCommands:
     - the safety check: `nearest_obstacle()` (read by core_behaviours.SafetyMonitor) and whether
       the base is being driven (`driving`); a task's motion the robot's own collision protection
       stopped (MotionBlocked, RobotInterface.protect) latches the same safety stop when its target is
-      absolute: the reactive strategies then hand it back or fail it (`blocked`).
+      absolute: `on_safety_stop` (the reactive strategies, agents/core_strategies.py) then hands it
+      back or fails it (`blocked`).
 
-    The host (CoreAgent) sets the attributes below and provides `record_structure`, `tell_user`,
-    `publish` (its sensor events, agents/core_events.py), `react_to_obstacle` (agents/core_strategies.py)
-    and `_in_background`.
+    What it needs of the Core is `CommandsHost` (agents/core_parts.py); `publish` tells the task's
+    subscribers of the e-stop (CoreEvents.publish).
     """
 
-    robot: RobotAPI
-    robot_id: str
-    dynamic: DynamicSession | None
-    locks: ResourceLocks
-    estop_reason: str | None  # set while the emergency stop is latched
-    estop_by: str | None  # who latched it: "owner" or "safety"
-    _estop_released: asyncio.Event  # set while not latched: held motions wait on it
-    fail_held: tuple[str, str] | None = None  # (code, reason): held motions fail at the release
-    driving: bool  # a move_vel velocity is in force
-    safety_distance: float | None  # the safety check's margin (None: off)
-    localizer: CoreLocalizer | None = None  # the Core's pose estimate (agents/core_localizer.py)
+    def __init__(self, host: CommandsHost, publish: Publish, safety_distance: float | None = 0.10):
+        self.host, self.publish = host, publish
+        self.locks = ResourceLocks()
+        self.estop_reason: str | None = None  # set while the emergency stop is latched
+        self.estop_by: str | None = None  # who latched it: "owner" or "safety"
+        self._estop_released = asyncio.Event()  # set while not latched: held motions wait on it
+        self._estop_released.set()
+        self.fail_held: tuple[str, str] | None = None  # (code, reason): held motions fail at the release
+        self.driving = False  # a move_vel velocity is in force
+        self.safety_distance = safety_distance  # the safety check's margin (None: off)
+        # what a safety stop of a blocked motion starts (the strategies; set by the Core)
+        self.on_safety_stop: Callable[[], Awaitable[Any]] | None = None
+        self.localizer: CoreLocalizer | None = None  # the Core's pose estimate (agents/core_localizer.py)
 
-    def _command_server(self) -> Responder:
+    @property
+    def robot(self):
+        return self.host.robot
+
+    def service(self) -> Responder:
         handlers = {name: self._robot_call for name in actions("robot")}
         return Responder("robot", handlers, check=self._only_supervisor)
 
     def _only_supervisor(self, req, ctx) -> None:
-        d = self.dynamic
+        d = self.host.dynamic
         if d is None or ctx.sender != bare(d.jid) or d.ended.is_set():
-            raise Refusal(f"{ctx.sender} is not the current supervisor of {self.robot_id}", ErrorCode.NOT_SUPERVISOR)
+            raise Refusal(f"{ctx.sender} is not the current supervisor of {self.host.robot_id}", ErrorCode.NOT_SUPERVISOR)
         if req.group != "resources" and req.group not in d.manifest.robot_api:
             raise Refusal(f"{d.rapp} did not declare the robot-API group {req.group!r} "
                           f"(needed by {req.action_name}) in its manifest", ErrorCode.PERMISSION)
@@ -106,9 +108,9 @@ class RobotCommands:
         """s9 of fig. 5: one robot-API request of the supervising Dynamic Agent, as a pass of the
         command sub-FSM (agents/core_fsm.py build_command_fsm), side by side with its other requests
         while the Core's FSM stays in s8."""
-        memory = {"request": req, "ctx": ctx}
+        memory = {"request": req, "ctx": ctx, "steps": self}
         try:
-            return await run_pass(self, build_command_fsm(req.action_name), memory, ctx.info.conversation_id)
+            return await run_pass(self.host, build_command_fsm(req.action_name), memory, ctx.info.conversation_id)
         except LockError as e:
             raise Refusal(str(e), ErrorCode.LOCKED) from None
         finally:
@@ -172,8 +174,7 @@ class RobotCommands:
             # The safety check may have latched it a moment before (both see the same obstacle;
             # its stop had not yet interrupted the motion): then the motion is held as interrupted
             if self.estop_reason is None:
-                await self.emergency_stop(f"obstacle ahead ({e})", by="safety")
-                self._in_background(self.react_to_obstacle())
+                await self.safety_stop(f"obstacle ahead ({e})")
         except MotionInterrupted:
             if self.estop_reason is None:
                 raise
@@ -187,13 +188,13 @@ class RobotCommands:
         a strategy hands it back with the way blocked: the task re-plans)."""
         req, ctx = memory["request"], memory["ctx"]
         name = req.action_name
-        self.record_structure(StructureEvent.MOTION_HELD, action=name, reason=self.estop_reason)
+        self.host.record_structure(StructureEvent.MOTION_HELD, action=name, reason=self.estop_reason)
         await ctx.feedback(Progress(text=f"held by the emergency stop ({self.estop_reason})", data={"paused": True}))
         await self._estop_released.wait()
         if self.fail_held is not None:
             code, why = self.fail_held
             raise Failure(f"{name}: {why}", code)
-        self.record_structure(StructureEvent.MOTION_RESUMED, action=name)
+        self.host.record_structure(StructureEvent.MOTION_RESUMED, action=name)
 
     async def command_release(self, memory: dict) -> None:
         """The device's lock freed: the command is done."""
@@ -238,34 +239,41 @@ class RobotCommands:
         self.estop_reason, self.estop_by = reason, by if first or taken_over else self.estop_by
         self.fail_held = None
         self._estop_released.clear()
-        await self._stop_robot(everything=True)
+        await self.stop_robot(everything=True)
         if first:
-            self.record_structure("estop", robot=self.robot_id, reason=reason, by=by)
+            self.host.record_structure("estop", robot=self.host.robot_id, reason=reason, by=by)
             await self._tell_task(True, reason)
             await self.publish(EventTopic.ESTOP, ESTOP_TTL_S, latched=True, reason=reason, by=by)
         if (first or taken_over) and by != "safety":  # a safety stop is told folded (core_strategies)
-            d = self.dynamic
+            d = self.host.dynamic
             task = f" or \"cancel\" to end {d.rapp}" if d is not None and not d.ended.is_set() else ""
-            await self.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again{task}.")
+            await self.host.tell_user(f"Emergency stop: {reason}. Say \"resume\" to let me move again{task}.")
+
+    async def safety_stop(self, reason: str) -> None:
+        """The safety latches the stop; the reactive strategies (`on_safety_stop`) then decide, in the
+        background, how to hand the robot back."""
+        await self.emergency_stop(reason, by="safety")
+        if self.on_safety_stop is not None:
+            self.host.in_background(self.on_safety_stop())
 
     async def resume_motion(self, by: str = "owner") -> None:
         if self.estop_reason is not None:
             quiet = self.estop_by == "safety" and by != "owner"  # a strategy's hand-back: folded
             self.estop_reason, self.estop_by = None, None
-            self.record_structure("estop-released", robot=self.robot_id, by=by)
+            self.host.record_structure("estop-released", robot=self.host.robot_id, by=by)
             self._estop_released.set()
             await self._tell_task(False, "resumed")
             await self.publish(EventTopic.ESTOP, ESTOP_TTL_S, latched=False, reason="resumed", by=by)
             if not quiet:
-                await self.tell_user("Resumed: I may move again.")
+                await self.host.tell_user("Resumed: I may move again.")
 
     async def _tell_task(self, paused: bool, reason: str) -> None:
-        d = self.dynamic
+        d = self.host.dynamic
         if d is not None and not d.ended.is_set():
-            await self.notify(d.jid, C.TaskPaused(paused=paused, reason=reason), ontology=C.ONTOLOGY,
+            await self.host.notify(d.jid, C.TaskPaused(paused=paused, reason=reason), ontology=C.ONTOLOGY,
                               action="task_paused")
 
-    async def _stop_robot(self, everything: bool = False) -> None:
+    async def stop_robot(self, everything: bool = False) -> None:
         """The base (and, `everything`, the head, joints and loudspeaker too) stops now."""
         self.driving = False
         try:

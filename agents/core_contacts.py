@@ -24,9 +24,9 @@ TOPICS = {"bumper": EventTopic.BUMPER, "touch": EventTopic.TOUCH}
 class ContactEvents(PeriodicBehaviour):
     """Reads the robot's contact sensors every `period` s and publishes what changed since the last read."""
 
-    def __init__(self, core, period: float = 0.1):
+    def __init__(self, events, period: float = 0.1):
         super().__init__(period=period)
-        self.core = core
+        self.core = events  # the Core's CoreEvents: its robot and its publish
         self.after: int | None = None  # the last change published (None: not read yet)
         self.failures = 0
 
@@ -42,14 +42,14 @@ class ContactEvents(PeriodicBehaviour):
             await self.core.publish(TOPICS[change.kind], CONTACT_TTL_S, **change.model_dump())
 
 
-def watch_contacts(core, topics) -> None:
+def watch_contacts(events, topics) -> None:
     """On a subscription to `topics`: the contact watch starts when they hold bumper or touch and the robot
     has such sensors (CoreEvents._on_subscribe; end_subscriptions deactivates it)."""
     wanted = {t for t in (EventTopic.BUMPER, EventTopic.TOUCH) if t in topics}
     if not wanted:
         return
-    has = core.robot.capabilities()
+    has = events.robot.capabilities()
     if {"bumpers", "touch"} & has:
-        core.activate("contact-events", ContactEvents(core))
+        events.host.activate("contact-events", ContactEvents(events))
     else:
         log.info("subscribed to %s events, but the robot has no contact sensors", ", ".join(sorted(wanted)))

@@ -13,7 +13,6 @@ import asyncio
 import base64
 import logging
 import math
-from typing import NamedTuple
 
 import numpy as np
 
@@ -21,17 +20,12 @@ from ontology.robot import CaptureDepth, DepthImage
 from robots.depth_png import decode_depth
 from robots.errors import RobotError
 
+from .core_parts import AHEAD_RAD, ObstacleEcho
+
 
 log = logging.getLogger("rapp.core")
-AHEAD_RAD = 0.52  # ±30°, the range readings' cone (agents/core_commands.py, which imports this module's user)
 RESOLUTION = "160x120"  # a 3 cm box 2 m ahead still covers a few pixels; a quarter of QVGA's rendering
 FLOOR_M, HEIGHT_M = 0.06, 1.2
-
-
-class ObstacleEcho(NamedTuple):  # the fields of agents/core_commands.ObstacleEcho, which publish_echo reads
-    margin_m: float
-    range_m: float
-    bearing_rad: float
 
 
 def nearest_point(img: DepthImage) -> ObstacleEcho | None:

@@ -28,6 +28,7 @@ import asyncio
 import logging
 import math
 import time
+from collections.abc import Awaitable, Callable
 
 from spade.behaviour import PeriodicBehaviour
 
@@ -39,6 +40,7 @@ from ontology.robot import CaptureImage, GetCameraInfo, GetGlobalPose
 
 from .core_contacts import watch_contacts
 from .core_depth import with_depth
+from .core_parts import EventsHost, ObstacleEcho
 from .errors import Refusal
 from .messages import bare
 from .responder import Responder
@@ -50,26 +52,33 @@ OBSTACLE_TTL_S, ESTOP_TTL_S, PERSON_TTL_S = 1.0, 5.0, 2.0
 
 
 class CoreEvents:
-    """Mixed into CoreAgent (which provides `dynamic`, `notify`, `activate`, `deactivate`, `robot`,
-    `nearest_echo`, and sets `subscriptions = {}` at construction)."""
+    """The Core's member for sensor events: who subscribed to what, and the behaviours that watch.
+    `nearest_echo`: the range sensors' nearest reading ahead (RobotCommands.nearest_echo)."""
 
     warn_distance = 0.5  # m beyond the sensors' minimum range: "something is close"
-    subscriptions: dict[str, set[str]]  # topic -> subscribed JIDs (only the current Dynamic Agent)
 
-    def _events_service(self) -> Responder:
+    def __init__(self, host: EventsHost, nearest_echo: Callable[[], Awaitable[ObstacleEcho | None]]):
+        self.host, self.nearest_echo = host, nearest_echo
+        self.subscriptions: dict[str, set[str]] = {}  # topic -> subscribed JIDs (only the current Dynamic Agent)
+
+    @property
+    def robot(self):
+        return self.host.robot
+
+    def service(self) -> Responder:
         return Responder(ONTOLOGY, {"subscribe_events": self._on_subscribe}, performative=Performative.SUBSCRIBE)
 
     async def _on_subscribe(self, req: SubscribeEvents, ctx) -> Done:
-        d = self.dynamic
+        d = self.host.dynamic
         if d is None or ctx.sender != bare(d.jid) or d.ended.is_set():
             raise Refusal(f"{ctx.sender} is not the current supervisor", ErrorCode.NOT_SUPERVISOR)
         for topic in req.topics:
             self.subscriptions.setdefault(topic, set()).add(ctx.sender)
         if {EventTopic.OBSTACLE, EventTopic.OBSTACLE_CLEAR} & set(req.topics):
-            self.activate("obstacle-events", ObstacleEvents(self))
+            self.host.activate("obstacle-events", ObstacleEvents(self))
         if EventTopic.PERSON in req.topics:
             if "camera" in self.robot.capabilities():
-                self.activate("person-events", PersonEvents(self))
+                self.host.activate("person-events", PersonEvents(self))
             else:
                 log.info("%s subscribed to person events, but the robot has no camera", ctx.sender)
         watch_contacts(self, req.topics)  # bumper, touch: agents/core_contacts.py
@@ -78,9 +87,9 @@ class CoreEvents:
     def end_subscriptions(self) -> None:
         """The Dynamic Agent is gone: nobody is told anything any more."""
         self.subscriptions = {}
-        self.deactivate("obstacle-events")
-        self.deactivate("person-events")
-        self.deactivate("contact-events")
+        self.host.deactivate("obstacle-events")
+        self.host.deactivate("person-events")
+        self.host.deactivate("contact-events")
 
     async def publish(self, topic: EventTopic, ttl_s: float | None, **data) -> Notification | None:
         jids = self.subscriptions.get(topic)
@@ -90,8 +99,8 @@ class CoreEvents:
         await self.send_notification(note, jids)
         return note
 
-    async def publish_echo(self, topic: EventTopic, echo) -> Notification | None:
-        """An obstacle / obstacle-clear event from a range reading (agents/core_commands.ObstacleEcho)."""
+    async def publish_echo(self, topic: EventTopic, echo: ObstacleEcho) -> Notification | None:
+        """An obstacle / obstacle-clear event from a range reading."""
         if not self.subscriptions.get(topic):
             return None
         pose = await self.robot.handle(GetGlobalPose())
@@ -102,7 +111,7 @@ class CoreEvents:
     async def send_notification(self, note: Notification, jids) -> None:
         for jid in list(jids):
             try:
-                await self.notify(jid, Notify(notification=note), ontology=ONTOLOGY, action="notification")
+                await self.host.notify(jid, Notify(notification=note), ontology=ONTOLOGY, action="notification")
             except Exception as e:  # noqa: BLE001 - one unreachable subscriber must not stop the others
                 log.warning("notification %s to %s failed: %s", note.topic, jid, e)
 
@@ -110,7 +119,7 @@ class CoreEvents:
 class ObstacleEvents(PeriodicBehaviour):
     """Tells subscribers when something comes within the warning distance, and when it is gone."""
 
-    def __init__(self, core):
+    def __init__(self, core: CoreEvents):
         super().__init__(period=0.25)
         self.core, self.close = core, False
 

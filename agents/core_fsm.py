@@ -38,6 +38,7 @@ from .errors import RequestError
 from .scheduler import ScheduledStart
 
 log = logging.getLogger("rapp.core")
+LISTEN = "s3_listen"  # the state the Core waits for a command in (CoreAgent.listening)
 
 
 class CoreState(OneShot):
@@ -206,8 +207,9 @@ def build_core_fsm() -> FSM:
 
 # -- s9: one robot-API request of the Dynamic Agent (agents/core_commands.py holds the steps) -----
 class CommandStep(OneShot):
-    """One step of s9: `await core.command_<step>(memory)`, whose value picks the next state. An
-    exception is kept (memory["raised"]) for the command server: its type says refuse or failure."""
+    """One step of s9: `await steps.command_<step>(memory)` (steps: memory["steps"], the Core's
+    RobotCommands), whose value picks the next state. An exception is kept (memory["raised"]) for
+    the command server: its type says refuse or failure."""
 
     def __init__(self, step: str):
         super().__init__(step)
@@ -215,7 +217,7 @@ class CommandStep(OneShot):
 
     async def action(self):
         try:
-            return await getattr(self.agent, f"command_{self.step}")(self.memory)
+            return await getattr(self.memory["steps"], f"command_{self.step}")(self.memory)
         except Exception as e:
             self.memory["raised"] = e
             raise

@@ -30,13 +30,16 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from collections.abc import Awaitable, Callable
+from typing import Any, NamedTuple
 
 import ontology.robot
 from ontology.errors import ErrorCode
 from ontology.notifications import EventTopic
 from behaviours.pause import PAUSE_ALLOWANCE_S
 from ontology.trace import StructureEvent
+
+from .core_parts import ObstacleEcho, SafetyLatch, StrategiesHost
 
 log = logging.getLogger("rapp.core")
 
@@ -78,8 +81,9 @@ class Incident:
 
 
 class Strategies:
-    """Mixed into CoreAgent (needs estop_reason/estop_by, resume_motion, nearest_obstacle, nearest_echo,
-    publish_echo, robot, locks, safety_distance, record_structure, tell_user, dynamic, _in_background)."""
+    """The Core's member for reactive strategies (`core.strategies`): what it needs of the Core is
+    `StrategiesHost`, of the emergency stop and the range sensors `SafetyLatch` (the Core's
+    RobotCommands), and `publish_echo` tells the task where the obstacle stands (CoreEvents)."""
 
     wait_s = 2.0
     back_off_m = 0.25
@@ -89,11 +93,15 @@ class Strategies:
     max_pause_s = 30.0  # paused by the safety at one place (since its last back-off) before the same
     went_on_m = 1.0  # an incident is over once the robot is this far from it...
     quiet_s = 60.0  # ... or this long without another stop there
-    incident: Incident | None = None
     pause_allowance_s = PAUSE_ALLOWANCE_S  # the task's time limit stops while paused, this long at most
 
+    def __init__(self, host: StrategiesHost, latch: SafetyLatch,
+                 publish_echo: Callable[[EventTopic, ObstacleEcho], Awaitable[Any]]):
+        self.host, self.latch, self.publish_echo = host, latch, publish_echo
+        self.incident: Incident | None = None
+
     def _strategy_trace(self, name: str, phase: str, **fields) -> None:
-        self.record_structure(StructureEvent.STRATEGY, strategy=name, phase=phase, **fields)
+        self.host.record_structure(StructureEvent.STRATEGY, strategy=name, phase=phase, **fields)
 
     async def react_to_obstacle(self) -> str:
         """Run the strategies after a safety stop; returns the one that handed the robot back ('' when
@@ -119,42 +127,42 @@ class Strategies:
         if clear:
             incident.resumes += 1
             incident.done[name] = incident.done.get(name, 0) + 1
-            await self.resume_motion(by=f"strategy:{name}")
+            await self.latch.resume_motion(by=f"strategy:{name}")
             return name
         return await self._back_off(incident, STRATEGIES[1].name, "the way ahead stayed blocked")
 
     async def _back_off(self, incident: Incident, name: str, why: str) -> str:
         heir = f"core:{name}"
         try:
-            async with self.locks.acting_for("base", heir, timeout=self.wait_s) as giver:
+            async with self.latch.locks.acting_for("base", heir, timeout=self.wait_s) as giver:
                 self._strategy_trace(name, "start", distance_m=self.back_off_m, why=why,
-                                     base=self.locks.chain("base"))
-                await self.robot.handle(ontology.robot.MoveTo(x=-self.back_off_m, y=0.0, theta=0.0))
+                                     base=self.latch.locks.chain("base"))
+                await self.host.robot.handle(ontology.robot.MoveTo(x=-self.back_off_m, y=0.0, theta=0.0))
             outcome = "backed off"
         except Exception as e:  # noqa: BLE001 - blocked behind too: hand back all the same
             giver, outcome = None, f"could not back off: {e}"
         self._strategy_trace(name, "end", outcome=outcome, base_given_back_to=giver)
         if not self._still_ours():
             return ""
-        echo = await self.nearest_echo()  # where it stands: the plan's monitor enters it into the map
+        echo = await self.latch.nearest_echo()  # where it stands: the plan's monitor enters it into the map
         if echo is not None:
             await self.publish_echo(EventTopic.OBSTACLE, echo)
         incident.resumes, incident.paused_s = 0, 0.0  # the task re-plans: a new motion
         incident.done[name] = incident.done.get(name, 0) + 1
         did = "the Core backed off" if outcome == "backed off" else f"the Core {outcome}"
-        self.fail_held = (ErrorCode.BLOCKED, f"{why}: {did} (strategy {name})")
-        await self.resume_motion(by=f"strategy:{name}")
+        self.latch.fail_held = (ErrorCode.BLOCKED, f"{why}: {did} (strategy {name})")
+        await self.latch.resume_motion(by=f"strategy:{name}")
         return name
 
     def _still_ours(self) -> bool:
-        return self.estop_reason is not None and self.estop_by == "safety"
+        return self.latch.estop_reason is not None and self.latch.estop_by == "safety"
 
     async def _wait_clear(self, seconds: float) -> bool:
         loop = asyncio.get_running_loop()
         end = loop.time() + seconds
         while loop.time() < end and self._still_ours():
-            nearest = await self.nearest_obstacle()
-            if nearest is None or nearest > self.clear_factor * (self.safety_distance or 0.0):
+            nearest = await self.latch.nearest_obstacle()
+            if nearest is None or nearest > self.clear_factor * (self.latch.safety_distance or 0.0):
                 return True
             await asyncio.sleep(0.2)
         return False
@@ -162,7 +170,7 @@ class Strategies:
     # -- safety incidents: the stops at one place, one line to the owner ------------------------
     async def _pose_xy(self) -> tuple[float, float] | None:
         try:
-            pose = await self.robot.handle(ontology.robot.GetGlobalPose())
+            pose = await self.host.robot.handle(ontology.robot.GetGlobalPose())
         except Exception as e:  # noqa: BLE001 - a robot shutting down: no place to compare
             log.debug("no pose for the safety incident: %s", e)
             return None
@@ -178,7 +186,7 @@ class Strategies:
             open_ = None
         if open_ is None:
             open_ = self.incident = Incident(*xy)
-            self._in_background(self._watch_incident(open_))
+            self.host.in_background(self._watch_incident(open_))
         open_.stops += 1
         open_.last_stop = time.monotonic()
         return open_
@@ -186,15 +194,15 @@ class Strategies:
     async def _watch_incident(self, incident: Incident) -> None:
         """Closes the incident when the robot has got away from it, after quiet_s without a stop there,
         or when the task it stopped has ended."""
-        session = self.dynamic
+        session = self.host.dynamic
         while self.incident is incident:
             await asyncio.sleep(0.5)
             if self.incident is not incident:
                 return
-            if session is None or self.dynamic is not session or session.ended.is_set():
+            if session is None or self.host.dynamic is not session or session.ended.is_set():
                 if not self._still_ours() or time.monotonic() - incident.last_stop > 4 * self.wait_s:
                     await self.close_incident("the task ended")  # (told what the strategy did first)
-            elif self.estop_reason is None:
+            elif self.latch.estop_reason is None:
                 xy = await self._pose_xy()
                 if xy is not None and math.dist(xy, (incident.x, incident.y)) >= self.went_on_m:
                     await self.close_incident("went on")
@@ -206,17 +214,17 @@ class Strategies:
         incident, self.incident = self.incident, None
         if incident is None:
             return
-        self.record_structure(StructureEvent.SAFETY_INCIDENT, x=round(incident.x, 3), y=round(incident.y, 3),
+        self.host.record_structure(StructureEvent.SAFETY_INCIDENT, x=round(incident.x, 3), y=round(incident.y, 3),
                               stops=incident.stops, strategies=dict(incident.done), end=end)
-        await self.tell_user(incident.line(end), speak=False)
+        await self.host.tell_user(incident.line(end), speak=False)
 
     def waiting_for(self) -> str:
         """What a running task waits for now, from the Core's side ('' when nothing the Core knows of)."""
-        if self.estop_reason is not None and self.estop_by == "owner":
+        if self.latch.estop_reason is not None and self.latch.estop_by == "owner":
             return 'your "resume" (you stopped the robot)'
         i = self.incident
-        if self.estop_reason is not None:
-            return f"the way ahead to clear (safety stop: {self.estop_reason})"
+        if self.latch.estop_reason is not None:
+            return f"the way ahead to clear (safety stop: {self.latch.estop_reason})"
         if i is not None:
             return f"a way past the obstacle near ({i.x:.1f}, {i.y:.1f}) (stopped there {i.stops} times)"
         return ""

@@ -402,9 +402,7 @@ class Scheduler:
             log.warning("%s: scheduler stopped: %s", self.core.robot_id, e)
 
     def _idle(self) -> bool:
-        sup = self.core.supervisor
-        return (self.core.dynamic is None and self.core.commands.empty() and sup is not None
-                and sup.behaviour.current == "s3_listen")
+        return self.core.dynamic is None and self.core.commands.empty() and self.core.listening
 
     async def _due_now(self, started: bool = False) -> None:
         """Every schedule whose time has come: into the command queue (s3 takes it), or missed when

@@ -146,7 +146,7 @@ class RobotSystem:
             new.append(await self.system.add_robot(kind, api=RobotAPI(robot), robot_id=f"{kind}{i + 1}",
                                                    **self.core_kw))
         for h in new:
-            await wait_until(lambda: h.core.vocabulary and h.core.supervisor.behaviour.current == "s3_listen",
+            await wait_until(lambda: h.core.vocabulary and h.core.listening,
                              60, f"{h.robot_id} listening")
         self.robots.extend(new)
 
@@ -156,7 +156,7 @@ class RobotSystem:
         start = len(handle.user.received)
         await handle.user.say(handle.core.address, text)
         reply = await handle.user.wait_for(lambda t: expect in t or "problem" in t, timeout=timeout, start=start)
-        await wait_until(lambda: handle.core.supervisor.behaviour.current == "s3_listen"
+        await wait_until(lambda: handle.core.listening
                          and handle.core.dynamic is None, 30, f"{handle.robot_id} listening again")
         return reply
 

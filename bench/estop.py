@@ -53,7 +53,7 @@ async def run(quick: bool = True, n: int | None = None) -> list[dict]:
             for i in range(n + 1):  # the first is a warm-up
                 start = len(user.received)
                 await user.say(core.address, "cruiseecho")
-                await _until(lambda: "base" in robot.controllers and core.driving, 30, "driving")
+                await _until(lambda: "base" in robot.controllers and core.robot_commands.driving, 30, "driving")
                 await asyncio.sleep(0.3)
                 t0 = time.time()
                 await user.say(core.address, "stop")

@@ -69,7 +69,7 @@ class Bench:
                 if r["kind"] == kind and r.get("event") == event and r["t"] >= after]
 
     def supervising(self) -> bool:
-        return self.core.dynamic is None and self.core.supervisor.behaviour.current == "s3_listen"
+        return self.core.dynamic is None and self.core.listening
 
     async def message(self, match: str, start: int, timeout: float = 30.0) -> float:
         """Receive time of the first owner message containing `match` from index `start` on."""

@@ -110,7 +110,7 @@ async def run(quick: bool, per_condition: int | None = None, noises: list[str] |
             fsm = core.supervisor.behaviour
 
             def idle() -> bool:
-                return (fsm.current == "s3_listen" and core.dynamic is None and not core.speaking()
+                return (core.listening and core.dynamic is None and not core.speaking()
                         and "audio-listener" in core.active_behaviours())
 
             await wait_until(lambda: len(core.vocabulary) >= 9 and idle(), 60, "the Core listening")

@@ -257,8 +257,9 @@ def decide_keyword(utts: list) -> str | None:
 
 
 def decide_supervision(utts: list) -> str | None:
-    """The Core's supervision words during a task, spotted as agents/core_agent.py set_catalogue builds
-    its spotter (the Store's words compete; any share of the speech will do): the first word's action."""
+    """The Core's supervision words during a task, spotted as agents/core_hearing.py
+    CoreHearing.set_vocabulary builds its spotter (the Store's words compete; any share of the speech
+    will do): the first word's action."""
     global _SUPERVISION
     from agents.core_agent import SUPERVISION_WORDS
     from hearing.keywords import KeywordSpotter

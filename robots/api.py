@@ -100,6 +100,9 @@ class RobotAPI:
     def protect(self, margin_m: float | None) -> None:
         self.robot.protection_m = margin_m  # read by the base controllers in the pybullet thread
 
+    def loudspeaker_timing(self):
+        return self.robot.loudspeaker  # robots/loudspeaker.py: what it played, in simulation time
+
     async def halt(self, reason: str) -> None:
         """The emergency stop: every running motion (base, head, joints) is interrupted and the
         loudspeaker falls silent (what it was saying is cut off)."""

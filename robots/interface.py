@@ -15,6 +15,17 @@ class Microphone(Protocol):
         """The next utterance heard (text), or None when nothing was heard within `timeout` s."""
 
 
+class LoudspeakerTiming(Protocol):
+    """When the robot's own voice sounds, on the clock of its microphone's sound (CaptureAudio.stamp)."""
+
+    def now(self) -> float:
+        """That clock's time now."""
+
+    def sounding_until(self, t0: float, t1: float, tail: float = 0.0) -> float | None:
+        """When the loudspeaker's sound within [t0, t1] ends (+ `tail`, e.g. its way to a microphone),
+        or None: silent then."""
+
+
 @runtime_checkable
 class RobotInterface(Protocol):
     async def handle(self, req) -> Any:
@@ -41,10 +52,16 @@ class RobotInterface(Protocol):
     def microphone(self) -> Microphone | None:
         """Where the owner's spoken commands are heard, or None (chat only)."""
 
+    def loudspeaker_timing(self) -> LoudspeakerTiming | None:
+        """The loudspeaker's timing where the robot can tell it (the simulation keeps what its
+        loudspeaker played), so that the Core cuts the robot's own voice out of what it hears; None
+        where it cannot (the Core then drops what its microphone heard while it spoke)."""
+
 
 def check_robot(api: object) -> RobotInterface:
     """`api` if it implements RobotInterface; else a TypeError naming what is missing."""
     if isinstance(api, RobotInterface):
         return api
-    missing = [n for n in ("handle", "moving_forward", "capabilities", "halt", "protect", "microphone") if not hasattr(api, n)]
+    missing = [n for n in ("handle", "moving_forward", "capabilities", "halt", "protect", "microphone",
+                                     "loudspeaker_timing") if not hasattr(api, n)]
     raise TypeError(f"{type(api).__name__} is not a robots.interface.RobotInterface: missing {', '.join(missing)}")

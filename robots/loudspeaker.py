@@ -46,6 +46,10 @@ class Loudspeaker:
                    level_db=None, full_scale_db=self.FULL_SCALE_DB_SPL)
         return len(pcm) / SAMPLE_RATE
 
+    def now(self) -> float:
+        """Simulation time: the clock of the microphones' sound (robots.interface.LoudspeakerTiming)."""
+        return self.robot.world.time
+
     def sounding_until(self, t0: float, t1: float, tail: float = 0.0) -> float | None:
         """When the sound it played within [t0, t1] of simulation time ends (+ `tail`, e.g. its way to a
         microphone), or None: silent then."""

@@ -106,7 +106,7 @@ def owner_password(a, settings) -> str:
 
 
 def trust(a) -> dict:
-    """CoreAgent keyword arguments for package signatures: keys the owner trusts, or (loudly)
+    """CoreOptions fields for package signatures: keys the owner trusts, or (loudly)
     none for development."""
     from ontology.package import load_public_key
 
@@ -132,7 +132,7 @@ def sandbox(a):
 
 
 async def _core(a, settings) -> None:
-    from agents.core_agent import CoreAgent
+    from agents.core_agent import CoreAgent, CoreOptions
     from robots import RobotAPI, World
     from scenarios.system import DYNAMIC_WARM_IMPORTS
 
@@ -154,10 +154,10 @@ async def _core(a, settings) -> None:
         print(f"recording into {out} (run.mcap written when it stops)", flush=True)
     core = CoreAgent(a.name or f"core-{robot_id}", robot_id=robot_id, robot_type=a.robot, robot_api=api,
                      owner=a.owner, platform=a.platform, store=a.store, user=a.owner,
-                     password=owner_password(a, settings), settings=settings, sandbox=sandbox(a),
-                     workdir=a.workdir or data_dir(f"core-{robot_id}", a.data) / "work",
-                     data_dir=data_dir(f"core-{robot_id}", a.data),  # its schedules (agents/scheduler.py)
-                     warm_imports=DYNAMIC_WARM_IMPORTS, **trust(a))
+                     password=owner_password(a, settings), settings=settings,
+                     options=CoreOptions(sandbox=sandbox(a), workdir=a.workdir or data_dir(f"core-{robot_id}", a.data) / "work",
+                                         data_dir=data_dir(f"core-{robot_id}", a.data),  # its schedules (agents/scheduler.py)
+                                         warm_imports=DYNAMIC_WARM_IMPORTS, **trust(a)))
 
     async def home() -> None:  # the owner's home description, for RApps that need one
         from scenarios.home_setup import ensure_home

@@ -261,8 +261,7 @@ class Run:
 
 
 def listening(core) -> bool:
-    sup = core.supervisor
-    return bool(core.vocabulary) and sup is not None and sup.behaviour.current == "s3_listen"
+    return bool(core.vocabulary) and core.listening
 
 
 async def _chat(owner: Owner) -> None:

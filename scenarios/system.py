@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from agents.base import RappAgent
-from agents.core_agent import CoreAgent
+from agents.core_agent import CoreAgent, CoreOptions
 from agents.platform_agent import PlatformAgent
 from agents.process import Limits
 from agents.runtime import WARM_EXTRA_IMPORTS
@@ -151,10 +151,10 @@ class RappSystem:
             relay = await FaultyLink(settings.addresses()[0], link).start()
             self.links[robot_id] = relay
             settings = settings.model_copy(update={"host": relay.address[0], "port": relay.port, "fallback": []})
+        options = CoreOptions(**{"workdir": self.workdir / f"core-{robot_id}", "limits": self.limits, **core_kw})
         core = CoreAgent(f"core-{robot_id}", robot_id=robot_id, robot_type=robot_type, robot_api=api,
                          owner=user_name, platform="platform", store="store", user=user_name,
-                         password=generate_password(), settings=settings,
-                         workdir=self.workdir / f"core-{robot_id}", limits=self.limits, **core_kw)
+                         password=generate_password(), settings=settings, options=options)
         await core.start()
         handle = RobotHandle(robot_id, robot_type, core, chat, api)
         self.robots.append(handle)

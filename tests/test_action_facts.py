@@ -156,15 +156,19 @@ class _Robot:
 
 
 def _core(estop: str | None = None):
-    core = RobotCommands()
-    core.robot_id, core.locks, core.estop_reason, core.driving = "nao-1", ResourceLocks(), estop, False
-    core.estop_by, core._estop_released = "owner" if estop else None, asyncio.Event()
-    if estop is None:
-        core._estop_released.set()
-    core.record_structure = lambda *a, **k: None
-    core.dynamic = SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
-                                   manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS)))
-    core.robot = _Robot(core)
+    """The Core's RobotCommands member on a host with a task that may use every group."""
+    async def nothing(*a, **k):
+        return None
+
+    host = SimpleNamespace(robot_id="nao-1", record_structure=lambda *a, **k: None, address="core@x", tracer=None,
+                           tell_user=nothing, notify=nothing, in_background=lambda coro: coro.close(),
+                           dynamic=SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
+                                                   manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS))))
+    core = RobotCommands(host, publish=nothing)
+    core.estop_reason, core.estop_by = estop, "owner" if estop else None
+    if estop is not None:
+        core._estop_released.clear()
+    host.robot = _Robot(core)
     return core
 
 

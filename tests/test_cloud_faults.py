@@ -18,7 +18,7 @@ from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
-from .test_lifecycle import FIXTURE, state, variant, wait_until
+from .test_lifecycle import FIXTURE, variant, wait_until
 from .test_warm_pool import thread_priorities
 
 
@@ -34,7 +34,7 @@ async def system(tmp_path_factory):
         (src / "manifest.yaml").write_text((src / "manifest.yaml").read_text() + "cloud_restartable: true\n")
         await system.publish(src)
         system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
-        await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
+        await wait_until(lambda: system.handle.core.vocabulary and system.handle.core.listening)
         yield system
     world.close()
 

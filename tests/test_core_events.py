@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import pytest
 from pydantic import ValidationError
 
-from agents.core_commands import ObstacleEcho
+from agents.core_parts import ObstacleEcho
 from agents.core_events import ObstacleEvents, PersonEvents
 from ontology.notifications import EventTopic, Notification, NotificationKind, SubscribeEvents
 
@@ -91,26 +91,30 @@ async def test_subscribing_to_person_starts_the_camera_watch_and_the_task_end_st
     from agents.core_events import CoreEvents
     from robots import RobotAPI, World
 
-    class Host(CoreEvents):  # the mixin's host: the CoreAgent's behaviour bookkeeping, nothing else
+    class Host:  # what the member needs of the Core (agents/core_parts.py EventsHost), nothing else
         def __init__(self, robot):
-            self.robot, self.subscriptions, self.active = robot, {}, {}
+            self.robot, self.active = robot, {}
             self.dynamic = SimpleNamespace(jid="dyn-1@localhost/r", ended=asyncio.Event())
 
-        def activate(self, name, behaviour):
+        def activate(self, name, behaviour, template=None):
             self.active.setdefault(name, behaviour)
 
         def deactivate(self, name):
             self.active.pop(name, None)
 
+    async def no_echo():
+        return None
+
     world = World.from_file("small", seed=1, render="inline")
     try:
         host = Host(RobotAPI(world.add_robot("nao")))
-        await host._on_subscribe(SubscribeEvents(topics=["estop"]), SimpleNamespace(sender="dyn-1@localhost"))
+        events = CoreEvents(host, no_echo)
+        await events._on_subscribe(SubscribeEvents(topics=["estop"]), SimpleNamespace(sender="dyn-1@localhost"))
         assert host.active == {}
-        await host._on_subscribe(SubscribeEvents(topics=["person"]), SimpleNamespace(sender="dyn-1@localhost"))
+        await events._on_subscribe(SubscribeEvents(topics=["person"]), SimpleNamespace(sender="dyn-1@localhost"))
         assert isinstance(host.active.get("person-events"), PersonEvents)
-        assert host.subscriptions == {"estop": {"dyn-1@localhost"}, "person": {"dyn-1@localhost"}}
-        host.end_subscriptions()
-        assert host.active == {} and host.subscriptions == {}
+        assert events.subscriptions == {"estop": {"dyn-1@localhost"}, "person": {"dyn-1@localhost"}}
+        events.end_subscriptions()
+        assert host.active == {} and events.subscriptions == {}
     finally:
         world.close()

@@ -9,7 +9,6 @@ import numpy as np
 
 from agents.core_commands import RobotCommands
 from agents.core_localizer import CoreLocalizer
-from agents.locks import ResourceLocks
 from ontology.robot import AddPoseFix, GetGlobalPose, GetPoseEstimate, MoveTo, SetGlobalPose
 from ontology.robot_actions import ROBOT_API_GROUPS
 
@@ -63,13 +62,14 @@ async def test_set_global_pose_resets_the_odometry_not_the_estimate_and_the_comm
     world = World.from_file("small", seed=1, render="inline")
     try:
         api = RobotAPI(world.add_robot("elektron", pose=(1.0, 2.4, 0.0)))
-        core = RobotCommands()  # the Core's command server, with the robot and the localizer a CoreAgent gives it
-        core.robot, core.robot_id, core.locks, core.driving = api, "el-1", ResourceLocks(), False
-        core.estop_reason, core.estop_by, core._estop_released = None, None, asyncio.Event()
-        core._estop_released.set()
-        core.record_structure = lambda *a, **k: None
-        core.dynamic = SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
-                                       manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS)))
+        async def nothing(*a, **k):
+            return None
+
+        host = SimpleNamespace(robot=api, robot_id="el-1", record_structure=lambda *a, **k: None, address="core@x",
+                               tracer=None, tell_user=nothing, notify=nothing, in_background=lambda coro: coro.close(),
+                               dynamic=SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
+                                                       manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS))))
+        core = RobotCommands(host, publish=nothing)  # the Core's command server, with the localizer the Core gives it
         core.localizer = CoreLocalizer(api, "elektron")
         ctx = SimpleNamespace(sender="dyn@x", wants_feedback=False, feedback=None,
                               info=SimpleNamespace(conversation_id="c-1"))

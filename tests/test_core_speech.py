@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from agents.core_agent import CoreAgent
-from agents.core_hearing import Continuation
+from agents.core_hearing import CoreHearing
 from agents.tracing import read_trace
 from hearing import tts
 from hearing.vad import HeardUtterance, VoiceActivity
@@ -23,7 +23,7 @@ from robots import RobotAPI, World
 from robots.sound import HouseSound, NoiseSource, house_sound, talker_at
 from scenarios.system import RappSystem
 
-from .test_lifecycle import state, wait_until
+from .test_lifecycle import wait_until
 
 RAPPS = Path(__file__).resolve().parent.parent / "rapps"
 NAO_AT = (0.6, 0.6)  # the living room's south-west corner: the owner stands 0.5-3 m away inside the room
@@ -63,7 +63,7 @@ def spying(core, method: str):
 
 def listening(core) -> bool:
     """Waiting for a command, and not talking itself (the owner waits for the robot to finish)."""
-    return (state(core) == "s3_listen" and "audio-listener" in core.active_behaviours() and core.dynamic is None
+    return (core.listening and "audio-listener" in core.active_behaviours() and core.dynamic is None
             and not core.speaking())
 
 
@@ -256,12 +256,14 @@ async def test_apologies_for_heard_sound_are_said_aloud_twice_in_a_row_then_chat
 async def test_sound_is_a_command_only_while_the_core_listens(fsm_state, queued):
     """An utterance heard while the Core starts a RApp (s4-s7) is not kept for later: in a two-robot
     house the other robot's spoken report, heard then, was taken as a command when the task ended."""
-    records = []
-    core = SimpleNamespace(supervisor=SimpleNamespace(behaviour=SimpleNamespace(current=fsm_state)),
-                           commands=asyncio.Queue(), record_structure=lambda event, **kw: records.append(kw),
-                           continuation=Continuation(VoiceActivity()))  # none awaited
-    await CoreAgent._speech_heard(core, HeardUtterance(np.zeros(16000, np.int16), 0.8))
-    assert core.commands.qsize() == queued
+    records, queue = [], asyncio.Queue()
+    listening = CoreAgent.listening.fget(SimpleNamespace(supervisor=SimpleNamespace(
+        behaviour=SimpleNamespace(current=fsm_state))))  # the Core's own `listening`, in that state
+    host = SimpleNamespace(listening=listening, heard_command=queue.put,
+                           record_structure=lambda event, **kw: records.append(kw))
+    hearing = CoreHearing(host, supervision={})  # its continuation: none awaited
+    await hearing.heard(HeardUtterance(np.zeros(16000, np.int16), 0.8))
+    assert queue.qsize() == queued
     assert ("dropped" in records[0]) == (queued == 0)
 
 

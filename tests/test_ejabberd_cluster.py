@@ -16,7 +16,7 @@ import pytest
 from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
-from tests.test_lifecycle import check_lifecycle_over_the_wire, lifecycle_system, state, wait_until
+from tests.test_lifecycle import check_lifecycle_over_the_wire, lifecycle_system, wait_until
 from xmpp_server.ejabberd import EjabberdCluster, ejabberd_binary, erlang_distribution_problem
 from xmpp_server.probe import probe_login
 from xmpp_server.process import ServerStartError
@@ -93,7 +93,7 @@ async def system(cluster, tmp_path_factory):
                 system = await stack.enter_async_context(lifecycle_system(workdir, settings))
                 second = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")), robot_id="nao2")
             assert [r.core.settings.port for r in robots] == [cluster.nodes[NODE_2].port] * 2
-            await wait_until(lambda: second.core.vocabulary and state(second.core) == "s3_listen")
+            await wait_until(lambda: second.core.vocabulary and second.core.listening)
             yield system
     finally:
         world.close()
@@ -138,7 +138,7 @@ async def test_clients_of_a_failed_node_reconnect_through_the_other(system, clus
     # each Core serves the next command: a new Dynamic Agent account is made and logged in
     # through node 1 (node 2 refuses), the RApp runs, the Core listens again
     for robot in system.robots:
-        await wait_until(lambda robot=robot: state(robot.core) == "s3_listen")
+        await wait_until(lambda robot=robot: robot.core.listening)
         start = len(robot.user.received)
         await robot.user.say(robot.core.address, "echo")
         await robot.user.wait_for(lambda t: "echo-app finished" in t, timeout=60, start=start)

@@ -23,7 +23,7 @@ from robots import RobotAPI, World
 from scenarios.system import RappSystem
 from xmpp_server.compat import metadata_of
 
-from .test_lifecycle import FIXTURE, run_command, state, variant, wait_until
+from .test_lifecycle import FIXTURE, run_command, variant, wait_until
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ async def system(tmp_path_factory):
     async with RappSystem(workdir, trace_file=workdir / "trace.jsonl") as system:
         await system.publish(FIXTURE)
         system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
-        await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
+        await wait_until(lambda: system.handle.core.vocabulary and system.handle.core.listening)
         system.loop = asyncio.get_running_loop()
         system.attacker = RappAgent("attacker", system.settings)
         await system.attacker.start()

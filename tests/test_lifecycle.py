@@ -34,12 +34,11 @@ class SpyAPI:
 
     def __init__(self, api: RobotAPI):
         self.api, self.core, self.calls = api, None, []
-        # the simulated robot too: the Core cuts its own voice from what it hears by its loudspeaker's
-        # times (without them it drops the pieces heard while it spoke, which a late piece escapes)
-        self.robot = api.robot
         self.microphone = api.microphone
         self.moving_forward, self.capabilities, self.halt = api.moving_forward, api.capabilities, api.halt
-        self.protect = api.protect
+        # the Core cuts its own voice from what it hears by its loudspeaker's times (without them it
+        # drops the pieces heard while it spoke, which a late piece escapes)
+        self.protect, self.loudspeaker_timing = api.protect, api.loudspeaker_timing
 
     async def handle(self, req):
         self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
@@ -73,7 +72,7 @@ async def lifecycle_system(workdir: Path, settings: XmppSettings | None = None, 
             spy.core = handle.core
             system.spy = spy
             system.handle = handle
-            await wait_until(lambda: handle.core.vocabulary and "s3_listen" == state(handle.core))
+            await wait_until(lambda: handle.core.vocabulary and handle.core.listening)
             yield system
     finally:
         world.close()
@@ -117,7 +116,7 @@ async def check_full_lifecycle(system) -> list[dict]:
     say_active = next(active for c, active in spy.calls if c == "say")
     assert say_active == SERVING
     # the Core is supervising again, and the Dynamic Agent and its process are gone
-    await wait_until(lambda: state(core) == "s3_listen")
+    await wait_until(lambda: core.listening)
     assert core.active_behaviours() == SUPERVISING and core.dynamic is None
     trace = read_trace(system.settings.trace_file)
     spawn = [r for r in structure(trace) if r["event"] == "spawn"][-1]
@@ -215,7 +214,7 @@ async def test_fig6_request_passes_and_s9_are_state_records(system):
 async def test_unknown_command_is_explained_and_core_keeps_listening(system):
     reply = await run_command(system, "please juggle three flaming torches", "did not understand")
     assert "juggle" in reply and reply.count("understand") == 1, reply
-    await wait_until(lambda: state(system.handle.core) == "s3_listen")
+    await wait_until(lambda: system.handle.core.listening)
     await run_command(system, "echo", "echo-app finished")
     await run_command(system, "echo", "echo-app finished")
 
@@ -304,7 +303,7 @@ async def test_in_process_mode_runs_the_same_package_bytes(system):
                                     dynamic_mode="inprocess")
     system.platform.cloud_mode = "inprocess"
     try:
-        await wait_until(lambda: handle.core.vocabulary and state(handle.core) == "s3_listen")
+        await wait_until(lambda: handle.core.vocabulary and handle.core.listening)
         for _ in range(2):  # twice: the second run imports the RApp again from its new directory
             start = len(handle.user.received)
             await handle.user.say(handle.core.address, "cloudecho")
@@ -349,7 +348,7 @@ async def test_core_learns_of_rapps_published_and_removed_while_it_runs(system, 
 async def test_core_answers_while_the_robot_is_still_speaking(system):
     """Speech runs beside listening: a long sentence does not delay the next command's answer."""
     core = system.handle.core
-    await wait_until(lambda: state(core) == "s3_listen" and "user-listener" in core.active_behaviours())
+    await wait_until(lambda: core.listening and "user-listener" in core.active_behaviours())
     loop = asyncio.get_running_loop()
     t0 = loop.time()
     await core.tell_user("this is a long sentence of twenty words " * 3)  # ~8 s of speech

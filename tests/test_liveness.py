@@ -15,6 +15,7 @@ from types import SimpleNamespace
 import pytest
 
 from agents.core_agent import CoreAgent, DynamicSession
+from agents.core_strategies import Strategies
 from agents.liveness import SilenceWatch, ThreadSample, sample_main_thread
 
 LOOP = "import asyncio\nasync def m():\n    while True:\n        await asyncio.sleep(0.25)\nasyncio.run(m())"
@@ -103,7 +104,8 @@ async def test_silence_before_the_core_watches_is_not_a_hang():
         s.end_reason = reason
         s.ended.set()
 
-    core = SimpleNamespace(dynamic=session, estop_reason=None, _late_not_hung=lambda *a: False,
-                           _end=end, pause_allowance_s=CoreAgent.pause_allowance_s)
+    core = SimpleNamespace(dynamic=session, robot_commands=SimpleNamespace(estop_reason=None),
+                           _late_not_hung=lambda *a: False, _end=end,
+                           strategies=SimpleNamespace(pause_allowance_s=Strategies.pause_allowance_s))
     asyncio.get_running_loop().call_later(0.5, end, session, "finished")
     assert await CoreAgent.serve_until_done(core) == "finished"

@@ -103,8 +103,9 @@ class _Robot:
         return Done()
 
 
-class _Core(Strategies):
-    wait_s = 0.05
+class _Core:
+    """The strategies' host and safety latch (agents/core_parts.py StrategiesHost, SafetyLatch)."""
+
     safety_distance = 0.3
 
     def __init__(self):
@@ -112,6 +113,7 @@ class _Core(Strategies):
         self.robot = _Robot(self.locks)
         self.estop_reason, self.estop_by, self.fail_held = "obstacle ahead", "safety", None
         self.records, self.resumed = [], []
+        self.dynamic = None  # a task-less Core: the incident is told when it closes
 
     def record_structure(self, event, **fields):
         self.records.append((event, fields))
@@ -126,10 +128,7 @@ class _Core(Strategies):
         self.resumed.append(by)
         self.estop_reason = None
 
-    # the safety incident's hosts (a task-less Core: the incident is told when it closes)
-    incident, dynamic = None, None
-
-    def _in_background(self, coro) -> None:
+    def in_background(self, coro) -> None:
         coro.close()
 
     async def tell_user(self, text, speak=True):
@@ -138,8 +137,10 @@ class _Core(Strategies):
 
 async def test_the_back_off_acts_for_the_task_with_its_inherited_base():
     core = _Core()
+    strategies = Strategies(core, core, publish_echo=None)  # no echo to publish: nearest_echo reads none
+    strategies.wait_s = 0.05
     assert core.locks.try_lock("base", "dyn-1")  # the task's held motion keeps the base
-    assert await core.react_to_obstacle() == "back-off"
+    assert await strategies.react_to_obstacle() == "back-off"
     assert core.robot.moves == [("MoveTo", ("dyn-1", "core:back-off"))]
     assert core.locks.chain("base") == ("dyn-1",)  # given back to the task
     end = [f for e, f in core.records if e == "strategy" and f["strategy"] == "back-off" and f["phase"] == "end"]

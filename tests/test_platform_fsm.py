@@ -4,7 +4,7 @@ exist on the Core (the lifecycle test watches both in a real run's trace)."""
 from __future__ import annotations
 
 import ontology.services  # noqa: F401 - registers the service models
-from agents.core_agent import CoreAgent
+from agents.core_commands import RobotCommands
 from agents.core_fsm import build_command_fsm, build_core_fsm
 from agents.platform_agent import PlatformAgent
 from agents.platform_fsm import GRAPH, build_platform_fsm, build_request_fsm, route
@@ -57,7 +57,7 @@ def test_s9_is_a_sub_fsm_of_the_core_with_a_hold_for_the_emergency_stop():
                                                       ("held", "act")}
     assert build_command_fsm("lock_resource").initial == "resources"
     for name in move.states:
-        assert callable(getattr(CoreAgent, f"command_{name}"))
+        assert callable(getattr(RobotCommands, f"command_{name}"))
     assert facts("move_to").motion and not facts("get_global_pose").motion
 
 

@@ -13,7 +13,7 @@ from ontology.services.knowledge import GetHistory
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
-from .test_lifecycle import state, wait_until
+from .test_lifecycle import wait_until
 
 RAPPS = Path(__file__).resolve().parent.parent / "rapps"
 
@@ -28,7 +28,7 @@ async def system(tmp_path_factory):
         system.world = world
         system.nao = world.add_robot("nao")
         system.handle = await system.add_robot("nao", api=RobotAPI(system.nao))
-        await wait_until(lambda: len(system.handle.core.vocabulary) >= 4 and state(system.handle.core) == "s3_listen")
+        await wait_until(lambda: len(system.handle.core.vocabulary) >= 4 and system.handle.core.listening)
         core = system.handle.core
         login = await system.publisher.request(system.platform.address,
                                                P.Login(user=core.user, password=core.password))
@@ -40,7 +40,7 @@ async def system(tmp_path_factory):
 async def command(system, text: str, expect: str, timeout: float = 60.0, handle=None) -> list[str]:
     handle = handle or system.handle
     core = handle.core  # the previous task may still be winding down: wait for supervision
-    await wait_until(lambda: state(core) == "s3_listen" and "user-listener" in core.active_behaviours())
+    await wait_until(lambda: core.listening and "user-listener" in core.active_behaviours())
     user = handle.user
     start = len(user.received)
     await user.say(core.address, text)
@@ -57,7 +57,7 @@ async def test_weather_reporter(system):
 
 async def test_weather_reporter_writes_when_the_robot_cannot_speak(system):
     elektron = await system.add_robot("elektron", api=RobotAPI(system.world.add_robot("elektron")))
-    await wait_until(lambda: len(elektron.core.vocabulary) >= 3 and state(elektron.core) == "s3_listen")
+    await wait_until(lambda: len(elektron.core.vocabulary) >= 3 and elektron.core.listening)
     said = await command(system, "what's the weather in Krakow", "weather_reporter finished", handle=elektron)
     report = next(t for t in said if t.startswith("In Krakow"))
     assert "fog" in report and "cannot speak, so I wrote it" in report

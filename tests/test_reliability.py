@@ -14,7 +14,7 @@ from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
-from .test_lifecycle import FIXTURE, SUPERVISING, run_command, state, variant, wait_until
+from .test_lifecycle import FIXTURE, SUPERVISING, run_command, variant, wait_until
 from .test_warm_pool import gone
 
 FAULTS = {  # keyword -> (params, time limit)
@@ -40,7 +40,7 @@ async def system(tmp_path_factory):
             manifest.write_text(manifest.read_text().replace("time_limit_s: 60", f"time_limit_s: {limit}"))
             await system.publish(src)
         system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
-        await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
+        await wait_until(lambda: system.handle.core.vocabulary and system.handle.core.listening)
         yield system
     world.close()
 
@@ -67,7 +67,7 @@ async def test_fault_is_noticed_cleaned_up_and_reported(system, keyword, expect)
     if keyword == "crashecho":
         assert 'echo_app/task.py", line' in reply and "misbehave" in reply, reply
     core = system.handle.core
-    await wait_until(lambda: core.active_behaviours() == SUPERVISING and state(core) == "s3_listen")
+    await wait_until(lambda: core.active_behaviours() == SUPERVISING and core.listening)
     # noticed within 2 s of the fault (for the time limit: of the limit running out)
     ended = _records(system, rapp, "structure", "ended")[-1]
     if keyword == "silentecho":  # the limit runs from the hand-over

@@ -14,7 +14,7 @@ from ontology.package import build_package_bytes, generate_keypair
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
-from .test_lifecycle import FIXTURE, SUPERVISING, run_command, state, variant, wait_until
+from .test_lifecycle import FIXTURE, SUPERVISING, run_command, variant, wait_until
 
 
 def edit_manifest(src, **changes):
@@ -41,7 +41,7 @@ async def system(tmp_path_factory):
         await system.publish(variant(workdir, "events-echo", "eventsecho", behaviour="events"))
         system.world = world
         system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
-        await wait_until(lambda: system.handle.core.vocabulary and state(system.handle.core) == "s3_listen")
+        await wait_until(lambda: system.handle.core.vocabulary and system.handle.core.listening)
         yield system
     world.close()
 
@@ -93,7 +93,7 @@ async def test_cancel_ends_the_task_without_latching(system):
     await system.handle.user.say(core.address, "cancel")
     reply = await task
     assert "cancelled by the user" in reply
-    assert core.estop_reason is None
+    assert core.robot_commands.estop_reason is None
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
 
 
@@ -108,7 +108,7 @@ async def test_stop_while_idle_holds_the_next_task_until_resume(system):
     await run_command(system, "resume", "I may move again")
     await task
     await system.handle.user.wait_for(lambda t: "path-echo finished" in t, timeout=30)
-    assert core.estop_reason is None
+    assert core.robot_commands.estop_reason is None
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
 
 
@@ -119,7 +119,7 @@ async def test_obstacle_within_safety_distance_latches_estop_and_strategies_hand
     start = len(system.handle.user.received)
     await run_command(system, "driveecho", "drive-echo ended", timeout=60)
     assert any("obstacle" in r["reason"] and r["by"] == "safety" for r in _events(system, "estop"))
-    await wait_until(lambda: core.estop_reason is None, timeout=30)  # released by the strategy
+    await wait_until(lambda: core.robot_commands.estop_reason is None, timeout=30)  # released by the strategy
     # a safety stop is one folded line to the owner, not "Emergency stop ... say resume"
     line = await system.handle.user.wait_for(lambda t: t.startswith("Safety: stopped once"), timeout=30, start=start)
     assert "backed off once" in line and "the task ended" in line
@@ -136,14 +136,14 @@ async def test_obstacle_within_safety_distance_latches_estop_and_strategies_hand
 
 async def test_the_task_may_release_a_safety_stop_but_not_the_owners(system):
     core = system.handle.core
-    await core.emergency_stop("bumper pressed", by="safety")  # a stop no strategy handles
+    await core.robot_commands.emergency_stop("bumper pressed", by="safety")  # a stop no strategy handles
     await run_command(system, "releaseecho", "stop released")
-    assert core.estop_reason is None
+    assert core.robot_commands.estop_reason is None
     await system.handle.user.wait_for(lambda t: "release-echo finished" in t, timeout=30)
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
     await run_command(system, "stop", "Emergency stop")
     await run_command(system, "releaseecho", "release refused: permission")
-    assert core.estop_reason == "stopped by the user"
+    assert core.robot_commands.estop_reason == "stopped by the user"
     await wait_until(lambda: core.active_behaviours() == SUPERVISING)
     await run_command(system, "resume", "I may move again")
 
@@ -157,12 +157,12 @@ async def test_a_task_subscribes_to_estop_events_and_expired_ones_are_dropped(sy
     task = asyncio.create_task(run_command(system, "eventsecho", "events-echo finished", timeout=60))
     await system.handle.user.wait_for(lambda t: t == "[events-echo] subscribed", timeout=30)  # its words, labelled
     dyn = core.dynamic.jid
-    await core.send_notification(Notification.event(EventTopic.ESTOP, ttl_s=-1.0, latched=True), [bare(dyn)])
+    await core.events.send_notification(Notification.event(EventTopic.ESTOP, ttl_s=-1.0, latched=True), [bare(dyn)])
     await wait_until(lambda: any(r.get("topic") == "estop" for r in _events(system, "notification-expired")))
     await run_command(system, "stop", "event event estop latched=True fresh=True")
     await run_command(system, "resume", "event event estop latched=False fresh=True")
     await task
-    assert not core.subscriptions  # they end with the task
+    assert not core.events.subscriptions  # they end with the task
 
 
 async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
@@ -173,7 +173,7 @@ async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
     pose = system.world.ground_truth().robots["nao"]
     await asyncio.sleep(0.3)
     assert system.world.ground_truth().robots["nao"] == pose  # halted while the strategy waits
-    await wait_until(lambda: core.estop_reason is None, timeout=30)  # backed off and handed back
+    await wait_until(lambda: core.robot_commands.estop_reason is None, timeout=30)  # backed off and handed back
     pose = system.world.ground_truth().robots["nao"]
     await asyncio.sleep(0.3)
     assert system.world.ground_truth().robots["nao"] == pose  # a velocity is not restored
@@ -183,12 +183,12 @@ async def test_velocity_driving_is_watched_by_the_safety_monitor(system):
 
 async def test_resource_lock_held_by_core_behaviour_is_refused_to_rapp(system):
     core = system.handle.core
-    assert core.locks.try_lock("camera", "core:calibration")
+    assert core.robot_commands.locks.try_lock("camera", "core:calibration")
     try:
         await run_command(system, "lockecho", "lock camera: held=False holder=core:calibration")
         await system.handle.user.wait_for(lambda t: "lock-echo finished" in t, timeout=30)
     finally:
-        core.locks.free("camera", "core:calibration")
+        core.robot_commands.locks.free("camera", "core:calibration")
     await run_command(system, "lockecho", "lock camera: held=True holder=dyn-")
 
 
@@ -229,7 +229,7 @@ async def test_core_verifies_signatures(tmp_path):
         doubting = await system.add_robot("elektron", api=RobotAPI(world.add_robot("elektron")),
                                           trusted_keys=[other_pub], require_signature=True)
         for h in (trusting, doubting):
-            await wait_until(lambda: h.core.vocabulary and state(h.core) == "s3_listen")
+            await wait_until(lambda: h.core.vocabulary and h.core.listening)
 
         async def command(h, text, expect):
             start = len(h.user.received)

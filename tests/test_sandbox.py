@@ -21,7 +21,7 @@ from robots import RobotAPI, World
 from scenarios.system import RappSystem
 from xmpp_server.probe import LoginError, probe_login
 
-from .test_lifecycle import FIXTURE, state, structure, variant, wait_until
+from .test_lifecycle import FIXTURE, structure, variant, wait_until
 
 HOSTILE = Path(__file__).parent / "fixtures" / "hostile_app"
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,7 +50,7 @@ async def system(tmp_path_factory):
         system.a = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
         system.b = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao", name="nao2")), robot_id="nao2")
         for h in (system.a, system.b):
-            await wait_until(lambda h=h: h.core.token and state(h.core) == "s3_listen", timeout=30)
+            await wait_until(lambda h=h: h.core.token and h.core.listening, timeout=30)
         system.workdir = workdir
         yield system
     world.close()
@@ -68,7 +68,7 @@ async def attack(system, name: str, handle=None, timeout: float = 60.0, **params
     """Publish and run the hostile RApp for `name`; its report (dict) and the Core's final line."""
     handle = handle or system.a
     await system.publish(hostile(system.workdir, name, **params))
-    await wait_until(lambda: state(handle.core) == "s3_listen"
+    await wait_until(lambda: handle.core.listening
                      and "user-listener" in handle.core.active_behaviours(), timeout=30)
     user, start = handle.user, len(handle.user.received)
     await user.say(handle.core.address, f"attack{name.replace('_', '')}")
@@ -83,7 +83,7 @@ async def attack(system, name: str, handle=None, timeout: float = 60.0, **params
 async def assert_safe_and_supervising(handle) -> None:
     """The robot does not move and the Core is back in supervision (within 2 s of the end)."""
     assert not handle.api.moving_forward()
-    await wait_until(lambda: state(handle.core) == "s3_listen" and "user-listener" in handle.core.active_behaviours(),
+    await wait_until(lambda: handle.core.listening and "user-listener" in handle.core.active_behaviours(),
                      timeout=2.0, what="supervision back")
     assert handle.core.dynamic is None
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from agents.core_agent import CoreAgent
+from agents.core_agent import CoreAgent, CoreOptions
 from agents.scheduler import ScheduleBook, ScheduleRefused, WorldClock, overlap, resolve
 from agents.services.context import ServiceContext
 from agents.services.errors import ServiceError
@@ -117,7 +117,7 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
                                             clock=clock, hear_audio=False)
             core, user = handle.core, handle.user
             await user.watch_tasks(core.address)
-            await wait_until(lambda: core.vocabulary and core.supervisor.behaviour.current == "s3_listen")
+            await wait_until(lambda: core.vocabulary and core.listening)
 
             async def tell(text: str):
                 start = len(user.schedules)
@@ -150,13 +150,15 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
             # a restart of the Core (its data directory kept) keeps the daily one
             kw = dict(name=f"core-{core.robot_id}", robot_id=core.robot_id, robot_type=core.robot_type, robot_api=core.robot,
                       owner=f"owner-{core.robot_id}", platform="platform", store="store", user=core.user, password=core.password,
-                      settings=system.settings, workdir=tmp_path / "core-work-2", trusted_keys=[system.public_key],
-                      require_signature=True, data_dir=tmp_path / "core", clock=clock, hear_audio=False)
+                      settings=system.settings,
+                      options=CoreOptions(workdir=tmp_path / "core-work-2", trusted_keys=[system.public_key],
+                                          require_signature=True, data_dir=tmp_path / "core", clock=clock,
+                                          hear_audio=False))
             await core.stop()
             core = await start_core(system, kw)
             try:
                 await user.watch_tasks(core.address)
-                await wait_until(lambda: core.vocabulary and core.supervisor.behaviour.current == "s3_listen")
+                await wait_until(lambda: core.vocabulary and core.listening)
                 assert [(s.kind, s.time_of_day) for s in core.scheduler.schedules()] == [("daily", "23:00")]
                 listed = await tell("what is scheduled?")
                 assert listed.event == ScheduleEvent.LISTED and "every day at 23:00" in user.texts()[-1]

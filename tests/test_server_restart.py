@@ -9,7 +9,7 @@ from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
 
-from .test_lifecycle import FIXTURE, SUPERVISING, state, variant, wait_until
+from .test_lifecycle import FIXTURE, SUPERVISING, variant, wait_until
 
 
 async def test_server_restart_mid_task(tmp_path):
@@ -18,7 +18,7 @@ async def test_server_restart_mid_task(tmp_path):
         await system.publish(variant(tmp_path, "poll-echo", "pollecho", behaviour="poll", seconds=8))
         await system.publish(FIXTURE)
         h = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
-        await wait_until(lambda: h.core.vocabulary and state(h.core) == "s3_listen")
+        await wait_until(lambda: h.core.vocabulary and h.core.listening)
         await h.user.say(h.core.address, "pollecho")
         await wait_until(lambda: "command-server" in h.core.active_behaviours())
         await asyncio.sleep(1.5)
@@ -26,7 +26,7 @@ async def test_server_restart_mid_task(tmp_path):
         await asyncio.sleep(0.5)
         await system.server.astart()
         end = await h.user.wait_for(lambda t: "poll-echo finished" in t or "poll-echo ended" in t, timeout=60)
-        await wait_until(lambda: h.core.active_behaviours() == SUPERVISING and state(h.core) == "s3_listen")
+        await wait_until(lambda: h.core.active_behaviours() == SUPERVISING and h.core.listening)
         start = len(h.user.received)
         await h.user.say(h.core.address, "echo")
         await h.user.wait_for(lambda t: "echo-app finished" in t, timeout=60, start=start)
@@ -56,10 +56,10 @@ async def test_a_warm_cloud_worker_idle_through_a_server_restart_still_serves(tm
     async with RappSystem(tmp_path, trace_file=tmp_path / "trace.jsonl") as system:
         await system.publish(variant(tmp_path, "cloud-echo", "cloudecho", use_cloud=True))
         h = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
-        await wait_until(lambda: h.core.vocabulary and state(h.core) == "s3_listen")
+        await wait_until(lambda: h.core.vocabulary and h.core.listening)
         await h.user.say(h.core.address, "cloudecho")  # the first Cloud Agent starts cold, the pool fills
         await h.user.wait_for(lambda t: "cloud-echo finished" in t, timeout=60)
-        await wait_until(lambda: state(h.core) == "s3_listen")
+        await wait_until(lambda: h.core.listening)
         pool = system.platform.warm_pool
         await pool.wait_ready(60)
         [worker] = pool.idle

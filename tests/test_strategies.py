@@ -29,8 +29,8 @@ async def test_wait_for_clear_hands_the_path_back(tmp_path):
             await system.publish(variant(tmp_path, "path-echo", "pathecho", behaviour="path", distance=1.0))
             handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
             system.handle, core = handle, handle.core
-            core.wait_s = 20.0  # the test removes the obstacle while the strategy waits
-            await wait_until(lambda: core.vocabulary and state(core) == "s3_listen")
+            core.strategies.wait_s = 20.0  # the test removes the obstacle while the strategy waits
+            await wait_until(lambda: core.vocabulary and core.listening)
 
             def put_box():  # someone's box on the floor, 0.6 m ahead of the NAO (at x=1.0, facing +x)
                 shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.15, 0.25, 0.4], physicsClientId=world.cid)
@@ -39,7 +39,7 @@ async def test_wait_for_clear_hands_the_path_back(tmp_path):
             box = await world.run(put_box)
             task = asyncio.create_task(run_command(system, "pathecho", "path done", timeout=120))
             await wait_until(lambda: ("wait-for-clear", "start", None) in _strategy(system.settings.trace_file), 60)
-            assert core.estop_reason and core.estop_by == "safety" and not task.done()
+            assert core.robot_commands.estop_reason and core.robot_commands.estop_by == "safety" and not task.done()
             await world.run(lambda: p.removeBody(box, physicsClientId=world.cid))  # taken away
             reply = await task
             assert "x=2.00" in reply  # the path's own end
@@ -62,8 +62,8 @@ async def test_the_plan_monitor_stops_a_late_plan_and_learns_where_the_way_is_bl
             await system.publish(variant(tmp_path, "boxed-echo", "boxedecho", behaviour="monitored"))
             handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
             system.handle, core = handle, handle.core
-            core.wait_s = 0.5  # the box stays: no need to wait long for it to go
-            await wait_until(lambda: core.vocabulary and state(core) == "s3_listen")
+            core.strategies.wait_s = 0.5  # the box stays: no need to wait long for it to go
+            await wait_until(lambda: core.vocabulary and core.listening)
 
             reply = await run_command(system, "lateecho", "plan failed", timeout=60)
             assert "arrive-by; obstacle nowhere" in reply
@@ -72,7 +72,7 @@ async def test_the_plan_monitor_stops_a_late_plan_and_learns_where_the_way_is_bl
             await asyncio.sleep(0.5)
             assert world.ground_truth().robots["nao"] == pose  # stopped, not walking on
             await handle.user.wait_for(lambda t: "late-echo finished" in t, timeout=30)
-            await wait_until(lambda: state(core) == "s3_listen")
+            await wait_until(lambda: core.listening)
 
             x0, y0, _ = world.ground_truth().robots["nao"]
 
@@ -117,24 +117,24 @@ async def test_a_wedged_motion_fails_blocked_and_a_paused_task_still_ends(tmp_pa
             await system.publish(idle)
             handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao", pose=(1.0, 2.4, 0.0))))
             system.handle, core = handle, handle.core
-            await wait_until(lambda: core.vocabulary and state(core) == "s3_listen")
+            await wait_until(lambda: core.vocabulary and core.listening)
 
             reply = await run_command(system, "boxedecho", "plan failed", timeout=90)
             assert "path-free" in reply
             records = read_trace(system.settings.trace_file)
             estops = [r for r in records if r["kind"] == "structure" and r["event"] == "estop"]
-            assert len(estops) == core.max_resumes + 1, [r["reason"] for r in estops]
+            assert len(estops) == core.strategies.max_resumes + 1, [r["reason"] for r in estops]
             assert any("blocked the base" in r["reason"] for r in estops)
             steps = [s for s in _strategy(system.settings.trace_file) if s[1] == "start"]
-            assert [s[0] for s in steps] == ["wait-for-clear"] * core.max_resumes + ["no-progress"]
+            assert [s[0] for s in steps] == ["wait-for-clear"] * core.strategies.max_resumes + ["no-progress"]
             line = await handle.user.wait_for(lambda t: t.startswith("Safety: stopped"), timeout=30)
-            assert f"stopped {core.max_resumes + 1} times" in line and "gave up on that way once" in line
+            assert f"stopped {core.strategies.max_resumes + 1} times" in line and "gave up on that way once" in line
             chat = handle.user.texts()
             assert not any(t.startswith(("Emergency stop", "Resumed")) for t in chat), chat
             await handle.user.wait_for(lambda t: "boxed-echo finished" in t, timeout=30)
-            await wait_until(lambda: state(core) == "s3_listen")
+            await wait_until(lambda: core.listening)
 
-            core.pause_allowance_s = 2.0
+            core.strategies.pause_allowance_s = 2.0
             task = asyncio.create_task(run_command(system, "idleecho", "idle-echo ended", timeout=limit + 60))
             await wait_until(lambda: core.dynamic is not None and state(core) == "s8_serve", timeout=30)
             await handle.user.say(core.address, "stop")  # ... and never "resume"
@@ -146,42 +146,45 @@ async def test_a_wedged_motion_fails_blocked_and_a_paused_task_still_ends(tmp_pa
 
 
 class _Host:
-    """The Core's e-stop and strategy mixins on a robot that only records (no agents, no server)."""
+    """The Core's e-stop and strategy members on a robot that only records (no agents, no server)."""
 
-    def __new__(cls):
-        from agents.core_commands import RobotCommands
-        from agents.core_strategies import Strategies
+    def __init__(self):
+        self.robot_id, self.dynamic, self.told, self.records = "nao-1", None, [], []
+        self.robot = type("R", (), {"halt": self.nothing, "handle": self.nothing})()
 
-        class Host(RobotCommands, Strategies):
-            pass
+    def record_structure(self, event, **k):
+        self.records.append((event, k))
 
-        host = Host()
-        host.robot_id, host.estop_reason, host.estop_by, host.driving = "nao-1", None, None, False
-        host._estop_released, host.dynamic, host.told, host.records = asyncio.Event(), None, [], []
-        host._estop_released.set()
-        host.record_structure = lambda event, **k: host.records.append((event, k))
+    async def tell_user(self, text, speak=True, label=""):
+        self.told.append(text)
 
-        async def tell_user(text, speak=True):
-            host.told.append(text)
+    @staticmethod
+    async def nothing(*a, **k):
+        return None
 
-        async def nothing(*a, **k):
-            return None
+    def in_background(self, coro):
+        coro.close()
 
-        host.tell_user, host._tell_task, host.publish = tell_user, nothing, nothing
-        host.robot = type("R", (), {"halt": nothing, "handle": nothing})()
-        return host
+
+def _members():
+    from agents.core_commands import RobotCommands
+    from agents.core_strategies import Strategies
+
+    host = _Host()
+    commands = RobotCommands(host, publish=host.nothing)
+    return host, commands, Strategies(host, commands, publish_echo=host.nothing)
 
 
 async def test_an_owners_stop_during_a_safety_stop_is_the_owners_and_is_told():
-    host = _Host()
-    await host.emergency_stop("obstacle ahead", by="safety")
+    host, commands, strategies = _members()
+    await commands.emergency_stop("obstacle ahead", by="safety")
     assert host.told == []  # a safety stop is told folded, when its incident is over
-    await host.emergency_stop("stopped by the user", by="owner")
-    assert host.estop_by == "owner" and host.told == ['Emergency stop: stopped by the user. Say "resume" to let '
-                                                      'me move again.']
-    assert not host._still_ours()  # the strategies let go: only the owner releases it
-    assert host.waiting_for() == 'your "resume" (you stopped the robot)'
-    await host.resume_motion()
+    await commands.emergency_stop("stopped by the user", by="owner")
+    assert commands.estop_by == "owner" and host.told == ['Emergency stop: stopped by the user. Say "resume" to '
+                                                          'let me move again.']
+    assert not strategies._still_ours()  # the strategies let go: only the owner releases it
+    assert strategies.waiting_for() == 'your "resume" (you stopped the robot)'
+    await commands.resume_motion()
     assert host.told[-1] == "Resumed: I may move again."
 
 

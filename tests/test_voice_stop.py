@@ -14,7 +14,7 @@ from robots import RobotAPI, World
 from robots.sound import house_sound, talker_at
 from scenarios.system import RappSystem
 
-from .test_lifecycle import state, wait_until
+from .test_lifecycle import wait_until
 
 NAO_AT = (0.6, 0.6)
 
@@ -74,12 +74,12 @@ async def test_a_spoken_stop_pauses_the_running_task(tmp_path):
             api = RobotAPI(nao)
             handle = await system.add_robot("nao", api=api, dynamic_mode="inprocess", voice_supervision=True)
             core, user = handle.core, handle.user
-            await wait_until(lambda: core.vocabulary and state(core) == "s3_listen", 60)
+            await wait_until(lambda: core.vocabulary and core.listening, 60)
             start = len(user.received)
             await user.say(core.address, "microphone")  # the task starts by chat; the owner then speaks
             await user.wait_for(lambda t: t.endswith("] listening"), timeout=30, start=start)  # the RApp's, labelled
-            assert core.estop_reason is None and core.dynamic is not None
-            await wait_until(lambda: not core._robot_talking(), 10)  # "Starting ..." is chat only; be sure
+            assert core.robot_commands.estop_reason is None and core.dynamic is not None
+            await wait_until(lambda: not core.hearing.robot_talking(), 10)  # "Starting ..." is chat only; be sure
 
             pcm = tts.synthesize("stop", "en-us")
             at = world.time + 0.3
@@ -91,7 +91,7 @@ async def test_a_spoken_stop_pauses_the_running_task(tmp_path):
                 raise AssertionError(f"not stopped; the Core spotted: {spotted_words(system)}") from None
 
             # the same effect as the chat "stop": the owner's emergency stop, the task paused, not ended
-            assert core.estop_reason == "stopped by the user" and core.estop_by == "owner"
+            assert core.robot_commands.estop_reason == "stopped by the user" and core.robot_commands.estop_by == "owner"
             assert core.dynamic is not None and not core.dynamic.ended.is_set()
             assert "paused: stopped by the user" in reply
             # the RApp recorded the same microphone meanwhile: the owner's word is in its samples too
@@ -100,7 +100,7 @@ async def test_a_spoken_stop_pauses_the_running_task(tmp_path):
             assert "stop" in spotted_words(system)
 
             await user.say(core.address, "cancel")  # ends the paused task; the Core supervises again
-            await wait_until(lambda: core.dynamic is None and state(core) == "s3_listen", 30)
-            assert core._voice_supervision is None
+            await wait_until(lambda: core.dynamic is None and core.listening, 30)
+            assert core.hearing.task_stream is None
     finally:
         world.close()

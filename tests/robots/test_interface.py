@@ -1,4 +1,5 @@
 """The robot interface a Core needs, checked at construction (robots/interface.py)."""
+import numpy as np
 import pytest
 
 from robots.api import RobotAPI
@@ -30,5 +31,23 @@ def test_an_incomplete_robot_is_refused_naming_what_is_missing():
         async def handle(self, req):
             return None
 
-    with pytest.raises(TypeError, match="missing moving_forward, capabilities, halt, protect, microphone"):
+    with pytest.raises(TypeError, match="missing moving_forward, capabilities, halt, protect, microphone, "
+                                        "loudspeaker_timing"):
         check_robot(OnlyHandle())
+
+
+def test_the_loudspeakers_timing_is_told_through_the_interface(world):
+    """What the Core cuts its own voice by (agents/core_hearing.py): asked of the interface, never of the
+    simulated robot behind it."""
+    nao = RobotAPI(world.add_robot("nao", "nao-timing"))
+    timing = nao.loudspeaker_timing()
+    assert timing is not None and timing.now() == world.time
+    t = world.time + 1.0
+    seconds = nao.robot.loudspeaker.play(np.full(1600, 1000, np.int16), t)  # 0.1 s from t
+    assert timing.sounding_until(t - 0.5, t) == pytest.approx(t + seconds)
+    assert timing.sounding_until(t, t, tail=0.3) == pytest.approx(t + seconds + 0.3)
+    assert timing.sounding_until(t - 0.5, t - 0.1) is None and timing.sounding_until(t + 1.0, t + 2.0) is None
+    assert RecordingAPI(nao).loudspeaker_timing() is timing
+    for kind in ("nao", "elektron"):
+        api = RobotAPI(world.add_robot(kind, f"{kind}-speech"))
+        assert (api.loudspeaker_timing() is None) == ("speech" not in api.capabilities())
