@@ -41,7 +41,9 @@ class SpyAPI:
         self.protect, self.loudspeaker_timing = api.protect, api.loudspeaker_timing
 
     async def handle(self, req):
-        self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
+        task = asyncio.current_task()
+        if task is None or task.get_name() != "core-localizer":  # the Core's own odometry reads, every 0.1 s
+            self.calls.append((req.action_name, set(self.core.active_behaviours()) if self.core else set()))
         return await self.api.handle(req)
 
 
@@ -256,7 +258,7 @@ async def test_trace_shows_structure_changes_in_order(system):
     expected = ["download", "download", "spawn", "status", "handoff", "status", "download",
                 "cloud-spawn", "cloud-destroy", "status", "ended", "destroy", "resume"]
     assert [e for e in order if e != "account-deleted"] == expected, " ".join(order)
-    spawn = events[first + 2]
+    spawn = next(r for r in events[first:] if r["event"] == "spawn")  # an earlier run's account may be deleted between
     cloud = next(r for r in events[first:] if r["event"] == "cloud-spawn")
     await wait_until(lambda: {spawn["dynamic"], cloud["cloud"]} <= {
         r["account"] for r in structure(read_trace(system.settings.trace_file))[first:]
