@@ -39,9 +39,6 @@ class Observe(Action):
     # the codes the frame was taken to see: once they are all found the detector stops (its pass for
     # codes seen obliquely runs only when one is missing); empty: every pass
     expect: list[str] = []
-    # where in the image (x0, y0, x1, y1 px) the expected codes should be: looked at first, the whole
-    # frame only when one of them is not there
-    region: list[float] | None = None
 
 
 class Localization(Content):

@@ -7,7 +7,7 @@ with yaw of the panel normal (= code +z) pointing into the room; robot frame x f
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Sequence
+from collections.abc import Collection
 
 import cv2
 import numpy as np
@@ -110,26 +110,16 @@ def _decode(det: cv2.QRCodeDetector, img: np.ndarray) -> list[tuple[str, np.ndar
 
 
 STRETCH_X = 2.0  # codes on walls seen obliquely are foreshortened horizontally
-REGION_MAX_SHARE = 0.5  # a region larger than this share of the frame is not worth a pass of its own
 
 
-def detect_qr(img: np.ndarray, expect: Collection[str] = (), region: Sequence[float] | None = None
-              ) -> list[tuple[str, np.ndarray]]:
+def detect_qr(img: np.ndarray, expect: Collection[str] = ()) -> list[tuple[str, np.ndarray]]:
     """(text, 4x2 corners) of each decoded QR code; undecodable codes are skipped.
 
     OpenCV's detector misses codes seen more than ~50 degrees off their normal, even large ones; a
     second pass on the image stretched horizontally undoes most of that foreshortening (corners
     are mapped back to the original image). That pass costs more than the first (twice the pixels):
-    with `expect`, the codes the view was planned for, it runs only when one of them is missing.
-    `region` (x0, y0, x1, y1 px): where the expected codes should be; the detector looks there first,
-    and at the whole frame only when one of them is not found there."""
+    with `expect`, the codes the view was planned for, it runs only when one of them is missing."""
     det = cv2.QRCodeDetector()
-    if expect and region is not None:
-        x0, y0, x1, y1 = _clip_region(region, img.shape[1], img.shape[0])
-        if x1 - x0 >= 16 and y1 - y0 >= 16 and (x1 - x0) * (y1 - y0) <= REGION_MAX_SHARE * img.shape[0] * img.shape[1]:
-            found = {t: pts + [x0, y0] for t, pts in _decode(det, img[y0:y1, x0:x1])}
-            if set(expect) <= found.keys():
-                return list(found.items())
     found = dict(_decode(det, img))
     if expect and set(expect) <= found.keys():
         return list(found.items())
@@ -138,12 +128,6 @@ def detect_qr(img: np.ndarray, expect: Collection[str] = (), region: Sequence[fl
         if text not in found:
             found[text] = (pts + 0.5) * [1.0 / STRETCH_X, 1.0] - [0.5, 0.0]
     return list(found.items())
-
-
-def _clip_region(region: Sequence[float], width: int, height: int) -> tuple[int, int, int, int]:
-    x0, y0, x1, y1 = region
-    return (max(0, int(math.floor(x0))), max(0, int(math.floor(y0))),
-            min(width, int(math.ceil(x1))), min(height, int(math.ceil(y1))))
 
 
 def landmark_transform(lm: Landmark) -> np.ndarray:

@@ -309,29 +309,6 @@ def plan_looks(pose: Iterable[float], std_m: float, std_rad: float, landmarks: M
     return plan
 
 
-def code_region(pose: Sequence[float], std_m: float, std_rad: float, yaw: float, landmarks: Sequence[LandmarkSpec],
-                camera: HeadCamera) -> list[float] | None:
-    """Where in the frame at head yaw `yaw` the codes should be (x0, y0, x1, y1 px): their corners' box
-    grown by what the pose's uncertainty (2 sigma) may move them, half a code and 16 px (the detector
-    needs the white around a code); None without codes in front of the camera."""
-    if not landmarks:
-        return None
-    x, y, th = pose
-    c, s = math.cos(th), math.sin(th)
-    d = np.stack([corners_world(lm) for lm in landmarks]) - [x, y, 0.0]
-    pr = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
-    T = camera.cam_from_robot(yaw)
-    pc = pr @ T[:3, :3].T + T[:3, 3]
-    if (pc[..., 2] <= 0.3).any():
-        return None
-    K = camera.K
-    u = K[0, 0] * pc[..., 0] / pc[..., 2] + K[0, 2]
-    v = K[1, 1] * pc[..., 1] / pc[..., 2] + K[1, 2]
-    side = float(max(np.ptp(u, axis=1).max(), np.ptp(v, axis=1).max()))
-    margin = float(K[0, 0]) * (2 * std_rad + 2 * std_m / max(float(pc[..., 2].min()), 0.5)) + side / 2 + 16.0
-    return [float(u.min() - margin), float(v.min() - margin), float(u.max() + margin), float(v.max() + margin)]
-
-
 def predicted(plan: list[Look]) -> tuple[float, float]:
     return (plan[-1].predicted_std_m, plan[-1].predicted_std_rad) if plan else (math.inf, math.inf)
 
@@ -552,10 +529,6 @@ class Localizer:
             return "turn" if self.state["turn"] is not None else "done"
         look = self.state["looks"].pop(0)
         self.state["yaw"], self.state["look"] = look.yaw, look
-        pose, std_m, std_rad = self._belief()
-        home = cast(HomeInfo, self.home)  # prepare()'s
-        self.state["region"] = code_region(pose, std_m, std_rad, look.yaw, [home.landmarks[t] for t in look.codes],
-                                           cast(HeadCamera, self.camera))
         await self._head_to(look.yaw)
         return "look"
 
@@ -590,8 +563,7 @@ class Localizer:
             reply = cast(Observations, await cloud.call(
                 "observe", _ontology=LANDMARKS, image_b64=self.state.pop("frame").data_b64, camera=self.intrinsics,
                 camera_to_robot=self.state["camera_to_robot"], landmarks=home.landmarks,
-                max_distance_m=self.settings.max_distance_m, expect=self.state["look"].codes,
-                region=self.state["region"]))
+                max_distance_m=self.settings.max_distance_m, expect=self.state["look"].codes))
         except RequestFailed:  # a frame the Cloud Agent could not process: look elsewhere
             reply = None
         if reply is None or not reply.items:

@@ -9,7 +9,7 @@ import pytest
 from ontology.services.home import RoomSpec
 from rapps.sdk.landmarks import corners_world, project
 from ontology.services.home import DoorShape, DoorwaySpec
-from rapps.sdk.localize import HeadCamera, LocalizeSettings, candidates, code_region, in_sight, plan_looks, views_at
+from rapps.sdk.localize import HeadCamera, LocalizeSettings, candidates, in_sight, plan_looks, views_at
 from robots.floorplan import load_plan
 from robots.nao import SPEC as NAO
 from robots.elektron import SPEC as ELEKTRON
@@ -102,19 +102,3 @@ def test_an_uncertain_pose_keeps_the_codes_away_from_the_frame_edges():
 
     assert worst_edge(unsure) > worst_edge(sure) and worst_edge(unsure) >= camera.width / 4 - 1
     assert corners_world(LANDMARKS["QR-HALL-N1"]).shape == (4, 3)
-
-
-@pytest.mark.parametrize("robot", ["nao", "elektron"])
-def test_the_region_a_look_expects_its_codes_in_holds_them_where_the_pose_may_be_off(robot):
-    """Observe.region: the QR detector looks there first; a code the pose's uncertainty may move is still in."""
-    camera, pose, std_m, std_rad = CAMERAS[robot], (3.0, 12.5, 0.0), 0.05, 0.02
-    look = plan_looks(pose, std_m, std_rad, LANDMARKS, ROOMS, camera, SETTINGS)[0]
-    lms = [LANDMARKS[t] for t in look.codes]
-    x0, y0, x1, y1 = code_region(pose, std_m, std_rad, look.yaw, lms, camera)
-    assert (x1 - x0) * (y1 - y0) < camera.width * camera.height  # less than the frame to search
-    for dx, dy, dth in [(0, 0, 0), (2 * std_m, 0, 0), (0, -2 * std_m, 0), (0, 0, 2 * std_rad), (0, 0, -2 * std_rad)]:
-        truth = (pose[0] + dx, pose[1] + dy, pose[2] + dth)
-        for text, view in views_at(truth, look.yaw, {t: LANDMARKS[t] for t in look.codes}, camera, 0.0):
-            uv, _ = project(truth, view)
-            assert (uv >= [x0, y0]).all() and (uv <= [x1, y1]).all(), (text, dx, dy, dth)
-    assert code_region(pose, std_m, std_rad, look.yaw + math.pi, lms, camera) is None  # behind the camera

@@ -95,20 +95,3 @@ def test_expected_codes_spare_the_stretched_pass_only_when_all_are_found(monkeyp
     monkeypatch.setattr(L.cv2, "resize", lambda *a, **kw: stretched.append(1) or real_resize(*a, **kw))
     assert [t for t, _ in L.detect_qr(front, expect=["kitchen"])] == ["kitchen"] and not stretched
     assert [t for t, _ in L.detect_qr(front)] == ["kitchen"] and stretched  # nothing expected: every pass
-
-
-def test_the_expected_region_is_searched_first_and_the_frame_when_a_code_is_not_there(monkeypatch):
-    front = render.render_qr("kitchen", 0.16, L.transform(np.diag([1.0, -1, -1]), [0.2, 0.1, 1.0]), K)
-    (text, whole), = L.detect_qr(front)
-    box = [*(whole.min(0) - 60), *(whole.max(0) + 60)]
-    shapes = []
-    real = L._decode
-    monkeypatch.setattr(L, "_decode", lambda det, img: shapes.append(img.shape[:2]) or real(det, img))
-    gray = front  # render_qr's frames are grey already
-    refined = L.refine_corners(gray, whole)
-    (t2, corners), = L.detect_qr(front, expect=["kitchen"], region=box)
-    assert t2 == text and len(shapes) == 1 and shapes[0] < front.shape[:2]  # the region only
-    assert np.abs(L.refine_corners(gray, corners) - refined).max() < 0.05  # the same corners, once refined
-    shapes.clear()
-    (t3, corners), = L.detect_qr(front, expect=["kitchen"], region=[0, 0, 200, 200])  # not there: the frame
-    assert t3 == text and np.abs(corners - whole).max() < 0.5 and shapes[-1] == front.shape[:2]
