@@ -43,8 +43,7 @@ from .errors import RobotError, WorldClosed
 
 START_TIMEOUT = 60.0  # s for a render process to build its scene
 RENDER_TIMEOUT = 300.0  # s for one frame (1280x960 takes ~2 s on a loaded machine)
-SPLIT_MIN_PIXELS = 1280 * 960  # frames this large are rendered in bands, by the idle render processes at once
-BANDS = 2
+SPLIT_MIN_PIXELS = 1280 * 960  # with bands, frames this large are rendered in bands, by the idle processes at once
 
 
 @dataclass
@@ -311,8 +310,12 @@ def _kill_all(workers: list[_Worker]) -> None:
 class RenderPool:
     """Up to `size` render processes mirroring one World; thread-safe, loop-agnostic."""
 
-    def __init__(self, plan, size: int = 2, name: str = "world"):
+    def __init__(self, plan, size: int = 2, name: str = "world", bands: int = 1):
         self.size = max(1, int(size))
+        # bands > 1: a large frame in that many bands, each on an idle process (one robot's world: its
+        # second core is idle while it renders); 1 (default): a world of many robots, or one of many
+        # worlds, keeps its processes busy with whole frames (a band costs 55 %, not 50 %, of a frame)
+        self.bands = max(1, int(bands))
         self._plan_msg = ("init", plan)  # pickled when a process starts; later changes arrive as state
         self._workers = [_Worker(i) for i in range(self.size)]
         self._cond = threading.Condition()
@@ -356,10 +359,10 @@ class RenderPool:
     # ---- rendering
     def render(self, state: SceneState, width: int, height: int, view, proj, params) -> np.ndarray:
         """Blocking: render in a process and return the uint8 RGB image (call from a thread). A large
-        frame is rendered in BANDS horizontal bands, always (the same pixels however busy the pool is),
-        by as many idle processes at once: TinyRenderer's cost is its pixels', a process renders on one
-        core."""
-        bands = BANDS if width * height >= SPLIT_MIN_PIXELS and height % BANDS == 0 else 1
+        frame is rendered in `self.bands` horizontal bands, always (the same pixels however busy the pool
+        is), by as many idle processes at once: TinyRenderer's cost is its pixels', a process renders on
+        one core."""
+        bands = self.bands if width * height >= SPLIT_MIN_PIXELS and height % self.bands == 0 else 1
         w = self._acquire()
         ws = [w, *self._idle_others(w, bands)]
         try:

@@ -190,10 +190,11 @@ class World(Scene):
     """render: "process" (default; env RAPP_ROBOTS_RENDER overrides the default) renders camera images in
     up to `render_workers` separate processes mirroring the scene (robots/render_process.py), so a frame
     neither holds this process's GIL nor waits for / delays physics stepping; "inline" renders in the
-    pybullet thread of this process."""
+    pybullet thread of this process. `render_bands`: a 1280x960 frame in that many bands at once, on idle
+    render processes (a world of one robot, whose other core waits while a frame renders)."""
 
     def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60, render: str | None = None,
-                 render_workers: int | None = None,
+                 render_workers: int | None = None, render_bands: int = 1,
                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None):
         render = render or os.environ.get("RAPP_ROBOTS_RENDER") or "process"
         if render not in RENDER_MODES:
@@ -211,7 +212,8 @@ class World(Scene):
         self.disturbances: Disturbances | None = None
         self.run_sync(self._build)
         if render == "process":
-            self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name)
+            self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name,
+                                        bands=render_bands)
         if disturbances is not None:
             try:
                 self.attach_disturbances(disturbances)
@@ -222,7 +224,7 @@ class World(Scene):
     @classmethod
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
                   time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None,
-                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None) -> "World":
+                  render_bands: int = 1, disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None) -> "World":
         """Build from a YAML house description; `path` may also be a bare name in robots/houses, or
         "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest).
         `disturbances`: a disturbance file (or bare name in robots/houses) or spec, see attach_disturbances."""
@@ -233,7 +235,7 @@ class World(Scene):
         elif not path.exists() and str(path) == GENERATED:
             source = generate(seed)
         return cls(load_plan(source, seed=seed, overrides=overrides), rtf=rtf, time_step=time_step, render=render,
-                   render_workers=render_workers, disturbances=disturbances)
+                   render_workers=render_workers, render_bands=render_bands, disturbances=disturbances)
 
     # ------------------------------------------------------------------ thread plumbing
     def _mark_worker(self) -> None:

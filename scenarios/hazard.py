@@ -103,7 +103,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     Core starts the RApp when that time comes (agents/scheduler.py)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
-    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances)
+    # one robot: its large frames in two bands, one on each core (robots/render_process.py)
+    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances, render_bands=2)
     try:
         recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
                                 frames_dir=out / "frames")

@@ -77,7 +77,7 @@ async def test_api_capture_renders_in_process_and_inline_option(make_world):
 
 
 def test_a_large_frame_renders_in_bands_on_both_processes_and_alike_when_one_is_busy(make_world):
-    world = make_world("small", seed=1, overrides={"doors": {"d1": 0}, "lamps": {"l1": True}})
+    world = make_world("small", seed=1, overrides={"doors": {"d1": 0}, "lamps": {"l1": True}}, render_bands=2)
     cam = world.add_robot("nao", pose=(0.5, 0.0, math.pi / 2)).cameras["top"]
     inline = world.run_sync(cam.capture, 1280, 960).astype(int)
     banded = world.capture_sync(cam, 1280, 960)
