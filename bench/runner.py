@@ -7,7 +7,7 @@ their ratio. Each benchmark runs in a child process of its own (a fresh XMPP ser
 PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick took 5 1/2 minutes
 on a quiet 2-core machine (2026-11-23): speech (its commands are spoken in real time) ~2 min, the
 fleet of 4 ~1 min, platform_load ~1 min; the full run ~15 minutes. Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery,
-speech, estop, platform_load (metric names such as robot_rtt or plan_astar select their benchmark).
+speech, estop, platform_load, mainjob (metric names such as robot_rtt or plan_astar select their benchmark).
 """
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ from pathlib import Path
 from .common import ROOT, log, metric, table
 
 BENCHMARKS = ["handoff", "rtt", "messages", "fleet", "planning", "sim_rtf", "recovery", "speech", "estop",
-              "platform_load"]
-FULL_TIMEOUT_S = {"fleet": 1800, "platform_load": 1500}  # 23 hazard-detection runs in four rounds; a run + 4 replays
+              "platform_load", "mainjob"]
+FULL_TIMEOUT_S = {"fleet": 1800, "platform_load": 1500, "mainjob": 1800}  # 23 hazard-detection runs in four rounds; a run + 4 replays
 ALIASES = {"recovery_killed_told": "recovery", "recovery_hung_back": "recovery",
            "recovery_reconnect": "recovery", "recovery_command_answered": "recovery", "robot_rtt": "rtt", "platform_rtt": "rtt", "messages_traced": "messages",
            "fleet_service_p95": "fleet", "sim": "sim_rtf", "platform_load_threads": "platform_load",
@@ -99,6 +99,15 @@ def bench_estop(quick: bool, tiny: bool) -> list[dict]:
 def bench_platform_load(quick: bool, tiny: bool) -> list[dict]:
     from . import platform_load
     return asyncio.run(platform_load.run(quick, robots=2 if tiny else None, time_scale=0.05 if tiny else None))
+
+
+def bench_mainjob(quick: bool, tiny: bool) -> list[dict]:
+    from . import mainjob
+
+    # quick and tiny: a NAO in the small house (the README's run is the full house, both robots)
+    if tiny:
+        return mainjob.measure(["nao"], house="small", max_floor_frames=3)
+    return mainjob.measure(["nao"], house="small") if quick else mainjob.measure(["nao", "elektron"])
 
 
 def _child(name: str, quick: bool, tiny: bool, out: str) -> int:
@@ -199,6 +208,10 @@ GOALS = {
     # and two Platform agents; p95 against one robot's, every request answered
     **{f"platform_load_{c}": ("ratio <= 3, no errors", lambda m: m["ratio"] <= 3.0 and m.get("errors") == 0)
        for c in ("pool", "two")},
+    # issue #46: the README's hazard run (full house) against its renders and steps in bare PyBullet
+    **{f"mainjob_{r}": ("ratio <= 1.25, < 90 s (the full house)",
+                        lambda m: m["ratio"] <= 1.25 and m["value"] < 90.0) for r in ("nao", "elektron")},
+    **{f"mainjob_{r}_no_code": ("<= 10 %", lambda m: m["value"] <= 10.0) for r in ("nao", "elektron")},
 }
 
 
@@ -227,6 +240,8 @@ def select(only: list[str] | None) -> list[str]:
             b = "sim_rtf"
         if b.startswith("speech_"):
             b = "speech"
+        if b.startswith("mainjob_"):
+            b = "mainjob"
         if b not in BENCHMARKS:
             raise SystemExit(f"unknown benchmark {name!r} (known: {', '.join(BENCHMARKS)})")
         if b not in chosen:

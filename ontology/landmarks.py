@@ -36,6 +36,9 @@ class Observe(Action):
     camera_to_robot: list[list[float]]
     landmarks: dict[str, LandmarkSpec]
     max_distance_m: float = 4.5
+    # the codes the frame was taken to see: once they are all found the detector stops (its pass for
+    # codes seen obliquely runs only when one is missing); empty: every pass
+    expect: list[str] = []
 
 
 class Localization(Content):

@@ -8,6 +8,7 @@ pixel (column i, row j) at OpenGL window coordinates (i, H - 1 - j), not at the 
 (i + 0.5, H - 0.5 - j), so the principal point is (W/2, H/2 - 1), not (W/2 - 0.5, H/2 - 0.5)."""
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass, replace
@@ -73,12 +74,50 @@ def auto_exposure(radiance: np.ndarray, metering: str) -> float:
     """Relative exposure an auto-exposure picks for this scene."""
     if metering == "centre":  # centre-weighted mean of the (saturating) scene: a lit lamp darkens the rest
         h, w = radiance.shape[:2]
-        yy, xx = np.mgrid[0:h, 0:w]
-        weight = np.exp(-(((xx - w / 2) / (0.35 * w)) ** 2 + ((yy - h / 2) / (0.35 * h)) ** 2))
-        level = float((np.minimum(radiance.mean(axis=2), 2.0) * weight).sum() / weight.sum())
+        import cv2
+        grey = cv2.transform(np.ascontiguousarray(radiance, np.float32), _MEAN_RGB)  # the channels' mean
+        np.minimum(grey, 2.0, out=grey)
+        level = float(np.dot(grey.reshape(-1), _centre_weight(h, w)))
     else:
         level = float(np.median(radiance))
     return float(np.clip(AE_TARGET / max(level, 1e-3), *AE_RANGE))
+
+
+_MEAN_RGB = np.full((1, 3), 1.0 / 3.0, np.float32)
+
+
+@functools.lru_cache(maxsize=4)
+def _centre_weight(h: int, w: int) -> np.ndarray:
+    """The centre-weighted metering's weights (flattened, summing to 1), once per resolution."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    weight = np.exp(-(((xx - w / 2) / (0.35 * w)) ** 2 + ((yy - h / 2) / (0.35 * h)) ** 2))
+    return (weight / weight.sum()).astype(np.float32).reshape(-1)
+
+
+NOISE_PAD = 64  # a frame's noise is a window of a field this much larger than the frame, at a seeded offset
+
+
+@functools.lru_cache(maxsize=4)
+def _noise_field(seed: tuple[int, ...], h: int, w: int, channels: int) -> np.ndarray:
+    """Standard normal noise drawn once per camera and resolution (the frame's seed without its step)."""
+    rng = np.random.default_rng(seed)
+    return rng.standard_normal((h + NOISE_PAD, w + NOISE_PAD, channels), dtype=np.float32)
+
+
+def sensor_noise(shape: tuple[int, ...], seed: tuple[int, ...] | None) -> np.ndarray:
+    """Standard normal noise of one frame (a read-only view): a window of the camera's noise field at an
+    offset and sign drawn from the frame's seed, so that the same step gives the same noise and
+    frames of successive steps different noise, without drawing millions of normals a frame. Frames
+    share values (shifted), which matters to nothing here that reads a frame on its own."""
+    h, w = shape[:2]
+    channels = shape[2] if len(shape) > 2 else 1
+    if seed is None:  # unseeded: a fresh field
+        return np.random.default_rng().standard_normal(shape, dtype=np.float32)
+    field = _noise_field(tuple(seed[:-1]), h, w, channels)
+    dy, dx, flip = np.random.default_rng(seed).integers(0, (NOISE_PAD, NOISE_PAD, 2))
+    view = field[dy:dy + h, dx:dx + w]
+    view = view[::-1, ::-1] if flip else view
+    return view.reshape(shape)
 
 
 def motion_blur(radiance: np.ndarray, length_px: float, angle: float) -> np.ndarray:
@@ -110,13 +149,23 @@ def apply_params(radiance: np.ndarray, params: ImageParams) -> np.ndarray:
         length = f * rate * params.exposure_time_s * min(e, 1.0 / (30 * params.exposure_time_s))
         if length >= 0.5:
             radiance = motion_blur(radiance, length, math.atan2(params.blur_rate[1], params.blur_rate[0]))
-    signal = radiance * e
+    signal = np.multiply(radiance, e, dtype=np.float32)  # a new array: the steps below work in place
     if params.shot_variance or params.read_std:
-        rng = np.random.default_rng(params.noise_seed)
-        sigma = np.sqrt(params.shot_variance * np.clip(signal, 0.0, 1.0) + params.read_std ** 2)
-        signal = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
-    img = (signal * params.gain - 0.5) * params.contrast + 0.5 + params.brightness
-    return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        sigma = np.clip(signal, 0.0, 1.0)
+        sigma *= params.shot_variance
+        sigma += params.read_std ** 2
+        np.sqrt(sigma, out=sigma)
+        sigma *= sensor_noise(signal.shape, params.noise_seed)
+        signal += sigma
+    signal *= params.gain
+    signal -= 0.5
+    signal *= params.contrast
+    signal += 0.5
+    signal += params.brightness
+    np.clip(signal, 0.0, 1.0, out=signal)
+    signal *= 255.0
+    signal += 0.5
+    return signal.astype(np.uint8)
 
 
 FRAME_BYTES = 180_000  # an encoded frame's budget: base64 of it (240 000 chars) fits one message (agents/base.py MAX_BODY)

@@ -43,6 +43,7 @@ from .errors import RobotError, WorldClosed
 
 START_TIMEOUT = 60.0  # s for a render process to build its scene
 RENDER_TIMEOUT = 300.0  # s for one frame (1280x960 takes ~2 s on a loaded machine)
+SPLIT_MIN_PIXELS = 1280 * 960  # with bands, frames this large are rendered in bands, by the idle processes at once
 
 
 @dataclass
@@ -61,13 +62,22 @@ class RenderJob:
     height: int
     view: list[float]
     proj: list[float]
-    params: Any  # receptors.ImageParams
+    params: Any  # receptors.ImageParams; None: the radiance (float HxWx3) of a band, for the parent to join
     add: list[tuple[str, str, tuple[float, float, float]]] = field(default_factory=list)  # (name, kind, pose)
     poses: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     joints: dict[str, dict[str, float]] = field(default_factory=dict)
     doors: dict[str, float] = field(default_factory=dict)
     lamps: dict[str, bool] = field(default_factory=dict)
     bodies: dict[str, tuple] = field(default_factory=dict)  # created when new, else moved (robots/disturbances.py)
+
+
+def band_projection(proj, band: int, bands: int) -> list[float]:
+    """The projection matrix (OpenGL, column-major) of band `band` (0 = top) of `bands` equal horizontal
+    bands of the frame `proj` projects to, rendered at the band's height: NDC y' = bands * y - (bands -
+    1 - 2 band). TinyRenderer then samples the band's pixels where it samples them in the whole frame."""
+    P = np.asarray(proj, float).reshape(4, 4).T  # rows of the matrix
+    P[1] = bands * P[1] - (bands - 1 - 2 * band) * P[3]
+    return [float(v) for v in P.T.reshape(-1)]
 
 
 # ====================================================================== child side
@@ -119,7 +129,7 @@ def _mirror_scene_class():
             if hasattr(job.params, "render_depth"):  # a depth image (robots/depth_camera.py), not colour
                 return job.params.render_depth(self.cid, job.width, job.height, job.view, job.proj)
             radiance = render_radiance(self.cid, job.width, job.height, job.view, job.proj, self.emissive_colors)
-            return apply_params(radiance, job.params)
+            return radiance if job.params is None else apply_params(radiance, job.params)
 
     return MirrorScene
 
@@ -237,14 +247,20 @@ class _Worker:
         job.bodies = {k: v for k, v in state.bodies.items() if known.bodies.get(k) != v}
         return job
 
-    def render(self, state: SceneState, **kw) -> np.ndarray:
+    def send(self, state: SceneState, **kw) -> None:
         job = self.job_for(state, **kw)
         self.send_conn.send(("render", job))
         self.known = state  # sent: the process applies it even if rendering then fails
+
+    def receive(self) -> np.ndarray:
         reply = self._reply(RENDER_TIMEOUT)
         if reply[0] != "ok":
             raise RenderError(f"render process error:\n{reply[1]}")
         return reply[1]
+
+    def render(self, state: SceneState, **kw) -> np.ndarray:
+        self.send(state, **kw)
+        return self.receive()
 
     def stop(self, kill: bool = False, timeout: float = 2.0) -> None:
         """Stop the process: ask it to exit (idle process), or kill it (a thread may be waiting on its pipe:
@@ -296,8 +312,12 @@ def _kill_all(workers: list[_Worker]) -> None:
 class RenderPool:
     """Up to `size` render processes mirroring one World; thread-safe, loop-agnostic."""
 
-    def __init__(self, plan, size: int = 2, name: str = "world"):
+    def __init__(self, plan, size: int = 2, name: str = "world", bands: int = 1):
         self.size = max(1, int(size))
+        # bands > 1: a large frame in that many bands, each on an idle process (one robot's world: its
+        # second core is idle while it renders); 1 (default): a world of many robots, or one of many
+        # worlds, keeps its processes busy with whole frames (a band costs 55 %, not 50 %, of a frame)
+        self.bands = max(1, int(bands))
         self._plan_msg = ("init", plan)  # pickled when a process starts; later changes arrive as state
         self._workers = [_Worker(i) for i in range(self.size)]
         self._cond = threading.Condition()
@@ -327,25 +347,39 @@ class RenderPool:
             w.busy = False
             self._cond.notify()
 
+    def _idle_others(self, w: _Worker, bands: int) -> list[_Worker]:
+        """The other idle processes (marked busy), up to one per band after `w`'s."""
+        if bands < 2:
+            return []
+        with self._cond:
+            idle = sorted((x for x in self._workers if not x.busy and x is not w), key=lambda x: not x.alive)
+            idle = idle[:bands - 1]
+            for x in idle:
+                x.busy = True
+            return idle
+
     # ---- rendering
     def render(self, state: SceneState, width: int, height: int, view, proj, params) -> np.ndarray:
-        """Blocking: render in a process and return the uint8 RGB image (call from a thread)."""
+        """Blocking: render in a process and return the uint8 RGB image (call from a thread). A large
+        frame is rendered in `self.bands` horizontal bands, always (the same pixels however busy the pool
+        is), by as many idle processes at once: TinyRenderer's cost is its pixels', a process renders on
+        one core."""
+        bands = self.bands if width * height >= SPLIT_MIN_PIXELS and height % self.bands == 0 else 1
         w = self._acquire()
+        ws = [w, *self._idle_others(w, bands)]
         try:
             for attempt in (0, 1):
                 try:
-                    if not w.alive:
-                        w.close_conns()
-                        w.start(self._plan_msg, self.own_session)
-                    return w.render(state, width=width, height=height, view=list(view), proj=list(proj),
-                                    params=params)
+                    for x in ws:
+                        if not x.alive:
+                            x.close_conns()
+                            x.start(self._plan_msg, self.own_session)
+                    return self._render_on(ws, bands, state, width, height, view, proj, params)
                 except RenderError:
-                    w.stop(kill=True)  # its mirror may be half-updated: the next request starts afresh
-                    w.close_conns()
+                    self._reset(ws)  # a mirror may be half-updated: the next request starts afresh
                     raise
                 except (EOFError, OSError, TimeoutError, RuntimeError) as e:
-                    w.stop(kill=True, timeout=5.0)
-                    w.close_conns()
+                    self._reset(ws)
                     if self._closed:
                         raise WorldClosed("renderer closed while rendering") from e
                     if attempt:
@@ -353,7 +387,32 @@ class RenderPool:
                     self.restarts += 1
             raise AssertionError("unreachable")
         finally:
-            self._release(w)
+            for x in ws:
+                self._release(x)
+
+    @staticmethod
+    def _reset(ws: list[_Worker]) -> None:
+        for x in ws:  # a reply may be left unread, a mirror half-updated
+            x.stop(kill=True, timeout=5.0)
+            x.close_conns()
+
+    @staticmethod
+    def _render_on(ws: list[_Worker], bands: int, state: SceneState, width: int, height: int, view, proj, params
+                   ) -> np.ndarray:
+        """The frame in `bands` bands (top first), each process of `ws` one band at a time; the image
+        parameters (exposure metered over the whole frame, blur, noise) applied to the joined radiance."""
+        if bands == 1:
+            return ws[0].render(state, width=width, height=height, view=list(view), proj=list(proj), params=params)
+        from .receptors import apply_params
+
+        out = []
+        for first in range(0, bands, len(ws)):
+            batch = list(zip(range(first, min(bands, first + len(ws))), ws))
+            for k, x in batch:
+                x.send(state, width=width, height=height // bands, view=list(view),
+                       proj=band_projection(proj, k, bands), params=None)
+            out += [x.receive() for _, x in batch]
+        return apply_params(np.concatenate(out), params)
 
     async def render_async(self, state: SceneState, width: int, height: int, view, proj, params) -> np.ndarray:
         if self._closed:

@@ -192,10 +192,11 @@ class World(Scene):
     """render: "process" (default; env RAPP_ROBOTS_RENDER overrides the default) renders camera images in
     up to `render_workers` separate processes mirroring the scene (robots/render_process.py), so a frame
     neither holds this process's GIL nor waits for / delays physics stepping; "inline" renders in the
-    pybullet thread of this process."""
+    pybullet thread of this process. `render_bands`: a 1280x960 frame in that many bands at once, on idle
+    render processes (a world of one robot, whose other core waits while a frame renders)."""
 
     def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60, render: str | None = None,
-                 render_workers: int | None = None,
+                 render_workers: int | None = None, render_bands: int = 1,
                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None):
         render = render or os.environ.get("RAPP_ROBOTS_RENDER") or "process"
         if render not in RENDER_MODES:
@@ -215,7 +216,8 @@ class World(Scene):
         self.lived_in: dict | None = None  # what changed since (robots/lived_in.py live_in's account)
         self.run_sync(self._build)
         if render == "process":
-            self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name)
+            self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name,
+                                        bands=render_bands)
         if disturbances is not None:
             try:
                 self.attach_disturbances(disturbances)
@@ -226,7 +228,7 @@ class World(Scene):
     @classmethod
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
                   time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None,
-                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None,
+                  render_bands: int = 1, disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None,
                   lived_in: "Callable[[Plan], tuple[Plan, dict]] | None" = None) -> "World":
         """Build from a YAML house description; `path` may also be a bare name in robots/houses, or
         "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest).
@@ -242,7 +244,7 @@ class World(Scene):
         mapped = load_plan(source, seed=seed, overrides=overrides)
         plan, changes = lived_in(mapped) if lived_in is not None else (mapped, None)
         world = cls(plan, rtf=rtf, time_step=time_step, render=render, render_workers=render_workers,
-                    disturbances=disturbances)
+                    render_bands=render_bands, disturbances=disturbances)
         world.mapped_plan, world.lived_in = mapped, changes
         return world
 

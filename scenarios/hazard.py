@@ -109,7 +109,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     `lived_in`: the house changed since its map was made (robots/lived_in.py; the result's `lived_in`)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
-    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances, lived_in=lived_in)
+    # one robot: its large frames in two bands, one on each core (robots/render_process.py)
+    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances, lived_in=lived_in, render_bands=2)
     try:
         recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
                                 frames_dir=out / "frames")

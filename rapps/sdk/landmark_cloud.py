@@ -34,7 +34,7 @@ def observe(req: Observe) -> Observations:
     K, dist = L.camera_matrix(req.camera)
     T_robot_cam = np.asarray(req.camera_to_robot, float)
     items = []
-    for text, corners in L.detect_qr(img):
+    for text, corners in L.detect_qr(img, req.expect):
         lm = req.landmarks.get(text)
         if lm is None:
             continue

@@ -563,7 +563,7 @@ class Localizer:
             reply = cast(Observations, await cloud.call(
                 "observe", _ontology=LANDMARKS, image_b64=self.state.pop("frame").data_b64, camera=self.intrinsics,
                 camera_to_robot=self.state["camera_to_robot"], landmarks=home.landmarks,
-                max_distance_m=self.settings.max_distance_m))
+                max_distance_m=self.settings.max_distance_m, expect=self.state["look"].codes))
         except RequestFailed:  # a frame the Cloud Agent could not process: look elsewhere
             reply = None
         if reply is None or not reply.items:

@@ -80,3 +80,18 @@ def test_detector_assertion_is_no_code(monkeypatch):
     monkeypatch.setattr(cv2.QRCodeDetector, "detectAndDecode", broken)
     img = render.render_qr("kitchen", 0.16, L.transform(np.diag([1.0, -1, -1]), [0, 0, 1.0]), K)
     assert L.detect_qr(img) == []
+
+
+def test_expected_codes_spare_the_stretched_pass_only_when_all_are_found(monkeypatch):
+    """detect_qr(img, expect): the costly pass on the stretched image runs only when a code the frame
+    was planned for is missing from the first (a code seen obliquely)."""
+    oblique = cv2.Rodrigues(np.array([0.0, math.radians(62), 0.0]))[0] @ np.diag([1.0, -1, -1])
+    img = render.render_qr("kitchen", 0.16, L.transform(oblique, [0.0, 0.0, 0.9]), K)
+    assert not L._decode(cv2.QRCodeDetector(), img)  # only the stretched pass reads it
+    assert [t for t, _ in L.detect_qr(img, expect=["kitchen"])] == ["kitchen"]
+    front = render.render_qr("kitchen", 0.16, L.transform(np.diag([1.0, -1, -1]), [0, 0, 1.0]), K)
+    stretched = []
+    real_resize = cv2.resize
+    monkeypatch.setattr(L.cv2, "resize", lambda *a, **kw: stretched.append(1) or real_resize(*a, **kw))
+    assert [t for t, _ in L.detect_qr(front, expect=["kitchen"])] == ["kitchen"] and not stretched
+    assert [t for t, _ in L.detect_qr(front)] == ["kitchen"] and stretched  # nothing expected: every pass
