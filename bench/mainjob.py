@@ -30,6 +30,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from ontology import robot_types
+
 from .common import ROOT, log, metric
 
 README_HOUSE = "house"
@@ -203,7 +205,7 @@ def metrics(robot: str, job: dict, floor: dict) -> list[dict]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.mainjob", description=__doc__.splitlines()[0])
-    ap.add_argument("--robots", nargs="+", default=["nao", "elektron"])
+    ap.add_argument("--robots", nargs="+", default=list(robot_types.names()), choices=robot_types.names())
     ap.add_argument("--house", default=README_HOUSE)
     ap.add_argument("--seed", type=int, default=README_SEED)
     ap.add_argument("--json", metavar="FILE")

@@ -112,10 +112,10 @@ def scenario_world(house: str, seed: int, lived_in: LivedIn | None = None, **wor
 def lived_in_plan(mapped, house: str, knobs: LivedIn):
     """robots.lived_in.live_in with what must stay clear: the robots' start poses and the hazards'
     stands, reachable as they were on the map."""
-    from ontology.robot_types import ROBOT_TYPES
+    from ontology.robot_types import ROBOT_TYPES, widest_clearance_m
 
     lay = layout(house, mapped) if has_layout(house, mapped) else {"passages": []}
-    radius = max(row.clearance_radius_m for row in ROBOT_TYPES.values())
+    radius = widest_clearance_m()
     starts = [tuple(mapped.start_pose(kind, kind, row.body_radius_m)[:2]) for kind, row in ROBOT_TYPES.items()]
     stands = [(h.stand.x, h.stand.y) for h in hazard_list(mapped, house)] if has_layout(house, mapped) else []
     return live_in(mapped, knobs, passages=lay["passages"], keep_clear=[*starts, *stands], clearance_m=radius)

@@ -85,29 +85,35 @@ async def test_person_events_when_someone_comes_into_view_then_every_few_seconds
         world.close()
 
 
+class EventsHost:
+    """What CoreEvents needs of the Core (agents/core_parts.py EventsHost), nothing else; behaviours
+    it starts are kept, not run."""
+
+    def __init__(self, robot):
+        from types import SimpleNamespace
+        self.robot, self.active = robot, {}
+        self.dynamic = SimpleNamespace(jid="dyn-1@localhost/r", ended=asyncio.Event())
+
+    def activate(self, name, behaviour, template=None):
+        self.active.setdefault(name, behaviour)
+
+    def deactivate(self, name):
+        self.active.pop(name, None)
+
+
+async def no_echo():
+    return None
+
+
 async def test_subscribing_to_person_starts_the_camera_watch_and_the_task_end_stops_it():
     from types import SimpleNamespace
 
     from agents.core_events import CoreEvents
     from robots import RobotAPI, World
 
-    class Host:  # what the member needs of the Core (agents/core_parts.py EventsHost), nothing else
-        def __init__(self, robot):
-            self.robot, self.active = robot, {}
-            self.dynamic = SimpleNamespace(jid="dyn-1@localhost/r", ended=asyncio.Event())
-
-        def activate(self, name, behaviour, template=None):
-            self.active.setdefault(name, behaviour)
-
-        def deactivate(self, name):
-            self.active.pop(name, None)
-
-    async def no_echo():
-        return None
-
     world = World.from_file("small", seed=1, render="inline")
     try:
-        host = Host(RobotAPI(world.add_robot("nao")))
+        host = EventsHost(RobotAPI(world.add_robot("nao")))
         events = CoreEvents(host, no_echo)
         await events._on_subscribe(SubscribeEvents(topics=["estop"]), SimpleNamespace(sender="dyn-1@localhost"))
         assert host.active == {}

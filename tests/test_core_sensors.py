@@ -1,7 +1,6 @@
 """The Core's events from the new sensors: bumper and touch (agents/core_contacts.py) as typed notifications,
 and the depth camera's nearest point in the Elektron's obstacle events (agents/core_depth.py): a low box
 the laser's plane passes over."""
-import asyncio
 from types import SimpleNamespace
 
 from agents.core_contacts import ContactEvents
@@ -9,6 +8,8 @@ from agents.core_depth import with_depth
 from agents.core_events import CoreEvents
 from ontology.notifications import EventTopic, SubscribeEvents
 from ontology.robot import GetLaserScan, MoveTo
+
+from .test_core_events import EventsHost, no_echo
 
 
 class _Watcher:
@@ -47,29 +48,15 @@ async def test_touch_and_bumper_changes_become_events_in_order():
 async def test_subscribing_to_bumper_starts_the_contact_watch_only_on_a_robot_with_contacts():
     from robots import RobotAPI, World
 
-    class Host:  # what CoreEvents asks of the Core (agents/core_parts.py EventsHost)
-        def __init__(self, robot):
-            self.robot, self.active = robot, {}
-            self.dynamic = SimpleNamespace(jid="dyn-1@localhost/r", ended=asyncio.Event())
-
-        def activate(self, name, behaviour, template=None):
-            self.active.setdefault(name, behaviour)
-
-        def deactivate(self, name):
-            self.active.pop(name, None)
-
-    async def no_echo():
-        return None
-
     world = World.from_file("small", seed=1, render="inline")
     try:
         ctx = SimpleNamespace(sender="dyn-1@localhost")
-        nao = CoreEvents(Host(RobotAPI(world.add_robot("nao"))), no_echo)
+        nao = CoreEvents(EventsHost(RobotAPI(world.add_robot("nao"))), no_echo)
         await nao._on_subscribe(SubscribeEvents(topics=["bumper", "touch"]), ctx)
         assert isinstance(nao.host.active.get("contact-events"), ContactEvents)
         nao.end_subscriptions()
         assert nao.host.active == {}
-        el = CoreEvents(Host(RobotAPI(world.add_robot("elektron"))), no_echo)
+        el = CoreEvents(EventsHost(RobotAPI(world.add_robot("elektron"))), no_echo)
         await el._on_subscribe(SubscribeEvents(topics=["touch"]), ctx)
         assert el.host.active == {}
     finally:

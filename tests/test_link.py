@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import asyncio
 import math
+import shutil
 import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from agents.tracing import read_trace
 from xmpp_server.link import RTO_S, FaultyLink, LinkFaults
@@ -114,7 +116,12 @@ async def test_a_rapp_run_over_a_flaky_link_ends_right_with_nothing_lost(tmp_pat
             await link.outage(5.0)
             moved_during.append(math.dist(before, api.robot.pose[:2]))
 
-        run = Run(tmp_path, world, ROOT / "tests" / "fixtures" / "drive_check", [owner],
+        rapp = tmp_path / "drive_check"  # the rover's test RApp, for an Elektron
+        shutil.copytree(ROOT / "tests" / "fixtures" / "rover_check", rapp)
+        manifest = yaml.safe_load((rapp / "manifest.yaml").read_text())
+        manifest.update(robot_types=["elektron"], keywords=["drive"])
+        (rapp / "manifest.yaml").write_text(yaml.safe_dump(manifest))
+        run = Run(tmp_path / "run", world, rapp, [owner],
                   platform_kw={"service_workers": 0})
         await run.run(timeout_s=150, during=cut_while_driving)
         assert run.ok(owner), run.reason(owner)
