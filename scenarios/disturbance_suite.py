@@ -32,7 +32,7 @@ from .runner import RunInterrupted, main_loop
 
 HOUSE = "twodoors"
 ROBOTS = robot_types.names()  # ontology/robot_types.py
-FAST = ("door-closed",)  # run in the default test suite (tests/test_disturbance_suite.py)
+FAST = ("door-closed",)  # the quickest whole case (tests/test_disturbance_suite.py, slow-marked)
 
 
 async def stop_and_resume(handle, world, recorder, pause_s: float = 3.0) -> None:

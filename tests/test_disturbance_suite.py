@@ -1,5 +1,5 @@
 """The disturbance suite (scenarios/disturbance_suite.py): the hazard RApp in the two-door house against
-things that move. The fast case runs here whole; the others are slow-marked (all of them:
+things that move. Every whole case is slow-marked, the fast one too (all of them:
 `rapp run disturbances`, docs/disturbances.md)."""
 from __future__ import annotations
 
@@ -36,6 +36,9 @@ def test_the_only_route_case_needs_both_closed_doors_reported():
     assert "| only-route-closed | nao | yes | yes | 0 | 0 |" in table([judge(case, result(routes_blocked=both))])
 
 
+# slow-marked for the default suite's time (80 s of one worker): the plan monitor's block, mark and
+# re-plan are in test_strategies by default, the whole run with `pytest -m slow` and `rapp run disturbances`
+@pytest.mark.slow
 @pytest.mark.timeout(400)
 @pytest.mark.parametrize("name", FAST)
 async def test_fast_case_on_the_elektron(name, tmp_path):
