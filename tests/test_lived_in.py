@@ -24,16 +24,18 @@ def test_the_world_differs_from_its_map_and_keeps_every_stand_clear(house, seeds
         world = scenario_world(house, seed, lived_in=LivedIn(seed=seed), render="inline")
         try:
             changes, mapped, plan = world.lived_in, world.mapped_plan, world.plan
-            assert changes["moved"] and changes["added"] and changes["rugs"], (seed, changes)
+            assert (changes["moved"] or changes["added"]) and changes["rugs"], (seed, changes)  # a tight house may fit fewer
             on_map = {(b.name, round(b.x, 3), round(b.y, 3)) for b in mapped.furniture}
             in_world = {(b.name, round(b.x, 3), round(b.y, 3)) for b in plan.furniture}
             assert len(in_world - on_map) == len(changes["moved"]) + len(changes["added"]), seed
-            grid = home_map(world, house)  # the owner's map: the old places
+            owners = home_map(world, house).image  # the owner's map: the house as mapped
+            lived = home_map(world.plan, house)  # the same map drawn from the house as it is now
+            assert (owners == home_map(mapped, house).image).all() and (owners != lived.image).any(), seed
             for item in changes["added"]:
                 x, y = item["at"]
-                row = grid.image.shape[0] - 1 - int((y - grid.origin[1]) / grid.resolution)
-                col = int((x - grid.origin[0]) / grid.resolution)
-                assert grid.image[row, col] != 0, (seed, item)  # not on the map
+                row = lived.image.shape[0] - 1 - int((y - lived.origin[1]) / lived.resolution)
+                col = int((x - lived.origin[0]) / lived.resolution)
+                assert lived.image[row, col] == 0, (seed, item)  # in the house, where the map knows nothing of it
             stands = [(h.stand.x, h.stand.y) for h in hazard_list(world, house)]
             new = [b for b in plan.furniture if (b.name, round(b.x, 3), round(b.y, 3)) not in on_map]
             assert all(b.distance(*s) >= 0.6 for b in new for s in stands), seed
