@@ -255,22 +255,28 @@ def _build_root(lib, binds, tmpfs_mb: int) -> None:
     (pivot_root); the machine's root detached."""
     _check(lib.mount(b"none", b"/", None, MS_REC | MS_PRIVATE, None), "make mounts private")
     app = os.open(".", os.O_PATH | os.O_DIRECTORY | os.O_CLOEXEC)  # a warm worker's directory is renamed later
+    # every source held open before the tmpfs covers BASE: a checkout or virtualenv under /tmp would
+    # be hidden by it (a bind of /tmp/x/.venv failed with "No such file or directory")
+    held = [(os.open(source, os.O_PATH | os.O_CLOEXEC), os.path.isdir(source), target, writable)
+            for source, target, writable in binds] + [(app, True, APP_DIR, True)]
     _check(lib.mount(b"tmpfs", BASE.encode(), b"tmpfs", MS_NOSUID | MS_NODEV,
                      f"size={tmpfs_mb}m,mode=0755".encode()), "tmpfs root")
     for link in ("bin", "sbin", "lib", "lib64", "lib32", "libx32"):  # merged-/usr symlinks
         if os.path.islink(f"/{link}"):
             os.symlink(os.readlink(f"/{link}"), f"{BASE}/{link}")
-    for source, target, writable in [*binds, (f"/proc/self/fd/{app}", APP_DIR, True)]:
+    for fd, is_dir, target, writable in held:
         dest = f"{BASE}{target}"
-        if os.path.isdir(source):
+        if is_dir:
             os.makedirs(dest, exist_ok=True)
         else:
             os.makedirs(os.path.dirname(dest), exist_ok=True)
             os.close(os.open(dest, os.O_WRONLY | os.O_CREAT, 0o644))
-        _check(lib.mount(source.encode(), dest.encode(), None, MS_BIND | MS_REC, None), f"bind {target}")
+        _check(lib.mount(f"/proc/self/fd/{fd}".encode(), dest.encode(), None, MS_BIND | MS_REC, None),
+               f"bind {target}")
         flags = MS_BIND | MS_REMOUNT | MS_NOSUID | _locked_flags(dest) | (0 if writable else MS_RDONLY)
         _check(lib.mount(None, dest.encode(), None, flags, None), f"remount {target}")
-    os.close(app)
+    for fd, *_ in held:
+        os.close(fd)
     os.makedirs(f"{BASE}/tmp", exist_ok=True)
     os.chmod(f"{BASE}/tmp", 0o1777)
     os.mkdir(f"{BASE}/.old")
