@@ -26,7 +26,8 @@ async def test_a_bind_whose_source_is_under_tmp_is_seen_inside(tmp_path):
     from ontology.spawn import SpawnSpec
     from xmpp_server.settings import XmppSettings
 
-    assert str(tmp_path).startswith("/tmp/"), tmp_path  # the case: pytest's base directory is under /tmp
+    if not str(tmp_path).startswith("/tmp/"):
+        pytest.skip(f"the case needs a source under /tmp; pytest's base directory is {tmp_path.parent}")
     data = tmp_path / "data"
     data.mkdir()
     (data / "note.txt").write_text("seen from inside")
