@@ -11,7 +11,7 @@ captures images through a_core, a_cloud's qrCodeDetection finds the codes, a_dyn
 them into a pose with the marker map; the Core's part is the relative localization and the current pose
 from both. So the Core does not look for QR codes on its own camera frames (it would also fight the task for
 the camera and the head): it accepts the fixes a RApp sends with add_pose_fix (the SDK's Task.localize
-keeps its own filter and does not send them yet), and follows the odometry between them.
+keeps its own filter and sends the Core each fix it takes), and follows the odometry between them.
 
 The robot's odometry is read every SAMPLE_S (wall clock) from the Core's start; a RApp's set_global_pose
 resets that odometry (it is the robot's own estimate), so the Core takes the motion up to it, then follows

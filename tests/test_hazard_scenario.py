@@ -32,7 +32,11 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     assert {h["id"] for h in result["hazards"]} == hazard_ids
     assert result["all_correct"], result["hazards"]
     assert result["ok"] and result["finished"], result["reason"]
-    events = structure_events(read_trace(result["trace"]), "hazard-detection")
+    trace = read_trace(result["trace"])
+    events = structure_events(trace, "hazard-detection")
+    shared = [r for r in trace if r["kind"] == "message" and r["dir"] == "recv" and r["action"] == "add_pose_fix"
+              and r["agent"].startswith("core-") and r["performative"] == "request"]
+    assert shared, "the RApp's QR fixes reach the Core's own estimate (add_pose_fix)"
     assert events[0] == "spawn" and "cloud-spawn" in events and events[-1] == "destroy", events
     chat = (out / "chat.txt").read_text()
     assert "hazard-detection finished" in chat

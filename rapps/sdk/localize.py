@@ -64,6 +64,9 @@ class LocalizingTask(Protocol):
     def platform(self) -> PlatformCalls: ...
 
     @property
+    def log(self) -> Any: ...  # rapps.sdk.TaskLog
+
+    @property
     def cloud(self) -> _Cloud: ...
 
 
@@ -598,6 +601,15 @@ class Localizer:
         return bool(found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None
                     and found.std_m <= std_m and found.std_theta_rad <= std_rad)
 
+    async def _share_fix(self, pose: Pose2D, std_m: float, std_rad: float) -> None:
+        """The fix to the Core too (add_pose_fix), before the RApp sets its own pose: the Core's
+        estimate (get_pose_estimate, paper 001's relative localization) is then QR-fused as well. A
+        Core that refuses it (its own gate, or one without the action) leaves the RApp's filter as it is."""
+        try:
+            await self.task.robot.add_pose_fix(x=pose.x, y=pose.y, theta=pose.theta, std_m=std_m, std_rad=std_rad)
+        except RequestError as e:
+            self.task.log.debug("the Core did not take the fix: %s", e)
+
     @noting_failure
     async def set_pose(self, memory: dict[str, Any]) -> None:
         """Fuse the fix into the filter and set the filter's pose on the robot. A fix certain enough
@@ -615,6 +627,7 @@ class Localizer:
             if (certain or usable) and ekf.update((p.x, p.y, p.theta), std_m=max(found.std_m, FIX_FLOOR_M),
                                                   std_rad=max(found.std_theta_rad, FIX_FLOOR_RAD),
                                                   gate=None if certain else CHI2_3DOF_99):
+                await self._share_fix(p, max(found.std_m, FIX_FLOOR_M), max(found.std_theta_rad, FIX_FLOOR_RAD))
                 x, y, theta = ekf.pose
                 await self.task.robot.set_global_pose(x=x, y=y, theta=theta)
                 self.odom_ref = ekf.pose
