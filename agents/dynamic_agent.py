@@ -91,11 +91,12 @@ class DynamicAgent(RappAgent):
             except Exception:  # noqa: BLE001 - malformed: kept as unhandled below
                 down = None
             if down is not None:
-                code = ErrorCode.CLOUD_RESTARTED if down.restarted else ErrorCode.CLOUD_LOST
+                code = ErrorCode.CLOUD_RESTARTED if down.restarting or down.restarted else ErrorCode.CLOUD_LOST
                 self.fail_pending(down.jid, CloudAgentLost(down.reason, code=code, peer=down.jid))
                 if self.task is not None:
-                    self.task.cloud.lost = None if down.restarted else down.reason
-                self.record_structure("cloud-down", cloud=down.jid, restarted=down.restarted)
+                    self.task.cloud.told(down.reason, restarting=down.restarting, restarted=down.restarted)
+                self.record_structure("cloud-down", cloud=down.jid, restarted=down.restarted,
+                                      restarting=down.restarting)
                 return
         await super().on_unhandled(msg, info)
 

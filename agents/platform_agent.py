@@ -603,7 +603,9 @@ class PlatformAgent(RappAgent):
             self.record_structure("cloud-lost", cloud=session.jid, rapp=session.rapp, exit_code=code,
                                   restart=restart, stderr=await asyncio.to_thread(session.process.last_words),
                                   input=str(kept) if kept else None)
-            if restart:
+            if restart:  # told at once: a restart under load can outlast the calls in flight
+                await self.notify(session.owner, P.CloudAgentDown(jid=session.jid, reason=reason, restarting=True),
+                                  ontology=P.ONTOLOGY, action="cloud_agent_down")
                 restart = await self._restart_cloud(session, spec, workdir)
             await self.notify(session.owner, P.CloudAgentDown(jid=session.jid, reason=reason, restarted=restart),
                               ontology=P.ONTOLOGY, action="cloud_agent_down")
@@ -617,8 +619,8 @@ class PlatformAgent(RappAgent):
         return (Path(trace).parent if trace else self.workdir) / "crashes"
 
     async def _restart_cloud(self, session: CloudSession, spec: SpawnSpec, workdir: Path) -> bool:
-        """Start the Cloud Agent again under its JID; True once it serves (calls sent meanwhile
-        are failed by its Dynamic Agent when told, so none waits for a timeout)."""
+        """Start the Cloud Agent again under its JID; True once it serves (its Dynamic Agent, told
+        it is restarting, failed the calls in flight and holds new ones until told it serves)."""
         session.restarted = True
         session.ready.clear()
         await session.process.end(grace=0.0)  # whatever of its uid left its group dies before the directory is reused

@@ -135,12 +135,15 @@ class CloudReady(Action):
 
 @action("cloud_agent_down", ontology=ONTOLOGY, reply=Done, group="cloud")
 class CloudAgentDown(Action):
-    """The Platform tells a Dynamic Agent its Cloud Agent's process ended unasked (notification):
-    `restarted` when the manifest lets the Platform start it again once, under the same JID."""
+    """The Platform tells a Dynamic Agent its Cloud Agent's process ended unasked (notification).
+    Where the manifest lets the Platform start it again once, under the same JID, two notices:
+    `restarting` at once (calls in flight fail, new ones wait), then `restarted` once it serves
+    (or neither flag: the restart failed and the Cloud Agent is lost)."""
 
     jid: str
     reason: str
     restarted: bool = False
+    restarting: bool = False
 
 
 @action("register_robot", ontology=ONTOLOGY, reply=Done, group="robots")

@@ -114,6 +114,9 @@ class PlatformProxy(_Dynamic, PlatformCalls):
                 return await super()._call(action, fields, timeout, feedback)
 
 
+CLOUD_RESTART_WAIT_S = 120.0  # past the Platform's own wait for a restarted Cloud Agent (start timeout + 10 s)
+
+
 class CloudProxy:
     """The RApp's own Cloud Agent, started on demand through the Platform."""
 
@@ -122,6 +125,16 @@ class CloudProxy:
         self._rapp, self._version, self._ontology = rapp, version, ontology
         self.address: str | None = None
         self.lost: str | None = None  # why the Cloud Agent is gone (the Platform told its Dynamic Agent)
+        self._serving = asyncio.Event()  # cleared while the Platform restarts it: calls wait
+        self._serving.set()
+
+    def told(self, reason: str, restarting: bool = False, restarted: bool = False) -> None:
+        """The Platform's notice that the Cloud Agent's process ended (its Dynamic Agent relays it)."""
+        if restarting:
+            self._serving.clear()
+            return
+        self.lost = None if restarted else reason
+        self._serving.set()
 
     async def start(self, timeout: float = 60.0) -> str:
         if self.address is None:
@@ -136,6 +149,13 @@ class CloudProxy:
         """The Cloud Agent's answer; CloudAgentLost when its process died (or, code
         "cloud-restarted", when the Platform restarted it while this call was in flight).
         `_ontology`: an action of another ontology the Cloud part serves (the SDK's localization)."""
+        if not self._serving.is_set():  # being restarted: the Platform tells when it serves or is lost
+            try:
+                await asyncio.wait_for(self._serving.wait(), CLOUD_RESTART_WAIT_S)
+            except asyncio.TimeoutError:
+                raise CloudAgentLost(f"no word from the Platform {CLOUD_RESTART_WAIT_S:.0f} s after it began "
+                                     "restarting the Cloud Agent", code=ErrorCode.CLOUD_LOST,
+                                     peer=self.address or "") from None
         if self.lost:
             raise CloudAgentLost(self.lost, code=ErrorCode.CLOUD_LOST, peer=self.address or "")
         ontology = _ontology or self._ontology
