@@ -117,7 +117,7 @@ def floor_main(spec_path: str) -> None:
         proj = p.computeProjectionMatrixFOV(math.degrees(vfov), w / h, cam.near, cam.far, physicsClientId=cid)
         return view, proj
 
-    flags = p.ER_NO_SEGMENTATION_MASK if not scene.emissive_colors else 0
+    flags = p.ER_NO_SEGMENTATION_MASK if not scene.emissive else 0
     jobs = [(w, h, matrices(pose, w, h)) for w, h, pose in frames]
     band = spec.get("band")  # (k, n): that band of every frame the job renders in bands, the rest in band 0
     t0 = time.perf_counter()

@@ -95,6 +95,7 @@ class Lamp:
     y: float
     z: float
     on: bool
+    strength: float = 1.0  # light output, relative (robots/daylight.py draws several)
 
 
 @dataclass
@@ -147,6 +148,8 @@ class Plan:
     rt60_s: float = 0.0  # the rooms' reverberation time: 0 = anechoic (robots/sound.py)
     rugs: list[Box] = field(default_factory=list)  # on the floor, no obstacle: feet slip more (robots/lived_in.py)
     rug_slip: float = 1.0  # foot slip on a rug, times the slip on the floor
+    windows: list[Box] = field(default_factory=list)  # panes in the outside walls (robots/daylight.py)
+    sky: float | None = None  # daylight through them, 0 night .. 1 clear noon; None: the studio light
 
     def slip_at(self, x: float, y: float) -> float:
         """How much more a walking robot's feet slip at (x, y) than on the bare floor."""

@@ -18,6 +18,7 @@ import numpy as np
 from .pybullet_quiet import p
 
 from .errors import InvalidArgument
+from .lighting import room_light
 from .failure_modes import CameraNoise, RangeNoise, camera_motion, noisy_ranges, reading_rng, seed_sequence
 from .spec import CameraSpec, RangeSpec
 
@@ -25,7 +26,6 @@ if TYPE_CHECKING:
     from .robot import Robot
 
 RESOLUTIONS = {"QQVGA": (160, 120), "QVGA": (320, 240), "VGA": (640, 480), "4VGA": (1280, 960)}
-LAMP_RADIANCE = 4.0  # lit lamp pixels are this many times brighter than a white wall
 LIGHT = dict(lightDirection=[0.35, 0.25, 1.0], lightColor=[1, 1, 1], lightDistance=10.0,
              lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.0, shadow=0)
 # rotation from a camera link frame (x forward, y left, z up) to its optical frame (x right, y down, z fwd)
@@ -196,18 +196,22 @@ def pose_matrix(pos, quat) -> np.ndarray:
 
 
 def render_radiance(cid: int, width: int, height: int, view, proj,
-                    emissive: dict[int, tuple[float, float, float]]) -> np.ndarray:
-    """Render with TinyRenderer in client `cid`: float HxWx3 radiance, lit lamp shades (body uid -> colour in
-    `emissive`) replaced by LAMP_RADIANCE times their colour. Shared by the in-process camera and the
-    render process (robots/render_process.py), so both give the same pixels for the same scene state."""
+                    emissive: dict[int, tuple[float, float, float]], light_scale: float = 1.0) -> np.ndarray:
+    """Render with TinyRenderer in client `cid`: float HxWx3 radiance (1 = a lit white wall), the
+    bodies in `emissive` (uid -> radiance: lit lamp shades, windows by day; robots/lighting.py) set to
+    theirs; `light_scale`: the room's ambient and diffuse light (lighting.room_light). Shared by the
+    in-process camera and the render process (robots/render_process.py), so both give the same pixels
+    for the same scene state."""
     flags = 0 if emissive else p.ER_NO_SEGMENTATION_MASK
+    light = LIGHT if light_scale == 1.0 else {**LIGHT, "lightAmbientCoeff": LIGHT["lightAmbientCoeff"] * light_scale,
+                                              "lightDiffuseCoeff": LIGHT["lightDiffuseCoeff"] * light_scale}
     out = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER, flags=flags,
-                           physicsClientId=cid, **LIGHT)
+                           physicsClientId=cid, **light)
     rgb = np.asarray(out[2], dtype=np.float32).reshape(height, width, 4)[:, :, :3] / 255.0
     if emissive:
         seg = np.asarray(out[4]).reshape(height, width)
-        for uid, color in emissive.items():
-            rgb[seg == uid] = np.asarray(color, np.float32) * LAMP_RADIANCE
+        for uid, radiance in emissive.items():
+            rgb[seg == uid] = np.asarray(radiance, np.float32)
     return rgb
 
 
@@ -283,7 +287,8 @@ class Camera:
 
     def render_radiance(self, width: int, height: int) -> np.ndarray:
         view, proj = self.view_projection(width, height)
-        return render_radiance(self.robot.world.cid, width, height, view, proj, self.robot.world.emissive_colors)
+        world = self.robot.world
+        return render_radiance(world.cid, width, height, view, proj, world.emissive, room_light(world.plan.sky))
 
     def capture(self, width: int = 320, height: int = 240) -> np.ndarray:
         """RGB uint8 image (HxWx3) with the current image parameters applied."""

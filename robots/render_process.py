@@ -84,6 +84,7 @@ def band_projection(proj, band: int, bands: int) -> list[float]:
 def _mirror_scene_class():
     import pybullet as p
 
+    from .lighting import room_light
     from .receptors import apply_params, render_radiance
     from .robot import create_bodies, probe_z, yaw_quat
     from .bodies import ROBOT_SPECS
@@ -128,7 +129,8 @@ def _mirror_scene_class():
             self.apply(job)
             if hasattr(job.params, "render_depth"):  # a depth image (robots/depth_camera.py), not colour
                 return job.params.render_depth(self.cid, job.width, job.height, job.view, job.proj)
-            radiance = render_radiance(self.cid, job.width, job.height, job.view, job.proj, self.emissive_colors)
+            radiance = render_radiance(self.cid, job.width, job.height, job.view, job.proj, self.emissive,
+                                       room_light(self.plan.sky))
             return radiance if job.params is None else apply_params(radiance, job.params)
 
     return MirrorScene

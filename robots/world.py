@@ -36,6 +36,7 @@ from .floorplan import (CEILING_COLOR, DOOR_COLOR, DOOR_HEIGHT, DOOR_THICKNESS, 
                         load_plan)
 from .gridmap import GridMap, build_grid_map
 from .house_gen import GENERATED, generate
+from .lighting import LAMP_OFF_COLOR, LAMP_ON_COLOR, Daylight, lamp_radiance, window_radiance, with_daylight
 from .odometry import OdometryNoise
 from .qr import qr_texture, symbol_fraction
 from .receptors import Camera
@@ -47,8 +48,6 @@ if TYPE_CHECKING:
     from .disturbances import ContactEvent, Disturbances, DisturbanceSpec
 
 HOUSES = Path(__file__).parent / "houses"
-LAMP_ON_COLOR = (1.0, 0.96, 0.78)
-LAMP_OFF_COLOR = (0.22, 0.22, 0.23)
 RENDER_MODES = ("process", "inline")
 PRINT_OFFSET_M = 0.0025  # QR print in front of the wall point the landmark map gives
 
@@ -73,7 +72,8 @@ class Scene:
     def _init_scene(self, plan: Plan) -> None:
         self.plan = plan
         self.cid = -1
-        self.emissive_colors: dict[int, tuple[float, float, float]] = {}
+        self.emissive: dict[int, tuple[float, float, float]] = {}  # body uid -> radiance: lit shades, windows by day
+        self.window_uids: list[int] = []
         self.door_uids: dict[str, int] = {}
         self.lamp_uids: dict[str, tuple[int, int]] = {}
 
@@ -107,6 +107,12 @@ class Scene:
             self._landmark_body(m)
         for rug in plan.rugs:  # seen by the camera, felt by the feet only (Plan.slip_at)
             self._box_body(rug, collision=False)
+        for pane in plan.windows if plan.sky is not None else ():  # in the wall's line: no collision
+            uid = self._box_body(pane, collision=False)
+            self.window_uids.append(uid)
+            glow = window_radiance(plan.sky)
+            if glow is not None:
+                self.emissive[uid] = glow
 
     def _door_body(self, d) -> int:
         cid = self.cid
@@ -183,9 +189,9 @@ class Scene:
         color = LAMP_ON_COLOR if on else LAMP_OFF_COLOR
         p.changeVisualShape(shade, -1, rgbaColor=[*color, 1], physicsClientId=self.cid)
         if on:
-            self.emissive_colors[shade] = color
+            self.emissive[shade] = lamp_radiance(lamp.strength)
         else:
-            self.emissive_colors.pop(shade, None)
+            self.emissive.pop(shade, None)
 
 
 class World(Scene):
@@ -214,6 +220,7 @@ class World(Scene):
         self.disturbances: Disturbances | None = None
         self.mapped_plan: Plan = plan  # the house as mapped (from_file's `lived_in` makes them differ)
         self.lived_in: dict | None = None  # what changed since (robots/lived_in.py live_in's account)
+        self.daylight: dict | None = None  # the light of its time of day (robots/lighting.py with_daylight)
         self.run_sync(self._build)
         if render == "process":
             self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name,
@@ -229,12 +236,15 @@ class World(Scene):
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
                   time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None,
                   render_bands: int = 1, disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None,
-                  lived_in: "Callable[[Plan], tuple[Plan, dict]] | None" = None) -> "World":
+                  lived_in: "Callable[[Plan], tuple[Plan, dict]] | None" = None,
+                  daylight: Daylight | None = None) -> "World":
         """Build from a YAML house description; `path` may also be a bare name in robots/houses, or
         "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest).
         `disturbances`: a disturbance file (or bare name in robots/houses) or spec, see attach_disturbances.
         `lived_in`: what changed since the house was mapped (robots/lived_in.py): the world is built
-        from the plan it returns, `mapped_plan` keeps the plan as the map knows it."""
+        from the plan it returns, `mapped_plan` keeps the plan as the map knows it. `daylight`: the
+        light of a time of day, windows and lamps of several strengths (robots/lighting.py; the
+        world's `daylight` says what it drew); None: the studio light."""
         path = Path(path)
         source: Path | dict = path
         if not path.exists() and (HOUSES / f"{path}.yaml").exists():
@@ -243,9 +253,10 @@ class World(Scene):
             source = generate(seed)
         mapped = load_plan(source, seed=seed, overrides=overrides)
         plan, changes = lived_in(mapped) if lived_in is not None else (mapped, None)
+        plan, light = with_daylight(plan, daylight) if daylight is not None else (plan, None)
         world = cls(plan, rtf=rtf, time_step=time_step, render=render, render_workers=render_workers,
                     render_bands=render_bands, disturbances=disturbances)
-        world.mapped_plan, world.lived_in = mapped, changes
+        world.mapped_plan, world.lived_in, world.daylight = mapped, changes, light
         return world
 
     # ------------------------------------------------------------------ thread plumbing

@@ -29,6 +29,7 @@ from ontology.results import ReportRecord, TaskStage
 from ontology.trace import RecordKind, StructureEvent
 from rapps.hazard_detection.hazard_detection.models import HazardReport
 from robots import OdometryNoise, RobotAPI
+from robots.lighting import Daylight
 from robots.lived_in import LivedIn
 from xmpp_server.link import LinkFaults
 
@@ -95,7 +96,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                progress: bool = False, disturbances=None, during=None,
                                live: bool | None = None, record: bool = True, frames: bool = True,
                                scheduled: str | None = None, link: LinkFaults | None = None,
-                               lived_in: LivedIn | None = None) -> dict:
+                               lived_in: LivedIn | None = None, daylight: Daylight | None = None) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
@@ -106,11 +107,14 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     instead of the command; the robot's simulated clock reads SCHEDULE_LEAD_S before it, and the
     Core starts the RApp when that time comes (agents/scheduler.py). `link`: the robot reaches the
     server over a flaky link (xmpp_server/link.py), named with what it did in the result's `link`.
-    `lived_in`: the house changed since its map was made (robots/lived_in.py; the result's `lived_in`)."""
+    `lived_in`: the house changed since its map was made (robots/lived_in.py; the result's `lived_in`).
+    `daylight`: the light of a time of day, windows and lamps of several strengths (robots/lighting.py;
+    the result's `daylight`)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     # one robot: its large frames in two bands, one on each core (robots/render_process.py)
-    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances, lived_in=lived_in, render_bands=2)
+    world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances, lived_in=lived_in, daylight=daylight,
+                           render_bands=2)
     try:
         recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
                                 frames_dir=out / "frames")
@@ -141,7 +145,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 "person_contacts": world.person_contacts(), "object_contacts": world.object_contacts(),
                 **monitoring(read_trace(run.trace, validate=True)),
                 "trace": str(run.trace), "plot": str(out / "hazard_run.png"),
-                "link": link_result(run, owner, link), "lived_in": world.lived_in,
+                "link": link_result(run, owner, link), "lived_in": world.lived_in, "daylight": world.daylight,
             }
             plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
                             info.landmarks, rows, info.hazards,
@@ -175,12 +179,35 @@ REALISM = ("none", "full")  # full: every realism knob this build has (docs/real
 FULL_LINK = "delay=40ms,jitter=20ms,loss=1%,outage=5s@60s,drop"  # a home Wi-Fi that drops once
 
 
-def realism(level: str, seed: int, lived_in: bool = False, link: LinkFaults | None = None) -> dict:
-    """run_hazard_detection's realism keywords for `--realism LEVEL` plus the single knobs given."""
+def realism(level: str, seed: int, lived_in: bool = False, link: LinkFaults | None = None,
+            daylight: str | None = None) -> dict:
+    """run_hazard_detection's realism keywords for `--realism LEVEL` plus the single knobs given
+    (`daylight`: "random" or a time of day, as --daylight takes it)."""
     full = level == "full"
     link = link or (LinkFaults.parse(FULL_LINK) if full else None)
+    daylight = daylight or ("random" if full else None)
     return {"lived_in": LivedIn(seed=seed) if lived_in or full else None,
-            "link": link and replace(link, seed=seed)}
+            "link": link and replace(link, seed=seed),
+            "daylight": None if daylight is None else Daylight(seed=seed, hour=time_of_day(daylight))}
+
+
+def time_of_day(text: str) -> float | None:
+    """--daylight's value: "random" (None: drawn from the seed), "HH:MM" or hours ("18.5")."""
+    if text == "random":
+        return None
+    try:
+        hours, _, minutes = text.partition(":")
+        value = float(hours) + (float(minutes) / 60.0 if minutes else 0.0)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value < 24.0:
+        raise argparse.ArgumentTypeError(f"--daylight: {text!r} is not 'random', HH:MM or hours 0-24")
+    return value
+
+
+def daylight_arg(text: str) -> str:
+    time_of_day(text)  # checked here, drawn per run
+    return text
 
 
 def link_faults(text: str) -> LinkFaults:
@@ -295,7 +322,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="started by a schedule, not a command: the owner writes 'check the hazards every day at "
                          "HH:MM' (default 22:00) and the robot's simulated clock comes to it")
     ap.add_argument("--realism", choices=REALISM, default="none",
-                    help="'full': every realism knob on (--lived-in and a --link of " + FULL_LINK.replace("%", "%%") + "; docs/realism.md)")
+                    help="'full': every realism knob on (--lived-in, --daylight random and a --link of "
+                         + FULL_LINK.replace("%", "%%") + "; docs/realism.md)")
+    ap.add_argument("--daylight", type=daylight_arg, default=None, metavar="TIME",
+                    help="the light of a time of day ('random', HH:MM or hours): windows by day, lamps of several "
+                         "strengths (seeded by --seed; robots/lighting.py); default: the studio light")
     ap.add_argument("--lived-in", action="store_true",
                     help="the house changed since its map was made: furniture moved, boxes left, a passage door "
                          "half closed, a rug (seeded by --seed; robots/lived_in.py)")
@@ -318,7 +349,8 @@ def main(argv: list[str] | None = None) -> int:
                                                 args.rtf, timeout_s=args.timeout, progress=not args.quiet,
                                                 live=False if args.plain else None, record=not args.no_record,
                                                 frames=not args.no_frames, scheduled=args.scheduled,
-                                                **realism(args.realism, args.seed, args.lived_in, args.link)))
+                                                **realism(args.realism, args.seed, args.lived_in, args.link,
+                                                          args.daylight)))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

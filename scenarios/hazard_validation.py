@@ -366,7 +366,8 @@ RApp sets (`set_camera_params`, restored afterwards), under all three room light
 exposure a bright room (x2) brings the walls close to the lamp's brightness and a lit lamp drops to
 about 50: the margin the low exposure keeps. The room light is scaled in the renderer (ambient and
 diffuse together); a lit lamp is emissive and does not change. Real cameras add noise, blooming and
-other light sources (windows); none of these are simulated.
+other light sources: the camera's noise is simulated, blooming is not; windows by day and lamps
+of several strengths come with `--daylight` (`python -m scenarios.light_validation`, docs/realism.md).
 
 The robots stand exactly at the standing poses here; in a hazard run they arrive within a few
 centimetres and about a degree, which leaves closed readings at 0 but moves lines near the 30 deg

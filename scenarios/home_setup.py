@@ -97,7 +97,7 @@ def scenario_world(house: str, seed: int, lived_in: LivedIn | None = None, **wor
     or a file with a `hazards:` section) its hazard doors, passages and lamps are drawn by
     hazard_overrides; every other door and lamp from the house file's own ranges (robots/floorplan.py),
     also from `seed`. `lived_in`: the house changed since its map was made (robots/lived_in.py; the
-    world's `lived_in` says how). `world_kw`: World.from_file's (rtf, disturbances, ...)."""
+    world's `lived_in` says how). `world_kw`: World.from_file's (rtf, disturbances, daylight, ...)."""
     from robots import World
 
     name = Path(house).stem if Path(house).stem in LAYOUTS else house  # robots/small.yaml is "small"
