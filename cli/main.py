@@ -531,7 +531,8 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--owner", help="publish, remove: the Store owner's name (their own XMPP account)")
     st.add_argument("--password", help="publish, remove: the owner's password")
     st.add_argument("--version", help="remove: only this version (default: every version); builds, log: this version")
-    st.add_argument("--robot-type", help="list: only packages for this robot type; log: the build's robot type")
+    st.add_argument("--robot-type", choices=robot_types.names(),
+                    help="list: only packages for this robot type; log: the build's robot type")
     st.add_argument("--no-wait", action="store_true", help="publish: do not wait for the builds")
     st.add_argument("--build-timeout", type=float, default=1800.0, metavar="S",
                     help="publish: seconds to wait for the builds (default 1800)")
