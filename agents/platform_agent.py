@@ -195,6 +195,8 @@ class PlatformAgent(RappAgent):
             if memory.get("admitted"):  # admitted (s4), never executed: a cancel came between
                 self.pending -= 1
                 self.served += 1
+            if "claim" in memory:  # s5 ended, started or not: a failed start may be tried again
+                memory["claim"].starting = False
 
     async def serve_request(self, memory: dict):
         """The step of s2, s3, s6 (and s4 for what is no pooled service): the action's handler."""
@@ -487,10 +489,8 @@ class PlatformAgent(RappAgent):
         try:
             info, data = await download_package(self, self.store, req.rapp, req.version)
         except RequestError as e:
-            claim.starting = False
             raise Failure(f"cannot fetch {req.rapp} from the Store: {e.reason}", ErrorCode.STORE) from None
         if not info.manifest.get("cloud_entry_point"):
-            claim.starting = False
             raise Refusal(f"{req.rapp} has no Cloud Agent part", ErrorCode.NO_CLOUD_PART)
         memory["owner"], memory["info"], memory["data"] = owner, info, data
 
@@ -501,22 +501,14 @@ class PlatformAgent(RappAgent):
         info = memory["info"]
         n = next(self._serial)
         workdir = self.workdir / f"{n:04d}-{info.name}"
-        try:
-            await asyncio.to_thread(unpack_package, memory.pop("data"), workdir / "package")
-        except BaseException:
-            memory["claim"].starting = False
-            raise
+        await asyncio.to_thread(unpack_package, memory.pop("data"), workdir / "package")
         memory["workdir"] = workdir
 
     async def cloud_start(self, memory: dict) -> P.CloudAgentReply:
         """s5, start: its account and token, its process in the sandbox, until it says it serves.
         A start that fails leaves the run free to try again (CLOUD_START_ATTEMPTS in all)."""
-        claim: CloudClaim = memory["claim"]
-        try:
-            reply = await self._cloud_start(memory)
-        finally:
-            claim.starting = False
-        claim.started = True
+        reply = await self._cloud_start(memory)
+        memory["claim"].started = True  # its `starting` ends with the pass (_pass)
         return reply
 
     async def _cloud_start(self, memory: dict) -> P.CloudAgentReply:
