@@ -9,6 +9,7 @@ of the run. Times are simulation seconds from the world's start, positions metre
          route: [[4.6, 1.45], [3.0, 1.45], {x: 2.2, y: 2.9, pause: 6}]}    # pause: stands still there (s)
       - {kind: door, door: d1, at: 1.0, angle: 90, duration: 1.5}          # from its angle then, linearly
       - {kind: box, id: toy, at: 12, position: [2.0, 2.0], size: [0.3, 0.2, 0.15], drop_height: 0.8}
+      - {kind: touch, robot: nao, sensor: head_middle, at: 20, seconds: 0.5}   # someone pats its head
 
 A person stands at the first waypoint until `start`, walks the route at `speed` (pausing where a waypoint
 says so, and, unless `yields: false`, while a robot stands in their way) and stays at the last one; with `loop` it walks back to the first and goes round again (a wait at
@@ -27,6 +28,7 @@ bodies anyway."""
 from __future__ import annotations
 
 import bisect
+import logging
 import math
 import zlib
 from dataclasses import dataclass
@@ -46,6 +48,7 @@ if TYPE_CHECKING:
     from .robot import Robot
     from .world import World
 
+log = logging.getLogger(__name__)
 GRAVITY = 9.81
 YIELD_M = 0.25  # a person stops this far (beyond both bodies) from a robot ahead of them
 TOUCH_M = 0.01  # closest distance that counts as touching: a blocked robot stops up to one step (~4 mm) short
@@ -150,7 +153,28 @@ class BoxSpec(BaseModel):
     color: Color = BOX_COLOR
 
 
-Disturbance = Annotated[PersonSpec | DoorSpec | BoxSpec, Field(discriminator="kind")]
+class TouchSpec(BaseModel):
+    """A person touching a robot's touch sensor (a NAO's head or hand) at `at`, for `seconds`."""
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["touch"]
+    id: str | None = Field(default=None, min_length=1, description="default: touch-<robot>-<sensor>-<index>")
+    robot: str = Field(min_length=1, description="the robot's name in the world (its type, unless named)")
+    sensor: str = Field(min_length=1, description="one of its body's touch sensors (head_front, hand_left, ...)")
+    at: Seconds
+    seconds: float = Field(default=0.3, gt=0.0, le=60.0)
+
+    @field_validator("sensor")
+    @classmethod
+    def _a_touch_sensor(cls, v: str) -> str:
+        from .bodies import ROBOT_SPECS
+
+        known = sorted({t for spec in ROBOT_SPECS.values() for t in spec.touch_sensors})
+        if v not in known:
+            raise ValueError(f"no robot body has a touch sensor {v!r} (known: {', '.join(known) or 'none'})")
+        return v
+
+
+Disturbance = Annotated[PersonSpec | DoorSpec | BoxSpec | TouchSpec, Field(discriminator="kind")]
 
 
 class DisturbanceSpec(BaseModel):
@@ -162,7 +186,7 @@ class DisturbanceSpec(BaseModel):
         seen: set[str] = set()
         for i, d in enumerate(self.disturbances):
             if d.id is None:
-                d.id = f"door-{d.door}-{i}"
+                d.id = f"door-{d.door}-{i}" if d.kind == "door" else f"touch-{d.robot}-{d.sensor}-{i}"
             if d.id in seen:
                 raise ValueError(f"two disturbances have the id {d.id!r}")
             seen.add(d.id)
@@ -175,7 +199,7 @@ def _loc(loc: tuple) -> str:
     for i, x in enumerate(loc):
         if isinstance(x, int):
             out += f"[{x}]"
-        elif not (i > 0 and isinstance(loc[i - 1], int) and x in ("person", "door", "box")):
+        elif not (i > 0 and isinstance(loc[i - 1], int) and x in ("person", "door", "box", "touch")):
             out += f".{x}" if out else str(x)
     return out
 
@@ -443,6 +467,28 @@ class DoorMotion:
         return self.from_angle + (self.target - self.from_angle) * f
 
 
+class TouchAt:
+    """Press a robot's touch sensor at `at` (World.touch's effect, on the scenario's timeline)."""
+
+    def __init__(self, spec: TouchSpec, rng: np.random.Generator):
+        self.id, self.robot, self.sensor, self.seconds = spec.id, spec.robot, spec.sensor, spec.seconds
+        self.at = _draw(spec.at, rng)
+        self.done = False
+
+    def press(self, world: World, t: float) -> None:
+        """pybullet thread, inside a step: a touch its world cannot take is logged, never raised
+        (the step would end every motion)."""
+        self.done = True
+        robot = world.robots.get(self.robot)
+        try:
+            if robot is None or robot.contacts is None:
+                raise InvalidArgument(f"no robot {self.robot!r} with touch sensors (robots: "
+                                      f"{', '.join(world.robots) or 'none'})")
+            robot.contacts.touch(self.sensor, t, self.seconds)
+        except InvalidArgument as e:
+            log.warning("touch %r at %.1f s not made: %s", self.id, t, e)
+
+
 @dataclass(frozen=True)
 class ContactEvent:
     """A robot started touching a person or box (one per touching episode)."""
@@ -462,6 +508,7 @@ class Disturbances:
         self.spec = spec
         self.movers: list[Mover] = []
         self.doors: list[DoorMotion] = []
+        self.touches: list[TouchAt] = []
         doors = {d.id: d for d in plan.doors}
         x0, y0, x1, y1 = plan.bounds
         for i, d in enumerate(spec.disturbances):
@@ -477,6 +524,8 @@ class Disturbances:
                 self.movers.append(Person(d, rng))
             elif d.kind == "box":
                 self.movers.append(DroppedBox(d, rng))
+            elif d.kind == "touch":
+                self.touches.append(TouchAt(d, rng))  # its robot and sensor: checked when it comes
             else:
                 if d.door not in doors:
                     raise DisturbanceError(f"{where}: unknown door {d.door!r} in house {plan.name!r} "
@@ -520,6 +569,9 @@ class Disturbances:
         for d in self.doors:
             if not d.finished and t >= d.at:
                 world.set_door_in_thread(d.door, d.angle_at(t, next(x.angle for x in world.plan.doors if x.id == d.door)))
+        for touch in self.touches:
+            if not touch.done and t >= touch.at:
+                touch.press(world, t)
         self._count_contacts(t, robots)
 
     def _count_contacts(self, t: float, robots: list[Robot]) -> None:

@@ -71,3 +71,27 @@ async def test_touch_sensors_are_pressed_for_a_time_and_validated(small):
         await small.touch("elektron", "head_front")
     with pytest.raises(UnsupportedOperation):
         await el.get_contacts(GetContacts())
+
+
+async def test_a_scenario_file_touches_a_robot_on_its_timeline(make_world, caplog):
+    pats = [{"kind": "touch", "robot": "nao", "sensor": "hand_left", "at": 0.5, "seconds": 0.3},
+            {"kind": "touch", "robot": "elektron", "sensor": "head_front", "at": 0.2}]  # no robot of that name
+    world = make_world("small", seed=1, disturbances=pats)
+    nao = api_at(world, "nao", (1.0, 2.4, 0))
+    await world.sleep(0.4)
+    assert (await nao.get_contacts(GetContacts(after=0))).changes == []
+    assert "touch 'touch-elektron-head_front-1' at 0.2 s not made: no robot 'elektron'" in caplog.text
+    await world.sleep(0.2)  # pressed at 0.5 s, for 0.3 s
+    now = await nao.get_contacts(GetContacts(after=0))
+    assert [(c.sensor, c.kind, c.pressed) for c in now.changes] == [("hand_left", "touch", True)]
+    assert abs(now.changes[0].stamp - 0.5) < 0.02
+    await world.sleep(0.4)
+    assert [(c.sensor, c.pressed) for c in (await nao.get_contacts(GetContacts(after=now.last))).changes] == [
+        ("hand_left", False)]
+
+
+def test_a_touch_of_a_sensor_no_body_has_is_refused_at_load():
+    from robots.disturbances import DisturbanceError, load_disturbances
+
+    with pytest.raises(DisturbanceError, match="no robot body has a touch sensor 'nose'"):
+        load_disturbances([{"kind": "touch", "robot": "nao", "sensor": "nose", "at": 1}])
