@@ -21,7 +21,7 @@ import contextlib
 import math
 import os
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -63,6 +63,10 @@ class NaoWalk:
     slip_std: float = 0.04
     # ESTIMATE: steps come out this much shorter than commanded (feet slide back on a smooth floor)
     slip_bias: float = 0.03
+    # the body moves by steps (issue 48.5; `--mechanical-drive`): within each step its speed rises from
+    # double support and falls back (1 - cos over the step, the linear inverted pendulum's shape), so
+    # it is ahead of and behind the walk engine's even odometry by turns; off: an even glide
+    steps: bool = False
 
 
 @dataclass(frozen=True)
@@ -76,6 +80,16 @@ class WheelSlip:
     rot_bias: float = 0.02  # ESTIMATE: turns come out 2 % short of what a calibrated odometry reports
     rot_std: float = 0.02  # ESTIMATE: random slip of turns, rad per sqrt(rad turned)
     heading_std: float = 0.005  # ESTIMATE: heading noise while driving (floor joints, rugs), rad per sqrt(m)
+    # by wheel sides (issue 48.5; `--mechanical-drive`): each side's wheels slip by a ratio of their own
+    # that wanders (an AR(1) over `side_slip_tau_s`), and a turn's effective track width (the skid) varies
+    # about the one the odometry was calibrated with; heading errors then come from the sides' difference
+    differential: bool = False
+    track_m: float = 0.35  # the wheel sides' distance (robots/elektron.py's wheels)
+    side_slip_bias: float = 0.01  # ESTIMATE: both sides slip ~1 % (trans_bias)
+    side_slip_std: float = 0.004  # ESTIMATE: each side's slip ratio wanders this much (1 sigma)
+    side_slip_tau_s: float = 2.0  # ESTIMATE: ...over about this long (floor joints, rug edges)
+    skid_bias: float = 0.01  # ESTIMATE: turns come out short by this besides the sides' slip (rot_bias in all)
+    skid_std: float = 0.02  # ESTIMATE: a turn's effective track width varies ~2 % (Mandow et al. 2007, rot_std)
 
 
 @dataclass(frozen=True)
@@ -248,6 +262,10 @@ class NaoGait(Locomotion):
         if self.step_left <= 0.0:  # a new step: its slip is drawn now
             self.step_left += w.step_period_s
             self.noise = tuple(self.rng.standard_normal(3))
+        if w.steps:  # the body's speed over the step: 0 in double support, twice the mean mid-step
+            done = 1.0 - max(self.step_left, 0.0) / w.step_period_s
+            gait = 1.0 - math.cos(math.tau * min(1.0, done + 0.5 * dt / w.step_period_s))
+            dx, dy = dx * gait, dy * gait
         self.step_left -= dt
         along, across, turn = self.noise
         step_effort = min(1.0, self.effort(dx / dt, dy / dt, dth / dt))
@@ -284,9 +302,13 @@ class SkidSteer(Locomotion):
     def __init__(self, spec: "RobotSpec", rng: np.random.Generator, wheels: WheelSlip):
         super().__init__(spec, rng)
         self.wheels = wheels
+        self.side_slip = [0.0, 0.0]  # left, right: each side's slip ratio off the bias (differential)
+        self.skid = 0.0  # the turn's effective track width off the calibrated one, a fraction
 
     def slip(self, dx: float, dy: float, dth: float, dt: float) -> tuple[float, float, float]:
         w = self.wheels
+        if w.differential:
+            return self._sides(dx, dth, dt)
         d, r = abs(dx), abs(dth)
         if d:
             dx = dx * (1 - w.trans_bias) + w.trans_std * math.sqrt(d) * self.rng.standard_normal()
@@ -296,6 +318,32 @@ class SkidSteer(Locomotion):
         if d:
             th_noise += w.heading_std * math.sqrt(d) * self.rng.standard_normal()
         return dx, dy, dth * (1 - w.rot_bias) + th_noise
+
+    def _sides(self, dx: float, dth: float, dt: float) -> tuple[float, float, float]:
+        """The wheel sides' travel from the commanded motion, each slipping; back to the body."""
+        w = self.wheels
+        if not (dx or dth):
+            return 0.0, 0.0, 0.0
+        keep = math.exp(-dt / w.side_slip_tau_s)  # AR(1): the slips wander, they do not jump
+        kick = w.side_slip_std * math.sqrt(1.0 - keep * keep)
+        self.side_slip = [keep * s + kick * self.rng.standard_normal() for s in self.side_slip]
+        self.skid = keep * self.skid + w.skid_std * math.sqrt(1.0 - keep * keep) * self.rng.standard_normal()
+        half = w.track_m / 2
+        left, right = dx - dth * half, dx + dth * half  # what the encoders count, m
+        k = self.surface
+        left *= 1.0 - k * (w.side_slip_bias + self.side_slip[0])
+        right *= 1.0 - k * (w.side_slip_bias + self.side_slip[1])
+        return (left + right) / 2, 0.0, (right - left) / (w.track_m * (1.0 + k * (w.skid_bias + self.skid)))
+
+
+def mechanical(params):
+    """The failure modes `params` with the mechanical drive on (the NAO by steps, the Elektron by wheel
+    sides); None stays None (an ideal robot)."""
+    if isinstance(params, NaoFailures):
+        return replace(params, walk=replace(params.walk, steps=True))
+    if isinstance(params, ElektronFailures):
+        return replace(params, wheels=replace(params.wheels, differential=True))
+    return params
 
 
 def make_locomotion(spec: "RobotSpec", params, seed: int, name: str) -> Locomotion | None:

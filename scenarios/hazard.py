@@ -29,6 +29,7 @@ from ontology.results import ReportRecord, TaskStage
 from ontology.trace import RecordKind, StructureEvent
 from rapps.hazard_detection.hazard_detection.models import HazardReport
 from robots import OdometryNoise, RobotAPI
+from robots.failure_modes import mechanical
 from robots.lighting import Daylight
 from robots.lived_in import LivedIn
 from xmpp_server.link import LinkFaults
@@ -96,7 +97,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                progress: bool = False, disturbances=None, during=None,
                                live: bool | None = None, record: bool = True, frames: bool = True,
                                scheduled: str | None = None, link: LinkFaults | None = None,
-                               lived_in: LivedIn | None = None, daylight: Daylight | None = None) -> dict:
+                               lived_in: LivedIn | None = None, daylight: Daylight | None = None,
+                               mechanical_drive: bool = False) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
@@ -109,15 +111,18 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     server over a flaky link (xmpp_server/link.py), named with what it did in the result's `link`.
     `lived_in`: the house changed since its map was made (robots/lived_in.py; the result's `lived_in`).
     `daylight`: the light of a time of day, windows and lamps of several strengths (robots/lighting.py;
-    the result's `daylight`)."""
+    the result's `daylight`). `mechanical_drive`: the NAO's body moves by steps, the Elektron's by its
+    wheel sides (robots/failure_modes.py mechanical; the result's `drive`)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     # one robot: its large frames in two bands, one on each core (robots/render_process.py)
     world = scenario_world(house, seed, rtf=rtf, disturbances=disturbances, lived_in=lived_in, daylight=daylight,
                            render_bands=2)
     try:
-        recorder = RecordingAPI(RobotAPI(world.add_robot(robot, odometry_noise=OdometryNoise.typical())),
-                                frames_dir=out / "frames")
+        body = world.add_robot(robot, odometry_noise=OdometryNoise.typical())
+        if mechanical_drive:
+            await world.run(body.set_failure_modes, mechanical(body.failure_modes))
+        recorder = RecordingAPI(RobotAPI(body), frames_dir=out / "frames")
         home = home_description(world, house, out)
         owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home, link=link)
         if scheduled:
@@ -146,6 +151,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 **monitoring(read_trace(run.trace, validate=True)),
                 "trace": str(run.trace), "plot": str(out / "hazard_run.png"),
                 "link": link_result(run, owner, link), "lived_in": world.lived_in, "daylight": world.daylight,
+                "drive": "mechanical" if mechanical_drive else "statistical",
             }
             plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
                             info.landmarks, rows, info.hazards,
@@ -180,7 +186,7 @@ FULL_LINK = "delay=40ms,jitter=20ms,loss=1%,outage=5s@60s,drop"  # a home Wi-Fi 
 
 
 def realism(level: str, seed: int, lived_in: bool = False, link: LinkFaults | None = None,
-            daylight: str | None = None) -> dict:
+            daylight: str | None = None, mechanical_drive: bool = False) -> dict:
     """run_hazard_detection's realism keywords for `--realism LEVEL` plus the single knobs given
     (`daylight`: "random" or a time of day, as --daylight takes it)."""
     full = level == "full"
@@ -188,7 +194,8 @@ def realism(level: str, seed: int, lived_in: bool = False, link: LinkFaults | No
     daylight = daylight or ("random" if full else None)
     return {"lived_in": LivedIn(seed=seed) if lived_in or full else None,
             "link": link and replace(link, seed=seed),
-            "daylight": None if daylight is None else Daylight(seed=seed, hour=time_of_day(daylight))}
+            "daylight": None if daylight is None else Daylight(seed=seed, hour=time_of_day(daylight)),
+            "mechanical_drive": mechanical_drive or full}
 
 
 def time_of_day(text: str) -> float | None:
@@ -322,8 +329,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="started by a schedule, not a command: the owner writes 'check the hazards every day at "
                          "HH:MM' (default 22:00) and the robot's simulated clock comes to it")
     ap.add_argument("--realism", choices=REALISM, default="none",
-                    help="'full': every realism knob on (--lived-in, --daylight random and a --link of "
+                    help="'full': every realism knob on (--lived-in, --daylight random, --mechanical-drive and a --link of "
                          + FULL_LINK.replace("%", "%%") + "; docs/realism.md)")
+    ap.add_argument("--mechanical-drive", action="store_true",
+                    help="the NAO's body moves by steps, the Elektron's by its two wheel sides, each slipping "
+                         "(robots/failure_modes.py); default: even motion with statistical slip")
     ap.add_argument("--daylight", type=daylight_arg, default=None, metavar="TIME",
                     help="the light of a time of day ('random', HH:MM or hours): windows by day, lamps of several "
                          "strengths (seeded by --seed; robots/lighting.py); default: the studio light")
@@ -350,7 +360,7 @@ def main(argv: list[str] | None = None) -> int:
                                                 live=False if args.plain else None, record=not args.no_record,
                                                 frames=not args.no_frames, scheduled=args.scheduled,
                                                 **realism(args.realism, args.seed, args.lived_in, args.link,
-                                                          args.daylight)))
+                                                          args.daylight, args.mechanical_drive)))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

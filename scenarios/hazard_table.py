@@ -130,10 +130,12 @@ def markdown(results: list[dict], title: str) -> str:
 
 async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path,
                     results: list[dict] | None = None, level: str = "none", lived_in: bool = False,
-                    link: LinkFaults | None = None, daylight: str | None = None) -> list[dict]:
+                    link: LinkFaults | None = None, daylight: str | None = None,
+                    mechanical_drive: bool = False) -> list[dict]:
     """`runs`: (house, seed) pairs, each run on every robot; each result appended to `results` as it
     comes (an interrupted table keeps the runs done, and the interrupted run's result). `lived_in`,
-    `link`, `daylight`, `level` (--realism): realism (docs/realism.md), seeded by each run's seed."""
+    `link`, `daylight`, `mechanical_drive`, `level` (--realism): realism (docs/realism.md), seeded by
+    each run's seed."""
     results = [] if results is None else results
     print(f"seeds: {' '.join(f'{h}:{s}' for h, s in runs)} (repeat: --seed-list {' '.join(f'{h}:{s}' for h, s in runs)})",
           flush=True)
@@ -144,7 +146,7 @@ async def run_table(runs: list[tuple[str, int]], robots: list[str], out: Path,
             try:
                 r = await run_hazard_detection(robot, seed, house, out_dir=out / f"{robot}-{house}-{seed}",
                                                timeout_s=RUN_TIMEOUT_S,
-                                               **realism(level, seed, lived_in, link, daylight))
+                                               **realism(level, seed, lived_in, link, daylight, mechanical_drive))
             except RunInterrupted as stop:  # Ctrl-C: its result (written) joins the table, which stops
                 if stop.result:
                     results.append({**stop.result, "house": house})
@@ -222,6 +224,8 @@ def main(argv: list[str] | None = None) -> int:
                                                             "(as `rapp run hazard-detection --lived-in`)")
     ap.add_argument("--link", type=link_faults, default=None, metavar="FAULTS",
                     help="every robot's link is flaky (as `rapp run hazard-detection --link`)")
+    ap.add_argument("--mechanical-drive", action="store_true",
+                    help="every robot's drive by steps or wheel sides (as `rapp run hazard-detection --mechanical-drive`)")
     ap.add_argument("--daylight", type=daylight_arg, default=None, metavar="TIME",
                     help="every run in the light of a time of day (as `rapp run hazard-detection --daylight`)")
     args = ap.parse_args(argv)
@@ -236,7 +240,8 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(args.out or tempfile.mkdtemp(prefix="hazard-table-"))
         results: list[dict] = []
         try:
-            main_loop(run_table(runs, args.robots, out, results, args.realism, args.lived_in, args.link, args.daylight))
+            main_loop(run_table(runs, args.robots, out, results, args.realism, args.lived_in, args.link, args.daylight,
+                                 args.mechanical_drive))
         except RunInterrupted as stop:  # the runs done so far are kept, the table says it was cut short
             (out / "table.json").write_text(json.dumps(results, indent=1))
             print(f"interrupted ({stop.signum}) after {len(results)} of {len(runs) * len(args.robots)} runs; "

@@ -18,7 +18,7 @@ from scenarios.home_setup import hazard_list, hazard_overrides
 RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
                "duration_sim_s", "duration_wall_s", "trace", "plot", "finished", "end", "routes_blocked",
                "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops",
-               "ok", "reason", "frames", "trigger", "house", "lived_in", "link", "daylight"}
+               "ok", "reason", "frames", "trigger", "house", "lived_in", "link", "daylight", "drive"}
 
 
 def structure_events(trace: list[dict], rapp: str) -> list[str]:
@@ -30,6 +30,7 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     assert set(result) == RESULT_KEYS
     # realism is asked for, never the default
     assert result["lived_in"] is None and result["link"] is None and result["daylight"] is None
+    assert result["drive"] == "statistical"
     assert {h["id"] for h in result["hazards"]} == hazard_ids
     assert result["all_correct"], result["hazards"]
     assert result["ok"] and result["finished"], result["reason"]

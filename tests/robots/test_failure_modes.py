@@ -172,3 +172,58 @@ def test_every_robot_kind_has_failure_modes():
     assert all(ROBOT_SPECS[kind].failures is not None for kind in ROBOT_TYPES)
     nao = ROBOT_SPECS["nao"].failures
     assert nao.camera == CameraNoise() and nao.walk.sway_amplitude_m == 0.02
+
+
+async def _walk_sampled(api, world, seconds: float) -> list[tuple[float, float]]:
+    """Walk straight ahead at a steady command and sample the true (x, y) every world step."""
+    from ontology.robot import MoveVel
+
+    samples = []
+    await api.move_vel(MoveVel(x=0.06, y=0.0, theta=0.0))
+    end = world.time + seconds
+    while world.time < end:
+        await world.sleep(world.clock.step)
+        samples.append(api.robot.pose[:2])
+    await api.move_vel(MoveVel(x=0.0, y=0.0, theta=0.0))
+    return samples
+
+
+async def test_the_mechanical_nao_moves_by_steps_with_the_same_mean_walk(make_world):
+    from robots.failure_modes import mechanical
+
+    ends, speeds = {}, {}
+    for steps in (False, True):
+        w = world(make_world)
+        api = api_at(w, "nao", START["nao"])
+        if steps:
+            api.robot.set_failure_modes(mechanical(api.robot.failure_modes))
+        samples = await _walk_sampled(api, w, 3.0)  # six steps of 0.5 s
+        v = np.diff(np.array(samples)[:, 0]) / w.clock.step
+        ends[steps], speeds[steps] = samples[-1], v[30:]  # past the first step's start
+    # by steps: the body stops in double support and runs at about twice the mean mid-step
+    assert speeds[True].min() < 0.2 * 0.06 and speeds[True].max() > 1.6 * 0.06, (speeds[True].min(), speeds[True].max())
+    assert speeds[False].min() > 0.5 * 0.06  # the glide never stops
+    # whole steps: where it gets to is the glide's (the same slip drawn per step)
+    assert math.dist(ends[True], ends[False]) < 0.01, (ends[True], ends[False])
+
+
+async def test_the_mechanical_elektron_turns_short_and_veers_from_its_wheel_sides(make_world):
+    from robots.failure_modes import mechanical
+
+    w = world(make_world)
+    api = api_at(w, "elektron", START["elektron"])
+    api.robot.set_failure_modes(mechanical(api.robot.failure_modes))
+    assert api.robot.locomotion.wheels.differential
+    await api.move_to(MoveTo(x=0.0, y=0.0, theta=math.pi / 2))
+    est = await api.get_global_pose(GetGlobalPose())
+    short = wrap(est.theta - api.robot.pose[2])  # the odometry counted the whole turn
+    assert 0.01 < short < 0.08, short  # ~2 % of a quarter turn short, the skid wandering about it
+    # on the spot, the sides slipping apart move the centre a little (mm)
+    assert math.hypot(api.robot.pose[0] - est.x, api.robot.pose[1] - est.y) < 0.005
+    # straight ahead, the sides slip apart: a heading error grows, with no random kick per step
+    before = api.robot.pose
+    est0 = await api.get_global_pose(GetGlobalPose())
+    await api.move_to(MoveTo(x=1.2, y=0.0, theta=0.0))
+    est1 = await api.get_global_pose(GetGlobalPose())
+    veer = abs(wrap((api.robot.pose[2] - before[2]) - (est1.theta - est0.theta)))
+    assert 1e-5 < veer < 0.05, veer

@@ -101,6 +101,7 @@ def test_the_scenarios_knob():
 
     assert realism("none", 5)["daylight"] is None  # the studio light unless asked
     assert realism("full", 5)["daylight"] == Daylight(seed=5, hour=None)  # drawn from the run's seed
+    assert realism("full", 5)["mechanical_drive"] and not realism("none", 5)["mechanical_drive"]
     assert realism("none", 5, daylight="18:30")["daylight"] == Daylight(seed=5, hour=18.5)
     assert time_of_day("7.25") == 7.25 and time_of_day("random") is None
     for bad in ("25:00", "noon", "-1"):
