@@ -31,20 +31,22 @@ import math
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 from .pybullet_quiet import p
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import InvalidArgument
-from .robot import yaw_quat
+from .frames import yaw_quat
 from .scenario_file import read_section
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from .body import Body
     from .floorplan import Plan
-    from .robot import Robot
-    from .world import World
+    from .simclock import SimClock
 
 GRAVITY = 9.81
 YIELD_M = 0.25  # a person stops this far (beyond both bodies) from a robot ahead of them
@@ -454,6 +456,29 @@ class ContactEvent:
 
 
 # ------------------------------------------------------------------------------------------ runtime
+class Stage(Protocol):
+    """What the disturbances need of the world they move things in (robots.world.World)."""
+
+    @property
+    def cid(self) -> int:
+        """The world's PyBullet client."""
+
+    @property
+    def clock(self) -> SimClock:
+        """Simulation time."""
+
+    @property
+    def plan(self) -> Plan:
+        """The house as built: its doors' angles now."""
+
+    @property
+    def robots(self) -> Mapping[str, Body]:
+        """The robots a person waits for and a mover touches."""
+
+    def set_door_in_thread(self, door_id: str, angle_deg: float) -> None:
+        """Swing a door (pybullet thread)."""
+
+
 class Disturbances:
     """The disturbances of one world, resolved against its house and seed. Built and advanced in the
     world's pybullet thread (World.attach_disturbances, World._advance); reads are safe from any thread."""
@@ -491,10 +516,10 @@ class Disturbances:
             prev.append(m)
         self.events: list[ContactEvent] = []
         self._touching: set[tuple[str, str]] = set()
-        self.world: World | None = None
+        self.world: Stage | None = None
 
     # ---- pybullet thread
-    def build(self, world: World) -> None:
+    def build(self, world: Stage) -> None:
         self.world = world
         for m in self.movers:
             m.uid = create_body(world.cid, m.shape)
@@ -522,7 +547,7 @@ class Disturbances:
                 world.set_door_in_thread(d.door, d.angle_at(t, next(x.angle for x in world.plan.doors if x.id == d.door)))
         self._count_contacts(t, robots)
 
-    def _count_contacts(self, t: float, robots: list[Robot]) -> None:
+    def _count_contacts(self, t: float, robots: list[Body]) -> None:
         cid = self.world.cid
         for rb in robots:
             rx, ry = rb.pose[0], rb.pose[1]
