@@ -5,16 +5,18 @@ implements Body and robots.world.World implements Surroundings. Everything here 
 pybullet thread unless it says otherwise."""
 from __future__ import annotations
 
-from collections.abc import Mapping
-from contextlib import AbstractContextManager
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
-import numpy as np
+if TYPE_CHECKING:  # for annotations only: importing this module costs nothing
+    from collections.abc import Mapping
+    from contextlib import AbstractContextManager
 
-from .floorplan import Plan
-from .odometry import Odometry
-from .simclock import SimClock
-from .spec import RobotSpec
+    import numpy as np
+
+    from .floorplan import Plan
+    from .odometry import Odometry
+    from .simclock import SimClock
+    from .spec import RobotSpec
 
 
 class Surroundings(Protocol):

@@ -37,6 +37,7 @@ import numpy as np
 from .pybullet_quiet import p
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from .body import Surroundings
 from .errors import InvalidArgument
 from .frames import yaw_quat
 from .scenario_file import read_section
@@ -46,7 +47,6 @@ if TYPE_CHECKING:
 
     from .body import Body
     from .floorplan import Plan
-    from .simclock import SimClock
 
 GRAVITY = 9.81
 YIELD_M = 0.25  # a person stops this far (beyond both bodies) from a robot ahead of them
@@ -456,20 +456,9 @@ class ContactEvent:
 
 
 # ------------------------------------------------------------------------------------------ runtime
-class Stage(Protocol):
-    """What the disturbances need of the world they move things in (robots.world.World)."""
-
-    @property
-    def cid(self) -> int:
-        """The world's PyBullet client."""
-
-    @property
-    def clock(self) -> SimClock:
-        """Simulation time."""
-
-    @property
-    def plan(self) -> Plan:
-        """The house as built: its doors' angles now."""
+class Stage(Surroundings, Protocol):
+    """The world the disturbances move things in (robots.world.World): what a body sees of it (its
+    client, clock, house), its robots and its doors."""
 
     @property
     def robots(self) -> Mapping[str, Body]:
