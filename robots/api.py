@@ -10,7 +10,7 @@ import asyncio
 import base64
 import math
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -34,6 +34,9 @@ from .receptors import Camera, encode_frame, parse_resolution
 from .robot import Robot
 from .sound import house_sound
 
+if TYPE_CHECKING:
+    from .world import World
+
 MAX_DEPTH_PIXELS = 320 * 240
 CAMERA_PARAM_NAMES = ("brightness", "contrast", "gain", "exposure", "auto_exposure")
 
@@ -41,7 +44,7 @@ CAMERA_PARAM_NAMES = ("brightness", "contrast", "gain", "exposure", "auto_exposu
 class RobotAPI:
     def __init__(self, robot: Robot):
         self.robot = robot
-        self.world = robot.world
+        self.world = cast("World", robot.world)  # a Robot's surroundings are the World that added it
         self.house = house_sound(robot.world)
         self.audio_in = AudioInput(robot, self.house)
 

@@ -24,7 +24,7 @@ from .errors import InvalidArgument
 from .pybullet_quiet import p
 
 if TYPE_CHECKING:
-    from .robot import Robot
+    from .body import Body
 
 TOE_M, FOOT_W_M, FOOT_H_M = 0.02, 0.08, 0.03  # the toe strip of a NAO foot (robots/nao.py: 0.16 x 0.08 x 0.03)
 FOOT_FRONT_M = 0.10  # the toe's front from the ankle, in the foot's frame (x forward)
@@ -52,7 +52,7 @@ class ContactSensors:
     """A robot's bumpers and touch sensors; methods run in the world's pybullet thread, `pressed` and
     `since` may be read from any thread."""
 
-    def __init__(self, robot: "Robot", bumpers: tuple[BumperSpec, ...], touch: tuple[str, ...]):
+    def __init__(self, robot: "Body", bumpers: tuple[BumperSpec, ...], touch: tuple[str, ...]):
         self.robot, self.bumpers, self.touch_names = robot, bumpers, touch
         self.pressed: dict[str, bool] = {b.name: False for b in bumpers} | {t: False for t in touch}
         self.changes: deque[Change] = deque(maxlen=KEEP)

@@ -16,7 +16,7 @@ from .errors import MotionBlocked, RobotError
 from .odometry import wrap
 
 if TYPE_CHECKING:
-    from .robot import Robot
+    from .body import Body
 
 POS_TOL, ANG_TOL = 0.003, 0.002
 BLOCKED_AFTER = 0.5  # s of blocked translation before a motion fails
@@ -74,7 +74,7 @@ class Observer(Timer):
 class BaseController(Controller):
     slot = "base"
 
-    def __init__(self, robot: "Robot"):
+    def __init__(self, robot: "Body"):
         super().__init__()
         self.robot = robot
         self.blocked_time = 0.0
@@ -113,7 +113,7 @@ class BaseController(Controller):
             self.robot.locomotion.settle(self.robot)
 
 
-def drive_base(robot: "Robot", vx: float, vy: float, wz: float, dt: float) -> bool:
+def drive_base(robot: "Body", vx: float, vy: float, wz: float, dt: float) -> bool:
     """One step of the base: exact (ideal robot) or with the robot's slip and sway (robots/failure_modes.py);
     True when an obstacle blocked the translation."""
     robot.base.steps += 1
@@ -125,7 +125,7 @@ def drive_base(robot: "Robot", vx: float, vy: float, wz: float, dt: float) -> bo
 class VelocityController(BaseController):
     blocking = False
 
-    def __init__(self, robot: "Robot", vx: float, vy: float, wz: float):
+    def __init__(self, robot: "Body", vx: float, vy: float, wz: float):
         super().__init__(robot)
         self.v = robot.base.check_velocity(vx, vy, wz)
 
@@ -150,7 +150,7 @@ class GoToPose(BaseController):
     """Reach a global goal pose (in the estimate frame). Holonomic: straight P control of x, y, theta.
     Differential drive: turn towards the goal, drive, turn to the goal heading."""
 
-    def __init__(self, robot: "Robot", goal: tuple[float, float, float] | None = None,
+    def __init__(self, robot: "Body", goal: tuple[float, float, float] | None = None,
                  relative: tuple[float, float, float] | None = None):
         super().__init__(robot)
         self.goal, self.relative = goal, relative
@@ -221,7 +221,7 @@ class PathFollower(BaseController):
 
     LOOKAHEAD = 0.35
 
-    def __init__(self, robot: "Robot", poses: list[tuple[float, float, float]]):
+    def __init__(self, robot: "Body", poses: list[tuple[float, float, float]]):
         super().__init__(robot)
         pts: list[tuple[float, float]] = []
         for q in poses:
@@ -313,7 +313,7 @@ class JointMotion(Controller):
 
     slot = "joints"
 
-    def __init__(self, robot: "Robot", targets: dict[str, float] | None, speed: float):
+    def __init__(self, robot: "Body", targets: dict[str, float] | None, speed: float):
         super().__init__()
         self.robot, self.targets, self.speed = robot, targets, speed
 
@@ -343,7 +343,7 @@ class JointMotion(Controller):
 
 
 class LookAt(JointMotion):
-    def __init__(self, robot: "Robot", point: tuple[float, float, float], speed: float):
+    def __init__(self, robot: "Body", point: tuple[float, float, float], speed: float):
         super().__init__(robot, None, speed)
         self.point = point
 

@@ -33,7 +33,7 @@ from .receptors import R_LINK_OPTICAL, Camera
 from .spec import DepthCameraSpec
 
 if TYPE_CHECKING:
-    from .robot import Robot
+    from .body import Body
 
 BASELINE_M = 0.075  # Kinect v1: projector to IR camera
 NATIVE_F_PX = 580.0  # its IR camera's focal length at 640 px width, where disparity is measured
@@ -113,7 +113,7 @@ class DepthParams:
 class DepthCamera:
     """A robot's depth camera; World.capture renders it (duck-typed as a robots.receptors.Camera)."""
 
-    def __init__(self, robot: "Robot", spec: DepthCameraSpec):
+    def __init__(self, robot: "Body", spec: DepthCameraSpec):
         self.robot, self.spec, self.name = robot, spec, spec.name
         self.noisy = True
         c, s = math.cos(math.radians(spec.pitch_deg)), math.sin(math.radians(spec.pitch_deg))

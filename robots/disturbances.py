@@ -33,20 +33,22 @@ import math
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 from .pybullet_quiet import p
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from .body import Surroundings
 from .errors import InvalidArgument
-from .robot import yaw_quat
+from .frames import yaw_quat
 from .scenario_file import read_section
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from .body import Body
     from .floorplan import Plan
-    from .robot import Robot
-    from .world import World
 
 log = logging.getLogger(__name__)
 GRAVITY = 9.81
@@ -475,16 +477,12 @@ class TouchAt:
         self.at = _draw(spec.at, rng)
         self.done = False
 
-    def press(self, world: World, t: float) -> None:
+    def press(self, world: Stage, t: float) -> None:
         """pybullet thread, inside a step: a touch its world cannot take is logged, never raised
         (the step would end every motion)."""
         self.done = True
-        robot = world.robots.get(self.robot)
         try:
-            if robot is None or robot.contacts is None:
-                raise InvalidArgument(f"no robot {self.robot!r} with touch sensors (robots: "
-                                      f"{', '.join(world.robots) or 'none'})")
-            robot.contacts.touch(self.sensor, t, self.seconds)
+            world.touch_in_thread(self.robot, self.sensor, self.seconds)
         except InvalidArgument as e:
             log.warning("touch %r at %.1f s not made: %s", self.id, t, e)
 
@@ -500,6 +498,22 @@ class ContactEvent:
 
 
 # ------------------------------------------------------------------------------------------ runtime
+class Stage(Surroundings, Protocol):
+    """The world the disturbances move things in (robots.world.World): what a body sees of it (its
+    client, clock, house), its robots and its doors."""
+
+    @property
+    def robots(self) -> Mapping[str, Body]:
+        """The robots a person waits for and a mover touches."""
+
+    def set_door_in_thread(self, door_id: str, angle_deg: float) -> None:
+        """Swing a door (pybullet thread)."""
+
+    def touch_in_thread(self, robot: str, sensor: str, seconds: float) -> None:
+        """Press a robot's touch sensor now for `seconds` (pybullet thread); InvalidArgument when it
+        has none of that name."""
+
+
 class Disturbances:
     """The disturbances of one world, resolved against its house and seed. Built and advanced in the
     world's pybullet thread (World.attach_disturbances, World._advance); reads are safe from any thread."""
@@ -540,10 +554,10 @@ class Disturbances:
             prev.append(m)
         self.events: list[ContactEvent] = []
         self._touching: set[tuple[str, str]] = set()
-        self.world: World | None = None
+        self.world: Stage | None = None
 
     # ---- pybullet thread
-    def build(self, world: World) -> None:
+    def build(self, world: Stage) -> None:
         self.world = world
         for m in self.movers:
             m.uid = create_body(world.cid, m.shape)
@@ -574,7 +588,7 @@ class Disturbances:
                 touch.press(world, t)
         self._count_contacts(t, robots)
 
-    def _count_contacts(self, t: float, robots: list[Robot]) -> None:
+    def _count_contacts(self, t: float, robots: list[Body]) -> None:
         cid = self.world.cid
         for rb in robots:
             rx, ry = rb.pose[0], rb.pose[1]

@@ -13,13 +13,13 @@ from .errors import InvalidArgument, UnsupportedOperation
 from .odometry import wrap
 
 if TYPE_CHECKING:
-    from .robot import Robot
+    from .body import Body
 
 
 class BaseEffector:
     """Kinematic base: velocity in the robot frame, integrated with collision checks."""
 
-    def __init__(self, robot: "Robot"):
+    def __init__(self, robot: "Body"):
         self.robot, self.spec = robot, robot.spec
         self.command = (0.0, 0.0, 0.0)  # the velocity of the last step driven (robot frame)
         self.steps = 0  # steps driven so far (controllers.drive_base): the contact sensors see whether it walks
@@ -52,7 +52,7 @@ class BaseEffector:
 
 
 class JointsEffector:
-    def __init__(self, robot: "Robot"):
+    def __init__(self, robot: "Body"):
         self.robot, self.spec = robot, robot.spec
 
     @property
@@ -87,7 +87,7 @@ class HeadEffector:
     """Look-at solver: head yaw/pitch that put a global point on the look camera's optical axis,
     using the robot's ESTIMATED pose (so the result is only as good as localization)."""
 
-    def __init__(self, robot: "Robot"):
+    def __init__(self, robot: "Body"):
         self.robot, self.spec = robot, robot.spec
 
     def solve(self, target: tuple[float, float, float]) -> dict[str, float]:

@@ -29,7 +29,7 @@ import numpy as np
 from .odometry import wrap
 
 if TYPE_CHECKING:
-    from .robot import Robot
+    from .body import Body
     from .spec import RobotSpec
 
 ENV = "RAPP_FAILURE_MODES"
@@ -171,7 +171,7 @@ def seed_sequence(seed: int, *names) -> list[int]:
     return [int(seed)] + [zlib.crc32(str(n).encode()) for n in names]
 
 
-def reading_rng(robot: "Robot", sensor: str) -> np.random.Generator:
+def reading_rng(robot: "Body", sensor: str) -> np.random.Generator:
     """A generator for one reading of `sensor`, seeded by the simulation step it is taken at."""
     clock = robot.world.clock
     step = int(round(clock.time / clock.step))
@@ -199,7 +199,7 @@ class Locomotion:
         """Sideways speed of the body from the sway now (m/s), for motion blur."""
         return 0.0
 
-    def drive(self, robot: "Robot", vx: float, vy: float, wz: float, dt: float) -> bool:
+    def drive(self, robot: "Body", vx: float, vy: float, wz: float, dt: float) -> bool:
         """One step of the base (as BaseEffector.drive, with the errors); True when an obstacle blocked it."""
         robot.base.command = (vx, vy, wz)
         x, y, th = robot.pose
@@ -225,7 +225,7 @@ class Locomotion:
             robot.odometry.update(cdx, cdy, wz * dt)
         return blocked
 
-    def settle(self, robot: "Robot") -> None:
+    def settle(self, robot: "Body") -> None:
         """The motion ended: the body comes to rest over its gait line (the NAO stops in double support)."""
         if not self.offset:
             return
@@ -292,7 +292,7 @@ class NaoGait(Locomotion):
     def sway_speed(self) -> float:
         return self.amplitude * math.pi / self.walk.step_period_s * math.cos(self.phase)
 
-    def settle(self, robot: "Robot") -> None:
+    def settle(self, robot: "Body") -> None:
         super().settle(robot)
         if not self.offset:
             self.amplitude, self.phase = 0.0, 0.0
@@ -371,7 +371,7 @@ def noisy_ranges(ranges: np.ndarray, noise: RangeNoise, rng: np.random.Generator
     return np.where(hit, out, r)
 
 
-def camera_motion(robot: "Robot", depth_m: float) -> tuple[float, float]:
+def camera_motion(robot: "Body", depth_m: float) -> tuple[float, float]:
     """Angular rates (rad/s, image horizontal and vertical) of the scene in a camera now: the base's
     turn and sideways speed, the NAO's sway and the head joints' motion (pybullet thread)."""
     s = robot.spec

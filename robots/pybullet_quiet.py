@@ -1,6 +1,6 @@
 """pybullet, imported without its banner: its C module prints "pybullet build time: ..." on stderr when
-it is first imported in a process. Every simulator module takes `p` from here, so whichever comes first
-imports it with stderr closed for that moment (a render process does the same in render_process.py)."""
+it is first imported in a process. Every simulator module takes `p` from here (a render process's too), so
+whichever comes first imports it with stderr closed for that moment."""
 from __future__ import annotations
 
 import os

@@ -23,7 +23,7 @@ from .failure_modes import CameraNoise, RangeNoise, camera_motion, noisy_ranges,
 from .spec import CameraSpec, RangeSpec
 
 if TYPE_CHECKING:
-    from .robot import Robot
+    from .body import Body
 
 RESOLUTIONS = {"QQVGA": (160, 120), "QVGA": (320, 240), "VGA": (640, 480), "4VGA": (1280, 960)}
 LIGHT = dict(lightDirection=[0.35, 0.25, 1.0], lightColor=[1, 1, 1], lightDistance=10.0,
@@ -188,13 +188,6 @@ def encode_frame(rgb: np.ndarray, lossless: bool = True) -> tuple[str, bytes]:
     return "jpeg", buf.tobytes()
 
 
-def pose_matrix(pos, quat) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
-    T[:3, 3] = pos
-    return T
-
-
 def render_radiance(cid: int, width: int, height: int, view, proj,
                     emissive: dict[int, tuple[float, float, float]], light_scale: float = 1.0) -> np.ndarray:
     """Render with TinyRenderer in client `cid`: float HxWx3 radiance (1 = a lit white wall), the
@@ -216,7 +209,7 @@ def render_radiance(cid: int, width: int, height: int, view, proj,
 
 
 class Camera:
-    def __init__(self, robot: "Robot", spec: CameraSpec):
+    def __init__(self, robot: "Body", spec: CameraSpec):
         self.robot, self.spec, self.name = robot, spec, spec.name
         self.settings = ImageParams()  # what the user set (set_params)
         self.noise: CameraNoise | None = None  # failure modes (robots/failure_modes.py), None: ideal
@@ -298,7 +291,7 @@ class Camera:
 class RangeSensor:
     """A fan of rays from a robot link (sonar cone: reports the minimum; laser: every ray)."""
 
-    def __init__(self, robot: "Robot", spec: RangeSpec):
+    def __init__(self, robot: "Body", spec: RangeSpec):
         self.robot, self.spec, self.name = robot, spec, spec.name
         self.noise: RangeNoise | None = None  # failure modes (robots/failure_modes.py), None: exact
 

@@ -3,7 +3,7 @@
 PyBullet's TinyRenderer holds the GIL for the whole getCameraImage call (~30 ms at 320x240, 0.5-2 s at
 1280x960), which starves the event loop of the process and serialises rendering with physics stepping.
 A RenderPool keeps up to N render processes (default: 2, one per core); each builds the same static
-scene from the same house description with the same code as World (Scene._build_scene, create_bodies),
+scene from the same house description with the same code as World (robots/scene.py, robots/multibody.py),
 in its own DIRECT client. Per request it receives only the dynamic state that changed since its last
 request (robot base poses and joint angles, door angles, lamp states, the people and dropped boxes of
 robots/disturbances.py) plus the view/projection matrices, renders with ER_TINY_RENDERER, applies the
@@ -82,13 +82,13 @@ def band_projection(proj, band: int, bands: int) -> list[float]:
 
 # ====================================================================== child side
 def _mirror_scene_class():
-    import pybullet as p
-
-    from .lighting import room_light
-    from .receptors import apply_params, render_radiance
-    from .robot import create_bodies, probe_z, yaw_quat
     from .bodies import ROBOT_SPECS
-    from .world import Scene
+    from .frames import yaw_quat
+    from .lighting import room_light
+    from .multibody import create_bodies, probe_z
+    from .pybullet_quiet import p
+    from .receptors import apply_params, render_radiance
+    from .scene import Scene
 
     class MirrorScene(Scene):
         def __init__(self, plan):
@@ -167,17 +167,11 @@ def serve(fd_in: int, fd_out: int) -> None:
         conn_out.close()
 
 
-# The child imports robots.render_process without running robots/__init__.py (which pulls in the robot
-# API, ontology, ...): a bare package module pointing at this directory is enough for the submodules.
+# `import robots` loads no simulator (robots/__init__.py loads World, RobotAPI, ... when first used): the
+# child imports what a render needs and no more
 _BOOT = """
-import os, sys, types
-err = os.dup(2); null = os.open(os.devnull, os.O_WRONLY); os.dup2(null, 2)
-try:
-    import pybullet  # prints its build time on stderr: once per process is enough
-finally:
-    os.dup2(err, 2); os.close(err); os.close(null)
+import sys
 sys.path.insert(0, {root!r})
-pkg = types.ModuleType("robots"); pkg.__path__ = [{pkg!r}]; sys.modules["robots"] = pkg
 from robots.render_process import serve
 serve(int(sys.argv[1]), int(sys.argv[2]))
 """
@@ -200,12 +194,12 @@ class _Worker:
         return self.proc is not None and self.proc.poll() is None
 
     def start(self, plan_msg: tuple, own_session: bool = False) -> None:
-        pkg = Path(__file__).resolve().parent
+        root = Path(__file__).resolve().parents[1]
         to_child_r, to_child_w = os.pipe()
         from_child_r, from_child_w = os.pipe()
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, "-c", _BOOT.format(root=str(pkg.parent), pkg=str(pkg)),
+                [sys.executable, "-c", _BOOT.format(root=str(root)),
                  str(to_child_r), str(from_child_w)],
                 pass_fds=(to_child_r, from_child_w), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                 close_fds=True, start_new_session=own_session)

@@ -13,42 +13,25 @@ from .contact_sensors import ContactSensors
 from .depth_camera import DepthCamera
 from .effectors import BaseEffector, HeadEffector, JointsEffector
 from .failure_modes import Locomotion, defaults_for, make_locomotion
+from .frames import pose_matrix, yaw_quat
 from .loudspeaker import Loudspeaker
 from .odometry import Odometry, OdometryNoise
 from .microphones import Microphone
-from .receptors import Camera, RangeSensor, pose_matrix
+from .multibody import create_bodies, probe_z
+from .receptors import Camera, RangeSensor
 from .spec import RobotSpec
 
 AHEAD_RAD = 0.52  # "ahead" for the collision protection: readings within ±30° of the heading
 
 if TYPE_CHECKING:
+    from .body import Surroundings
     from .controllers import Controller
-    from .world import World
-
-
-def yaw_quat(yaw: float) -> list[float]:
-    return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
-
-
-def probe_z(spec: RobotSpec) -> float:
-    return spec.collision_height / 2 + 0.02
-
-
-def create_bodies(cid: int, spec: RobotSpec, pose: tuple[float, float, float], collision: bool = True
-                  ) -> tuple[int, int, dict[str, tuple[float, float]]]:
-    """The robot's URDF multibody and its collision-probe cylinder (with a tiny visual marker); also used
-    by the render process to mirror the robot. Returns (uid, probe uid, joint limits)."""
-    urdf, limits = spec.build_urdf()
-    uid = p.loadURDF(str(urdf), [pose[0], pose[1], 0.0], yaw_quat(pose[2]), useFixedBase=True, physicsClientId=cid)
-    col = p.createCollisionShape(p.GEOM_CYLINDER, radius=spec.radius, height=spec.collision_height,
-                                 physicsClientId=cid) if collision else -1
-    vis = p.createVisualShape(p.GEOM_SPHERE, radius=0.001, rgbaColor=[0, 0, 0, 1], physicsClientId=cid)
-    probe = p.createMultiBody(0, col, vis, [pose[0], pose[1], probe_z(spec)], physicsClientId=cid)
-    return uid, probe, limits
 
 
 class Robot:
-    def __init__(self, world: "World", spec: RobotSpec, name: str, pose: tuple[float, float, float],
+    """A robot body (robots.body.Body to its parts) in a world (robots.world.World)."""
+
+    def __init__(self, world: Surroundings, spec: RobotSpec, name: str, pose: tuple[float, float, float],
                  noise: OdometryNoise | None, rng: np.random.Generator):
         self.world, self.spec, self.name, self.kind = world, spec, name, spec.kind
         cid = world.cid
@@ -69,7 +52,8 @@ class Robot:
             self._joint_origin[jn] = pose_matrix(info[14], info[15])
             self._link_joint[child] = jn
         self.q: dict[str, float] = {n: 0.0 for n in self.limits}
-        self.pose = tuple(map(float, pose))
+        x, y, th = map(float, pose)
+        self.pose = (x, y, th)
         self.odometry = Odometry(pose, noise, rng)
         self.base = BaseEffector(self)
         self.joints = JointsEffector(self)

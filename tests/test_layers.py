@@ -83,15 +83,6 @@ def rapp_escapes() -> list[str]:
     return bad
 
 
-# Loops between modules of one package found when this check came (issue 44): the architecture work
-# removes them, and a loop may only shrink meanwhile (one inside a set below passes; any other fails).
-KNOWN_LOOPS = [
-    {"robots.controllers", "robots.disturbances", "robots.effectors", "robots.failure_modes", "robots.receptors",
-     "robots.render_process", "robots.robot", "robots.world", "robots.contact_sensors",
-     "robots.depth_camera"},  # the body, its sensors and the world
-]
-
-
 def _module_name(f: Path) -> str:
     parts = f.relative_to(ROOT).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
@@ -155,10 +146,6 @@ def import_loops() -> list[list[str]]:
     return loops
 
 
-def unknown_loops() -> list[list[str]]:
-    return [loop for loop in import_loops() if not any(set(loop) <= known for known in KNOWN_LOOPS)]
-
-
 def test_no_upward_import_or_cycle():
     assert upward_imports() == []
 
@@ -174,13 +161,8 @@ def test_every_project_package_has_a_floor():
 
 
 def test_no_import_loop_inside_a_package():
-    assert unknown_loops() == [], "modules importing each other in a loop (break it, or see KNOWN_LOOPS)"
-
-
-def test_hearing_is_loop_free_and_so_are_the_robots_speech_parts():
-    speech = {"hearing", "robots.sound", "robots.reverb", "robots.mic_array", "robots.microphones",
-              "robots.loudspeaker"}
-    assert [loop for loop in import_loops() if any(m.split(".")[0] in speech or m in speech for m in loop)] == []
+    assert import_loops() == [], ("modules importing each other in a loop: type the back reference by a "
+                                  "Protocol (robots/body.py) or move what both need into a leaf module")
 
 
 def test_checker_sees_an_import_loop(tmp_path, monkeypatch):
@@ -196,7 +178,6 @@ def test_checker_sees_an_import_loop(tmp_path, monkeypatch):
     monkeypatch.setattr(me, "ROOT", tmp_path)
     monkeypatch.setattr(me, "FLOORS", {"behaviours": 2})
     assert import_loops() == [["behaviours.a", "behaviours.b"]]
-    assert unknown_loops() == [["behaviours.a", "behaviours.b"]]
 
 
 @pytest.mark.parametrize("src,expect", [("import agents.base\n", 1), ("from ontology import acl\n", 0)])
