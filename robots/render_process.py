@@ -26,6 +26,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 import traceback
 import weakref
 from concurrent.futures import ThreadPoolExecutor
@@ -138,6 +139,7 @@ def _mirror_scene_class():
 
 def serve(fd_in: int, fd_out: int) -> None:
     """Render-process main loop (runs in the child)."""
+    _exit_with_parent()
     conn_in, conn_out = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
     scene = None
     try:
@@ -165,6 +167,20 @@ def serve(fd_in: int, fd_out: int) -> None:
     finally:
         conn_in.close()
         conn_out.close()
+
+
+def _exit_with_parent() -> None:
+    """The pipe's EOF ends the loop when the parent dies, unless a process the parent forked without
+    exec still holds its end (seen: render processes orphaned for minutes after a killed benchmark):
+    a watch on the parent's pid ends the child within a second either way."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 # `import robots` loads no simulator (robots/__init__.py loads World, RobotAPI, ... when first used): the

@@ -3,6 +3,7 @@ stall, restart after a crash, no leftover processes."""
 import asyncio
 import math
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -173,3 +174,34 @@ async def test_render_error_reaches_the_caller_and_the_next_frame_renders(make_w
         await api.capture_array()
     cam.params = saved
     assert np.array_equal(await api.capture_array(), good)
+
+
+def test_render_processes_exit_with_their_parent_though_a_fork_holds_the_pipe(tmp_path):
+    # a process the parent forked without exec keeps the render pipe's write end: no EOF comes
+    script = textwrap.dedent("""
+        import os, sys, time
+        from robots import World
+        w = World.from_file("small", seed=1)
+        r = w.add_robot("nao", pose=(0.5, 0.0, 1.57))
+        w.capture_sync(r.cameras["top"], 64, 48)
+        child = os.fork()
+        if child == 0:
+            time.sleep(30)
+            os._exit(0)
+        print(f"fork:{child}", *w.render_pids(), flush=True)
+        os._exit(0)
+    """)
+    out = tmp_path / "out.txt"  # a file, not a pipe the fork would keep open: run() returns at the exit
+    with out.open("w") as f:
+        subprocess.run([sys.executable, "-c", script], cwd=ROOT, stdout=f, stderr=subprocess.STDOUT, timeout=120)
+    words = out.read_text().split()
+    fork = next(int(x[5:]) for x in words if x.startswith("fork:"))
+    pids = [int(x) for x in words if x.isdigit()]
+    try:
+        assert pids, words
+        deadline = time.time() + 5
+        while not all(_gone(p) for p in pids) and time.time() < deadline:
+            time.sleep(0.1)
+        assert all(_gone(p) for p in pids)
+    finally:
+        os.kill(fork, signal.SIGKILL)
