@@ -10,7 +10,6 @@ import asyncio
 import math
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 
 from .errors import MotionBlocked, RobotError
 from .odometry import wrap
@@ -227,46 +226,51 @@ class PathFollower(BaseController):
         for q in poses:
             if not pts or math.hypot(q[0] - pts[-1][0], q[1] - pts[-1][1]) > 1e-3:
                 pts.append((float(q[0]), float(q[1])))
-        self.pts = np.array(pts, float)
-        self.lengths = np.linalg.norm(np.diff(self.pts, axis=0), axis=1) if len(pts) > 1 else np.zeros(0)
+        # plain floats: the follower runs every world step, and numpy on 2-vectors costs ~5x more
+        self.pts = pts
+        self.lengths = [math.dist(a, b) for a, b in zip(pts, pts[1:])]
+        self._after = [sum(self.lengths[i + 1:]) for i in range(len(self.lengths))]  # path length past segment i
         self.final = tuple(map(float, poses[-1]))
         self.seg = 0
         self.finisher: GoToPose | None = None
         self.aligning = True  # holonomic: turn towards the path before walking
 
     def _project(self, i: int, x: float, y: float) -> tuple[float, float]:
-        a, b = self.pts[i], self.pts[i + 1]
-        ab = b - a
-        t = float(np.clip(np.dot([x - a[0], y - a[1]], ab) / max(float(np.dot(ab, ab)), 1e-12), 0.0, 1.0))
-        return t, float(np.hypot(*(a + t * ab - [x, y])))
+        (ax, ay), (bx, by) = self.pts[i], self.pts[i + 1]
+        abx, aby = bx - ax, by - ay
+        t = min(max(((x - ax) * abx + (y - ay) * aby) / max(abx * abx + aby * aby, 1e-12), 0.0), 1.0)
+        return t, math.hypot(ax + t * abx - x, ay + t * aby - y)
 
     def _turn(self, i: int) -> float:
         """Heading change (rad) of the path at vertex i."""
-        a, b = self.pts[i] - self.pts[i - 1], self.pts[i + 1] - self.pts[i]
-        return abs(math.atan2(a[0] * b[1] - a[1] * b[0], float(np.dot(a, b))))
+        (px, py), (qx, qy), (rx, ry) = self.pts[i - 1], self.pts[i], self.pts[i + 1]
+        ax, ay, bx, by = qx - px, qy - py, rx - qx, ry - qy
+        return abs(math.atan2(ax * by - ay * bx, ax * bx + ay * by))
 
-    def _carrot(self, x: float, y: float) -> tuple[np.ndarray, float, float]:
+    def _carrot(self, x: float, y: float) -> tuple[tuple[float, float], float, float]:
         """Carrot point LOOKAHEAD ahead of the projection (never past a sharp corner: cutting it is
         how a robot hits a door frame), the remaining arc length and the distance to that corner."""
         nseg = len(self.lengths)
-        while self.seg < nseg - 1 and math.hypot(*(self.pts[self.seg + 1] - [x, y])) < CORNER_REACHED:
+        while self.seg < nseg - 1 and math.dist(self.pts[self.seg + 1], (x, y)) < CORNER_REACHED:
             self.seg += 1
         best = min(range(self.seg, min(self.seg + 3, nseg)), key=lambda i: self._project(i, x, y)[1])
         self.seg = max(self.seg, best)
         t, _ = self._project(self.seg, x, y)
-        remaining = (1 - t) * self.lengths[self.seg] + float(self.lengths[self.seg + 1:].sum())
-        a, b = self.pts[self.seg], self.pts[self.seg + 1]
-        pt, left, i = a + t * (b - a), self.LOOKAHEAD, self.seg + 1
+        remaining = (1 - t) * self.lengths[self.seg] + self._after[self.seg]
+        (ax, ay), (bx, by) = self.pts[self.seg], self.pts[self.seg + 1]
+        pt, left, i = (ax + t * (bx - ax), ay + t * (by - ay)), self.LOOKAHEAD, self.seg + 1
         ahead = 0.0
         while i < len(self.pts):
-            d = float(np.linalg.norm(self.pts[i] - pt))
+            nxt = self.pts[i]
+            d = math.dist(nxt, pt)
             if d >= left:
-                return pt + (self.pts[i] - pt) * (left / d), remaining, math.inf
+                f = left / d
+                return (pt[0] + (nxt[0] - pt[0]) * f, pt[1] + (nxt[1] - pt[1]) * f), remaining, math.inf
             left -= d
             ahead += d
             if i < len(self.pts) - 1 and self._turn(i) > SHARP_TURN:
-                return self.pts[i], remaining, ahead
-            pt, i = self.pts[i], i + 1
+                return nxt, remaining, ahead
+            pt, i = nxt, i + 1
         return pt, remaining, math.inf
 
     def step(self, dt: float) -> bool:
