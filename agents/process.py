@@ -99,16 +99,28 @@ def _kill_group(pgid: int, sig: int = signal.SIGKILL) -> None:
         pass
 
 
+def _zombie(pid: str) -> bool:
+    """Exited, not yet reaped (or being reaped): nothing left to kill."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            stat = f.read()
+    except OSError:
+        return True
+    return stat[stat.rindex(b")") + 2:][:1] in (b"Z", b"X")
+
+
 def kill_uid(uid: int, timeout: float = 2.0) -> bool:
     """Every process of `uid` killed, /proc scanned again until none is left (one scan misses a
-    process forked meanwhile); False if some were still there after `timeout`."""
+    process forked meanwhile); False if some were still there after `timeout`. A zombie counts as
+    gone: the run's own process is one while this runs before its reaping (exit_future's
+    before_reap), and waiting for it to go blocked the caller's loop for the whole `timeout`."""
     deadline = time.monotonic() + timeout
     while True:
         found = 0
         for entry in os.scandir("/proc"):
             if entry.name.isdigit():
                 try:
-                    if entry.stat().st_uid == uid:
+                    if entry.stat().st_uid == uid and not _zombie(entry.name):
                         found += 1
                         os.kill(int(entry.name), signal.SIGKILL)
                 except OSError:
