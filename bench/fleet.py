@@ -27,6 +27,7 @@ owners upload their homes over XMPP, as the owner's app does.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import shutil
 import tempfile
@@ -36,13 +37,16 @@ from pathlib import Path
 from ontology.trace import FINAL_ANSWERS, RecordKind
 
 from .common import log, metric, ms, percentile, quiet_logs, ratio
-from .proc_cpu import ProcessKinds, ProcessSampler
+from .proc_cpu import ProcessKinds, ProcessSampler, mem_available_mb
 
 CLOUD_LIFECYCLE = ("start_cloud_agent", "stop_cloud_agent")  # reported apart as context, still judged
 FLOOR_ROUNDS = 3
 GOAL = 50  # issue 46 item 5 (20 until then)
 QUICK_GOAL = 8
 HOUSE = "small"
+# a fleet too large for the machine's memory ends its round, said so, before the kernel's OOM killer
+# picks a process (of this run or of anyone else's on the machine)
+MIN_AVAILABLE_MB = 2048
 # what each process kind of the measured tree stands for (bench/proc_cpu.py classifies them)
 KINDS = {"cores": "this process: the Cores, their simulations (World steps) and the owners' chat clients",
          "dynamic": "Dynamic Agents and the Cores' warm Dynamic workers (agents.runtime under this process)",
@@ -213,6 +217,9 @@ class HazardFleet:
         new = []
         for _ in range(count):
             i = len(self.robots) + len(new)
+            if mem_available_mb() < MIN_AVAILABLE_MB:
+                raise MemoryError(f"robot {i + 1} not added: {mem_available_mb():.0f} MB available "
+                                  f"(< {MIN_AVAILABLE_MB} MB) with {i} robots")
             kind, seed = ("nao", "elektron")[i % 2], i + 1
             world = await asyncio.to_thread(World.from_file, HOUSE, seed=seed, overrides=hazard_overrides(HOUSE, seed))
             self.worlds.append(world)
@@ -272,19 +279,42 @@ class HazardFleet:
             self.processes.stop_all(20.0)  # the Platform first, then the Store
 
 
+async def watch_memory(work: asyncio.Future, period: float = 1.0) -> str | None:
+    """Until `work` is done; if the machine's available memory falls below MIN_AVAILABLE_MB first,
+    `work` is cancelled and what was seen is returned."""
+    least = float("inf")
+    while not work.done():
+        least = min(least, mem_available_mb())
+        if least < MIN_AVAILABLE_MB:
+            work.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await work
+            return f"round ended: {least:.0f} MB of memory available (< {MIN_AVAILABLE_MB} MB)"
+        await asyncio.wait([work], timeout=period)
+    return None
+
+
 async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     from agents.tracing import read_trace
 
+    short = None
     if len(fleet.robots) < n:
-        await fleet.add_robots(n - len(fleet.robots))
+        try:
+            await fleet.add_robots(n - len(fleet.robots))
+        except MemoryError as e:
+            short = str(e)
+            log(f"fleet N={n}: {short}")
     load_before = os.getloadavg()
     mark = fleet.sampler.mark() if fleet.sampler else None
     since = time.time()
     t0 = time.perf_counter()
-    runs = await asyncio.gather(*(fleet.check_hazards(i, timeout) for i in range(n)), return_exceptions=True)
+    if short is None:
+        tasks = asyncio.gather(*(fleet.check_hazards(i, timeout) for i in range(n)), return_exceptions=True)
+        short = await watch_memory(tasks)
+    runs = [MemoryError(short)] * n if short else await tasks
     wall = time.perf_counter() - t0
     usage = fleet.sampler.since(mark) if fleet.sampler and mark else None
-    failed = [f"{fleet.robots[i].robot_id}: {str(r)[:200]}" for i, r in enumerate(runs)
+    failed = [f"robot {i + 1}: {str(r)[:200]}" for i, r in enumerate(runs)
               if isinstance(r, BaseException) or not r["finished"]]
     records = [r for r in await asyncio.to_thread(read_trace, fleet.trace_file) if r["t"] >= since]  # this round
     wrong = [fleet.robots[i].robot_id for i, r in enumerate(runs)

@@ -70,7 +70,7 @@ def read_cmdline(pid: int) -> bytes:
 
 
 class ProcessSampler:
-    def __init__(self, kinds: ProcessKinds, period: float = 0.5, mem_every: int = 4):
+    def __init__(self, kinds: ProcessKinds, period: float = 0.5, mem_every: int = 10):
         self.kinds, self.period, self.mem_every = kinds, period, mem_every
         # a process is (pid, start time): a pid may be reused within a long run
         self.cpu: dict[tuple[int, int], float] = {}  # last CPU seconds seen (kept after its exit)
@@ -176,3 +176,11 @@ class ProcessSampler:
                 "pss_mb_peak_total": round(max((sum(m.values()) for m in window), default=0.0), 1),
                 "processes_peak": dict(sorted(self.peak_alive.items()))}
 
+
+
+def mem_available_mb() -> float:
+    """The kernel's estimate of memory available without swapping (MemAvailable), MB."""
+    for line in Path("/proc/meminfo").read_text().splitlines():
+        if line.startswith("MemAvailable:"):
+            return int(line.split()[1]) / 1024
+    return float("inf")
