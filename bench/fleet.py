@@ -47,6 +47,7 @@ HOUSE = "small"
 # a fleet too large for the machine's memory ends its round, said so, before the kernel's OOM killer
 # picks a process (of this run or of anyone else's on the machine)
 MIN_AVAILABLE_MB = 2048
+RENDER_WORKERS = 1
 # what each process kind of the measured tree stands for (bench/proc_cpu.py classifies them)
 KINDS = {"cores": "this process: the Cores, their simulations (World steps) and the owners' chat clients",
          "dynamic": "Dynamic Agents and the Cores' warm Dynamic workers (agents.runtime under this process)",
@@ -221,7 +222,10 @@ class HazardFleet:
                 raise MemoryError(f"robot {i + 1} not added: {mem_available_mb():.0f} MB available "
                                   f"(< {MIN_AVAILABLE_MB} MB) with {i} robots")
             kind, seed = ("nao", "elektron")[i % 2], i + 1
-            world = await asyncio.to_thread(World.from_file, HOUSE, seed=seed, overrides=hazard_overrides(HOUSE, seed))
+            # one render process per world (a World's default is two): its one robot renders a frame at
+            # a time, and a render process holds ~170 MB (Pss), the most of any kind per robot here
+            world = await asyncio.to_thread(World.from_file, HOUSE, seed=seed, overrides=hazard_overrides(HOUSE, seed),
+                                            render_workers=RENDER_WORKERS)
             self.worlds.append(world)
             if self.apart:  # the simulation's camera renders, which real robots do not need, yield
                 await asyncio.to_thread(world.start_renderer, own_session=True)
