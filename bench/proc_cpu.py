@@ -78,6 +78,7 @@ class ProcessSampler:
         self.samples: list[tuple[float, dict[str, float]]] = []  # (time, Pss MB by kind)
         self.alive: dict[str, int] = {}  # kind -> processes alive at the last sample
         self.peak_alive: dict[str, int] = {}
+        self.fds_peak: dict[str, int] = {}  # open descriptors of the named processes, by kind (since the mark)
         self.sampling_cpu_s = 0.0  # this thread's own cost
         self._version = kinds.version
         self._lock = threading.Lock()
@@ -127,6 +128,11 @@ class ProcessSampler:
                 if with_memory:
                     pss[kind] = pss.get(kind, 0.0) + read_pss_kb(pid) / 1024
             self.alive = alive
+            for pid, kind in list(self.kinds.named.items()) + [(self.kinds.root, self.kinds.root_kind)]:
+                try:
+                    self.fds_peak[kind] = max(self.fds_peak.get(kind, 0), len(os.listdir(f"/proc/{pid}/fd")))
+                except OSError:
+                    pass
             for kind, count in alive.items():
                 self.peak_alive[kind] = max(self.peak_alive.get(kind, 0), count)
             if with_memory:
@@ -156,12 +162,14 @@ class ProcessSampler:
         self.sample(with_memory=True)
         with self._lock:
             self.peak_alive = dict(self.alive)
+            self.fds_peak = {}
             return time.time(), dict(self.cpu)
 
     def since(self, mark: tuple[float, dict[tuple[int, int], float]]) -> dict:
         """CPU seconds by kind since `mark` (processes started since count whole), the peak Pss by
         kind and the peak of all kinds together over the samples since, the most processes of each
-        kind alive at once since, the wall time."""
+        kind alive at once since, the most descriptors a named process of each kind held open, the
+        wall time."""
         self.sample(with_memory=True)
         t_mark, before = mark
         with self._lock:
@@ -174,7 +182,8 @@ class ProcessSampler:
         return {"wall_s": time.time() - t_mark, "cpu_s": {k: round(v, 2) for k, v in sorted(cpu.items())},
                 "pss_mb_peak": {k: round(v, 1) for k, v in sorted(peak.items())},
                 "pss_mb_peak_total": round(max((sum(m.values()) for m in window), default=0.0), 1),
-                "processes_peak": dict(sorted(self.peak_alive.items()))}
+                "processes_peak": dict(sorted(self.peak_alive.items())),
+                "fds_peak": dict(sorted(self.fds_peak.items()))}
 
 
 
