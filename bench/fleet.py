@@ -1,26 +1,29 @@
 """Fleet: N robots (nao/elektron alternately) each running the hazard-detection RApp at once, on one
 Platform, one Store and one XMPP server. Each robot lives in its own copy of the small house (one
 World per robot, seeded door and lamp states), so the tasks compete for the agents, the server and
-the two cores, not for doorways. Rounds with growing N (full: 1, 1, 1 and 20; robots are added
-between rounds, and the robots of earlier rounds run again from where they stopped); a round passes
-when every task finishes ("hazard-detection finished") and every request of every Dynamic Agent is
-answered (from the trace), or failed because its Cloud Agent died and the Dynamic Agent was told so
-(such crashes are reported per round). Whether every hazard was classified correctly is reported
-per round too.
+the two cores, not for doorways. Rounds with growing N (full: 1, 1, 1 and GOAL = 50; quick: 1, 1, 1
+and QUICK_GOAL = 8; robots are added between rounds, and the robots of earlier rounds run again from
+where they stopped); a round passes when every task finishes ("hazard-detection finished") and every
+request of every Dynamic Agent is answered (from the trace), or failed because its Cloud Agent died
+and the Dynamic Agent was told so (such crashes are reported per round). Whether every hazard was
+classified correctly is reported per round too. A round ends, said so, when the machine's available
+memory falls below MIN_AVAILABLE_MB (the kernel's OOM killer would otherwise pick a process).
 
-Reports the largest passing N (`fleet`; floor = the goal, 20 robots; ratio = goal / N, <= 1 met) and
-the Platform service latency p95 at that N (`fleet_service_p95`; floor = the same p95 with 1 robot,
-over FLOOR_ROUNDS rounds measured first in the same run), with the p95 of each service.
+Reports the largest passing N (`fleet`; floor = the goal; ratio = goal / N, <= 1 met) and the
+Platform service latency p95 at that N (`fleet_service_p95`; floor = the same p95 with 1 robot, over
+FLOOR_ROUNDS rounds measured first in the same run), with the p95 of each service; and per round the
+CPU seconds and memory (Pss) of one robot-task by process kind (KINDS, sampled from /proc by
+bench/proc_cpu.py), the messages and bytes the agents sent. `python -m bench.capacity` runs the same
+rounds at other sizes for docs/capacity.md.
 
 Deployed as a fleet would be (`run(apart=True)`, the default): the Store and the Platform run as
 `rapp agent store` / `rapp agent platform --warm-workers N` processes, the Platform keeping a started
 Cloud Agent process per robot that may ask for one at once; the simulated cameras' render
-processes run in sessions of their own, under Linux's SCHED_IDLE with their scheduling group at
-nice 19 (they get the CPU only when no agent wants it). What that stands for: real robots render
-nothing and bring their own CPUs, while here 20 physics simulations and their 40 render processes
-share the Platform's two cores. Until 2026-11-26 the renders shared this process's session, where
-SCHED_IDLE only yielded to the Cores (Linux's autogroup schedules each session as one group,
-agents/priority.py): they took 0.8-1.2 of the two cores all through a 20-robot round.
+processes (one per world) run in sessions of their own, under Linux's SCHED_IDLE with their
+scheduling group at nice 19 (they get the CPU only when no agent wants it). What that stands for:
+real robots render nothing and bring their own CPUs, while here the simulations and their render
+processes share the Platform's two cores (agents/priority.py: Linux's autogroup schedules each
+session as one group, so a render in this process's session would only yield to the Cores).
 The Cores and Dynamic Agents stay at normal priority (at nice 10 they missed heartbeats). The
 owners upload their homes over XMPP, as the owner's app does.
 """
