@@ -35,7 +35,8 @@ def rows(rounds: list[dict]) -> list[dict]:
         t = r["traffic"]
         out.append({"n": r["n"], "ok": r["ok"], "wall_s": round(r["wall_s"], 1),
                     "cpu_s_per_task": {k: per.get("cpu_s", {}).get(k, 0.0) for k in KIND_ORDER},
-                    "cpu_s_per_task_total": per.get("cpu_s_total"), "cores_busy": r.get("cpu_demand_cores"),
+                    "cpu_s_per_task_total": per.get("cpu_s_total"), "sim_s_per_task": r.get("sim_s_per_task"),
+                    "fds_peak": r.get("usage", {}).get("fds_peak"), "cores_busy": r.get("cpu_demand_cores"),
                     "messages_per_task": round(t["messages"] / r["n"]), "kb_per_task": round(t["bytes"] / r["n"] / 1024),
                     "pss_mb_per_task": per.get("pss_mb_total"), "pss_mb_peak": r.get("usage", {}).get("pss_mb_peak"),
                     "service_p95_ms": round(percentile(r["platform_ms"], 95), 1),

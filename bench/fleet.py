@@ -313,6 +313,7 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
             log(f"fleet N={n}: {short}")
     load_before = os.getloadavg()
     mark = fleet.sampler.mark() if fleet.sampler else None
+    sim_before = [w.time for w in fleet.worlds[:n]]
     since = time.time()
     t0 = time.perf_counter()
     if short is None:
@@ -321,6 +322,8 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     runs = [MemoryError(short)] * n if short else await tasks
     wall = time.perf_counter() - t0
     usage = fleet.sampler.since(mark) if fleet.sampler and mark else None
+    # the robots' own time: what a task takes a real robot (the worlds run as fast as they can)
+    sim_s = [w.time - t for w, t in zip(fleet.worlds, sim_before)]
     failed = [f"robot {i + 1}: {str(r)[:200]}" for i, r in enumerate(runs)
               if isinstance(r, BaseException) or not r["finished"]]
     records = [r for r in await asyncio.to_thread(read_trace, fleet.trace_file) if r["t"] >= since]  # this round
@@ -342,7 +345,7 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
                        "sampling_cpu_s": round(fleet.sampler.sampling_cpu_s, 2) if fleet.sampler else None}
     res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "misclassified": wrong,
            "load_before": [round(x, 2) for x in load_before], "load_after": [round(x, 2) for x in os.getloadavg()],
-           "traffic": traffic(records),
+           "traffic": traffic(records), "sim_s_per_task": round(sum(sim_s) / len(sim_s), 1) if sim_s else None,
            **usage_extra,
            "heartbeats_late": len(late), "longest_late_silence_s": max((r["silence"] for r in late), default=None),
            "unanswered": len(missing), "unanswered_actions": missing[:5],
