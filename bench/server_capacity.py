@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from .common import log
-from .messages import Arrivals, send_all
+from .messages import Arrivals, chat_pair, send_all
 from .proc_cpu import ProcessKinds, ProcessSampler
 
 SMALL_BODY = 500
@@ -31,28 +31,14 @@ BIG_BODY = 100_000
 
 
 async def rate(send_settings, recv_settings, count: int, tag: str, body: str, server_pids: list[int]) -> dict:
-    from xmpp_server.chat import ChatUser
-
     arrivals = Arrivals(count)
-
-    class Sink(ChatUser):
-        def _on_message(self, msg):
-            arrivals.hit()
-
-    sender, receiver = ChatUser(f"ssend-{tag}", send_settings), Sink(f"srecv-{tag}", recv_settings)
-    await sender.start()
-    await receiver.start()
-    to = recv_settings.jid(f"srecv-{tag}")
-    samplers = [ProcessSampler(ProcessKinds(pid, "server")) for pid in server_pids]
-    marks = [s.mark() for s in samplers]
-    client0 = time.process_time()
-    try:
+    async with chat_pair(send_settings, recv_settings, (f"ssend-{tag}", f"srecv-{tag}"), arrivals) as (sender, to):
+        samplers = [ProcessSampler(ProcessKinds(pid, "server")) for pid in server_pids]
+        marks = [s.mark() for s in samplers]
+        client0 = time.process_time()
         per_s = await send_all(lambda i: sender.send_message(mto=to, mbody=body, mtype="chat"), arrivals)
-    finally:
         client_s = time.process_time() - client0
         server_s = sum(s.since(m)["cpu_s"].get("server", 0.0) for s, m in zip(samplers, marks))
-        await sender.stop()
-        await receiver.stop()
     return {"messages": count, "body_chars": len(body), "msg_per_s": round(per_s),
             "server_cpu_us_per_msg": round(server_s / count * 1e6, 1),
             "clients_cpu_us_per_msg": round(client_s / count * 1e6, 1)}
