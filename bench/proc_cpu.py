@@ -112,14 +112,17 @@ class ProcessSampler:
         pss: dict[str, float] = {}
         alive: dict[str, int] = {}
         with self._lock:
+            before: dict[tuple[int, int], str] = {}
             if self._version != self.kinds.version:  # a process named since it was first seen
                 self._version = self.kinds.version
-                self.kind_of = {key: kind for key, kind in self.kind_of.items() if key[0] not in stats}
+                before, self.kind_of = self.kind_of, {k: v for k, v in self.kind_of.items() if k[0] not in stats}
             for pid, (_, cpu, started) in stats.items():
                 key = (pid, started)
                 kind = self.kind_of.get(key)
                 if kind is None:
-                    kind = self._classify(pid, ppids)
+                    # a process seen before keeps its kind where it can no longer be placed (its
+                    # parent gone, it was reparented out of the measured tree)
+                    kind = self._classify(pid, ppids) or before.get(key)
                     if kind is None:
                         continue
                     self.kind_of[key] = kind
@@ -175,7 +178,7 @@ class ProcessSampler:
         with self._lock:
             cpu: dict[str, float] = {}
             for key, s in self.cpu.items():
-                kind = self.kind_of[key]
+                kind = self.kind_of[key]  # every process in self.cpu keeps a kind (sample)
                 cpu[kind] = cpu.get(kind, 0.0) + s - before.get(key, 0.0)
             window = [m for t, m in self.samples if t >= t_mark]
         peak = {k: max(m.get(k, 0.0) for m in window) for k in {k for m in window for k in m}}

@@ -83,3 +83,26 @@ def test_a_runtime_takes_the_runtime_kind_of_the_named_process_above_it():
 
 def test_memory_available_is_read():
     assert 0 < mem_available_mb() < float("inf")
+
+
+def test_a_process_reparented_out_of_the_tree_keeps_its_kind():
+    """A process whose parent died is reparented (to init): seen again after a process was named,
+    it can no longer be placed, and keeps the kind it had (its CPU is still counted)."""
+    orphan_maker = subprocess.Popen([sys.executable, "-c",
+                                     "import subprocess, sys; p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(30)']); print(p.pid, flush=True)"],
+                                    stdout=subprocess.PIPE, text=True)
+    kinds = ProcessKinds(os.getpid(), "cores")
+    sampler = ProcessSampler(kinds)
+    orphan = int(orphan_maker.stdout.readline())
+    try:
+        sampler.sample()  # the child seen under its parent: "cores"
+        mark = sampler.mark()
+        orphan_maker.wait(10)  # its parent exits: the child is reparented out of this tree
+        deadline = time.monotonic() + 5
+        while read_stat(orphan)[0] == orphan_maker.pid and time.monotonic() < deadline:
+            time.sleep(0.01)
+        kinds.name(orphan_maker.pid, "gone")  # any naming makes the sampler look at every process again
+        usage = sampler.since(mark)
+        assert "cores" in usage["cpu_s"] and sampler.alive.get("cores", 0) >= 2  # the orphan and this process
+    finally:
+        os.kill(orphan, 9)
