@@ -99,16 +99,28 @@ def _kill_group(pgid: int, sig: int = signal.SIGKILL) -> None:
         pass
 
 
+def _zombie(pid: str) -> bool:
+    """Exited, not yet reaped (or being reaped): nothing left to kill."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            stat = f.read()
+    except OSError:
+        return True
+    return stat[stat.rindex(b")") + 2:][:1] in (b"Z", b"X")
+
+
 def kill_uid(uid: int, timeout: float = 2.0) -> bool:
     """Every process of `uid` killed, /proc scanned again until none is left (one scan misses a
-    process forked meanwhile); False if some were still there after `timeout`."""
+    process forked meanwhile); False if some were still there after `timeout`. A zombie counts as
+    gone: the run's own process is one while this runs before its reaping (exit_future's
+    before_reap), and waiting for it to go blocked the caller's loop for the whole `timeout`."""
     deadline = time.monotonic() + timeout
     while True:
         found = 0
         for entry in os.scandir("/proc"):
             if entry.name.isdigit():
                 try:
-                    if entry.stat().st_uid == uid:
+                    if entry.stat().st_uid == uid and not _zombie(entry.name):
                         found += 1
                         os.kill(int(entry.name), signal.SIGKILL)
                 except OSError:
@@ -427,7 +439,8 @@ class AgentProcess:
             self._signal(signal.SIGTERM)
             await self.logged_out(grace)
         self._signal(signal.SIGKILL)  # its sandbox's init with it: the run's PID namespace dies whole
-        self._kill_leftovers()
+        # killed, not waited for: the exit future's sweep (before_reap) waits for the group to empty
+        self._kill_leftovers(wait=False)
         self._forget_ready()
         if self._spec_w is not None:  # an idle warm worker: its spec never comes
             os.close(self._spec_w)
@@ -471,15 +484,17 @@ class AgentProcess:
             return  # reaped: its pid may be another process's by now
         _kill_group(self.proc.pid, sig)
 
-    def _kill_leftovers(self) -> None:
+    def _kill_leftovers(self, wait: bool = True) -> None:
         """Whatever of the run is left: its process group, its control group (`cgroup.kill`), and,
-        without a control group, every process of its uid, scanned again until none is left."""
+        without a control group, every process of its uid, scanned again until none is left
+        (`wait`; else one pass: the kernel's teardown of the killed processes, 20-80 ms, would hold
+        up the caller's loop)."""
         if self.proc is not None and not (self._waiter is not None and self._waiter.done()):
             _kill_group(self.proc.pid, signal.SIGKILL)
         if self.cgroup is not None:
-            self.cgroup.kill(timeout=0.5)
+            self.cgroup.kill(timeout=0.5 if wait else 0.0)
         elif self.uid is not None:
-            kill_uid(self.uid)
+            kill_uid(self.uid, timeout=2.0 if wait else 0.0)
 
     def _after_exit(self) -> None:
         """Reaped: the sandbox's last words read, what its control group was refused kept, the group gone."""

@@ -1,32 +1,36 @@
 """Fleet: N robots (nao/elektron alternately) each running the hazard-detection RApp at once, on one
 Platform, one Store and one XMPP server. Each robot lives in its own copy of the small house (one
 World per robot, seeded door and lamp states), so the tasks compete for the agents, the server and
-the two cores, not for doorways. Rounds with growing N (full: 1, 1, 1 and 20; robots are added
-between rounds, and the robots of earlier rounds run again from where they stopped); a round passes
-when every task finishes ("hazard-detection finished") and every request of every Dynamic Agent is
-answered (from the trace), or failed because its Cloud Agent died and the Dynamic Agent was told so
-(such crashes are reported per round). Whether every hazard was classified correctly is reported
-per round too.
+the two cores, not for doorways. Rounds with growing N (full: 1, 1, 1 and GOAL = 50; quick: 1, 1, 1
+and QUICK_GOAL = 8; robots are added between rounds, and the robots of earlier rounds run again from
+where they stopped); a round passes when every task finishes ("hazard-detection finished") and every
+request of every Dynamic Agent is answered (from the trace), or failed because its Cloud Agent died
+and the Dynamic Agent was told so (such crashes are reported per round). Whether every hazard was
+classified correctly is reported per round too. A round ends, said so, when the machine's available
+memory falls below MIN_AVAILABLE_MB (the kernel's OOM killer would otherwise pick a process).
 
-Reports the largest passing N (`fleet`; floor = the goal, 20 robots; ratio = goal / N, <= 1 met) and
-the Platform service latency p95 at that N (`fleet_service_p95`; floor = the same p95 with 1 robot,
-over FLOOR_ROUNDS rounds measured first in the same run), with the p95 of each service.
+Reports the largest passing N (`fleet`; floor = the goal; ratio = goal / N, <= 1 met) and the
+Platform service latency p95 at that N (`fleet_service_p95`; floor = the same p95 with 1 robot, over
+FLOOR_ROUNDS rounds measured first in the same run), with the p95 of each service; and per round the
+CPU seconds and memory (Pss) of one robot-task by process kind (KINDS, sampled from /proc by
+bench/proc_cpu.py), the messages and bytes the agents sent. `python -m bench.capacity` runs the same
+rounds at other sizes for docs/capacity.md.
 
 Deployed as a fleet would be (`run(apart=True)`, the default): the Store and the Platform run as
 `rapp agent store` / `rapp agent platform --warm-workers N` processes, the Platform keeping a started
 Cloud Agent process per robot that may ask for one at once; the simulated cameras' render
-processes run in sessions of their own, under Linux's SCHED_IDLE with their scheduling group at
-nice 19 (they get the CPU only when no agent wants it). What that stands for: real robots render
-nothing and bring their own CPUs, while here 20 physics simulations and their 40 render processes
-share the Platform's two cores. Until 2026-11-26 the renders shared this process's session, where
-SCHED_IDLE only yielded to the Cores (Linux's autogroup schedules each session as one group,
-agents/priority.py): they took 0.8-1.2 of the two cores all through a 20-robot round.
+processes (one per world) run in sessions of their own, under Linux's SCHED_IDLE with their
+scheduling group at nice 19 (they get the CPU only when no agent wants it). What that stands for:
+real robots render nothing and bring their own CPUs, while here the simulations and their render
+processes share the Platform's two cores (agents/priority.py: Linux's autogroup schedules each
+session as one group, so a render in this process's session would only yield to the Cores).
 The Cores and Dynamic Agents stay at normal priority (at nice 10 they missed heartbeats). The
 owners upload their homes over XMPP, as the owner's app does.
 """
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import shutil
 import tempfile
@@ -36,12 +40,25 @@ from pathlib import Path
 from ontology.trace import FINAL_ANSWERS, RecordKind
 
 from .common import log, metric, ms, percentile, quiet_logs, ratio
+from .proc_cpu import ProcessKinds, ProcessSampler, mem_available_mb
 
 CLOUD_LIFECYCLE = ("start_cloud_agent", "stop_cloud_agent")  # reported apart as context, still judged
 FLOOR_ROUNDS = 3
-GOAL = 20
-QUICK_GOAL = 4
+GOAL = 50  # issue 46 item 5 (20 until then)
+QUICK_GOAL = 8
 HOUSE = "small"
+# a fleet too large for the machine's memory ends its round, said so, before the kernel's OOM killer
+# picks a process (of this run or of anyone else's on the machine)
+MIN_AVAILABLE_MB = 2048
+RENDER_WORKERS = 1
+# what each process kind of the measured tree stands for (bench/proc_cpu.py classifies them)
+KINDS = {"cores": "this process: the Cores, their simulations (World steps) and the owners' chat clients",
+         "dynamic": "Dynamic Agents and the Cores' warm Dynamic workers (agents.runtime under this process)",
+         "platform": "the Platform Agent's process (`rapp agent platform`)",
+         "cloud": "Cloud Agents and the Platform's warm Cloud workers (agents.runtime under the Platform)",
+         "store": "the Store Agent's process and its builds",
+         "render": "the simulated cameras' render processes (a real robot renders nothing)",
+         "xmpp_server": "the XMPP server (the embedded pyjabber)"}
 
 
 def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[dict, int]:
@@ -78,6 +95,32 @@ def request_latencies(trace: list[dict], since: float, platform: str) -> tuple[d
     lat["lost_status_acks"] = lost_status
     lat["services"] = [x for a, v in lat["by_action"].items() if a not in CLOUD_LIFECYCLE for x in v]
     return lat, missing
+
+
+def agent_kind(jid: str) -> str:
+    """core, dyn, cloud, platform, store, owner... (the local part's first word)."""
+    return jid.split("@")[0].split("-")[0]
+
+
+def traffic(records: list[dict]) -> dict:
+    """The messages the agents sent (as traced: one record per send), by the sender's kind: count
+    and bytes of their bodies."""
+    out: dict[str, list[int]] = {}
+    for r in records:
+        if r["kind"] == RecordKind.MESSAGE and r.get("dir") == "send":
+            c = out.setdefault(agent_kind(r["agent"]), [0, 0])
+            c[0] += 1
+            c[1] += int(r.get("size") or 0)
+    return {"messages": sum(c[0] for c in out.values()), "bytes": sum(c[1] for c in out.values()),
+            "by_sender": {k: {"messages": c[0], "bytes": c[1]} for k, c in sorted(out.items())}}
+
+
+def per_task(usage: dict, n: int) -> dict:
+    """A round's CPU seconds and peak memory by process kind, per robot-task."""
+    cpu = usage["cpu_s"]
+    return {"cpu_s": {k: round(v / n, 2) for k, v in cpu.items()}, "cpu_s_total": round(sum(cpu.values()) / n, 2),
+            "pss_mb": {k: round(v / n, 1) for k, v in usage["pss_mb_peak"].items()},
+            "pss_mb_total": round(usage["pss_mb_peak_total"] / n, 1)}
 
 
 def keep_trace(trace: Path, directory: Path | None = None) -> Path:
@@ -121,6 +164,8 @@ class HazardFleet:
         self.trace_file = self.workdir / "trace.jsonl"
         self.system = self.state = self.home = None
         self.worlds, self.robots = [], []
+        self.kinds = ProcessKinds(os.getpid(), "cores", runtime_kind={"cores": "dynamic", "platform": "cloud"})
+        self.sampler: ProcessSampler | None = None  # CPU and memory by process kind (bench/proc_cpu.py)
 
     async def __aenter__(self) -> "HazardFleet":
         from agents.services.context import ServiceState
@@ -134,8 +179,11 @@ class HazardFleet:
                                  platform_kw={"services_state": self.state,
                                               **{k: v for k, v in self.platform_kw.items() if k != "services"}})
         await self.system.start()
+        if self.system.server is not None and self.system.server.proc is not None:
+            self.kinds.name(self.system.server.proc.pid, "xmpp_server")
         if self.apart:
             await self._start_apart()
+        self.sampler = ProcessSampler(self.kinds).start()
         await self.system.publish(RAPP_DIR)
         platform = self.system.platform
         if platform is not None and platform.warm_pool.size > 1:  # sized to the fleet: filled first
@@ -156,8 +204,9 @@ class HazardFleet:
         self.processes = LoggedProcesses(self.workdir, env, [sys.executable, "-m", "cli.main", "agent"],
                                          die_with_parent=True)
         warm = self.platform_kw.get("warm_workers")
-        self.processes.start("store", "store")
-        self.processes.start("platform", "platform", *(["--warm-workers", str(warm)] if warm else []))
+        self.kinds.name(self.processes.start("store", "store").pid, "store")
+        self.kinds.name(self.processes.start("platform", "platform", *(["--warm-workers", str(warm)] if warm else [])).pid,
+                        "platform")
         await self.processes.wait_log("store", "running", 60)
         await self.processes.wait_log("platform", "running", 60)
         if warm:
@@ -172,12 +221,19 @@ class HazardFleet:
         new = []
         for _ in range(count):
             i = len(self.robots) + len(new)
+            if mem_available_mb() < MIN_AVAILABLE_MB:
+                raise MemoryError(f"robot {i + 1} not added: {mem_available_mb():.0f} MB available "
+                                  f"(< {MIN_AVAILABLE_MB} MB) with {i} robots")
             kind, seed = ("nao", "elektron")[i % 2], i + 1
-            world = await asyncio.to_thread(World.from_file, HOUSE, seed=seed, overrides=hazard_overrides(HOUSE, seed))
+            # one render process per world (a World's default is two): its one robot renders a frame at
+            # a time, and a render process holds ~170 MB (Pss), the most of any kind per robot here
+            world = await asyncio.to_thread(World.from_file, HOUSE, seed=seed, overrides=hazard_overrides(HOUSE, seed),
+                                            render_workers=RENDER_WORKERS)
             self.worlds.append(world)
             if self.apart:  # the simulation's camera renders, which real robots do not need, yield
                 await asyncio.to_thread(world.start_renderer, own_session=True)
                 for pid in world.render_pids():
+                    self.kinds.name(pid, "render")
                     await asyncio.to_thread(run_when_idle, pid)
             robot = await asyncio.to_thread(world.add_robot, kind, odometry_noise=OdometryNoise.typical())
             if self.home is None:  # the same layout in every world: one map and hazard list
@@ -215,6 +271,8 @@ class HazardFleet:
         return all(r["true_state"] == r["reported_state"] for r in rows)
 
     async def __aexit__(self, *exc) -> None:
+        if self.sampler is not None:
+            self.sampler.stop()
         try:
             if self.system is not None:
                 await self.system.stop()
@@ -228,16 +286,45 @@ class HazardFleet:
             self.processes.stop_all(20.0)  # the Platform first, then the Store
 
 
+async def watch_memory(work: asyncio.Future, period: float = 1.0) -> str | None:
+    """Until `work` is done; if the machine's available memory falls below MIN_AVAILABLE_MB first,
+    `work` is cancelled and what was seen is returned."""
+    least = float("inf")
+    while not work.done():
+        least = min(least, mem_available_mb())
+        if least < MIN_AVAILABLE_MB:
+            work.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await work
+            return f"round ended: {least:.0f} MB of memory available (< {MIN_AVAILABLE_MB} MB)"
+        await asyncio.wait([work], timeout=period)
+    return None
+
+
 async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     from agents.tracing import read_trace
 
+    short = None
     if len(fleet.robots) < n:
-        await fleet.add_robots(n - len(fleet.robots))
+        try:
+            await fleet.add_robots(n - len(fleet.robots))
+        except MemoryError as e:
+            short = str(e)
+            log(f"fleet N={n}: {short}")
+    load_before = os.getloadavg()
+    mark = fleet.sampler.mark() if fleet.sampler else None
+    sim_before = [w.time for w in fleet.worlds[:n]]
     since = time.time()
     t0 = time.perf_counter()
-    runs = await asyncio.gather(*(fleet.check_hazards(i, timeout) for i in range(n)), return_exceptions=True)
+    if short is None:
+        tasks = asyncio.gather(*(fleet.check_hazards(i, timeout) for i in range(n)), return_exceptions=True)
+        short = await watch_memory(tasks)
+    runs = [MemoryError(short)] * n if short else await tasks
     wall = time.perf_counter() - t0
-    failed = [f"{fleet.robots[i].robot_id}: {str(r)[:200]}" for i, r in enumerate(runs)
+    usage = fleet.sampler.since(mark) if fleet.sampler and mark else None
+    # the robots' own time: what a task takes a real robot (the worlds run as fast as they can)
+    sim_s = [w.time - t for w, t in zip(fleet.worlds, sim_before)]
+    failed = [f"robot {i + 1}: {str(r)[:200]}" for i, r in enumerate(runs)
               if isinstance(r, BaseException) or not r["finished"]]
     records = [r for r in await asyncio.to_thread(read_trace, fleet.trace_file) if r["t"] >= since]  # this round
     wrong = [fleet.robots[i].robot_id for i, r in enumerate(runs)
@@ -249,7 +336,17 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
     # Cloud Agents whose process died (a crash in native code): what the Platform recorded of it
     crashes = [f"{r['cloud'].split('@')[0]} code {r['exit_code']}: {next(iter((r.get('stderr') or '').splitlines()), '')}"
                for r in records if r["kind"] == RecordKind.STRUCTURE and r.get("event") == "cloud-lost"]
+    usage_extra = {}
+    if usage is not None:
+        cpu_total = sum(usage["cpu_s"].values())
+        usage_extra = {"usage": usage, "per_task": per_task(usage, n),
+                       # CPU the round asked for per second of its wall time, against the 2 cores there are
+                       "cpu_demand_cores": round(cpu_total / wall, 2), "cores": os.cpu_count(),
+                       "sampling_cpu_s": round(fleet.sampler.sampling_cpu_s, 2) if fleet.sampler else None}
     res = {"n": n, "ok": ok, "wall_s": wall, "failed": failed, "misclassified": wrong,
+           "load_before": [round(x, 2) for x in load_before], "load_after": [round(x, 2) for x in os.getloadavg()],
+           "traffic": traffic(records), "sim_s_per_task": round(sum(sim_s) / len(sim_s), 1) if sim_s else None,
+           **usage_extra,
            "heartbeats_late": len(late), "longest_late_silence_s": max((r["silence"] for r in late), default=None),
            "unanswered": len(missing), "unanswered_actions": missing[:5],
            "cloud_crashes": crashes, "failed_by_crash": lat["failed_by_crash"],
@@ -263,18 +360,16 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
         f"{len(late)} late-heartbeat silences waited out"
         + (f", Cloud Agents crashed {crashes} (calls failed by it {lat['failed_by_crash']})" if crashes else "")
         + (f"; failures {failed[:2]} unanswered {missing[:5]}" if not ok else "")
-        + f"; p95 ms by service {res['platform_p95_by_action']}")
+        + f"; p95 ms by service {res['platform_p95_by_action']}"
+        + (f"; CPU-s per task by kind {res['per_task']['cpu_s']} ({res['per_task']['cpu_s_total']} in all,"
+           f" {res['cpu_demand_cores']} cores busy on average)" if usage is not None else ""))
     return res
 
 
-async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float = 1200.0,
-              apart: bool = True) -> list[dict]:
-    # quick mode judges a fleet of 4 (issue 20 item 6); the full run the goal's 20. The floor's one
-    # robot runs FLOOR_ROUNDS times: one round has 12 service calls, so its p95 fell between its two
-    # slowest and moved by half between runs (36-65 ms)
-    sizes = sizes or ([1] * FLOOR_ROUNDS + [QUICK_GOAL if quick else GOAL])
+async def run_rounds(sizes: list[int], timeout: float = 1200.0, apart: bool = True) -> list[dict]:
+    """One fleet, a round per size in order (robots added as needed); stops at the first failed round."""
     goal_n = max(sizes)
-    rounds = []
+    rounds: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         # the Platform keeps a started Cloud Agent process per robot that may start one at once
         # (`rapp agent platform --warm-workers N`): a burst of cold starts is the fleet's worst p95
@@ -286,6 +381,19 @@ async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float
                     r["trace_kept"] = str(keep_trace(fleet.trace_file))  # the run's directory goes
                     log(f"fleet N={n}: the trace of the failed round is kept in {r['trace_kept']}")
                     break
+    return rounds
+
+
+async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float = 1200.0,
+              apart: bool = True) -> list[dict]:
+    # quick mode judges a fleet of QUICK_GOAL, the full run GOAL. The floor's one robot runs
+    # FLOOR_ROUNDS times: one round has 12 service calls, so its p95 fell between its two slowest
+    # and moved by half between runs (36-65 ms)
+    sizes = sizes or ([1] * FLOOR_ROUNDS + [QUICK_GOAL if quick else GOAL])
+    return summarize(await run_rounds(sizes, timeout, apart), max(sizes))
+
+
+def summarize(rounds: list[dict], goal_n: int) -> list[dict]:
     base = rounds[0]
     passed = [r for r in rounds if r["ok"]]
     best = passed[-1] if passed else None
@@ -306,6 +414,10 @@ async def run(quick: bool = True, sizes: list[int] | None = None, timeout: float
                lost_final_status_acks=sum(r["lost_status_acks"] for r in rounds), capped_by_sizes=first_fail is None,
                # per round, in order: [robots, value]
                heartbeats_late_by_round=[[r["n"], r["heartbeats_late"]] for r in rounds],
+               # CPU-s and memory (Pss MB) of one robot-task by process kind (KINDS), at the size reached
+               per_task_at_n=best.get("per_task") if best else None,
+               cpu_demand_cores_at_n=best.get("cpu_demand_cores") if best else None,
+               per_task_by_round=[[r["n"], r.get("per_task")] for r in rounds],
                cloud_crashes_by_round=[[r["n"], r["cloud_crashes"]] for r in rounds]),
         metric("fleet_service_p95", p95, "ms", base_p95, ratio(p95, base_p95),
                len(best["platform_ms"]) if best else 0, samples=best["platform_ms"] if best else None,

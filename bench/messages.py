@@ -6,6 +6,7 @@ Rate = messages / (last received - first sent); every message must arrive (no lo
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import tempfile
 import time
 from pathlib import Path
@@ -69,24 +70,29 @@ async def agents_rate(settings, count: int, tag: str) -> float:
         await receiver.stop()
 
 
-async def slixmpp_rate(settings, count: int, tag: str, body: str) -> float:
+@contextlib.asynccontextmanager
+async def chat_pair(send_settings, recv_settings, names: tuple[str, str], arrivals: Arrivals):
+    """Two raw slixmpp clients, the receiver counting what arrives: (the sender, the receiver's JID)."""
     from scenarios.user import ChatUser
-
-    arrivals = Arrivals(count)
 
     class Sink(ChatUser):
         def _on_message(self, msg):
             arrivals.hit()
 
-    sender, receiver = ChatUser(f"fsend-{tag}", settings), Sink(f"frecv-{tag}", settings)
+    sender, receiver = ChatUser(names[0], send_settings), Sink(names[1], recv_settings)
     await sender.start()
     await receiver.start()
-    to = settings.jid(f"frecv-{tag}")
     try:
-        return await send_all(lambda i: sender.send_message(mto=to, mbody=body, mtype="chat"), arrivals)
+        yield sender, recv_settings.jid(names[1])
     finally:
         await sender.stop()
         await receiver.stop()
+
+
+async def slixmpp_rate(settings, count: int, tag: str, body: str) -> float:
+    arrivals = Arrivals(count)
+    async with chat_pair(settings, settings, (f"fsend-{tag}", f"frecv-{tag}"), arrivals) as (sender, to):
+        return await send_all(lambda i: sender.send_message(mto=to, mbody=body, mtype="chat"), arrivals)
 
 
 async def run(quick: bool = True, count: int | None = None, rounds: int | None = None) -> list[dict]:

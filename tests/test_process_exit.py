@@ -115,3 +115,30 @@ def test_a_run_directorys_log_that_is_a_link_or_a_fifo_is_neither_followed_nor_w
     with pytest.raises(OSError):
         run._popen()  # refused at once, nothing appended to the link's target
     assert time.monotonic() - t0 < 5 and secret.read_text() == "a line of root's file\n"
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="a process of another uid: needs root")
+def test_killing_a_uid_does_not_wait_for_its_zombies():
+    """kill_uid runs before the run's process is reaped (its exit_future's before_reap, a warm
+    worker's run): that process is a zombie of the uid then. Waiting for it to go blocked the
+    Platform's and the Core's loops for kill_uid's whole timeout (2 s) at every warm run's end; a
+    live process of the uid is still killed."""
+    from agents.process import kill_uid
+
+    uid = 1_999_999  # outside the sandbox's run uids (agents/sandbox.py UID_BASE)
+    as_uid = [sys.executable, "-c", f"import os, time; os.setuid({uid}); time.sleep(float(os.environ['S']))"]
+    zombie = subprocess.Popen(as_uid, env={**os.environ, "S": "0"})
+    os.waitid(os.P_PID, zombie.pid, os.WEXITED | os.WNOWAIT)  # exited, not reaped
+    live = subprocess.Popen(as_uid, env={**os.environ, "S": "30"})
+    try:
+        deadline = time.monotonic() + 10
+        while os.stat(f"/proc/{live.pid}").st_uid != uid and time.monotonic() < deadline:
+            time.sleep(0.01)
+        t0 = time.monotonic()
+        assert kill_uid(uid, timeout=2.0)
+        assert time.monotonic() - t0 < 1.0
+        assert live.wait(5) == -9
+    finally:
+        live.kill()
+        live.wait()
+        zombie.wait()
