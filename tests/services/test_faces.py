@@ -123,8 +123,12 @@ async def test_a_simulated_person_wearing_a_registered_face_is_named_from_a_robo
         for name, (x, y) in spots.items():
             await api.look_at_point(LookAtPoint(x=x, y=y, z=1.58))
             shot = await api.capture_image(CaptureImage(resolution="VGA"))
-            seen[name] = names_in(ctx, shot.data_b64)
+            found = faces.recognize_faces(RecognizeFaces(image_b64=shot.data_b64), ctx).faces
+            # the face looked at first; from beyond ~2 m the other person is in the frame too
+            seen[name] = [f.name for f in sorted(found, key=lambda f: abs(f.box.x + f.box.width / 2 - 320))]
             (tmp_path / f"{name}-seen.jpg").write_bytes(base64.b64decode(shot.data_b64))
-        assert seen == {"obama-3": ["Barack"], "stranger-03": [""]}, (seed, round(distance, 2), seen)
+        assert seen["obama-3"][:1] == ["Barack"] and seen["stranger-03"][:1] == [""], (seed, round(distance, 2), seen)
+        assert sorted(seen["obama-3"]) in (["Barack"], ["", "Barack"]), seen  # the other one, if seen, named right
+        assert sorted(seen["stranger-03"]) in ([""], ["", "Barack"]), seen
     finally:
         world.close()
