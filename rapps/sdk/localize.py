@@ -391,6 +391,22 @@ class Localizer:
         self.odom_ref, self.travelled, self.turned = odom, 0.0, 0.0
         return self.ekf
 
+    def fix_predicted(self, pose: Sequence[float]) -> tuple[float, float]:
+        """(std m, std rad) of the fix the head alone could take at `pose` (x, y, theta, map frame), by the
+        landmark map and the filter's uncertainty now; inf before the first localization set the camera
+        up, or where no code is in reach. numpy: call it off the event loop."""
+        home, camera, ekf = self.home, self.camera, self.ekf
+        if home is None or camera is None or ekf is None:
+            return math.inf, math.inf
+        return predicted(plan_looks(pose, ekf.std_m, ekf.std_rad, home.landmarks, home.rooms, camera, self.settings,
+                                    doors=home.doors))
+
+    def fixable(self, pose: Sequence[float], slack: float = 1.0) -> bool:
+        """Whether the head alone could fix the pose at `pose` as certainly as a fix is trusted (max_std_m/rad),
+        or `slack` times less certainly (a fix the filter weighs against its prediction)."""
+        s_m, s_rad = self.fix_predicted(pose)
+        return s_m <= slack * self.settings.max_std_m and s_rad <= slack * self.settings.max_std_rad
+
     def position_std(self) -> float:
         """The pose filter's position std (m) now; 0 before it starts (the plan monitor's "localized")."""
         return self.ekf.std_m if self.ekf is not None else 0.0
@@ -575,6 +591,9 @@ class Localizer:
             await asyncio.to_thread(self._replan)
             return False
         self.state["observations"].extend(reply.items)
+        # codes the look expected that this frame did not show (too far, too oblique, covered): the same
+        # look again would show the same, so they are not expected again in this localization
+        self.state["missed"] |= set(self.state["look"].codes) - {o.text for o in reply.items}
         if self.state.get("prior") is None:
             self.state["prior"] = await self.task.robot.get_global_pose()
         found = cast(Localization, await cloud.call("solve_pose", _ontology=LANDMARKS,
