@@ -83,8 +83,10 @@ GOOD_RMS_PX = 2.0  # above this a multi-code fit drops its worst code and tries 
 
 def solve_pose(req: SolvePose) -> Localization:
     loc = _solve(req)
-    while (loc.found and loc.rms_px is not None and loc.rms_px > GOOD_RMS_PX and len(loc.markers) > 1):
-        worst = _worst_marker(req, loc)  # one code disagrees (partly hidden, seen too obliquely)
+    while loc.found and len(loc.markers) > 1 and (loc.rms_px is None or loc.rms_px > GOOD_RMS_PX):
+        # one code disagrees (partly hidden, seen too obliquely, moved since the map was made); a fit that
+        # did not converge at all (no rms) is the same, only worse
+        worst = _worst_marker(req, loc)
         req = req.model_copy(update={"observations": [o for o in req.observations if o.text != worst]})
         loc = _solve(req)
     return loc

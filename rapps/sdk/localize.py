@@ -139,6 +139,11 @@ class PoseEstimate:
     frames: int = 0  # frames captured by this localization
     frames_without_code: int = 0  # ... in which no known code was found
     turned_rad: float = 0.0  # the body turn it made to see codes
+    # True: the codes seen disagree with each other or with the estimate and it cannot tell which is
+    # right (a label moved since the map was made?): no fix entered, the pose is the prediction
+    unsure: bool = False
+    unsure_why: str = ""
+    dropped: list[str] = field(default_factory=list)  # codes seen but left out: they disagreed with the rest
 
     @property
     def pose(self) -> Pose2D:
@@ -316,6 +321,37 @@ def predicted(plan: list[Look]) -> tuple[float, float]:
     return (plan[-1].predicted_std_m, plan[-1].predicted_std_rad) if plan else (math.inf, math.inf)
 
 
+@dataclass
+class Verdict:
+    """What `Localizer.judge` makes of a fix: the one to fuse (None: none), through which gate (None: taken
+    as it is), the codes left out and, when it cannot tell, why it is unsure."""
+
+    fix: Localization | None
+    gate: float | None = CHI2_3DOF_99
+    dropped: list[str] = field(default_factory=list)
+    unsure: str = ""
+
+
+def _usable(found: Localization) -> bool:
+    """A fix with a pose and standard deviations, no less certain than FUSE_MAX_STD_M/RAD."""
+    return bool(found.found and found.pose is not None and found.std_m is not None and found.std_theta_rad is not None
+                and found.std_m <= FUSE_MAX_STD_M and found.std_theta_rad <= FUSE_MAX_STD_RAD)
+
+
+def _floored(found: Localization) -> tuple[float, float]:
+    return max(cast(float, found.std_m), FIX_FLOOR_M), max(cast(float, found.std_theta_rad), FIX_FLOOR_RAD)
+
+
+def _z(found: Localization) -> tuple[float, float, float]:
+    p = cast(Pose2D, found.pose)
+    return p.x, p.y, p.theta
+
+
+def _R(found: Localization) -> np.ndarray:
+    s_m, s_rad = _floored(found)
+    return np.diag([s_m ** 2, s_m ** 2, s_rad ** 2])
+
+
 _L = TypeVar("_L", bound="Localizer")
 _T = TypeVar("_T")
 
@@ -363,7 +399,9 @@ class Localizer:
         n = len(self.history)
         return {"localizations": n, "fixed": sum(e.fixed for e in self.history), "frames": frames,
                 "frames_without_code": empty, "frames_per_localization": round(frames / n, 2) if n else None,
-                "no_code_share": round(empty / frames, 3) if frames else None}
+                "no_code_share": round(empty / frames, 3) if frames else None,
+                "unsure": sum(e.unsure for e in self.history),
+                "codes_dropped": sum(len(e.dropped) for e in self.history)}
 
     # -- the pose filter ---------------------------------------------------------------------
     def robot_type(self) -> str:
@@ -629,32 +667,74 @@ class Localizer:
         except RequestError as e:
             self.task.log.debug("the Core did not take the fix: %s", e)
 
+    async def _solve(self, observations: list[Any]) -> Localization:
+        home = cast(HomeInfo, self.home)  # prepare() fetched it
+        return cast(Localization, await self.task.cloud.call(
+            "solve_pose", _ontology=LANDMARKS, observations=observations, landmarks=home.landmarks,
+            prior=self.state["prior"].model_dump()))
+
+    async def judge(self, ekf: PoseEKF, found: Localization) -> Verdict:
+        """Which fix to fuse, checked for consistency. A fix from two or more codes that agree with each
+        other (the Cloud Agent's fit left none out) is taken even against the prediction: the codes
+        outvote a drifted filter. A fix from one code, or one the Cloud Agent had to leave codes out of
+        (they disagree: a label moved since the map was made, a bad corner), must agree with the
+        prediction (Mahalanobis gate); otherwise the codes left out are solved on their own and their
+        fix is taken if it agrees instead. No fix agreeing, or the kept and the left-out codes both
+        agreeing but not with each other: unsure, nothing is fused (the pose does not jump)."""
+        seen = list(dict.fromkeys(o.text for o in self.state["observations"]))
+        left_out = [t for t in seen if t not in found.markers]
+        if len(found.markers) >= 2 and not left_out:
+            return Verdict(found, gate=None)
+        options = [found]
+        if left_out:
+            alone = await self._solve([o for o in self.state["observations"] if o.text in left_out])
+            if _usable(alone):
+                options.append(alone)
+        agree = [o for o in options if _usable(o) and ekf.mahalanobis2(_z(o), _R(o)) <= CHI2_3DOF_99]
+        if len(agree) == 1:
+            fix = agree[0]
+            return Verdict(fix, gate=CHI2_3DOF_99, dropped=[t for t in seen if t not in fix.markers])
+        if not agree:
+            why = ("the codes disagree with each other and with the estimate" if left_out
+                   else f"the code {found.markers[0]} disagrees with the estimate")
+        else:
+            why = f"the codes {', '.join(found.markers)} and {', '.join(left_out)} disagree and either fits the estimate"
+        return Verdict(None, unsure=why, dropped=left_out)
+
     @noting_failure
     async def set_pose(self, memory: dict[str, Any]) -> None:
         """Fuse the fix into the filter and set the filter's pose on the robot. A fix certain enough
-        (max_std_m/rad) is always taken; a less certain one only while it agrees with the prediction
-        (Mahalanobis gate); without a fix the odometry's prediction stays."""
+        (max_std_m/rad) or a less certain one (up to FUSE_MAX_STD_M/RAD) is checked (`judge`), then
+        fused, through the Mahalanobis gate unless its codes agree with each other; when the codes
+        disagree and it cannot tell which are right, the estimate says so (`unsure`) and the odometry's
+        prediction stays, as without a fix."""
         ekf = await self.track()
         found = self.state.get("localization")
         fixed = False
         markers: list[str] = []  # the fix's, once fused
         fix_std_m: float | None = None
-        if found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None:
+        verdict = Verdict(None)
+        if found is not None and _usable(found):
             certain = self._certain(found, self.settings.max_std_m, self.settings.max_std_rad)
-            usable = found.std_m <= FUSE_MAX_STD_M and found.std_theta_rad <= FUSE_MAX_STD_RAD
-            p = found.pose
-            if (certain or usable) and ekf.update((p.x, p.y, p.theta), std_m=max(found.std_m, FIX_FLOOR_M),
-                                                  std_rad=max(found.std_theta_rad, FIX_FLOOR_RAD),
-                                                  gate=None if certain else CHI2_3DOF_99):
-                await self._share_fix(p, max(found.std_m, FIX_FLOOR_M), max(found.std_theta_rad, FIX_FLOOR_RAD))
+            verdict = await self.judge(ekf, found)
+            fix = verdict.fix
+            if fix is not None and not certain and verdict.gate is None:
+                verdict.gate = CHI2_3DOF_99  # agreeing codes, but not certain: weighed against the prediction
+            if fix is not None and ekf.update(_z(fix), R=_R(fix), gate=verdict.gate):
+                s_m, s_rad = _floored(fix)
+                p = cast(Pose2D, fix.pose)
+                await self._share_fix(p, s_m, s_rad)
                 x, y, theta = ekf.pose
                 await self.task.robot.set_global_pose(x=x, y=y, theta=theta)
                 self.odom_ref = ekf.pose
-                fixed, markers, fix_std_m = True, list(found.markers), found.std_m
+                fixed, markers, fix_std_m = True, list(fix.markers), fix.std_m
+        if verdict.unsure:
+            self.task.log.info("localization unsure: %s; keeping the odometry's pose", verdict.unsure)
         x, y, theta = ekf.pose
         estimate = PoseEstimate(x=x, y=y, theta=theta, std_m=ekf.std_m, std_rad=ekf.std_rad, cov=ekf.P.tolist(),
                                 fixed=fixed, markers=markers, fix_std_m=fix_std_m, frames=self.state["frames"],
-                                frames_without_code=self.state["empty"], turned_rad=self.state["turned"])
+                                frames_without_code=self.state["empty"], turned_rad=self.state["turned"],
+                                unsure=bool(verdict.unsure), unsure_why=verdict.unsure, dropped=verdict.dropped)
         self.history.append(estimate)
         memory["estimate"] = estimate
         head = cast(Head, self.head)  # _setup's
