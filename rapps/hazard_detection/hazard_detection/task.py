@@ -282,6 +282,8 @@ class HazardTask(Task):
         """Move the leg's end to where the head can fix the pose (a doorway, a stretch without codes in
         reach: re-localize before it and walk through it in one leg, not in short legs begun from a
         drifting estimate); whether the leg is now the final one. numpy: off the event loop."""
+        if self.localizer.ekf is None or self.localizer.camera is None:  # nothing localized yet: no map of fixes
+            return bool(memory["leg_final"])
         tolerance = float(self.params.get("tracking_tolerance_m", TRACKING_TOLERANCE_M.get(self.robot_type(), 0.15)))
         blind = self.localizer.leg_length(path_length(path), tolerance / 2, shortest=0.0)
         moved = leg_to_fix(path, leg, lambda p: self.localizer.fixable((p.x, p.y, p.theta), FIX_SLACK), blind)
