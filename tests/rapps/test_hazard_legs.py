@@ -83,6 +83,9 @@ def test_a_leg_ends_where_the_head_can_fix_the_pose():
     assert leg_to_fix(path, 1.0, codes_at((0.0, 0.3), (2.5, 4.0)), blind_m=2.0) is None  # too far blind
     poses, final = leg_to_fix(path, 1.0, codes_at((0.0, 0.3)), blind_m=5.0)  # the standing pose: the rest
     assert final and poses == path
+    # beyond the stretch a weaker fix (far codes) is enough to end it; before it, only a certain one
+    poses, _ = leg_to_fix(path, 1.0, codes_at((0.0, 0.3), (3.0, 4.0)), blind_m=2.0, weak=codes_at((0.0, 0.85), (1.5, 4.0)))
+    assert poses[-1].x == pytest.approx(1.5)
 
 
 async def test_it_relocalizes_where_the_leg_was_ended_for_a_fix():

@@ -26,8 +26,9 @@ RELOCALIZE_LEG_M = 0.4  # re-localize when the pose filter allows no leg this lo
 # is in reach may run on to where one is, while the filter's predicted sideways error there stays within half
 TRACKING_TOLERANCE_M = {"nao": 0.20, "elektron": 0.15}
 FIX_STEP_M = 0.1  # how finely a leg's end is moved to where a fix is predicted
-# a leg may end where the head can fix the pose this many times less certainly than a trusted fix (5 cm,
-# 0.02 rad): through a doorway, a far pair of codes still puts the heading right, which the drift grows from
+# a leg through a stretch without codes in reach may end where the head can fix the pose this many times
+# less certainly than a trusted fix (5 cm, 0.02 rad): beyond a doorway, a far pair of codes still puts the
+# heading right, which the drift grows from (elsewhere legs end where a trusted fix is predicted)
 FIX_SLACK = 2.5
 AGAIN_M = 0.5  # blocked again within this of where a leg was blocked before: the same obstacle
 
@@ -84,11 +85,14 @@ def cut_path(poses, s: float) -> list:
     return out + [point_at(poses, s)]
 
 
-def leg_to_fix(poses, leg: float, fixable, blind_m: float, step: float = FIX_STEP_M) -> tuple[list, bool] | None:
+def leg_to_fix(poses, leg: float, fixable, blind_m: float, weak=None, step: float = FIX_STEP_M
+               ) -> tuple[list, bool] | None:
     """A leg that ends where a fix is predicted (`fixable(pose)`), when the leg of `leg` metres would end
-    where no code is in reach: cut back to the farthest such point in its second half, else run on to the
-    nearest one within `blind_m` (the path's end counts: the standing pose is localized anyway). None: the
-    leg of `leg` metres stays (its end can fix, or no such point is near). (poses, final) otherwise."""
+    where none is: cut back to the farthest such point in its second half, else run on to the nearest
+    point within `blind_m` where at least a weaker fix is predicted (`weak`, default `fixable`; the path's
+    end counts: the standing pose is localized anyway). None: the leg of `leg` metres stays (its end can
+    fix, or no such point is near). (poses, final) otherwise."""
+    weak = weak or fixable
     total = path_length(poses)
     if leg >= total or fixable(point_at(poses, leg)):
         return None
@@ -101,7 +105,7 @@ def leg_to_fix(poses, leg: float, fixable, blind_m: float, step: float = FIX_STE
     while s <= blind_m:
         if s >= total - step:
             return list(poses), True
-        if fixable(point_at(poses, s)):
+        if weak(point_at(poses, s)):
             return cut_path(poses, s), False
         s += step
     return None
@@ -286,7 +290,8 @@ class HazardTask(Task):
             return bool(memory["leg_final"])
         tolerance = float(self.params.get("tracking_tolerance_m", TRACKING_TOLERANCE_M.get(self.robot_type(), 0.15)))
         blind = self.localizer.leg_length(path_length(path), tolerance / 2, shortest=0.0)
-        moved = leg_to_fix(path, leg, lambda p: self.localizer.fixable((p.x, p.y, p.theta), FIX_SLACK), blind)
+        moved = leg_to_fix(path, leg, lambda p: self.localizer.fixable((p.x, p.y, p.theta)), blind,
+                           weak=lambda p: self.localizer.fixable((p.x, p.y, p.theta), FIX_SLACK))
         if moved is None:
             return bool(memory["leg_final"])
         memory["leg"], final = moved
