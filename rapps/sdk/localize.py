@@ -88,6 +88,9 @@ START_STD_M, START_STD_RAD = 0.5, 0.3  # the start pose the robot was given is h
 # the printed codes and the map add their own: never trust a fix more than this
 FIX_FLOOR_M, FIX_FLOOR_RAD = 0.004, 0.002
 FUSE_MAX_STD_M, FUSE_MAX_STD_RAD = 0.10, 0.05  # a fix less certain than this is no fix at all
+# one code too far for a fix of its own (landmark_cloud.SINGLE_MAX_M) is weighed in all the same when the
+# filter is this many times less certain than it (a start pose hardly trusted, a robot lost)
+LOST_FACTOR = 3.0
 YAW_STEP = 0.05  # rad between the head angles considered
 TURNS_DEG = (45, -45, 90, -90, 135, -135, 180)  # body turns tried when the head cannot reach a code
 
@@ -714,13 +717,19 @@ class Localizer:
         markers: list[str] = []  # the fix's, once fused
         fix_std_m: float | None = None
         verdict = Verdict(None)
-        if found is not None and _usable(found):
+        if (found is not None and not found.found and found.method == "single-too-far" and found.pose is not None
+                and found.std_m is not None and found.std_theta_rad is not None
+                and ekf.std_m >= LOST_FACTOR * found.std_m and ekf.std_rad >= found.std_theta_rad):
+            # better than nothing by far (a start pose hardly trusted): weighed against the prediction
+            verdict = Verdict(found.model_copy(update={"found": True}), gate=CHI2_3DOF_99)
+        elif found is not None and _usable(found):
             certain = self._certain(found, self.settings.max_std_m, self.settings.max_std_rad)
             verdict = await self.judge(ekf, found)
-            fix = verdict.fix
-            if fix is not None and not certain and verdict.gate is None:
+            if verdict.fix is not None and not certain and verdict.gate is None:
                 verdict.gate = CHI2_3DOF_99  # agreeing codes, but not certain: weighed against the prediction
-            if fix is not None and ekf.update(_z(fix), R=_R(fix), gate=verdict.gate):
+        fix = verdict.fix
+        if fix is not None:
+            if ekf.update(_z(fix), R=_R(fix), gate=verdict.gate):
                 s_m, s_rad = _floored(fix)
                 p = cast(Pose2D, fix.pose)
                 await self._share_fix(p, s_m, s_rad)

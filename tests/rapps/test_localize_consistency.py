@@ -31,7 +31,7 @@ INTRINSICS = CameraIntrinsics(fx=float(CAMERA.K[0, 0]), fy=float(CAMERA.K[1, 1])
                               cy=float(CAMERA.K[1, 2]))
 # three 0.35 m labels on the wall at x = 4, facing the robot (as the landmark list has them)
 MAP = {t: LandmarkSpec(x=x, y=y, z=0.55, yaw=math.pi, size_m=0.35, room="r")
-       for t, x, y in (("A", 4.0, 1.3), ("B", 4.0, 2.7), ("C", 4.0, 2.0), ("D", 3.2, 2.3))}  # D: near
+       for t, x, y in (("A", 4.0, 1.3), ("B", 4.0, 2.7), ("C", 4.0, 2.0), ("D", 3.2, 2.3), ("E", 5.0, 2.2))}  # D: near, E: far
 
 
 def seen(text: str, moved_m: float = 0.0) -> Observation:
@@ -141,3 +141,14 @@ async def test_a_lone_code_that_disagrees_with_the_estimate_is_not_believed():
     estimate, found, task = await localize_with([seen("D", moved_m=0.25)])
     assert found.found and found.markers == ["D"] and found.std_m < 0.02
     assert estimate.unsure and not estimate.fixed and task.set_poses == [] and off(estimate) < 1e-9
+
+
+async def test_a_far_lone_code_helps_only_a_lost_filter():
+    """One code beyond landmark_cloud.SINGLE_MAX_M is no fix; a filter that hardly knows where it is
+    (the start pose) still weighs it in, gated; a filter that knows better keeps its own pose."""
+    lost = (TRUTH[0] + 0.3, TRUTH[1] - 0.2, TRUTH[2] + 0.1)
+    estimate, found, _ = await localize_with([seen("E")], believed=lost, std_m=0.5, std_rad=0.3)
+    assert not found.found and found.method == "single-too-far" and found.std_m is not None
+    assert estimate.fixed and off(estimate) < 0.5 * off(estimate, lost) and estimate.std_m < 0.15
+    estimate, _, task = await localize_with([seen("E")], believed=TRUTH, std_m=0.03, std_rad=0.02)
+    assert not estimate.fixed and task.set_poses == []
