@@ -4,7 +4,8 @@ import math
 import pytest
 
 from ontology.services.common import Pose2D
-from rapps.hazard_detection.hazard_detection.task import first_leg, leg_to_fix, next_leg_action, path_length
+from rapps.hazard_detection.hazard_detection.task import (first_leg, leg_to_fix, next_leg_action, path_length,
+                                                          tracking_tolerance)
 
 LEG, TURN_FIRST = 1.1, 0.8
 
@@ -99,3 +100,11 @@ async def test_it_relocalizes_where_the_leg_was_ended_for_a_fix():
     memory = {"leg_final": False, "leg_outcome": "moved", "fix_at_end": True}
     assert await task.uncertain(memory) is True and "fix_at_end" not in memory
     assert await task.uncertain({"leg_final": False, "leg_outcome": "moved"}) is False  # fresh fix, short leg
+
+
+def test_the_tracking_tolerance_is_the_papers_for_each_robot():
+    from .test_hazard_reports import FakeRuntime
+
+    param = FakeRuntime().params["tracking_tolerance_m"]  # the manifest's
+    assert tracking_tolerance(param, "nao") == 0.20 and tracking_tolerance(param, "elektron") == 0.15
+    assert tracking_tolerance(param, "rover") == 0.15 and tracking_tolerance(0.1, "nao") == 0.1

@@ -22,9 +22,10 @@ DOORWAY_M = 0.35  # an obstacle this close to a doorway's line is in that doorwa
 # three sigma stay inside the 10 cm tracking goal (params: leg_cross_track_std_m)
 LEG_CROSS_TRACK_STD_M = 0.035
 RELOCALIZE_LEG_M = 0.4  # re-localize when the pose filter allows no leg this long (params: relocalize_leg_m)
-# paper 001 sec. 4's tracking figures (params: tracking_tolerance_m): a leg through a stretch where no code
-# is in reach may run on to where one is, while the filter's predicted sideways error there stays within half
-TRACKING_TOLERANCE_M = {"nao": 0.20, "elektron": 0.15}
+# a leg through a stretch where no code is in reach may run on to where one is, while the filter's predicted
+# sideways error there stays within half the tracking tolerance (params: tracking_tolerance_m, by robot type:
+# paper 001 sec. 4's figures); a robot type the params do not name gets this
+TRACKING_TOLERANCE_M = 0.15
 FIX_STEP_M = 0.1  # how finely a leg's end is moved to where a fix is predicted
 # a leg through a stretch without codes in reach may end where the head can fix the pose this many times
 # less certainly than a trusted fix (5 cm, 0.02 rad): beyond a doorway, a far pair of codes still puts the
@@ -109,6 +110,14 @@ def leg_to_fix(poses, leg: float, fixable, blind_m: float, weak=None, step: floa
             return cut_path(poses, s), False
         s += step
     return None
+
+
+def tracking_tolerance(param, robot_type: str) -> float:
+    """The tracking tolerance (m) for this robot: the param's entry for its type (or the param itself when
+    it is one number), else TRACKING_TOLERANCE_M."""
+    if isinstance(param, dict):
+        param = param.get(robot_type)
+    return float(param) if param is not None else TRACKING_TOLERANCE_M
 
 
 def next_leg_action(path, theta: float, leg: float, turn_first: float, *, localized: bool,
@@ -288,7 +297,7 @@ class HazardTask(Task):
         drifting estimate); whether the leg is now the final one. numpy: off the event loop."""
         if self.localizer.ekf is None or self.localizer.camera is None:  # nothing localized yet: no map of fixes
             return bool(memory["leg_final"])
-        tolerance = float(self.params.get("tracking_tolerance_m", TRACKING_TOLERANCE_M.get(self.robot_type(), 0.15)))
+        tolerance = tracking_tolerance(self.params.get("tracking_tolerance_m"), self.robot_type())
         blind = self.localizer.leg_length(path_length(path), tolerance / 2, shortest=0.0)
         moved = leg_to_fix(path, leg, lambda p: self.localizer.fixable((p.x, p.y, p.theta)), blind,
                            weak=lambda p: self.localizer.fixable((p.x, p.y, p.theta), FIX_SLACK))
