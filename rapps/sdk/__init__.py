@@ -241,7 +241,8 @@ class Task:
         """Where the robot is, by the home's QR landmarks: looks where codes should be in view, has the
         Cloud Agent find them and solve the pose, fuses that with the odometry in the pose filter, sets
         the result on the robot (get_global_pose gives it from now on) and returns it with its
-        uncertainty (`std_m`, `std_rad`, `cov`; `fixed` False: no code seen, the odometry's prediction).
+        uncertainty (`std_m`, `std_rad`, `cov`; `fixed` False: no code seen, the odometry's prediction;
+        `unsure` True: the codes disagreed and it could not tell which were right, nothing fused).
         Needs `home_get_info` in the manifest's services, `vision` and `navigation` in its robot_api, and
         a Cloud part that is a `LandmarkCloud` (docs/sdk.md, "Where the robot is")."""
         return await self.localizer.localize()

@@ -83,8 +83,10 @@ GOOD_RMS_PX = 2.0  # above this a multi-code fit drops its worst code and tries 
 
 def solve_pose(req: SolvePose) -> Localization:
     loc = _solve(req)
-    while (loc.found and loc.rms_px is not None and loc.rms_px > GOOD_RMS_PX and len(loc.markers) > 1):
-        worst = _worst_marker(req, loc)  # one code disagrees (partly hidden, seen too obliquely)
+    while loc.found and len(loc.markers) > 1 and (loc.rms_px is None or loc.rms_px > GOOD_RMS_PX):
+        # one code disagrees (partly hidden, seen too obliquely, moved since the map was made); a fit that
+        # did not converge at all (no rms) is the same, only worse
+        worst = _worst_marker(req, loc)
         req = req.model_copy(update={"observations": [o for o in req.observations if o.text != worst]})
         loc = _solve(req)
     return loc
@@ -107,22 +109,25 @@ def _solve(req: SolvePose) -> Localization:
         return loc
     obs = [o for o in req.observations if o.text in req.landmarks]
     distinct = {o.text for o in obs}
-    if (len(distinct) == 1 and loc.method == "single"
-            and min(o.distance_m for o in obs if o.text == loc.markers[0]) > SINGLE_MAX_M):
-        return Localization(found=False, markers=loc.markers, method="single-too-far")
+    too_far = (len(distinct) == 1 and loc.method == "single"
+               and min(o.distance_m for o in obs if o.text == loc.markers[0]) > SINGLE_MAX_M)
     p = cast(Pose2D, loc.pose)  # a found localization's
     starts = [(p.x, p.y, p.theta)]
     if loc.method == "single":  # both planar-ambiguity solutions of the code as starts
         starts += [(q.x, q.y, q.theta) for o in obs if o.text == loc.markers[0] for q in o.poses]
     views = observed_views(obs, req.landmarks)
     fit = refine(starts, views)
+    far = Localization(found=False, markers=loc.markers, method="single-too-far")
     if fit is None:
-        return loc
+        return far if too_far else loc
     (x, y, th), rms = fit
     moved = math.hypot(x - p.x, y - p.y)
     if rms > 4.0 or moved > 0.6:  # the fit did not converge to a consistent pose: keep the first estimate
-        return loc
+        return far if too_far else loc
     std_m, std_rad = pose_std((x, y, th), views)
+    if too_far:  # not a fix; its pose and spread still help a task whose estimate is far worse (the start)
+        return Localization(found=False, pose=dict(x=x, y=y, theta=th), markers=loc.markers, method="single-too-far",
+                            rms_px=rms, std_m=std_m, std_theta_rad=std_rad)
     return Localization(found=True, pose=dict(x=x, y=y, theta=th), markers=loc.markers, method=loc.method + "+fit",
                         rms_px=rms, std_m=std_m, std_theta_rad=std_rad)
 

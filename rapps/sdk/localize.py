@@ -88,6 +88,9 @@ START_STD_M, START_STD_RAD = 0.5, 0.3  # the start pose the robot was given is h
 # the printed codes and the map add their own: never trust a fix more than this
 FIX_FLOOR_M, FIX_FLOOR_RAD = 0.004, 0.002
 FUSE_MAX_STD_M, FUSE_MAX_STD_RAD = 0.10, 0.05  # a fix less certain than this is no fix at all
+# one code too far for a fix of its own (landmark_cloud.SINGLE_MAX_M) is weighed in all the same when the
+# filter is this many times less certain than it (a start pose hardly trusted, a robot lost)
+LOST_FACTOR = 3.0
 YAW_STEP = 0.05  # rad between the head angles considered
 TURNS_DEG = (45, -45, 90, -90, 135, -135, 180)  # body turns tried when the head cannot reach a code
 
@@ -139,6 +142,11 @@ class PoseEstimate:
     frames: int = 0  # frames captured by this localization
     frames_without_code: int = 0  # ... in which no known code was found
     turned_rad: float = 0.0  # the body turn it made to see codes
+    # True: the codes seen disagree with each other or with the estimate and it cannot tell which is
+    # right (a label moved since the map was made?): no fix entered, the pose is the prediction
+    unsure: bool = False
+    unsure_why: str = ""
+    dropped: list[str] = field(default_factory=list)  # codes seen but left out: they disagreed with the rest
 
     @property
     def pose(self) -> Pose2D:
@@ -316,6 +324,37 @@ def predicted(plan: list[Look]) -> tuple[float, float]:
     return (plan[-1].predicted_std_m, plan[-1].predicted_std_rad) if plan else (math.inf, math.inf)
 
 
+@dataclass
+class Verdict:
+    """What `Localizer.judge` makes of a fix: the one to fuse (None: none), through which gate (None: taken
+    as it is), the codes left out and, when it cannot tell, why it is unsure."""
+
+    fix: Localization | None
+    gate: float | None = CHI2_3DOF_99
+    dropped: list[str] = field(default_factory=list)
+    unsure: str = ""
+
+
+def _usable(found: Localization) -> bool:
+    """A fix with a pose and standard deviations, no less certain than FUSE_MAX_STD_M/RAD."""
+    return bool(found.found and found.pose is not None and found.std_m is not None and found.std_theta_rad is not None
+                and found.std_m <= FUSE_MAX_STD_M and found.std_theta_rad <= FUSE_MAX_STD_RAD)
+
+
+def _floored(found: Localization) -> tuple[float, float]:
+    return max(cast(float, found.std_m), FIX_FLOOR_M), max(cast(float, found.std_theta_rad), FIX_FLOOR_RAD)
+
+
+def _z(found: Localization) -> tuple[float, float, float]:
+    p = cast(Pose2D, found.pose)
+    return p.x, p.y, p.theta
+
+
+def _R(found: Localization) -> np.ndarray:
+    s_m, s_rad = _floored(found)
+    return np.diag([s_m ** 2, s_m ** 2, s_rad ** 2])
+
+
 _L = TypeVar("_L", bound="Localizer")
 _T = TypeVar("_T")
 
@@ -363,7 +402,9 @@ class Localizer:
         n = len(self.history)
         return {"localizations": n, "fixed": sum(e.fixed for e in self.history), "frames": frames,
                 "frames_without_code": empty, "frames_per_localization": round(frames / n, 2) if n else None,
-                "no_code_share": round(empty / frames, 3) if frames else None}
+                "no_code_share": round(empty / frames, 3) if frames else None,
+                "unsure": sum(e.unsure for e in self.history),
+                "codes_dropped": sum(len(e.dropped) for e in self.history)}
 
     # -- the pose filter ---------------------------------------------------------------------
     def robot_type(self) -> str:
@@ -390,6 +431,22 @@ class Localizer:
                                      turned_rad=self.turned)
         self.odom_ref, self.travelled, self.turned = odom, 0.0, 0.0
         return self.ekf
+
+    def fix_predicted(self, pose: Sequence[float]) -> tuple[float, float]:
+        """(std m, std rad) of the fix the head alone could take at `pose` (x, y, theta, map frame), by the
+        landmark map and the filter's uncertainty now; inf before the first localization set the camera
+        up, or where no code is in reach. numpy: call it off the event loop."""
+        home, camera, ekf = self.home, self.camera, self.ekf
+        if home is None or camera is None or ekf is None:
+            return math.inf, math.inf
+        return predicted(plan_looks(pose, ekf.std_m, ekf.std_rad, home.landmarks, home.rooms, camera, self.settings,
+                                    doors=home.doors))
+
+    def fixable(self, pose: Sequence[float], slack: float = 1.0) -> bool:
+        """Whether the head alone could fix the pose at `pose` as certainly as a fix is trusted (max_std_m/rad),
+        or `slack` times less certainly (a fix the filter weighs against its prediction)."""
+        s_m, s_rad = self.fix_predicted(pose)
+        return s_m <= slack * self.settings.max_std_m and s_rad <= slack * self.settings.max_std_rad
 
     def position_std(self) -> float:
         """The pose filter's position std (m) now; 0 before it starts (the plan monitor's "localized")."""
@@ -575,6 +632,9 @@ class Localizer:
             await asyncio.to_thread(self._replan)
             return False
         self.state["observations"].extend(reply.items)
+        # codes the look expected that this frame did not show (too far, too oblique, covered): the same
+        # look again would show the same, so they are not expected again in this localization
+        self.state["missed"] |= set(self.state["look"].codes) - {o.text for o in reply.items}
         if self.state.get("prior") is None:
             self.state["prior"] = await self.task.robot.get_global_pose()
         found = cast(Localization, await cloud.call("solve_pose", _ontology=LANDMARKS,
@@ -610,32 +670,80 @@ class Localizer:
         except RequestError as e:
             self.task.log.debug("the Core did not take the fix: %s", e)
 
+    async def _solve(self, observations: list[Any]) -> Localization:
+        home = cast(HomeInfo, self.home)  # prepare() fetched it
+        return cast(Localization, await self.task.cloud.call(
+            "solve_pose", _ontology=LANDMARKS, observations=observations, landmarks=home.landmarks,
+            prior=self.state["prior"].model_dump()))
+
+    async def judge(self, ekf: PoseEKF, found: Localization) -> Verdict:
+        """Which fix to fuse, checked for consistency. A fix from two or more codes that agree with each
+        other (the Cloud Agent's fit left none out) is taken even against the prediction: the codes
+        outvote a drifted filter. A fix from one code, or one the Cloud Agent had to leave codes out of
+        (they disagree: a label moved since the map was made, a bad corner), must agree with the
+        prediction (Mahalanobis gate); otherwise the codes left out are solved on their own and their
+        fix is taken if it agrees instead. No fix agreeing, or the kept and the left-out codes both
+        agreeing but not with each other: unsure, nothing is fused (the pose does not jump)."""
+        seen = list(dict.fromkeys(o.text for o in self.state["observations"]))
+        left_out = [t for t in seen if t not in found.markers]
+        if len(found.markers) >= 2 and not left_out:
+            return Verdict(found, gate=None)
+        options = [found]
+        if left_out:
+            alone = await self._solve([o for o in self.state["observations"] if o.text in left_out])
+            if _usable(alone):
+                options.append(alone)
+        agree = [o for o in options if _usable(o) and ekf.mahalanobis2(_z(o), _R(o)) <= CHI2_3DOF_99]
+        if len(agree) == 1:
+            fix = agree[0]
+            return Verdict(fix, gate=CHI2_3DOF_99, dropped=[t for t in seen if t not in fix.markers])
+        if not agree:
+            why = ("the codes disagree with each other and with the estimate" if left_out
+                   else f"the code {found.markers[0]} disagrees with the estimate")
+        else:
+            why = f"the codes {', '.join(found.markers)} and {', '.join(left_out)} disagree and either fits the estimate"
+        return Verdict(None, unsure=why, dropped=left_out)
+
     @noting_failure
     async def set_pose(self, memory: dict[str, Any]) -> None:
         """Fuse the fix into the filter and set the filter's pose on the robot. A fix certain enough
-        (max_std_m/rad) is always taken; a less certain one only while it agrees with the prediction
-        (Mahalanobis gate); without a fix the odometry's prediction stays."""
+        (max_std_m/rad) or a less certain one (up to FUSE_MAX_STD_M/RAD) is checked (`judge`), then
+        fused, through the Mahalanobis gate unless its codes agree with each other; when the codes
+        disagree and it cannot tell which are right, the estimate says so (`unsure`) and the odometry's
+        prediction stays, as without a fix."""
         ekf = await self.track()
         found = self.state.get("localization")
         fixed = False
         markers: list[str] = []  # the fix's, once fused
         fix_std_m: float | None = None
-        if found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None:
+        verdict = Verdict(None)
+        if (found is not None and not found.found and found.method == "single-too-far" and found.pose is not None
+                and found.std_m is not None and found.std_theta_rad is not None
+                and ekf.std_m >= LOST_FACTOR * found.std_m and ekf.std_rad >= found.std_theta_rad):
+            # better than nothing by far (a start pose hardly trusted): weighed against the prediction
+            verdict = Verdict(found.model_copy(update={"found": True}), gate=CHI2_3DOF_99)
+        elif found is not None and _usable(found):
             certain = self._certain(found, self.settings.max_std_m, self.settings.max_std_rad)
-            usable = found.std_m <= FUSE_MAX_STD_M and found.std_theta_rad <= FUSE_MAX_STD_RAD
-            p = found.pose
-            if (certain or usable) and ekf.update((p.x, p.y, p.theta), std_m=max(found.std_m, FIX_FLOOR_M),
-                                                  std_rad=max(found.std_theta_rad, FIX_FLOOR_RAD),
-                                                  gate=None if certain else CHI2_3DOF_99):
-                await self._share_fix(p, max(found.std_m, FIX_FLOOR_M), max(found.std_theta_rad, FIX_FLOOR_RAD))
+            verdict = await self.judge(ekf, found)
+            if verdict.fix is not None and not certain and verdict.gate is None:
+                verdict.gate = CHI2_3DOF_99  # agreeing codes, but not certain: weighed against the prediction
+        fix = verdict.fix
+        if fix is not None:
+            if ekf.update(_z(fix), R=_R(fix), gate=verdict.gate):
+                s_m, s_rad = _floored(fix)
+                p = cast(Pose2D, fix.pose)
+                await self._share_fix(p, s_m, s_rad)
                 x, y, theta = ekf.pose
                 await self.task.robot.set_global_pose(x=x, y=y, theta=theta)
                 self.odom_ref = ekf.pose
-                fixed, markers, fix_std_m = True, list(found.markers), found.std_m
+                fixed, markers, fix_std_m = True, list(fix.markers), fix.std_m
+        if verdict.unsure:
+            self.task.log.info("localization unsure: %s; keeping the odometry's pose", verdict.unsure)
         x, y, theta = ekf.pose
         estimate = PoseEstimate(x=x, y=y, theta=theta, std_m=ekf.std_m, std_rad=ekf.std_rad, cov=ekf.P.tolist(),
                                 fixed=fixed, markers=markers, fix_std_m=fix_std_m, frames=self.state["frames"],
-                                frames_without_code=self.state["empty"], turned_rad=self.state["turned"])
+                                frames_without_code=self.state["empty"], turned_rad=self.state["turned"],
+                                unsure=bool(verdict.unsure), unsure_why=verdict.unsure, dropped=verdict.dropped)
         self.history.append(estimate)
         memory["estimate"] = estimate
         head = cast(Head, self.head)  # _setup's

@@ -4,6 +4,7 @@ standing pose, s5 follow it leg by leg re-localizing at the way-points (sub-FSM)
 and check it; s6 report the hazards to the Core; s7 finishing the FSM tells the Core we are done."""
 from __future__ import annotations
 
+import asyncio
 import math
 
 from ontology.services.common import CameraIntrinsics, Pose2D
@@ -21,6 +22,15 @@ DOORWAY_M = 0.35  # an obstacle this close to a doorway's line is in that doorwa
 # three sigma stay inside the 10 cm tracking goal (params: leg_cross_track_std_m)
 LEG_CROSS_TRACK_STD_M = 0.035
 RELOCALIZE_LEG_M = 0.4  # re-localize when the pose filter allows no leg this long (params: relocalize_leg_m)
+# a leg through a stretch where no code is in reach may run on to where one is, while the filter's predicted
+# sideways error there stays within half the tracking tolerance (params: tracking_tolerance_m, by robot type:
+# paper 001 sec. 4's figures); a robot type the params do not name gets this
+TRACKING_TOLERANCE_M = 0.15
+FIX_STEP_M = 0.1  # how finely a leg's end is moved to where a fix is predicted
+# a leg through a stretch without codes in reach may end where the head can fix the pose this many times
+# less certainly than a trusted fix (5 cm, 0.02 rad): beyond a doorway, a far pair of codes still puts the
+# heading right, which the drift grows from (elsewhere legs end where a trusted fix is predicted)
+FIX_SLACK = 2.5
 AGAIN_M = 0.5  # blocked again within this of where a leg was blocked before: the same obstacle
 
 
@@ -51,6 +61,63 @@ def first_leg(poses, leg: float) -> tuple[list, bool]:
         if run >= leg:
             break
     return out, False
+
+
+def point_at(poses, s: float) -> Pose2D:
+    """The pose `s` metres along the path (heading of the segment there; the path's last pose beyond its end)."""
+    run = 0.0
+    for a, b in zip(poses, poses[1:]):
+        d = math.hypot(b.x - a.x, b.y - a.y)
+        if run + d >= s and d > 0:
+            t = (s - run) / d
+            return Pose2D(x=a.x + t * (b.x - a.x), y=a.y + t * (b.y - a.y), theta=math.atan2(b.y - a.y, b.x - a.x))
+        run += d
+    return poses[-1]
+
+
+def cut_path(poses, s: float) -> list:
+    """The path up to `s` metres along it, ending exactly there."""
+    out, run = [poses[0]], 0.0
+    for a, b in zip(poses, poses[1:]):
+        run += math.hypot(b.x - a.x, b.y - a.y)
+        if run >= s - 1e-6:
+            break
+        out.append(b)
+    return out + [point_at(poses, s)]
+
+
+def leg_to_fix(poses, leg: float, fixable, blind_m: float, weak=None, step: float = FIX_STEP_M
+               ) -> tuple[list, bool] | None:
+    """A leg that ends where a fix is predicted (`fixable(pose)`), when the leg of `leg` metres would end
+    where none is: cut back to the farthest such point in its second half, else run on to the nearest
+    point within `blind_m` where at least a weaker fix is predicted (`weak`, default `fixable`; the path's
+    end counts: the standing pose is localized anyway). None: the leg of `leg` metres stays (its end can
+    fix, or no such point is near). (poses, final) otherwise."""
+    weak = weak or fixable
+    total = path_length(poses)
+    if leg >= total or fixable(point_at(poses, leg)):
+        return None
+    s = leg - step
+    while s >= leg / 2:
+        if fixable(point_at(poses, s)):
+            return cut_path(poses, s), False
+        s -= step
+    s = leg + step
+    while s <= blind_m:
+        if s >= total - step:
+            return list(poses), True
+        if weak(point_at(poses, s)):
+            return cut_path(poses, s), False
+        s += step
+    return None
+
+
+def tracking_tolerance(param, robot_type: str) -> float:
+    """The tracking tolerance (m) for this robot: the param's entry for its type (or the param itself when
+    it is one number), else TRACKING_TOLERANCE_M."""
+    if isinstance(param, dict):
+        param = param.get(robot_type)
+    return float(param) if param is not None else TRACKING_TOLERANCE_M
 
 
 def next_leg_action(path, theta: float, leg: float, turn_first: float, *, localized: bool,
@@ -219,7 +286,26 @@ class HazardTask(Task):
             reply.path, pose.theta, longest, float(self.params["turn_first_rad"]),
             localized=localized, turned=bool(memory.pop("leg_turned", False)))
         memory["leg"], memory["leg_final"] = first_leg(reply.path, leg)
+        memory["fix_at_end"] = False
+        if action == "move" and not memory["leg_final"]:
+            memory["leg_final"] = await asyncio.to_thread(self.end_at_fix, memory, reply.path, path_length(memory["leg"]))
         return action
+
+    def end_at_fix(self, memory, path, leg: float) -> bool:
+        """Move the leg's end to where the head can fix the pose (a doorway, a stretch without codes in
+        reach: re-localize before it and walk through it in one leg, not in short legs begun from a
+        drifting estimate); whether the leg is now the final one. numpy: off the event loop."""
+        if self.localizer.ekf is None or self.localizer.camera is None:  # nothing localized yet: no map of fixes
+            return bool(memory["leg_final"])
+        tolerance = tracking_tolerance(self.params.get("tracking_tolerance_m"), self.robot_type())
+        blind = self.localizer.leg_length(path_length(path), tolerance / 2, shortest=0.0)
+        moved = leg_to_fix(path, leg, lambda p: self.localizer.fixable((p.x, p.y, p.theta)), blind,
+                           weak=lambda p: self.localizer.fixable((p.x, p.y, p.theta), FIX_SLACK))
+        if moved is None:
+            return bool(memory["leg_final"])
+        memory["leg"], final = moved
+        memory["fix_at_end"] = not final
+        return final
 
     async def turn(self, memory):
         memory["leg_final"] = False
@@ -297,6 +383,8 @@ class HazardTask(Task):
         `relocalize_leg_m` (params); not after a short leg or a back-off that left the pose certain."""
         if memory["leg_final"] or memory.get("leg_outcome") == "late":
             return True
+        if memory.pop("fix_at_end", False) and memory.get("leg_outcome") == "moved":
+            return True  # the leg was ended where a fix is predicted: take it
         await self.localizer.track()
         longest = self.localizer.leg_length(
             float(self.params["leg_length_m"]),
