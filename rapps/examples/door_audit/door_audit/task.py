@@ -4,12 +4,13 @@ landmarks in sight, check the door, and report the list (which doors are open, b
 The door check's geometry is only as good as the robot's pose estimate, and get_global_pose is
 odometry that drifts (a NAO walking a few metres is tens of centimetres off): so the robot localizes
 by the home's landmarks (qr_detection with each code's own size, compute_global_pose,
-set_global_pose) every few metres and at the check pose, and steps onto it again before it looks."""
+set_global_pose) every few metres and at the check pose, and steps onto it again before it looks. A
+walk the Core's safety gave up on (`blocked`) is planned again from where the robot stands."""
 import math
 
 from ontology.services.home import DoorCheckPose, DoorwaySpec, HomeInfo
 from ontology.services.localization import MarkerObservation
-from rapps.sdk import FSM, Key, Sequence, Step, Task, check_door, intrinsics
+from rapps.sdk import FSM, ErrorCode, Key, RequestFailed, Sequence, Step, Task, check_door, intrinsics
 
 LOCALIZE_RESOLUTION = "1280x960"  # a 0.25 m code decodes to ~4 m, a 0.35 m one to ~5 m
 MAX_CODE_M = 4.5
@@ -85,7 +86,16 @@ class DoorAudit(Task):
             if not plan.path:
                 raise RuntimeError(f"no path to door {self.bb.door.id} ({pose.side} side): {plan.reason}")
             leg = first_leg(plan.path, LEG_M)
-            await self.robot.move_along_path(poses=leg, _timeout=600.0, _feedback=walking)
+            try:
+                await self.robot.move_along_path(poses=leg, _timeout=600.0, _feedback=walking)
+            except RequestFailed as e:
+                if e.code != ErrorCode.BLOCKED:
+                    raise
+                # the Core backed off where its safety kept stopping the robot (a pose that drifted
+                # towards a door frame, a leaf the map does not show): localize, plan another way
+                self.log.warning("blocked on the way to %s (%s): planning again", self.bb.door.id, e.reason)
+                await self.localize(self.room_of(await self.robot.get_global_pose()))
+                continue
             if len(leg) == len(plan.path):
                 break
             await self.localize(self.room_of(leg[-1]))
