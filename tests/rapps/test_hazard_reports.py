@@ -214,3 +214,35 @@ async def test_blocked_again_at_the_same_place_it_is_marked_so_the_next_plan_is_
     await task.mark_obstacle(memory, (0.5, 0.05))  # the robot is back where it was (0, 0)
     assert sent[-1].skip_within_m == 0.0 and sent[-1].radius_m == pytest.approx(1.5 * sent[0].radius_m)
     assert math.dist(memory["blocks"][0], memory["blocks"][1]) <= AGAIN_M
+
+
+async def test_its_own_marks_blocking_every_route_are_cleared_once_and_the_plan_tried_again():
+    """Issue 48 (lived in, NAO, generated house 85809): two marks, entered from a drifting estimate,
+    closed every way to a lamp, which was reported unknown. The task clears its own marks once and
+    plans again; only then, still no path, does it say so."""
+    sent = []
+    from ontology.services.navigation import ObstacleLayer
+
+    runtime = FakeRuntime(path_planning_plan_path_2d=PlanPathReply(
+        plan_found=0, reason="the 2 temporary obstacle mark(s) on this map block every route"),
+        path_planning_clear_obstacles=ObstacleLayer(map_id="m", obstacles=[]))
+    original = runtime.request
+
+    async def request(to, content, timeout=None, **kw):
+        sent.append(content.action_name)
+        return await original(to, content, timeout, **kw)
+
+    runtime.request = request
+    task, memory = HazardTask(runtime), memory_at_start()
+    task.marks.marks = {"m1": ("m", (1.0, 0.0)), "m2": ("m", (1.2, 0.3))}
+    with pytest.raises(RuntimeError, match="no path to d1"):
+        await task.plan(memory)
+    plans = [i for i, a in enumerate(sent) if a == "path_planning_plan_path_2d"]
+    clears = [i for i, a in enumerate(sent) if a == "path_planning_clear_obstacles"]
+    assert len(plans) == 2 and len(clears) == 2 and plans[0] < min(clears) and max(clears) < plans[1], sent
+    assert task.marks.marks == {} and memory["marks_cleared"]
+    sent.clear()  # once per hazard: the next failure is said at once
+    task.marks.marks = {"m3": ("m", (1.0, 0.0))}
+    with pytest.raises(RuntimeError):
+        await task.plan(memory)
+    assert sent.count("path_planning_plan_path_2d") == 1 and "path_planning_clear_obstacles" not in sent

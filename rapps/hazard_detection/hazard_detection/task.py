@@ -264,6 +264,15 @@ class HazardTask(Task):
             reply = await self.platform.path_planning_plan_path_2d(
                 map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
                 start=pose, goal=memory["goal"])
+            if reply.plan_found != PLAN_FOUND and self.marks.marks and not memory.get("marks_cleared"):
+                # this task's own marks close every way: placed from a drifting estimate, or round
+                # something since moved, they may be wrong; cleared once, the range sensors judge again
+                memory["marks_cleared"] = True
+                self.log.info("the %d obstacle marks block every route to %s: cleared, planning again",
+                              len(self.marks.marks), hazard.id)
+                for mark_id in list(self.marks.marks):
+                    await self.marks.clear(mark_id)
+                continue
             if reply.plan_found == PLAN_FOUND or not memory.get("views") or "goal pose" not in reply.reason:
                 break
             memory["goal"] = self.view_pose(memory["views"].pop(0))  # a stand the map has no room for
