@@ -389,10 +389,12 @@ class Scheduler:
                 self._changed.clear()
                 sleeper = asyncio.ensure_future(self.clock.sleep_until(kept[0].due, self._idle)) if kept else None
                 changed = asyncio.ensure_future(self._changed.wait())
-                await asyncio.wait({t for t in (sleeper, changed) if t}, return_when=asyncio.FIRST_COMPLETED)
-                for t in (sleeper, changed):
-                    if t is not None and not t.done():
-                        t.cancel()
+                try:
+                    await asyncio.wait({t for t in (sleeper, changed) if t}, return_when=asyncio.FIRST_COMPLETED)
+                finally:  # also when the Core stops meanwhile: no sleeper left to fail on a closed world
+                    for t in (sleeper, changed):
+                        if t is not None and not t.done():
+                            t.cancel()
                 if sleeper is not None and sleeper.done() and not sleeper.cancelled() and sleeper.exception():
                     raise sleeper.exception()
                 await self._due_now()
