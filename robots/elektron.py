@@ -8,20 +8,21 @@ import math
 
 from ontology.robot_types import robot_type
 
-from .failure_modes import ElektronFailures
+from .failure_modes import ElektronFailures, WheelSlip
 from .spec import CameraSpec, DepthCameraSpec, RangeSpec, RobotSpec
 from .urdf import JointDef, UrdfBuilder, box, cylinder
 
 BODY = (0.2, 0.25, 0.4, 1)
 DARK = (0.08, 0.08, 0.08, 1)
 METAL = (0.6, 0.6, 0.62, 1)
+TRACK_M = 0.35  # between the wheel sides: the URDF's wheels and the differential drive's model
 
 
 def _urdf():
     b = UrdfBuilder("elektron")
     b.link("base_link", (box(0.40, 0.32, 0.16), (0, 0, 0.14), (0, 0, 0), BODY),
-           (cylinder(0.07, 0.03), (0, 0.175, 0.07), (math.pi / 2, 0, 0), DARK),
-           (cylinder(0.07, 0.03), (0, -0.175, 0.07), (math.pi / 2, 0, 0), DARK),
+           (cylinder(0.07, 0.03), (0, TRACK_M / 2, 0.07), (math.pi / 2, 0, 0), DARK),
+           (cylinder(0.07, 0.03), (0, -TRACK_M / 2, 0.07), (math.pi / 2, 0, 0), DARK),
            (cylinder(0.035, 0.05), (0.16, 0, 0.245), (0, 0, 0), DARK),
            (box(0.04, 0.04, 0.78), (-0.12, 0, 0.61), (0, 0, 0), METAL))
     b.link("laser")
@@ -47,5 +48,5 @@ SPEC = RobotSpec(
     laser=RangeSpec("laser", "laser", -math.radians(120), math.radians(120), 241, 0.02, 5.6),
     depth_cameras=(DepthCameraSpec("kinect_bottom", "base_link", (0.14, 0.0, 0.42), pitch_deg=25.0),
                    DepthCameraSpec("kinect_top", "base_link", (-0.08, 0.0, 0.95), pitch_deg=10.0)),
-    speech=False, failures=ElektronFailures(),
+    speech=False, failures=ElektronFailures(wheels=WheelSlip(track_m=TRACK_M)),
 )

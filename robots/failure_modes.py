@@ -84,7 +84,7 @@ class WheelSlip:
     # that wanders (an AR(1) over `side_slip_tau_s`), and a turn's effective track width (the skid) varies
     # about the one the odometry was calibrated with; heading errors then come from the sides' difference
     differential: bool = False
-    track_m: float = 0.35  # the wheel sides' distance (robots/elektron.py's wheels)
+    track_m: float = 0.35  # the wheel sides' distance (the body sets its own: robots/elektron.py TRACK_M)
     side_slip_bias: float = 0.01  # ESTIMATE: both sides slip ~1 % (trans_bias)
     side_slip_std: float = 0.004  # ESTIMATE: each side's slip ratio wanders this much (1 sigma)
     side_slip_tau_s: float = 2.0  # ESTIMATE: ...over about this long (floor joints, rug edges)
