@@ -99,19 +99,21 @@ def _kill_group(pgid: int, sig: int = signal.SIGKILL) -> None:
         pass
 
 
-def _zombie(pid: str) -> bool:
-    """Exited, not yet reaped (or being reaped): nothing left to kill."""
+def _dead(pid: int) -> bool:
+    """Exited, not yet reaped (or being reaped), every thread of it gone: nothing left to kill. A
+    leader that ended its own thread alone (SYS_exit) reads as a zombie while its other threads run:
+    not dead."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
             stat = f.read()
+        return stat[stat.rindex(b")") + 2:][:1] in (b"Z", b"X") and len(os.listdir(f"/proc/{pid}/task")) <= 1
     except OSError:
         return True
-    return stat[stat.rindex(b")") + 2:][:1] in (b"Z", b"X")
 
 
 def kill_uid(uid: int, timeout: float = 2.0) -> bool:
     """Every process of `uid` killed, /proc scanned again until none is left (one scan misses a
-    process forked meanwhile); False if some were still there after `timeout`. A zombie counts as
+    process forked meanwhile); False if some were still there after `timeout`. A dead zombie counts as
     gone: the run's own process is one while this runs before its reaping (exit_future's
     before_reap), and waiting for it to go blocked the caller's loop for the whole `timeout`."""
     deadline = time.monotonic() + timeout
@@ -119,10 +121,11 @@ def kill_uid(uid: int, timeout: float = 2.0) -> bool:
         found = 0
         for entry in os.scandir("/proc"):
             if entry.name.isdigit():
+                pid = int(entry.name)
                 try:
-                    if entry.stat().st_uid == uid and not _zombie(entry.name):
-                        found += 1
-                        os.kill(int(entry.name), signal.SIGKILL)
+                    if entry.stat().st_uid == uid:
+                        os.kill(pid, signal.SIGKILL)  # a zombie too: harmless, and a live thread of it dies
+                        found += not _dead(pid)
                 except OSError:
                     pass
         if not found:

@@ -142,3 +142,33 @@ def test_killing_a_uid_does_not_wait_for_its_zombies():
         live.kill()
         live.wait()
         zombie.wait()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="a process of another uid: needs root")
+def test_a_process_whose_main_thread_exited_is_killed_all_the_same():
+    """A RApp can end its main thread alone (SYS_exit): the process then reads as a zombie while its
+    other threads run. kill_uid kills and waits for it like any other process of the uid."""
+    from agents.process import kill_uid
+
+    uid = 1_999_998
+    code = ("import ctypes, os, threading, time; os.setuid(%d); "
+            "threading.Thread(target=time.sleep, args=(30,)).start(); "
+            "ctypes.CDLL(None).syscall(60, 0)" % uid)  # SYS_exit on x86-64: this thread only
+    proc = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            try:
+                state = open(f"/proc/{proc.pid}/stat").read().rsplit(")", 1)[1].split()[0]
+            except OSError:
+                state = ""
+            if state == "Z" and len(os.listdir(f"/proc/{proc.pid}/task")) > 1:
+                break
+            time.sleep(0.01)
+        else:
+            pytest.skip("could not make a zombie leader with a live thread here")
+        assert kill_uid(uid, timeout=5.0)
+        assert proc.wait(5) == -9
+    finally:
+        proc.kill()
+        proc.wait()
