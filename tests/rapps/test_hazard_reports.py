@@ -246,3 +246,11 @@ async def test_its_own_marks_blocking_every_route_are_cleared_once_and_the_plan_
     with pytest.raises(RuntimeError):
         await task.plan(memory)
     assert sent.count("path_planning_plan_path_2d") == 1 and "path_planning_clear_obstacles" not in sent
+    lamp = HazardSpec(id="l1", type="lamp", stand=Pose2D(x=0.5, y=0.0, theta=0.0), look_at=[1.0, 0.0, 1.4])
+    memory["todo"] = [lamp]  # the next hazard may clear them once again
+    assert await task.next_hazard(memory)
+    sent.clear()
+    task.marks.marks = {"m4": ("m", (1.0, 0.0))}
+    with pytest.raises(RuntimeError, match="no path to l1"):
+        await task.plan(memory)
+    assert sent.count("path_planning_plan_path_2d") == 2 and "path_planning_clear_obstacles" in sent

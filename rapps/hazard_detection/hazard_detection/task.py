@@ -218,6 +218,7 @@ class HazardTask(Task):
         hazard = memory["hazard"] = memory["todo"].pop(0)
         memory["replans"] = memory["blocked"] = 0
         memory["blocks"] = []  # where legs to this hazard were blocked
+        memory["marks_cleared"] = False  # plan(): the task's own marks may be cleared once per hazard
         memory["looks"] = []  # (answer, where from) of each look at a door
         memory["views"] = await self.door_views(memory, hazard) if hazard.type == "door" else []
         memory["goal"] = self.view_pose(memory["views"].pop(0)) if memory["views"] else hazard.stand
