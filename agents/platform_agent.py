@@ -598,7 +598,11 @@ class PlatformAgent(RappAgent):
             if restart:  # told at once: a restart under load can outlast the calls in flight
                 await self.notify(session.owner, P.CloudAgentDown(jid=session.jid, reason=reason, restarting=True),
                                   ontology=P.ONTOLOGY, action="cloud_agent_down")
-                restart = await self._restart_cloud(session, spec, workdir)
+                try:
+                    restart = await self._restart_cloud(session, spec, workdir)
+                except Exception as e:  # noqa: BLE001 - a failed restart is a lost Cloud Agent: still told
+                    log.warning("restarting Cloud Agent %s failed: %s: %s", session.jid, type(e).__name__, e)
+                    restart = False
             await self.notify(session.owner, P.CloudAgentDown(jid=session.jid, reason=reason, restarted=restart),
                               ontology=P.ONTOLOGY, action="cloud_agent_down")
             if not restart:

@@ -152,10 +152,9 @@ class CloudProxy:
         if not self._serving.is_set():  # being restarted: the Platform tells when it serves or is lost
             try:
                 await asyncio.wait_for(self._serving.wait(), CLOUD_RESTART_WAIT_S)
-            except asyncio.TimeoutError:
-                raise CloudAgentLost(f"no word from the Platform {CLOUD_RESTART_WAIT_S:.0f} s after it began "
-                                     "restarting the Cloud Agent", code=ErrorCode.CLOUD_LOST,
-                                     peer=self.address or "") from None
+            except asyncio.TimeoutError:  # lost, for this call and every later one
+                self.told(f"no word from the Platform {CLOUD_RESTART_WAIT_S:.0f} s after it began restarting "
+                          "the Cloud Agent")
         if self.lost:
             raise CloudAgentLost(self.lost, code=ErrorCode.CLOUD_LOST, peer=self.address or "")
         ontology = _ontology or self._ontology
