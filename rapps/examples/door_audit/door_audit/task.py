@@ -99,6 +99,8 @@ class DoorAudit(Task):
             if len(leg) == len(plan.path):
                 break
             await self.localize(self.room_of(leg[-1]))
+        else:  # blocked or walking every time: said in the report (the FSM's skip state)
+            raise RuntimeError(f"could not reach door {self.bb.door.id} ({pose.side} side) in 8 plans")
         if await self.localize(pose.room):
             await self.step_onto(pose)
 
