@@ -44,11 +44,13 @@ def judge(pid: int, window_s: float = 1.0, looks: int = 10) -> str | None:
 
 
 @pytest.mark.parametrize("name, expect", [
-    ("spin", None), ("sleep", None), ("poll", None), ("loop", "its loop waits for events")])
+    ("spin", {None}), ("sleep", {None}), ("loop", {"its loop waits for events"}),
+    # woken every 10 ms, so on a loaded machine it may be caught runnable without a CPU: never a loop
+    ("poll", {None, "it waits for a CPU"})])
 def test_a_silent_process_is_judged_by_its_main_thread(name, expect):
     proc = start(PROGRAMS[name])
     try:
-        assert judge(proc.pid) == expect
+        assert judge(proc.pid) in expect
     finally:
         proc.kill()
         proc.wait()
