@@ -11,7 +11,10 @@
   ahead: its body and 4 cm, 0.30 m (tests/services/test_navigation.py walks both beside a wall).
   The generated houses guarantee a passage for the widest (robots/house_gen.py NAV_RADIUS);
 - `odometry`: how wrong its odometry may be, as a RApp's pose filter assumes it (rapps/sdk/ekf.py
-  ODOMETRY); deliberately generous: a filter that trusts its prediction too much refuses good fixes.
+  ODOMETRY); deliberately generous: a filter that trusts its prediction too much refuses good fixes;
+- `paper_localization_m`, `paper_tracking_m`: paper 001 sec. 4's figures for this robot (None: the
+  paper had no such robot). The hazard table judges runs by them; the hazard RApp plans legs within
+  half the tracking figure.
 
 Derived from this table: the manifest's and the Store's known robot types (ontology/manifest.py), the
 simulated bodies (robots/bodies.py, robots/world.py), the generated houses' start poses and passages
@@ -46,6 +49,8 @@ class RobotType(NamedTuple):
     clearance_radius_m: float
     odometry: Odometry
     description: str = ""
+    paper_localization_m: float | None = None
+    paper_tracking_m: float | None = None
 
 
 ROBOT_TYPES: dict[str, RobotType] = {
@@ -53,11 +58,13 @@ ROBOT_TYPES: dict[str, RobotType] = {
     "nao": RobotType("robots.nao", body_radius_m=0.17, clearance_radius_m=0.35,
                      odometry=Odometry(trans_std=0.02, trans_rel=0.05, rot_std=0.05, rot_rel=0.05,
                                        heading_std=0.08, heading_drift=0.05),
-                     description="NAO-like humanoid: holonomic walk, two head cameras, sonars, speech"),
+                     description="NAO-like humanoid: holonomic walk, two head cameras, sonars, speech",
+                     paper_localization_m=0.10, paper_tracking_m=0.20),
     "elektron": RobotType("robots.elektron", body_radius_m=0.26, clearance_radius_m=0.30,
                           odometry=Odometry(trans_std=0.01, trans_rel=0.02, rot_std=0.03, rot_rel=0.04,
                                             heading_std=0.02, heading_drift=0.05),
-                          description="Elektron-like base: differential drive, pan-tilt camera, laser, no speech"),
+                          description="Elektron-like base: differential drive, pan-tilt camera, laser, no speech",
+                          paper_localization_m=0.07, paper_tracking_m=0.15),
 }
 
 

@@ -29,10 +29,13 @@ from .hazard import REALISM, daylight_arg, link_faults, realism, run_hazard_dete
 from .home_setup import DOOR_OPEN_DEG, GENERATED, HOUSES, hazard_overrides, layout
 from .runner import RunInterrupted, main_loop
 
-# paper 001 sec. 4: the NAO localized within +-10 cm and tracked within 20 cm, the Elektron 7 / 15 cm
-PAPER_LOC_M = {"nao": 0.10, "elektron": 0.07}
-PAPER_TRACK_M = {"nao": 0.20, "elektron": 0.15}
 CHECKS_GOAL = 0.98
+
+
+def paper_robots() -> list[str]:
+    """The robot types paper 001 measured (the table's default)."""
+    return [n for n in robot_types.names() if robot_types.robot_type(n).paper_localization_m is not None]
+
 SEED_RANGE = (1, 100_000)  # seeds are drawn from here
 # a run the table stops did not end by itself: beyond the RApp's time limit (3600 s) and its pause
 # allowance (600 s), when the Core ends any task with a reason
@@ -76,7 +79,9 @@ def judge(rs: list[dict], robot: str) -> dict:
     loc = [r["localization_error_m"] for r in rs if r.get("localization_error_m") is not None]
     trk = [r["max_tracking_error_m"] for r in rs if r.get("max_tracking_error_m") is not None]
     failed = [r for r in rs if failure(r)]
-    loc_goal, track_goal = PAPER_LOC_M.get(robot), PAPER_TRACK_M.get(robot)  # None: the paper had no such robot
+    facts = robot_types.ROBOT_TYPES.get(robot)  # paper 001 sec. 4's figures; None: the paper had no such robot
+    loc_goal = facts.paper_localization_m if facts else None
+    track_goal = facts.paper_tracking_m if facts else None
     return {"runs": len(rs), "checks": checks, "checks_right": right,
             "checks_ratio": right / checks if checks else None,
             "checks_met": bool(checks) and right / checks >= CHECKS_GOAL,
@@ -205,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rapp run hazard-table", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10, help="N seeds of --house, drawn at random")
-    ap.add_argument("--robots", nargs="+", default=list(PAPER_LOC_M), choices=robot_types.names(),
+    ap.add_argument("--robots", nargs="+", default=paper_robots(), choices=robot_types.names(),
                     help="robot types (default: the paper's, %(default)s)")
     ap.add_argument("--house", default="house", choices=HOUSES,
                     help="house of --seeds (ignored with --houses)")

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 
 import pytest
+import yaml
 
 from ontology import robot_types
 from ontology.manifest import ManifestError, manifest_from_dict
@@ -77,7 +78,6 @@ def test_the_choices_of_every_robot_option_are_the_table():
 STATED_TOGETHER = {
     "ontology/robot_types.py": "the table",
     "scenarios/two_robots.py": "the scenario's pair (one NAO, one Elektron) and which hazards each checks",
-    "scenarios/hazard_table.py": "paper 001's accuracy figures, which exist for those two robots only",
     "bench/common.py": "a fleet alternates the paper's two robots: figures stay comparable across runs",
     "bench/fleet.py": "as bench/common.py",
     "bench/sim_rtf.py": "as bench/common.py",
@@ -102,6 +102,27 @@ def test_no_other_module_lists_the_robot_types():
                 if isinstance(node, (ast.Tuple, ast.List, ast.Set, ast.Dict)) and _both_named(node):
                     found.append(f"{rel}:{node.lineno}")
     assert not found, f"robot types listed outside ontology/robot_types.py: {found}"
+
+
+def _yaml_maps(value):
+    if isinstance(value, dict):
+        yield value
+        for v in value.values():
+            yield from _yaml_maps(v)
+    elif isinstance(value, list):
+        for v in value:
+            yield from _yaml_maps(v)
+
+
+def test_no_manifest_lists_the_robot_types():
+    """A RApp's manifest may name the types it runs on (a list), but a per-type table of facts in its
+    params is a second copy of ontology/robot_types.py (the paper's tracking figure was one)."""
+    found = []
+    for f in sorted(ROOT.glob("rapps/**/*.yaml")) + sorted(ROOT.glob("examples/**/*.yaml")):
+        for mapping in _yaml_maps(yaml.safe_load(f.read_text())):
+            if {"nao", "elektron"} <= set(mapping):
+                found.append(f.relative_to(ROOT).as_posix())
+    assert not found, f"per-robot-type tables in manifests: {found}"
 
 
 # ---------------------------------------------------------------- a third robot type

@@ -103,8 +103,12 @@ async def test_it_relocalizes_where_the_leg_was_ended_for_a_fix():
 
 
 def test_the_tracking_tolerance_is_the_papers_for_each_robot():
+    from ontology.robot_types import robot_type
+
     from .test_hazard_reports import FakeRuntime
 
-    param = FakeRuntime().params["tracking_tolerance_m"]  # the manifest's
-    assert tracking_tolerance(param, "nao") == 0.20 and tracking_tolerance(param, "elektron") == 0.15
+    param = FakeRuntime().params["tracking_tolerance_m"]  # the manifest's: none, so the robot type's
+    for kind in ("nao", "elektron"):
+        assert tracking_tolerance(param, kind) == robot_type(kind).paper_tracking_m
+    assert robot_type("nao").paper_tracking_m == 0.20 and robot_type("elektron").paper_tracking_m == 0.15  # sec. 4
     assert tracking_tolerance(param, "rover") == 0.15 and tracking_tolerance(0.1, "nao") == 0.1

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import math
 
+from ontology import robot_types
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.hazard import DoorGeometry
 from rapps.sdk import FSM, ArriveBy, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
@@ -23,8 +24,8 @@ DOORWAY_M = 0.35  # an obstacle this close to a doorway's line is in that doorwa
 LEG_CROSS_TRACK_STD_M = 0.035
 RELOCALIZE_LEG_M = 0.4  # re-localize when the pose filter allows no leg this long (params: relocalize_leg_m)
 # a leg through a stretch where no code is in reach may run on to where one is, while the filter's predicted
-# sideways error there stays within half the tracking tolerance (params: tracking_tolerance_m, by robot type:
-# paper 001 sec. 4's figures); a robot type the params do not name gets this
+# sideways error there stays within half the tracking tolerance: paper 001 sec. 4's figure for the robot type
+# (ontology.robot_types), or params: tracking_tolerance_m; a robot type the paper had not gets this
 TRACKING_TOLERANCE_M = 0.15
 FIX_STEP_M = 0.1  # how finely a leg's end is moved to where a fix is predicted
 # a leg through a stretch without codes in reach may end where the head can fix the pose this many times
@@ -113,11 +114,13 @@ def leg_to_fix(poses, leg: float, fixable, blind_m: float, weak=None, step: floa
 
 
 def tracking_tolerance(param, robot_type: str) -> float:
-    """The tracking tolerance (m) for this robot: the param's entry for its type (or the param itself when
-    it is one number), else TRACKING_TOLERANCE_M."""
-    if isinstance(param, dict):
-        param = param.get(robot_type)
-    return float(param) if param is not None else TRACKING_TOLERANCE_M
+    """The tracking tolerance (m) for this robot: the param when set, else the paper's figure for its type,
+    else TRACKING_TOLERANCE_M."""
+    if param is not None:
+        return float(param)
+    facts = robot_types.ROBOT_TYPES.get(robot_type)
+    figure = facts.paper_tracking_m if facts else None
+    return figure if figure is not None else TRACKING_TOLERANCE_M
 
 
 def next_leg_action(path, theta: float, leg: float, turn_first: float, *, localized: bool,
