@@ -8,7 +8,10 @@ from __future__ import annotations
 import asyncio
 import math
 import os
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -92,6 +95,34 @@ def quiet_logs() -> None:
 
     for name in ("slixmpp", "spade", "rapp", "aiosasl", "asyncio"):
         logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def spawn(cmd: list[str], **kw) -> subprocess.Popen:
+    """A benchmark's child process (a scenario run, a floor measurement) that ends with the benchmark:
+    a session of its own (ended whole by end_group) and SIGTERM when the benchmark dies, even killed.
+    Its own children (servers, agents, render processes) arm the same signal or watch their parent."""
+    from xmpp_server.process import dies_with_parent
+
+    return subprocess.Popen(cmd, start_new_session=True, preexec_fn=dies_with_parent(), **kw)
+
+
+def end_group(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
+    """End a spawned child's whole session: SIGTERM, then SIGKILL after grace_s."""
+    for sig, wait in ((signal.SIGTERM, grace_s), (signal.SIGKILL, 1.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return  # nothing of the session is left
+        deadline = time.monotonic() + wait
+        while time.monotonic() < deadline:
+            if proc.poll() is None:
+                time.sleep(0.05)
+                continue
+            try:
+                os.killpg(proc.pid, 0)
+            except ProcessLookupError:
+                return
+            time.sleep(0.05)
 
 
 def child_env(settings) -> dict[str, str]:

@@ -183,7 +183,7 @@ class HazardFleet:
             self.kinds.name(self.system.server.proc.pid, "xmpp_server")
         if self.apart:
             await self._start_apart()
-        self.sampler = ProcessSampler(self.kinds).start()
+        self.sampler = await asyncio.to_thread(ProcessSampler(self.kinds).start)
         await self.system.publish(RAPP_DIR)
         platform = self.system.platform
         if platform is not None and platform.warm_pool.size > 1:  # sized to the fleet: filled first
@@ -312,7 +312,8 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
             short = str(e)
             log(f"fleet N={n}: {short}")
     load_before = os.getloadavg()
-    mark = fleet.sampler.mark() if fleet.sampler else None
+    # a /proc scan takes tens of ms with a fleet's processes: off the loop the agents' beats run on
+    mark = await asyncio.to_thread(fleet.sampler.mark) if fleet.sampler else None
     sim_before = [w.time for w in fleet.worlds[:n]]
     since = time.time()
     t0 = time.perf_counter()
@@ -321,7 +322,7 @@ async def one_round(fleet: HazardFleet, n: int, timeout: float) -> dict:
         short = await watch_memory(tasks)
     runs = [MemoryError(short)] * n if short else await tasks
     wall = time.perf_counter() - t0
-    usage = fleet.sampler.since(mark) if fleet.sampler and mark else None
+    usage = await asyncio.to_thread(fleet.sampler.since, mark) if fleet.sampler and mark else None
     # the robots' own time: what a task takes a real robot (the worlds run as fast as they can)
     sim_s = [w.time - t for w, t in zip(fleet.worlds, sim_before)]
     failed = [f"robot {i + 1}: {str(r)[:200]}" for i, r in enumerate(runs)

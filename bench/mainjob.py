@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import subprocess
 import sys
 import tempfile
@@ -31,8 +30,10 @@ from collections import Counter
 from pathlib import Path
 
 from ontology import robot_types
+from robots.simclock import STEP_S
+from scenarios.recording import ROBOT_LOG
 
-from .common import ROOT, log, metric
+from .common import ROOT, end_group, log, metric, spawn
 
 README_HOUSE = "house"
 README_SEED = 1
@@ -44,13 +45,17 @@ def run_job(robot: str, out: Path, house: str = README_HOUSE, seed: int = README
     cmd = [sys.executable, "-m", "cli.main", "run", "hazard-detection", "--robot", robot, "--seed", str(seed),
            "--house", house, "--out", str(out), "--quiet"]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, timeout=timeout)
-    wall = time.perf_counter() - t0
+    proc = spawn(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _, stderr = proc.communicate(timeout=timeout)
+        wall = time.perf_counter() - t0
+    finally:
+        end_group(proc)  # what the run left behind, or all of it when the bench is interrupted
     try:
         result = json.loads((out / "result.json").read_text())
     except (OSError, json.JSONDecodeError) as e:
-        raise RuntimeError(f"hazard run of {robot} wrote no result (exit {proc.returncode}): {proc.stderr[-400:]}") from e
-    images, poses = recorded_renders(out / "robot.jsonl", robot)
+        raise RuntimeError(f"hazard run of {robot} wrote no result (exit {proc.returncode}): {stderr[-400:]}") from e
+    images, poses = recorded_renders(out / ROBOT_LOG, robot)
     return {"wall_s": wall, "result": result, "images": images, "poses": poses, "exit": proc.returncode}
 
 
@@ -88,7 +93,7 @@ def floor_main(spec_path: str) -> None:
     import pybullet as p
 
     from robots.render_process import SPLIT_MIN_PIXELS, RenderJob, _mirror_scene_class, band_projection
-    from robots.receptors import LIGHT
+    from robots.receptors import LIGHT, camera_matrices
     from robots.bodies import ROBOT_SPECS
     from robots.floorplan import load_plan
     from robots.world import HOUSES
@@ -110,12 +115,9 @@ def floor_main(spec_path: str) -> None:
     def matrices(pose, w, h):
         scene.apply(RenderJob(w, h, [], [], None, poses={"r": tuple(pose)}))
         st = p.getLinkState(uid, link, computeForwardKinematics=True, physicsClientId=cid)
-        R = np.array(p.getMatrixFromQuaternion(st[5])).reshape(3, 3)
-        eye = np.array(st[4])
-        view = p.computeViewMatrix(eye.tolist(), (eye + R[:, 0]).tolist(), R[:, 2].tolist(), physicsClientId=cid)
-        vfov = 2 * math.atan(math.tan(math.radians(cam.hfov_deg) / 2) * h / w)
-        proj = p.computeProjectionMatrixFOV(math.degrees(vfov), w / h, cam.near, cam.far, physicsClientId=cid)
-        return view, proj
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = np.array(p.getMatrixFromQuaternion(st[5])).reshape(3, 3), st[4]
+        return camera_matrices(T, cam, w, h, cid)
 
     flags = p.ER_NO_SEGMENTATION_MASK if not scene.emissive else 0
     jobs = [(w, h, matrices(pose, w, h)) for w, h, pose in frames]
@@ -142,12 +144,15 @@ def floor_main(spec_path: str) -> None:
 def _floor_process(spec: dict, workdir: Path, tag: str) -> subprocess.Popen:
     path = workdir / f"floor-{tag}.json"
     path.write_text(json.dumps(spec))
-    return subprocess.Popen([sys.executable, "-m", "bench.mainjob", "--floor", str(path)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    return spawn([sys.executable, "-m", "bench.mainjob", "--floor", str(path)], cwd=ROOT,
+                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
 
 
 def _answer(proc: subprocess.Popen) -> dict:
-    out, _ = proc.communicate(timeout=1800)
+    try:
+        out, _ = proc.communicate(timeout=1800)
+    finally:
+        end_group(proc)
     if proc.returncode:
         raise RuntimeError(f"floor process exited {proc.returncode}")
     return json.loads(out.strip().splitlines()[-1])
@@ -158,7 +163,7 @@ def measure_floor(robot: str, house: str, seed: int, job: dict, workdir: Path, m
     """The floor of one job: its renders and steps in bare PyBullet, serial and in two bands at once."""
     frames = [(w, h, pose_at(job["poses"], t)) for w, h, t in job["images"]][:max_frames]
     result = job["result"]
-    steps = int(round(result["duration_sim_s"] / (1 / 60)))
+    steps = int(round(result["duration_sim_s"] / STEP_S))  # the World's default step
     base = {"robot": robot, "house": house, "seed": seed, "frames": frames}
     serial = _answer(_floor_process({**base, "steps": steps}, workdir, "serial"))
     banded = [_floor_process({**base, "steps": 0, "band": (k, 2)}, workdir, f"band{k}") for k in range(2)]

@@ -269,14 +269,7 @@ class Camera:
 
     def view_projection(self, width: int, height: int) -> tuple[list[float], list[float]]:
         """OpenGL view and projection matrices (16 floats each) of this camera's current pose."""
-        T = self.link_pose()
-        eye, fwd, up = T[:3, 3], T[:3, 0], T[:3, 2]
-        _, vfov = self.fov(width, height)
-        cid = self.robot.world.cid
-        view = p.computeViewMatrix(eye.tolist(), (eye + fwd).tolist(), up.tolist(), physicsClientId=cid)
-        proj = p.computeProjectionMatrixFOV(math.degrees(vfov), width / height, self.spec.near, self.spec.far,
-                                            physicsClientId=cid)
-        return list(view), list(proj)
+        return camera_matrices(self.link_pose(), self.spec, width, height, self.robot.world.cid)
 
     def render_radiance(self, width: int, height: int) -> np.ndarray:
         view, proj = self.view_projection(width, height)
@@ -286,6 +279,16 @@ class Camera:
     def capture(self, width: int = 320, height: int = 240) -> np.ndarray:
         """RGB uint8 image (HxWx3) with the current image parameters applied."""
         return apply_params(self.render_radiance(width, height), self.params)
+
+
+def camera_matrices(T: np.ndarray, spec, width: int, height: int, cid: int) -> tuple[list[float], list[float]]:
+    """OpenGL view and projection matrices (16 floats each) of a camera (its spec: hfov_deg, near, far)
+    whose link frame is T (4x4: x forward, z up); bench/mainjob.py's floor renders with the same."""
+    eye, fwd, up = T[:3, 3], T[:3, 0], T[:3, 2]
+    vfov = 2 * math.atan(math.tan(math.radians(spec.hfov_deg) / 2) * height / width)
+    view = p.computeViewMatrix(eye.tolist(), (eye + fwd).tolist(), up.tolist(), physicsClientId=cid)
+    proj = p.computeProjectionMatrixFOV(math.degrees(vfov), width / height, spec.near, spec.far, physicsClientId=cid)
+    return list(view), list(proj)
 
 
 class RangeSensor:

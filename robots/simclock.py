@@ -4,10 +4,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+STEP_S = 1 / 60  # a World's step unless told otherwise
+
 
 @dataclass
 class SimClock:
-    step: float = 1 / 60
+    step: float = STEP_S
     rtf: float = 0.0
     time: float = 0.0
     _wall0: float = field(default=0.0, repr=False)

@@ -41,7 +41,7 @@ from .receptors import Camera
 from .render_process import RenderPool, SceneState
 from .robot import Robot
 from .scene import Scene
-from .simclock import SimClock
+from .simclock import STEP_S, SimClock
 
 if TYPE_CHECKING:
     from .disturbances import ContactEvent, Disturbances, DisturbanceSpec
@@ -66,7 +66,7 @@ class World(Scene):
     pybullet thread of this process. `render_bands`: a 1280x960 frame in that many bands at once, on idle
     render processes (a world of one robot, whose other core waits while a frame renders)."""
 
-    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = 1 / 60, render: str | None = None,
+    def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = STEP_S, render: str | None = None,
                  render_workers: int | None = None, render_bands: int = 1,
                  disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None):
         render = render or os.environ.get("RAPP_ROBOTS_RENDER") or "process"
@@ -99,7 +99,7 @@ class World(Scene):
 
     @classmethod
     def from_file(cls, path: str | Path, seed: int = 0, overrides: dict | None = None, rtf: float = 0.0,
-                  time_step: float = 1 / 60, render: str | None = None, render_workers: int | None = None,
+                  time_step: float = STEP_S, render: str | None = None, render_workers: int | None = None,
                   render_bands: int = 1, disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None,
                   lived_in: "Callable[[Plan], tuple[Plan, dict]] | None" = None,
                   daylight: Daylight | None = None) -> "World":
