@@ -68,10 +68,21 @@ def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
         threading.Thread(target=wait_then_reap, name=f"wait-{proc.pid}", daemon=True).start()
         return fut
 
+    def reaped(done: asyncio.Future) -> None:
+        if fut.done():
+            return
+        if done.exception() is not None:
+            fut.set_exception(done.exception())
+        else:
+            resolve(done.result())
+
     def exited() -> None:
         loop.remove_reader(fd)
         os.close(fd)
-        resolve(reap())  # already exited: reaps at once
+        if before_reap is None:
+            resolve(reap())  # already exited: reaps at once
+        else:  # the sweep waits for what is left to go (up to seconds): in a thread, not on the loop
+            loop.run_in_executor(None, reap).add_done_callback(reaped)
 
     loop.add_reader(fd, exited)
     return fut
@@ -508,7 +519,7 @@ class AgentProcess:
                 self._refused({"event": "refused", "what": {"oom_kill": "memory (killed for its limit)",
                                                             "pids_max": "a new process (its process limit)"}[what],
                                "count": n})
-            self.cgroup.kill(timeout=0.5)
+            self.cgroup.kill(timeout=0.0)  # one pass: the sweep before the reaping waited, in a thread
             if not self.cgroup.remove():
                 asyncio.get_running_loop().call_later(1.0, self.cgroup.remove)
 

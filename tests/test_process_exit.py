@@ -38,6 +38,27 @@ async def test_exit_code_is_reported():
     assert await asyncio.wait_for(exit_future(p), 10) == 7
 
 
+async def test_the_sweep_before_reaping_does_not_hold_the_loop():
+    """before_reap waits for what a run left to go (kill_uid, cgroup.kill: up to seconds); the loop
+    that serves every other agent's messages turns meanwhile, and the exit is reported after it."""
+    swept = []
+
+    def slow_sweep() -> None:
+        time.sleep(0.6)
+        swept.append(time.monotonic())
+
+    p = subprocess.Popen([sys.executable, "-c", "raise SystemExit(5)"])
+    done = exit_future(p, before_reap=slow_sweep)
+    gaps, last = [], time.monotonic()
+    while not done.done():
+        await asyncio.sleep(0.01)
+        now = time.monotonic()
+        gaps.append(now - last)
+        last = now
+    assert await done == 5 and swept
+    assert max(gaps) < 0.3, f"the loop stood still for {max(gaps):.2f} s"
+
+
 LEAVES_A_CHILD = ("import subprocess, sys; child = subprocess.Popen(['sleep', '60']); print(child.pid, flush=True); "
                   "sys.exit(3)")
 
