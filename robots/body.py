@@ -39,6 +39,10 @@ class Surroundings(Protocol):
         """Body uid -> radiance (1 = a lit white wall): lit lamp shades and windows by day, what a
         camera renders as light sources (robots/lighting.py)."""
 
+    @property
+    def light_scale(self) -> float:
+        """The room's ambient and diffuse light beyond what the sky gives it (1: as the house is lit)."""
+
     def obstacles_near(self, x: float, y: float, r: float, exclude: int = -1) -> list[int]:
         """Uids of what may stand within `r` of (x, y) (walls, doors, furniture, lamps, robots' probes,
         people, dropped boxes), `exclude` left out."""

@@ -274,7 +274,8 @@ class Camera:
     def render_radiance(self, width: int, height: int) -> np.ndarray:
         view, proj = self.view_projection(width, height)
         world = self.robot.world
-        return render_radiance(world.cid, width, height, view, proj, world.emissive, room_light(world.plan.sky))
+        return render_radiance(world.cid, width, height, view, proj, world.emissive,
+                               room_light(world.plan.sky) * world.light_scale)
 
     def capture(self, width: int = 320, height: int = 240) -> np.ndarray:
         """RGB uint8 image (HxWx3) with the current image parameters applied."""

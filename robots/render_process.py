@@ -55,6 +55,7 @@ class SceneState:
     doors: dict[str, float]  # degrees
     lamps: dict[str, bool]
     bodies: dict[str, tuple] = field(default_factory=dict)  # people, boxes: id -> (shape, position, orientation)
+    light_scale: float = 1.0  # the World's room light beyond the sky's (World.light_scale)
 
 
 @dataclass
@@ -70,6 +71,7 @@ class RenderJob:
     doors: dict[str, float] = field(default_factory=dict)
     lamps: dict[str, bool] = field(default_factory=dict)
     bodies: dict[str, tuple] = field(default_factory=dict)  # created when new, else moved (robots/disturbances.py)
+    light_scale: float = 1.0  # every job carries it: one float
 
 
 def band_projection(proj, band: int, bands: int) -> list[float]:
@@ -131,7 +133,7 @@ def _mirror_scene_class():
             if hasattr(job.params, "render_depth"):  # a depth image (robots/depth_camera.py), not colour
                 return job.params.render_depth(self.cid, job.width, job.height, job.view, job.proj)
             radiance = render_radiance(self.cid, job.width, job.height, job.view, job.proj, self.emissive,
-                                       room_light(self.plan.sky))
+                                       room_light(self.plan.sky) * job.light_scale)
             return radiance if job.params is None else apply_params(radiance, job.params)
 
     return MirrorScene
@@ -240,7 +242,7 @@ class _Worker:
 
     def job_for(self, state: SceneState, **kw) -> RenderJob:
         """A RenderJob carrying only what changed since this process's last request."""
-        job = RenderJob(**kw)
+        job = RenderJob(**kw, light_scale=state.light_scale)
         known = self.known
         for name, (kind, pose, q) in state.robots.items():
             old = known.robots.get(name)

@@ -86,6 +86,9 @@ class World(Scene):
         self.mapped_plan: Plan = plan  # the house as mapped (from_file's `lived_in` makes them differ)
         self.lived_in: dict | None = None  # what changed since (robots/lived_in.py live_in's account)
         self.daylight: dict | None = None  # the light of its time of day (robots/lighting.py with_daylight)
+        # the rooms' ambient and diffuse light beyond the sky's (lit lamps and windows are emissive: unchanged);
+        # a validation's dim or bright room (scenarios/hazard_validation.py)
+        self.light_scale = 1.0
         self.run_sync(self._build)
         if render == "process":
             self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name,
@@ -259,7 +262,8 @@ class World(Scene):
         view, proj = cam.view_projection(width, height)
         state = SceneState({n: (r.kind, r.pose, dict(r.q)) for n, r in list(self.robots.items())},
                            {d.id: d.angle for d in self.plan.doors}, {lp.id: lp.on for lp in self.plan.lamps},
-                           self.disturbances.scene_bodies() if self.disturbances is not None else {})
+                           self.disturbances.scene_bodies() if self.disturbances is not None else {},
+                           self.light_scale)
         return state, width, height, view, proj, cam.params
 
     async def capture(self, cam: Camera, width: int, height: int) -> np.ndarray:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import random
 import sys
 import tempfile
@@ -30,7 +29,6 @@ from ontology.manifest import load_manifest
 from ontology.robot import GetCameraInfo, GetTransform, LookAtPoint, SetCameraParams
 from ontology.services.hazard import DoorCheck, LightCheck
 from robots import RobotAPI, World
-from robots import receptors
 
 from rapps.hazard_detection.hazard_detection.cloud import views_for
 from rapps.hazard_detection.hazard_detection.models import DoorViews
@@ -137,19 +135,6 @@ async def door_sweep(house: str, door_id: str, robot: str, params: dict) -> list
         world.close()
 
 
-@contextlib.contextmanager
-def room_light(scale: float):
-    """Scale the renderer's ambient and diffuse light (lit lamps are emissive: unchanged). robots/
-    has no API for the room's light level; the inline renderer reads these coefficients per frame."""
-    saved = dict(receptors.LIGHT)
-    receptors.LIGHT.update(lightAmbientCoeff=saved["lightAmbientCoeff"] * scale,
-                           lightDiffuseCoeff=saved["lightDiffuseCoeff"] * scale)
-    try:
-        yield
-    finally:
-        receptors.LIGHT.update(saved)
-
-
 async def light_sweep(robot: str, params: dict) -> list[LightRow]:
     """The robot at each lamp's standing pose of the full house, lamp on and off, three room lights."""
     house = "house"
@@ -165,13 +150,13 @@ async def light_sweep(robot: str, params: dict) -> list[LightRow]:
                 for on in (True, False):
                     await world.set_lamp(spec.id, on)
                     levels = {}
-                    with room_light(scale):
-                        for exposure in (float(params["light_exposure"]), NORMAL_EXPOSURE):
-                            await api.set_camera_params(SetCameraParams(exposure=exposure, auto_exposure=False))
-                            img = await api.capture_array(resolution=params["light_resolution"])
-                            rgb = encode_image(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-                            levels[exposure] = hazard.light_check(
-                                LightCheck(image_b64=rgb, on_threshold=int(params["light_on_level"])), None)
+                    world.light_scale = scale
+                    for exposure in (float(params["light_exposure"]), NORMAL_EXPOSURE):
+                        await api.set_camera_params(SetCameraParams(exposure=exposure, auto_exposure=False))
+                        img = await api.capture_array(resolution=params["light_resolution"])
+                        rgb = encode_image(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+                        levels[exposure] = hazard.light_check(
+                            LightCheck(image_b64=rgb, on_threshold=int(params["light_on_level"])), None)
                     low = levels[float(params["light_exposure"])]
                     rows.append(LightRow(robot, spec.id, name, on, low.light_level,
                                          levels[NORMAL_EXPOSURE].light_level, low.lamp_on))

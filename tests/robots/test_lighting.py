@@ -107,3 +107,19 @@ def test_the_scenarios_knob():
     for bad in ("25:00", "noon", "-1"):
         with pytest.raises(argparse.ArgumentTypeError, match="--daylight"):
             time_of_day(bad)
+
+
+@pytest.mark.parametrize("render", ["inline", "process"])
+async def test_the_worlds_room_light_dims_both_renderers(make_world, render):
+    """World.light_scale (a validation's dim or bright room) reaches the frames rendered in the World's
+    thread and in its render processes alike; it changes only what the room's light lights."""
+    world = make_world("house", seed=1, render=render)
+    api = RobotAPI(world.add_robot("nao", pose=(4.0, 2.5, -math.pi / 2)))
+    await api.look_at_point(LookAtPoint(x=4.0, y=0.0, z=0.6))
+    await api.set_camera_params(SetCameraParams(exposure=0.5, auto_exposure=False))
+    levels = {}
+    for scale in (1.0, 0.5, 1.0):
+        world.light_scale = scale
+        levels.setdefault(scale, []).append(float((await api.capture_array(resolution="160x120")).mean()))
+    assert levels[0.5][0] < 0.8 * levels[1.0][0], levels
+    assert levels[1.0][1] == pytest.approx(levels[1.0][0], rel=0.05)  # and back: nothing left changed
