@@ -22,6 +22,7 @@ odometry, `self.robot.get_global_pose()`, drifts).
 Errors arrive as RequestRefused / RequestFailed / NotUnderstood / RequestTimeout (all RequestError),
 re-exported here with their codes (`e.code == ErrorCode.FORBIDDEN`): a RApp package imports only this
 SDK and the ontology (see docs/architecture.md).
+`rapps.sdk.paths` cuts a planned path into legs (path_length, point_at, cut_path, first_leg);
 `rapps.sdk.vision` holds the image and QR-geometry helpers the Platform's own services use;
 `check_door(self, door)` and `check_light(self, lamp)` (rapps/sdk/checks.py) the hazard checks in one call.
 

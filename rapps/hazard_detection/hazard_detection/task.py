@@ -11,6 +11,8 @@ from ontology import robot_types
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.hazard import DoorGeometry
 from rapps.sdk import FSM, ArriveBy, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
+from rapps.sdk.paths import cut_path, path_length, point_at
+from rapps.sdk.paths import first_leg as sdk_first_leg
 
 from .models import ONTOLOGY, CameraSpec, HazardReport
 
@@ -35,10 +37,6 @@ FIX_SLACK = 2.5
 AGAIN_M = 0.5  # blocked again within this of where a leg was blocked before: the same obstacle
 
 
-def path_length(poses) -> float:
-    return sum(math.hypot(b.x - a.x, b.y - a.y) for a, b in zip(poses, poses[1:]))
-
-
 def leg_rotation(poses, turn: float, final: bool) -> float:
     """About how far (rad) the base turns on a leg: the turn it starts with, then to the bearing of its
     last segment (or, on the final leg, to the standing pose's heading)."""
@@ -53,38 +51,7 @@ def first_leg(poses, leg: float) -> tuple[list, bool]:
     """The path up to about `leg` metres (the whole path if little more is left); True if final.
     Odometry's systematic heading drift (~0.05 rad/m) puts the robot off a straight path by ~2.5 cm
     times the squared distance, so the last leg may be only a quarter longer: 1.4 m, not 1.65."""
-    if path_length(poses) <= FINAL_LEG_SLACK * leg:
-        return list(poses), True
-    out, run = [poses[0]], 0.0
-    for a, b in zip(poses, poses[1:]):
-        out.append(b)
-        run += math.hypot(b.x - a.x, b.y - a.y)
-        if run >= leg:
-            break
-    return out, False
-
-
-def point_at(poses, s: float) -> Pose2D:
-    """The pose `s` metres along the path (heading of the segment there; the path's last pose beyond its end)."""
-    run = 0.0
-    for a, b in zip(poses, poses[1:]):
-        d = math.hypot(b.x - a.x, b.y - a.y)
-        if run + d >= s and d > 0:
-            t = (s - run) / d
-            return Pose2D(x=a.x + t * (b.x - a.x), y=a.y + t * (b.y - a.y), theta=math.atan2(b.y - a.y, b.x - a.x))
-        run += d
-    return poses[-1]
-
-
-def cut_path(poses, s: float) -> list:
-    """The path up to `s` metres along it, ending exactly there."""
-    out, run = [poses[0]], 0.0
-    for a, b in zip(poses, poses[1:]):
-        run += math.hypot(b.x - a.x, b.y - a.y)
-        if run >= s - 1e-6:
-            break
-        out.append(b)
-    return out + [point_at(poses, s)]
+    return sdk_first_leg(poses, leg, FINAL_LEG_SLACK)
 
 
 def leg_to_fix(poses, leg: float, fixable, blind_m: float, weak=None, step: float = FIX_STEP_M
@@ -301,24 +268,23 @@ class HazardTask(Task):
         memory["leg"], memory["leg_final"] = first_leg(reply.path, leg)
         memory["fix_at_end"] = False
         if action == "move" and not memory["leg_final"]:
-            memory["leg_final"] = await asyncio.to_thread(self.end_at_fix, memory, reply.path, path_length(memory["leg"]))
+            moved = await asyncio.to_thread(self.end_at_fix, reply.path, path_length(memory["leg"]))
+            if moved is not None:
+                memory["leg"], memory["leg_final"] = moved
+                memory["fix_at_end"] = not memory["leg_final"]
         return action
 
-    def end_at_fix(self, memory, path, leg: float) -> bool:
-        """Move the leg's end to where the head can fix the pose (a doorway, a stretch without codes in
+    def end_at_fix(self, path, leg: float) -> tuple[list, bool] | None:
+        """The leg moved to end where the head can fix the pose (a doorway, a stretch without codes in
         reach: re-localize before it and walk through it in one leg, not in short legs begun from a
-        drifting estimate); whether the leg is now the final one. numpy: off the event loop."""
+        drifting estimate), and whether it is now the final one; None: the leg stays. numpy: off the
+        event loop (it reads the filter, writes nothing)."""
         if self.localizer.ekf is None or self.localizer.camera is None:  # nothing localized yet: no map of fixes
-            return bool(memory["leg_final"])
+            return None
         tolerance = tracking_tolerance(self.params.get("tracking_tolerance_m"), self.robot_type())
         blind = self.localizer.leg_length(path_length(path), tolerance / 2, shortest=0.0)
-        moved = leg_to_fix(path, leg, lambda p: self.localizer.fixable((p.x, p.y, p.theta)), blind,
-                           weak=lambda p: self.localizer.fixable((p.x, p.y, p.theta), FIX_SLACK))
-        if moved is None:
-            return bool(memory["leg_final"])
-        memory["leg"], final = moved
-        memory["fix_at_end"] = not final
-        return final
+        return leg_to_fix(path, leg, lambda p: self.localizer.fixable((p.x, p.y, p.theta)), blind,
+                          weak=lambda p: self.localizer.fixable((p.x, p.y, p.theta), FIX_SLACK))
 
     async def turn(self, memory):
         memory["leg_final"] = False

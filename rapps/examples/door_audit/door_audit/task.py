@@ -11,21 +11,11 @@ import math
 from ontology.services.home import DoorCheckPose, DoorwaySpec, HomeInfo
 from ontology.services.localization import MarkerObservation
 from rapps.sdk import FSM, ErrorCode, Key, RequestFailed, Sequence, Step, Task, check_door, intrinsics
+from rapps.sdk.paths import first_leg
 
 LOCALIZE_RESOLUTION = "1280x960"  # a 0.25 m code decodes to ~4 m, a 0.35 m one to ~5 m
 MAX_CODE_M = 4.5
 LEG_M = 3.0  # the longest walk without localizing
-
-
-def first_leg(path, length: float) -> list:
-    """The poses of `path` up to `length` metres along it (all of it when shorter)."""
-    out, walked = [path[0]], 0.0
-    for a, b in zip(path, path[1:]):
-        walked += math.hypot(b.x - a.x, b.y - a.y)
-        out.append(b)
-        if walked >= length:
-            break
-    return out
 
 
 class DoorAudit(Task):
@@ -85,7 +75,7 @@ class DoorAudit(Task):
                 start=await self.robot.get_global_pose(), goal=pose.stand)
             if not plan.path:
                 raise RuntimeError(f"no path to door {self.bb.door.id} ({pose.side} side): {plan.reason}")
-            leg = first_leg(plan.path, LEG_M)
+            leg, _ = first_leg(plan.path, LEG_M)
             try:
                 await self.robot.move_along_path(poses=leg, _timeout=600.0, _feedback=walking)
             except RequestFailed as e:

@@ -1,22 +1,9 @@
 """Lamp patrol: for each lamp of the home, go there, look, check the light, keep the picture."""
 import base64
-import math
 
-from ontology.services.common import Pose2D
 from ontology.services.home import HazardSpec, HomeInfo
 from rapps.sdk import FSM, Key, Retry, Sequence, Step, Task
-
-
-def first_leg(path: list[Pose2D], length: float) -> list[Pose2D]:
-    """The path up to `length` metres along it (all of it when shorter)."""
-    run = 0.0
-    for i, (a, b) in enumerate(zip(path, path[1:]), 1):
-        step = math.hypot(b.x - a.x, b.y - a.y)
-        if run + step >= length:
-            t = (length - run) / step
-            return path[:i] + [Pose2D(x=a.x + t * (b.x - a.x), y=a.y + t * (b.y - a.y), theta=math.atan2(b.y - a.y, b.x - a.x))]
-        run += step
-    return path
+from rapps.sdk.paths import cut_path, path_length
 
 
 class LampPatrol(Task):
@@ -65,9 +52,9 @@ class LampPatrol(Task):
             if not plan.path:
                 raise RuntimeError(f"no path to {self.bb.lamp.id}: {plan.reason}")  # the Sequence fails: skipped
             # as far as the pose filter expects to stay within 5 cm of the path (1 sigma), at most leg_m
-            leg = first_leg(plan.path, self.localizer.leg_length(float(self.params["leg_m"]), 0.05))
-            await self.robot.move_along_path(poses=leg, _timeout=600.0, _feedback=walking)
-            if leg is plan.path:  # the whole rest of it: there
+            longest = self.localizer.leg_length(float(self.params["leg_m"]), 0.05)
+            await self.robot.move_along_path(poses=cut_path(plan.path, longest), _timeout=600.0, _feedback=walking)
+            if path_length(plan.path) <= longest:  # the whole rest of it: there
                 break
         await self.localize()  # at the lamp: the camera aims from the pose the codes give
 
