@@ -254,3 +254,25 @@ async def test_its_own_marks_blocking_every_route_are_cleared_once_and_the_plan_
     with pytest.raises(RuntimeError, match="no path to l1"):
         await task.plan(memory)
     assert sent.count("path_planning_plan_path_2d") == 2 and "path_planning_clear_obstacles" in sent
+
+
+async def test_when_the_map_refuses_every_chosen_view_the_homes_own_stand_is_tried():
+    """The view model chose stands the planner's map has no room for (generated house 33452: a door open
+    79 deg, three views refused, the door reported unknown): the home's stand is the last resort."""
+    goals = []
+
+    class Runtime(FakeRuntime):
+        async def request(self, to, content, timeout=None, **kw):
+            if content.action_name == "path_planning_plan_path_2d":
+                goals.append((content.goal.x, content.goal.y))
+                if content.goal != DOOR.stand:
+                    return PlanPathReply(plan_found=0, reason="goal pose is in an obstacle or too close to one for this robot")
+                return plan()
+            return await super().request(to, content, timeout, **kw)
+
+    task = HazardTask(Runtime())
+    views = [Pose2D(x=0.4, y=0.3, theta=0.0), Pose2D(x=0.4, y=-0.3, theta=0.0)]
+    memory = {**memory_at_start(), "goal": views[0], "views": [type("V", (), {"x": v.x, "y": v.y, "theta": v.theta})()
+                                                               for v in views[1:]]}
+    assert await task.plan(memory) == "move"
+    assert goals == [(0.4, 0.3), (0.4, -0.3), (0.5, 0.0)] and memory["goal"] == DOOR.stand

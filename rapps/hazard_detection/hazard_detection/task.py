@@ -244,9 +244,14 @@ class HazardTask(Task):
                 for mark_id in list(self.marks.marks):
                     await self.marks.clear(mark_id)
                 continue
-            if reply.plan_found == PLAN_FOUND or not memory.get("views") or "goal pose" not in reply.reason:
+            if reply.plan_found == PLAN_FOUND or "goal pose" not in reply.reason:
                 break
-            memory["goal"] = self.view_pose(memory["views"].pop(0))  # a stand the map has no room for
+            if memory.get("views"):  # a stand the map has no room for: the next view
+                memory["goal"] = self.view_pose(memory["views"].pop(0))
+            elif memory["goal"] != hazard.stand:  # every chosen view refused: the home's own stand, last
+                memory["goal"] = hazard.stand
+            else:
+                break
         if reply.plan_found != PLAN_FOUND:
             blocked = blocking_doors(memory["home"].doors, memory.get("marked", []))
             if blocked:  # the map's way there went through a door found closed: a hazard of its own
