@@ -89,7 +89,8 @@ START_STD_M, START_STD_RAD = 0.5, 0.3  # the start pose the robot was given is h
 FIX_FLOOR_M, FIX_FLOOR_RAD = 0.004, 0.002
 FUSE_MAX_STD_M, FUSE_MAX_STD_RAD = 0.10, 0.05  # a fix less certain than this is no fix at all
 # one code too far for a fix of its own (landmark_cloud.SINGLE_MAX_M) is weighed in all the same when the
-# filter is this many times less certain than it (a start pose hardly trusted, a robot lost)
+# filter's position is this many times less certain than it, and its heading less certain at all (a start
+# pose hardly trusted, a robot lost)
 LOST_FACTOR = 3.0
 YAW_STEP = 0.05  # rad between the head angles considered
 TURNS_DEG = (45, -45, 90, -90, 135, -135, 180)  # body turns tried when the head cannot reach a code
@@ -335,10 +336,16 @@ class Verdict:
     unsure: str = ""
 
 
+def _within(found: Localization | None, std_m: float, std_rad: float) -> bool:
+    """A fix with a pose, its position and heading no less certain than std_m / std_rad (a heading off by
+    0.01 rad puts the end of a 1 m leg 1 cm off the path)."""
+    return bool(found is not None and found.found and found.pose is not None and found.std_m is not None
+                and found.std_theta_rad is not None and found.std_m <= std_m and found.std_theta_rad <= std_rad)
+
+
 def _usable(found: Localization) -> bool:
-    """A fix with a pose and standard deviations, no less certain than FUSE_MAX_STD_M/RAD."""
-    return bool(found.found and found.pose is not None and found.std_m is not None and found.std_theta_rad is not None
-                and found.std_m <= FUSE_MAX_STD_M and found.std_theta_rad <= FUSE_MAX_STD_RAD)
+    """A fix at all: no less certain than FUSE_MAX_STD_M/RAD."""
+    return _within(found, FUSE_MAX_STD_M, FUSE_MAX_STD_RAD)
 
 
 def _floored(found: Localization) -> tuple[float, float]:
@@ -637,11 +644,9 @@ class Localizer:
         self.state["missed"] |= set(self.state["look"].codes) - {o.text for o in reply.items}
         if self.state.get("prior") is None:
             self.state["prior"] = await self.task.robot.get_global_pose()
-        found = cast(Localization, await cloud.call("solve_pose", _ontology=LANDMARKS,
-                                                    observations=self.state["observations"],
-                                                    landmarks=home.landmarks, prior=self.state["prior"].model_dump()))
+        found = await self._solve(self.state["observations"])
         self.state["localization"] = found
-        if self._certain(found, self.settings.std_m, self.settings.std_rad):
+        if _within(found, self.settings.std_m, self.settings.std_rad):
             return True
         await asyncio.to_thread(self._replan)
         return False
@@ -651,15 +656,8 @@ class Localizer:
         if (not self.state["looks"] and self.settings.turn_body and not self.state["turn_done"]
                 and self.state["frames"] < self.settings.max_frames):
             found = self.state.get("localization")
-            if not self._certain(found, self.settings.max_std_m, self.settings.max_std_rad):
+            if not _within(found, self.settings.max_std_m, self.settings.max_std_rad):
                 self.state["turn"] = self._best_turn()
-
-    @staticmethod
-    def _certain(found: Localization | None, std_m: float, std_rad: float) -> bool:
-        """Position and heading certain enough: a heading off by 0.01 rad puts the end of a 1 m leg
-        1 cm off the path."""
-        return bool(found is not None and found.found and found.std_m is not None and found.std_theta_rad is not None
-                    and found.std_m <= std_m and found.std_theta_rad <= std_rad)
 
     async def _share_fix(self, pose: Pose2D, std_m: float, std_rad: float) -> None:
         """The fix to the Core too (add_pose_fix), before the RApp sets its own pose: the Core's
@@ -723,7 +721,7 @@ class Localizer:
             # better than nothing by far (a start pose hardly trusted): weighed against the prediction
             verdict = Verdict(found.model_copy(update={"found": True}), gate=CHI2_3DOF_99)
         elif found is not None and _usable(found):
-            certain = self._certain(found, self.settings.max_std_m, self.settings.max_std_rad)
+            certain = _within(found, self.settings.max_std_m, self.settings.max_std_rad)
             verdict = await self.judge(ekf, found)
             if verdict.fix is not None and not certain and verdict.gate is None:
                 verdict.gate = CHI2_3DOF_99  # agreeing codes, but not certain: weighed against the prediction
