@@ -11,20 +11,14 @@ from pathlib import Path
 
 from bench.common import end_group, spawn
 
+from .test_run_watchdog import _alive
+
 ROOT = Path(__file__).resolve().parent.parent
 # a child that starts a grandchild in its session; both ignore SIGTERM, as a slow agent might
 STUBBORN = ("import signal, subprocess, sys, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); "
             "g = subprocess.Popen([sys.executable, '-c', 'import signal, time; "
             "signal.signal(signal.SIGTERM, signal.SIG_IGN); time.sleep(300)']); "
             "print(g.pid, flush=True); time.sleep(300)")
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def _gone_within(pid: int, seconds: float) -> bool:
