@@ -278,6 +278,30 @@ class Look:
     codes: list[str]
     predicted_std_m: float  # of the fix after this frame and the ones before it
     predicted_std_rad: float
+    beside: bool = False  # a look beside an empty one, the same codes sought where the aim may have put them
+
+
+def looks_beside(look: Look, bearing_std: float, code_half: float, camera: HeadCamera, frames_left: int) -> list[Look]:
+    """Looks to either side of `look` whose frame held none of its codes, when the pose's uncertainty
+    could have put them outside the frame: the bearing's 2 sigma (`bearing_std`, rad) beyond what the
+    frame holds of a code `code_half` rad wide each side of its centre. Each frame holds a code within
+    `usable` of its centre; the looks step 1.6 usable apart (they overlap a little), nearest first,
+    within the head's reach, as many as `frames_left`. [] when the aim was certain enough: then the
+    codes are hidden (by what the map does not know), and looking beside would not show them."""
+    half_fov = math.atan(camera.width / 2 / float(camera.K[0, 0]))
+    usable = max(half_fov - code_half, 0.1)
+    reach = 2 * bearing_std
+    if look.beside or reach <= usable:
+        return []
+    out: list[Look] = []
+    k = 1
+    while k * 1.6 * usable - usable < reach and len(out) < frames_left:
+        for sign in (1, -1):
+            yaw = look.yaw + sign * k * 1.6 * usable
+            if abs(yaw) <= camera.limit and len(out) < frames_left:
+                out.append(Look(yaw, list(look.codes), look.predicted_std_m, look.predicted_std_rad, beside=True))
+        k += 1
+    return out
 
 
 def plan_looks(pose: Iterable[float], std_m: float, std_rad: float, landmarks: Mapping[str, LandmarkSpec],
@@ -635,6 +659,13 @@ class Localizer:
             reply = None
         if reply is None or not reply.items:
             self.state["empty"] += 1
+            look = self.state["look"]
+            beside = self._looks_beside(look)
+            if beside:  # the aim, not the code, may have been off: look to either side first
+                self.state["looks"] = beside + [lk for lk in self.state["looks"] if not lk.beside]
+                return False
+            if look.beside and any(lk.beside for lk in self.state["looks"]):
+                return False  # the other side next
             self.state["missed"] |= set(self.state["look"].codes)  # not expected again in this localization
             await asyncio.to_thread(self._replan)
             return False
@@ -650,6 +681,18 @@ class Localizer:
             return True
         await asyncio.to_thread(self._replan)
         return False
+
+    def _looks_beside(self, look: Look) -> list[Look]:
+        """looks_beside for this localization: the codes' bearing uncertainty from the belief now."""
+        (x, y, _), std_m, std_rad = self._belief()
+        home, camera = cast(HomeInfo, self.home), cast(HeadCamera, self.camera)  # prepare()'s
+        codes = [home.landmarks[t] for t in look.codes if t in home.landmarks]
+        if not codes:
+            return []
+        nearest = min(max(math.hypot(lm.x - x, lm.y - y), 0.3) for lm in codes)
+        code_half = max(math.atan(lm.size_m / 2 / max(math.hypot(lm.x - x, lm.y - y), 0.3)) for lm in codes)
+        left = self.settings.max_frames - self.state["frames"]
+        return looks_beside(look, std_rad + std_m / nearest, code_half, camera, left)
 
     def _replan(self) -> None:
         self.state["looks"] = self._plan()
