@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="rapp run rapp", description=__doc__.split("\n\n")[0].replace("\n", " "))
     p.add_argument("rapp", nargs="?", help="a RApp source directory (with manifest.yaml) or a built .rapp package "
                                            "(with --replay: default the recorded package)")
-    p.add_argument("--robot", choices=ROBOTS, default="nao")
+    p.add_argument("--robot", choices=ROBOTS, default="nao", help="the simulated robot (default nao)")
     p.add_argument("--house", default="small", help="house name (small, house, twodoors, generated with --seed) "
                                                      "or YAML file")
     p.add_argument("--seed", type=int, default=1, help="draws the world (door angles, lamps; docs/sdk.md "
