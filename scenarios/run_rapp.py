@@ -110,7 +110,8 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
             elif speak:
                 await voice.speak(SpokenLine(say=owner.command))
             else:
-                print(f"[run] {robot} in {house}: owner says {owner.command!r}", flush=True)
+                if progress:  # --quiet: nothing until the closing summary
+                    print(f"[run] {robot} in {house}: owner says {owner.command!r}", flush=True)
                 await owner.handle.user.say(owner.handle.core.address, owner.command)
         owner.deliver = deliver
 
