@@ -143,6 +143,8 @@ class CoreAgent(RappAgent):
     """The Core Agent: the FSM of fig. 5 (agents/core_fsm.py) calls its steps; its members (hearing,
     robot_commands, events, strategies) do the rest."""
 
+    init_wait_s: float | None = None  # how long a Dynamic Agent may take to report Init (None: its login's + 10 s)
+
     def __init__(self, name: str, *, robot_id: str, robot_type: str, robot_api, owner: str,
                  platform: str, store: str, user: str, password: str, settings=None,
                  options: CoreOptions = CoreOptions()):
@@ -411,13 +413,23 @@ class CoreAgent(RappAgent):
         await asyncio.to_thread(unpack_package, data, workdir / "package", trusted_keys=self.trusted_keys,
                                 require_signature=self.require_signature)
         ident = self.accounts.take(self._dynamic_prefix(m.name))  # made ahead, or registered at its login
-        name = ident.name
-        session = DynamicSession(jid=self.settings.jid(name), rapp=m.name, version=m.version,
+        session = DynamicSession(jid=self.settings.jid(ident.name), rapp=m.name, version=m.version,
                                  manifest=m, workdir=workdir, account=ident,
                                  command=self._command_told[0] if self._command_told else "",
                                  trigger=TaskTrigger.SCHEDULED if self._trigger else TaskTrigger.COMMAND,
                                  schedule_id=self._trigger.schedule.id if self._trigger else None)
         self.dynamic = session
+        try:
+            await self._spawn(session, ident, params)
+        except Exception as e:  # the owner is told why once, by s10 (destroy_dynamic), from the session
+            self._end(session, str(e) or type(e).__name__)
+            raise
+        self._handoff()
+        self.accounts.prepare(self._dynamic_prefix(m.name))  # the next run of this RApp only logs in
+
+    async def _spawn(self, session: DynamicSession, ident, params: dict) -> None:
+        """s6 after the unpack: the run's token, the process, and its Init."""
+        m, name = session.manifest, ident.name
         app_token = await self.request(self.platform, P.IssueAppToken(
             token=await self.fresh_token(), rapp=m.name, services=m.services, holder_jid=session.jid,
             ttl_s=max(60.0, m.time_limit_s + 60)))
@@ -426,7 +438,7 @@ class CoreAgent(RappAgent):
                          robot=RobotInfo(robot_id=self.robot_id, robot_type=self.robot_type,
                                          capabilities=sorted(self.robot.capabilities())),
                          record=self.tracer.bodies is not None)
-        session.process = spawn_agent(spec, workdir, self.settings, mode=self.dynamic_mode, limits=self.limits,
+        session.process = spawn_agent(spec, session.workdir, self.settings, mode=self.dynamic_mode, limits=self.limits,
                                       sandbox=self.sandbox, pool=self.warm_pool)
         session.process.on_refusal = lambda refusal: self._sandbox_refused(session, refusal)
         await session.process.start()
@@ -435,14 +447,15 @@ class CoreAgent(RappAgent):
                               warm=getattr(session.process, "warm", False),
                               params=params, robot=spec.robot.model_dump())  # what a replay gives its run
         watcher = asyncio.create_task(self._watch_process(session))
+        wait = self.init_wait_s if self.init_wait_s is not None else self.settings.start_timeout + 10
         try:
-            await asyncio.wait_for(session.ready.wait(), self.settings.start_timeout + 10)
+            await asyncio.wait_for(session.ready.wait(), wait)
         except asyncio.TimeoutError:
-            raise RuntimeError(f"{name} did not report Init in time: {session.process.stderr_tail(500)}") from None
+            words = session.process.stderr_tail(500).strip()
+            raise RuntimeError(f"it did not report Init within {wait:g} s (its import or build takes longer, or "
+                               f"hangs){': ' + words if words else ''}") from None
         if session.ended.is_set():
-            raise RuntimeError(f"{name} ended at start: {session.end_reason}")
-        self._handoff()
-        self.accounts.prepare(self._dynamic_prefix(m.name))  # the next run of this RApp only logs in
+            raise RuntimeError(session.end_reason or "it ended at start")
         del watcher
 
     async def stop(self) -> None:
@@ -635,6 +648,8 @@ class CoreAgent(RappAgent):
             self.last_refusals = []
         if session.state == "Finished":  # told once its Cloud Agents are gone too
             await self.tell_user(f"{session.rapp} finished.{refused}")
+        elif session.started is None:  # never handed the robot (s6 failed)
+            await self.tell_user(f"The application {session.rapp} did not start: {session.end_reason}{refused}")
         else:
             await self.tell_user(f"{session.rapp} ended with a problem: {session.end_reason or session.detail}{refused}")
         await self._tell_task_end(TaskRecord(

@@ -156,7 +156,8 @@ class Activate(CoreState):  # s6: unpack, spawn a_dyn, hand over supervision
         try:
             await self.core.start_dynamic(self.memory["package"], self.memory.get("params", {}))
         except Exception as e:
-            await self.core.tell_user(f"The application {self.memory['rapp']} did not start: {_why(e)}")
+            if self.core.dynamic is None:  # else s10 tells, once its process is gone
+                await self.core.tell_user(f"The application {self.memory['rapp']} did not start: {_why(e)}")
             raise
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from spade.behaviour import PeriodicBehaviour
 
-from behaviours import BehaviourHost, Outcome, PauseGate
+from behaviours import BehaviourHost, Outcome, PauseGate, exception_text
 from ontology import core as C
 from ontology import platform as P
 from ontology.registry import parse_json
@@ -156,8 +156,8 @@ class DynamicAgent(RappAgent):
             if hasattr(self.task, "root"):  # the SDK's Task shows its running states in its log
                 self.task.root = behaviour
             return behaviour, None
-        except Exception as e:  # noqa: BLE001 - a broken RApp is reported, not crashed on
-            return None, f"task could not be built: {type(e).__name__}: {e}"
+        except (Exception, SystemExit) as e:  # noqa: BLE001 - a broken RApp is reported, not crashed on
+            return None, f"task could not be built: {exception_text(e)}"
 
     async def _run_task(self, behaviour) -> Outcome:
         await self._status(C.TaskState.WORKING)

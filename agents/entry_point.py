@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from behaviours import exception_text
+
 
 class EntryPointError(RuntimeError):
     pass
@@ -22,8 +24,8 @@ def load_entry_point(package_dir: str | Path, entry_point: str) -> Any:
         sys.path.insert(0, root)
     try:
         module = importlib.import_module(module_name)
-    except Exception as e:  # noqa: BLE001 - any import failure of RApp code is reported as such
-        raise EntryPointError(f"cannot import {module_name!r} from the package: {type(e).__name__}: {e}") from e
+    except (Exception, SystemExit) as e:  # noqa: BLE001 - any import failure of RApp code is reported as such
+        raise EntryPointError(f"cannot import {module_name!r} from the package: {exception_text(e)}") from e
     cls = getattr(module, class_name, None)
     if cls is None:
         raise EntryPointError(f"module {module_name!r} has no {class_name!r}")

@@ -17,9 +17,22 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 from .pause import run_pausable
+
+
+def exception_text(e: BaseException) -> str:
+    """'Type: message' of an error; one without a message (a bare `raise RuntimeError()`, `assert x`)
+    says where it was raised instead, its only clue: 'Type at file.py:LINE' (the innermost frame)."""
+    text = str(e).strip()
+    if text:
+        return f"{type(e).__name__}: {text}"
+    tb = e.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return type(e).__name__ + (f" at {Path(tb.tb_frame.f_code.co_filename).name}:{tb.tb_lineno}" if tb else "")
 
 
 @dataclass(frozen=True)
@@ -128,7 +141,7 @@ class Behaviour:
         except asyncio.CancelledError:
             raise
         except Exception as e:  # noqa: BLE001 - a failing transition is the behaviour's error
-            return Outcome(False, f"{type(e).__name__}: {e}", self.result, self.name)
+            return Outcome(False, exception_text(e), self.result, self.name)
 
 
 class OneShot(Behaviour):

@@ -256,11 +256,12 @@ def select(only: list[str] | None) -> list[str]:
     return chosen
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str = "python -m bench") -> int:
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes; about 5 minutes in total (the full run: ~15)")
     ap.add_argument("--json", metavar="FILE", help="write the results as JSON to FILE")
-    ap.add_argument("--only", nargs="+", metavar="NAME", help="run only these benchmarks")
+    ap.add_argument("--only", nargs="+", metavar="NAME",
+                    help=f"run only these benchmarks (default: all): {', '.join(BENCHMARKS)}")
     ap.add_argument("--tiny", action="store_true", help=argparse.SUPPRESS)  # smoke tests
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)

@@ -608,7 +608,7 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_run(argparse.Namespace(scenario=argv[1]), argv[2:])
         if argv and argv[0] == "bench":
             from bench.runner import main as bench_main
-            return bench_main(argv[1:])
+            return bench_main(argv[1:], prog="rapp bench")
         parser = build_parser()
         a, rest = parser.parse_known_args(argv)
         if a.command == "run":

@@ -44,7 +44,7 @@ SERVICE_COMMON: tuple[ErrorFact, ...] = (
     F(E.NO_TOKEN, "refuse", "the request carries no token (the SDK adds the run's)"),
     F(E.BAD_TOKEN, "refuse", "the token is unknown or was issued to another agent"),
     F(E.EXPIRED_TOKEN, "refuse", "the token has expired"),
-    F(E.PERMISSION, "refuse", "the RApp's manifest does not declare the service (`platform_services`)"),
+    F(E.PERMISSION, "refuse", "the RApp's manifest does not declare the service (`services`)"),
     F(E.BUSY, "refuse", "the Platform has too many calls in progress: retry shortly"),
     _CONTENT,
     F(E.SERVICE_ERROR, "failure", "the service failed unexpectedly (its reason says how)"),

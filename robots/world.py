@@ -119,6 +119,9 @@ class World(Scene):
             source = HOUSES / f"{path}.yaml"
         elif not path.exists() and str(path) == GENERATED:
             source = generate(seed)
+        elif not path.exists():
+            names = sorted([GENERATED, *(p.stem for p in HOUSES.glob("*.yaml") if not p.stem.endswith("-disturbances"))])
+            raise FileNotFoundError(f"no house {str(path)!r}: a house file (YAML) or one of {', '.join(names)}")
         mapped = load_plan(source, seed=seed, overrides=overrides)
         plan, changes = lived_in(mapped) if lived_in is not None else (mapped, None)
         plan, light = with_daylight(plan, daylight) if daylight is not None else (plan, None)

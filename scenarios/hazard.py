@@ -312,7 +312,7 @@ def summary(result: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rapp run hazard-detection", description=__doc__.split("\n\n")[0].replace("\n", " "))
-    ap.add_argument("--robot", choices=ROBOTS, default="nao")
+    ap.add_argument("--robot", choices=ROBOTS, default="nao", help="the simulated robot (default nao)")
     ap.add_argument("--seed", type=int, default=1, help="draws the world: door angles, lamps, a generated house "
                                                         "(docs/sdk.md 'Scoring against the truth')")
     ap.add_argument("--house", choices=HOUSES, default="house",

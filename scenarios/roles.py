@@ -184,7 +184,7 @@ async def _core(a, settings) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="rapp agent", description=__doc__.split("\n\n")[0])
-    p.add_argument("role", choices=["store", "platform", "core"])
+    p.add_argument("role", choices=["store", "platform", "core"], help="the agent to run here")
     p.add_argument("--name", help="the agent's account name (default: store / platform / core-ROBOT_ID)")
     p.add_argument("--store", default="store", help="the Store Agent's name or JID")
     p.add_argument("--platform", default="platform", help="the Platform Agent's name or JID")
@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="platform: Cloud Agent processes kept started ahead of time (default: 1, from the "
                         "first Cloud Agent on; N: filled at start, for N robots starting Cloud Agents at once)")
     p.add_argument("--robot", choices=robot_types.names(), default="nao", help="core: robot type")
-    p.add_argument("--robot-id")
+    p.add_argument("--robot-id", help="core: the robot's id (default: the type and 1, e.g. nao1)")
     p.add_argument("--owner", default="owner", help="core: the user whose chat it listens to")
     p.add_argument("--password", help="core: the owner's Platform/Store password (default: generated "
                                        "once, kept in the credentials directory)")
@@ -219,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="core, platform: DEVELOPMENT ONLY: run RApps (Cloud Agents) without the "
                         "sandbox where the kernel allows none (no user namespaces; the reason is printed)")
     p.add_argument("--house", default="small", help="core: simulated house (name or YAML file)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="core: draws the simulated house's world (door angles, lamps)")
     p.add_argument("--rtf", type=float, default=1.0, help="core: simulation real-time factor")
     p.add_argument("--record", metavar="DIR", help="core: record into DIR (trace, whole message bodies with secrets "
                    "as placeholders, the RApp packages, the robot's poses and frames; run.mcap at stop; "

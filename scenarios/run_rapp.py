@@ -110,7 +110,8 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
             elif speak:
                 await voice.speak(SpokenLine(say=owner.command))
             else:
-                print(f"[run] {robot} in {house}: owner says {owner.command!r}", flush=True)
+                if progress:  # --quiet: nothing until the closing summary
+                    print(f"[run] {robot} in {house}: owner says {owner.command!r}", flush=True)
                 await owner.handle.user.say(owner.handle.core.address, owner.command)
         owner.deliver = deliver
 
@@ -174,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="rapp run rapp", description=__doc__.split("\n\n")[0].replace("\n", " "))
     p.add_argument("rapp", nargs="?", help="a RApp source directory (with manifest.yaml) or a built .rapp package "
                                            "(with --replay: default the recorded package)")
-    p.add_argument("--robot", choices=ROBOTS, default="nao")
+    p.add_argument("--robot", choices=ROBOTS, default="nao", help="the simulated robot (default nao)")
     p.add_argument("--house", default="small", help="house name (small, house, twodoors, generated with --seed) "
                                                      "or YAML file")
     p.add_argument("--seed", type=int, default=1, help="draws the world (door angles, lamps; docs/sdk.md "

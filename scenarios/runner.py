@@ -209,7 +209,8 @@ class Run:
             owner.record = await owner.handle.user.task_end(timeout_s, owner.told_from, accept or (lambda r: True))
             return ""
         except asyncio.TimeoutError:
-            return f"{owner.kind}: no end within {timeout_s:g} s"
+            where = standing(owner.handle.core)
+            return f"{owner.kind}: no end within {timeout_s:g} s" + (f": {where}" if where else "")
         finally:
             owner.wall_s = time.monotonic() - t0
 
@@ -258,6 +259,19 @@ class Run:
         if owner.record is not None and not self.signum:
             return owner.record.told or owner.record.reason
         return self.reason(owner)
+
+
+def standing(core) -> str:
+    """Where a run that did not end stands, from its Core: the Core's state, the RApp's state and its last
+    report, what the Core waits for (a stop's "resume", a way past an obstacle)."""
+    state = core.supervisor.behaviour.current if core.supervisor is not None else None
+    parts = [f"the Core in {state}"] if state else []
+    d = core.dynamic
+    if d is not None:
+        parts.append(f"{d.rapp} {d.state}, " + (f"last report {d.reports[-1].text[:100]!r}" if d.reports
+                                                else "no report yet"))
+    waiting = core.strategies.waiting_for()
+    return "; ".join(parts + ([f"waiting for {waiting}"] if waiting else []))
 
 
 def listening(core) -> bool:

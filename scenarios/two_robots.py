@@ -109,7 +109,7 @@ def summary(result: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rapp run two-robots", description=__doc__.split("\n\n")[0].replace("\n", " "))
     ap.add_argument("--seed", type=int, default=1, help="draws the world (as in every scenario)")
-    ap.add_argument("--house", choices=HOUSES, default="house")
+    ap.add_argument("--house", choices=HOUSES, default="house", help="the house (default: house, the full one)")
     ap.add_argument("--shared", action="store_true", help="both owners list every hazard")
     ap.add_argument("--json", dest="json_path", default=None, help="write the result JSON here (default: OUT/result.json)")
     ap.add_argument("--out", dest="out_dir", default=None, help="directory for plots, frames, chats and trace "

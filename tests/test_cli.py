@@ -61,7 +61,7 @@ def test_top_level_help_lists_every_subcommand():
     (["trace", "--help"], "usage: rapp trace show"),
     (["trace", "export", "--help"], "usage: rapp trace export"),
     (["trace", "html", "--help"], "usage: rapp trace html"),
-    (["bench", "--help"], "usage: "),
+    (["bench", "--help"], "usage: rapp bench"),
     (["doctor", "--help"], "usage: rapp doctor"),
     (["house", "--help"], "usage: rapp house"),
 ])
@@ -255,6 +255,56 @@ def test_run_help_lists_every_scenario_and_each_scenarios_help_is_whole():
     assert "only the closing summary" in rapp("run", "rapp", "--help").stdout  # one meaning of --quiet
 
 
+def test_bench_help_lists_the_benchmarks_it_can_run():
+    from bench.runner import BENCHMARKS
+
+    res = rapp("bench", "--help")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("usage: rapp bench"), res.stdout[:200]
+    only = " ".join(res.stdout.split("--only NAME [NAME ...]")[-1].split())  # argparse wraps the help
+    assert all(name in only for name in BENCHMARKS), only
+
+
+HELPS = [[c] for c in ("server", "run", "test", "new", "package", "store", "platform", "house", "say", "trace",
+                       "replay", "bench", "agent", "doctor")] + [["trace", "export"], ["trace", "html"]] + [
+    ["run", s] for s in ("rapp", "hazard-detection", "hazard-table", "two-robots", "disturbances", "demo")]
+_EVERY_HELP = """
+import contextlib, io, json, sys
+from cli.main import main
+out = {}
+for argv in json.loads(sys.argv[1]):
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.suppress(SystemExit):
+        main([*argv, "--help"])
+    out[" ".join(argv)] = buf.getvalue()
+print(json.dumps(out))
+"""
+
+
+def options_without_help(text: str) -> list[str]:
+    """The arguments of an argparse help text that have no help of their own (on their line or the next)."""
+    lines, bare, listed = text.splitlines(), [], False
+    for i, line in enumerate(lines):
+        if line.endswith(":") and not line.startswith(" "):
+            listed = line.startswith(("options", "positional arguments"))
+        elif listed and line.startswith("  ") and not line.startswith("   "):
+            after = lines[i + 1] if i + 1 < len(lines) else ""
+            if "  " not in line.strip() and not (after.startswith("    ") and not after.lstrip().startswith("-")):
+                bare.append(line.strip())
+    return bare
+
+
+def test_every_subcommands_and_scenarios_help_explains_each_argument():
+    import json
+
+    res = subprocess.run([sys.executable, "-c", _EVERY_HELP, json.dumps(HELPS)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=120, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0, res.stderr[-2000:]
+    helps = json.loads(res.stdout)
+    assert len(helps) == len(HELPS) and all(text.startswith("usage: rapp ") for text in helps.values()), helps
+    assert {cmd: bare for cmd, text in helps.items() if (bare := options_without_help(text))} == {}
+
+
 GOLDEN = ROOT / "tests" / "data" / "golden_trace.jsonl"
 
 
@@ -280,3 +330,12 @@ def test_rapp_test_runs_a_folders_tests_outside_the_checkout(tmp_path):
                          stdin=subprocess.DEVNULL)
     assert res.returncode == 1 and "1 failed, 1 passed" in res.stdout, res.stdout[-2000:]
     assert "warning" not in res.stdout.lower(), res.stdout[-2000:]
+
+
+def test_rapp_test_robot_runs_the_door_audits_test_for_that_robot_only():
+    """The Store's build runs a RApp's tests once per robot type (RAPP_ROBOT_TYPE): the closing RApp of issue 43
+    ran both robots' full-house audits in each."""
+    res = rapp("test", ROOT / "rapps" / "examples" / "door_audit", "--robot", "elektron", "--collect-only", "-q")
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    collected = [line for line in res.stdout.splitlines() if "::" in line]
+    assert len(collected) == 1 and "elektron" in collected[0], res.stdout

@@ -116,3 +116,11 @@ def test_rapp_house_check_names_each_problem_and_fails(tmp_path, capsys):
     assert "walls.0: List should have at least 4 items" in capsys.readouterr().err
     assert main(["house", "check", str(HOUSES / "small-disturbances.yaml")]) == 1
     assert "is a disturbance file, not a house file" in capsys.readouterr().err
+
+
+def test_a_house_that_is_neither_a_file_nor_a_name_says_which_names_there_are():
+    from robots import World
+
+    with pytest.raises(FileNotFoundError) as e:  # it was "[Errno 2] No such file or directory: 'hous'"
+        World.from_file("hous")
+    assert str(e.value) == "no house 'hous': a house file (YAML) or one of generated, house, small, twodoors"

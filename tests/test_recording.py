@@ -7,6 +7,8 @@ estimate, a frame, the Platform, its Cloud Agent) serves the module; the re-simu
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import io
 import json
 import os
 import shutil
@@ -99,12 +101,23 @@ def test_a_folder_without_a_recording_is_refused_clearly(tmp_path):
 
 
 # -- a recorded run -------------------------------------------------------------------------------
+PRINTED: list[str] = []  # what the recorded run printed on stdout
+
+
 @pytest.fixture(scope="module")
 async def recorded(tmp_path_factory):
     out = tmp_path_factory.mktemp("recorded")
-    result = await run_rapp(APP, "nao", "small", 3, None, out, timeout_s=240)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):  # without progress, as `rapp run rapp --quiet` runs it
+        result = await run_rapp(APP, "nao", "small", 3, None, out, timeout_s=240)
     assert result["ok"], result["end"]
+    PRINTED.append(printed.getvalue())
     return out, result
+
+
+async def test_a_run_without_progress_prints_nothing_while_it_runs(recorded):
+    """`--quiet`: nothing until the closing summary (it printed "[run] nao in small: owner says ...")."""
+    assert PRINTED == [""]
 
 
 def _channels(path: Path) -> dict[str, tuple[str, str, str, int]]:

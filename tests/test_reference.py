@@ -43,6 +43,19 @@ def test_every_service_and_action_has_an_entry_with_request_answer_errors_and_ex
     assert "[DoorGeometry](#doorgeometry)" in door and "\n### DoorGeometry\n" in reference.services_md()
 
 
+def test_the_manifest_keys_the_references_name_are_the_manifests():
+    """A RApp author copies the key that grants a service or a robot-API group into manifest.yaml,
+    which refuses unknown keys."""
+    import re
+
+    from ontology.manifest import Manifest
+
+    for doc in (reference.services_md(), reference.robot_md()):
+        named = re.findall(r"manifest(?:'s)? [^.`]*`(\w+)`", doc)
+        assert named, doc[:600]
+        assert set(named) <= set(Manifest.model_fields), (set(named) - set(Manifest.model_fields))
+
+
 class Answering:
     """Stands in for the Dynamic Agent's `request` (the transport is tested elsewhere): each request
     must be its action's model, built by the typed call; the answer is the reply model's example."""

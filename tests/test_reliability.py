@@ -19,12 +19,19 @@ from .test_warm_pool import gone
 
 FAULTS = {  # keyword -> (params, time limit)
     "raiseecho": ({"behaviour": "raise"}, 60),
+    "bareecho": ({"behaviour": "raise-bare"}, 60),
     "hangecho": ({"behaviour": "hang"}, 60),
     "busyecho": ({"behaviour": "busy"}, 60),
     "killecho": ({"behaviour": "exit"}, 60),
     "crashecho": ({"behaviour": "crash"}, 60),
     "silentecho": ({"behaviour": "silent"}, 3),
     "lateecho": ({"behaviour": "linger", "seconds": 5}, 60),  # not a fault: its beats are held up
+}
+
+
+NO_START = {  # keyword -> the task module's first line
+    "exitecho": "raise SystemExit",
+    "stuckecho": "import time; time.sleep(3600)",
 }
 
 
@@ -38,6 +45,11 @@ async def system(tmp_path_factory):
             src = variant(workdir, kw.replace("echo", "-echo"), kw, **params)
             manifest = src / "manifest.yaml"
             manifest.write_text(manifest.read_text().replace("time_limit_s: 60", f"time_limit_s: {limit}"))
+            await system.publish(src)
+        for kw, line in NO_START.items():  # a task module that ends or hangs its process when imported
+            src = variant(workdir, kw.replace("echo", "-echo"), kw)
+            task = src / "echo_app" / "task.py"
+            task.write_text(f"{line}\n{task.read_text()}")
             await system.publish(src)
         system.handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")))
         await wait_until(lambda: system.handle.core.vocabulary and system.handle.core.listening)
@@ -124,3 +136,40 @@ async def test_beats_held_up_on_the_way_are_not_a_hang(system):
     late = _records(system, "late-echo", "structure", "heartbeat-late")
     assert late and late[-1]["why"] == "its loop waits for events", late
     assert not _records(system, "late-echo", "structure", "ended")[-1]["reason"].startswith("no heartbeat")
+
+
+def _told_since(system, start: int, rapp: str) -> list[str]:
+    return [text for _, _, text in system.handle.user.received[start:] if rapp in text]
+
+
+async def test_a_fault_without_a_message_says_its_type_and_where_it_was_raised(system):
+    reply = await run_command(system, "bareecho", "bare-echo ended with a problem", timeout=30)
+    assert "misbehave: RuntimeError at task.py:" in reply and not reply.rstrip().endswith(":"), reply
+
+
+async def test_a_task_that_ends_its_process_at_import_is_reported_once_with_why(system):
+    start = len(system.handle.user.received)
+    reply = await run_command(system, "exitecho", "exit-echo ended with a problem", timeout=30)
+    assert "SystemExit at task.py:1" in reply, reply  # it was: "process exited with code 0"
+    await wait_until(lambda: system.handle.core.listening)
+    assert [t for t in _told_since(system, start, "exit-echo") if "Starting" not in t] == [reply]
+
+
+async def test_a_task_that_never_reports_init_is_reported_once_with_why(system):
+    """Its import hangs: the Core gives up waiting for Init, says so once (it said it twice, the second
+    time 'ended with a problem: ' with no reason), ends the process and listens again."""
+    core = system.handle.core
+    core.init_wait_s = 4.0
+    try:
+        start = len(system.handle.user.received)
+        reply = await run_command(system, "stuckecho", "stuck-echo did not start", timeout=40)
+        assert "did not report Init within 4 s" in reply, reply
+        await wait_until(lambda: core.active_behaviours() == SUPERVISING and core.listening)
+        assert _told_since(system, start, "stuck-echo") == [reply]
+        ended = _records(system, "stuck-echo", "structure", "ended")[-1]
+        assert "did not report Init" in ended["reason"], ended
+        spawn = _records(system, "stuck-echo", "structure", "spawn")[-1]
+        await wait_until(lambda: gone(spawn["pid"]), 5)
+    finally:
+        del core.init_wait_s
+    await run_command(system, "echo", "echo-app finished")

@@ -3,6 +3,7 @@ per seed in every scenario, and a long run's plain progress lines folded."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 from ontology.results import ReportRecord, TaskRecord, TaskStage
@@ -72,3 +73,16 @@ def test_plain_lines_fold_a_walks_steps_and_give_their_totals():
     assert len(status) == 3 and "latest: d1: at (" in status[-1]  # one every 30 s of the 100 s
     assert len(lines) < 15, lines
     assert plain.totals() == ["navigate 200 (n3_relocalize 200)", "n3_relocalize 200 (l3_capture 200)"]
+
+
+async def test_a_run_that_does_not_end_in_time_says_where_it_stands(tmp_path):
+    """`rapp run rapp --timeout`: the reason said "nao: no end within 3 s" and nothing of where the run was."""
+    from scenarios.run_rapp import run_rapp
+
+    from .test_lifecycle import variant
+
+    src = variant(tmp_path, "silent-echo", "silentecho", behaviour="silent")
+    result = await run_rapp(src, "nao", "small", 1, None, tmp_path / "run", timeout_s=3)
+    assert not result["ok"]
+    assert re.fullmatch(r"nao: no end within 3 s: the Core in s\d+\w*; silent-echo (Spawned|Init|Working), no report "
+                        r"yet", result["reason"]), result["reason"]

@@ -363,7 +363,7 @@ def services_md() -> str:
              "Every service a RApp may call on the Platform, generated from the ontology (ontology/services/, "
              "ontology/platform.py) with its errors (ontology/action_errors.py). A RApp calls one as "
              "`await self.platform.<service>(**fields)` (rapps/sdk/calls.py: typed, the token is added for "
-             "you), after declaring it in its manifest's `platform_services`. Fields are keyword "
+             "you), after declaring it in its manifest's `services`. Fields are keyword "
              "arguments; a nested model may be given as the model or as a dict. Units: metres, radians "
              "(degrees where a name says `_deg`), seconds. The examples are the body of an `async def` "
              "of a Task; tests/test_reference.py runs each one through the SDK against the models.", "",
