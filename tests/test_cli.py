@@ -332,10 +332,11 @@ def test_rapp_test_runs_a_folders_tests_outside_the_checkout(tmp_path):
     assert "warning" not in res.stdout.lower(), res.stdout[-2000:]
 
 
-def test_rapp_test_robot_runs_the_door_audits_test_for_that_robot_only():
+@pytest.mark.parametrize("example, tests", [("door_audit", 1), ("lamp_patrol", 2)])
+def test_rapp_test_robot_runs_the_examples_tests_for_that_robot_only(example, tests):
     """The Store's build runs a RApp's tests once per robot type (RAPP_ROBOT_TYPE): the closing RApp of issue 43
-    ran both robots' full-house audits in each."""
-    res = rapp("test", ROOT / "rapps" / "examples" / "door_audit", "--robot", "elektron", "--collect-only", "-q")
+    ran both robots' full-house audits in each, lamp patrol both robots' full-house patrols."""
+    res = rapp("test", ROOT / "rapps" / "examples" / example, "--robot", "elektron", "--collect-only", "-q")
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     collected = [line for line in res.stdout.splitlines() if "::" in line]
-    assert len(collected) == 1 and "elektron" in collected[0], res.stdout
+    assert len(collected) == tests and all("elektron" in c for c in collected), res.stdout

@@ -100,7 +100,7 @@ def test_rapp_house_new_then_check_draws_a_valid_house(tmp_path, capsys):
     png = tmp_path / "flat.png"
     assert main(["house", "check", str(path), "-o", str(png), "--seed", "2"]) == 0
     out = capsys.readouterr().out
-    assert "flat: 6.1 m x 4.1 m, 2 rooms, 1 doors, 1 lamps" in out and "(2 of 0.25 m, 1 of 0.35 m)" in out
+    assert "flat: 6.1 m x 4.1 m, 2 rooms, 1 door, 1 lamp" in out and "(2 of 0.25 m, 1 of 0.35 m)" in out
     assert f"valid; drawn at seed 2 in {png}" in out
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 

@@ -1,7 +1,9 @@
 """Runs lamp-patrol on the simulated robots, as `rapp run rapp rapps/examples/lamp_patrol` does: in the
-small house (quick), and in the full house, scored against the world's truth (slow: minutes each)."""
+small house (quick), and in the full house, scored against the world's truth (slow: minutes each).
+`rapp test DIR --robot R` (RAPP_ROBOT_TYPE, as the Store's build per robot type sets it) runs only R's."""
 import json
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -9,11 +11,12 @@ import pytest
 from scenarios.run_rapp import run_rapp
 
 HERE = Path(__file__).resolve().parent.parent
+ROBOTS = [os.environ["RAPP_ROBOT_TYPE"]] if os.environ.get("RAPP_ROBOT_TYPE") else ["nao", "elektron"]
 pytestmark = pytest.mark.asyncio  # async tests run under pytest-asyncio, in or out of this checkout
 
 
 # the Elektron's run is slow-marked for the default suite's time; its hazard run in two-robots stays
-@pytest.mark.parametrize("robot", ["nao", pytest.param("elektron", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("robot", [pytest.param(r, marks=pytest.mark.slow) if r == "elektron" else r for r in ROBOTS])
 async def test_lamp_patrol_checks_every_lamp_and_keeps_pictures(tmp_path, robot):
     result = await run_rapp(HERE, robot, "small", 1, "check the lamps in the living", tmp_path, timeout_s=240)
     assert result["ok"], result["end"]
@@ -31,7 +34,7 @@ async def test_lamp_patrol_checks_every_lamp_and_keeps_pictures(tmp_path, robot)
 
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
-@pytest.mark.parametrize("robot", ["nao", "elektron"])
+@pytest.mark.parametrize("robot", ROBOTS)
 async def test_lamp_patrol_in_the_full_house_gets_every_lamp_right_and_stands_where_it_meant(tmp_path, robot):
     result = await run_rapp(HERE, robot, "house", 1, "patrol the lamps", tmp_path, timeout_s=1500)
     assert result["ok"], result["end"]
