@@ -55,6 +55,13 @@ class Motion(Protocol):
     cancelled: bool
 
 
+class MovingJoints(Motion, Protocol):
+    """Joints on their way to targets at a constant speed (robots.controllers.JointMotion)."""
+
+    targets: dict[str, float] | None
+    speed: float  # rad/s
+
+
 class Base(Protocol):
     """The mobile base (robots.effectors.BaseEffector)."""
 

@@ -22,14 +22,14 @@ import math
 import os
 import zlib
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from .odometry import wrap
 
 if TYPE_CHECKING:
-    from .body import Body
+    from .body import Body, MovingJoints
     from .spec import RobotSpec
 
 ENV = "RAPP_FAILURE_MODES"
@@ -392,7 +392,7 @@ def camera_motion(robot: "Body", depth_m: float) -> tuple[float, float]:
             continue
         for joint, goal in targets.items():
             if joint in (s.head_yaw, s.head_pitch) and abs(goal - robot.q.get(joint, goal)) > 1e-6:
-                rate = math.copysign(ctrl.speed, goal - robot.q[joint])
+                rate = math.copysign(cast("MovingJoints", ctrl).speed, goal - robot.q[joint])
                 if joint == s.head_yaw:
                     wh += rate
                 else:
