@@ -18,7 +18,8 @@ from scenarios.home_setup import hazard_list, hazard_overrides
 RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
                "duration_sim_s", "duration_wall_s", "trace", "plot", "finished", "end", "routes_blocked",
                "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops",
-               "ok", "reason", "frames", "trigger", "house", "lived_in", "link", "daylight", "drive"}
+               "ok", "reason", "frames", "trigger", "house", "lived_in", "link", "daylight", "drive",
+               "scheduled", "rtf", "command_sim_s", "disturbances", "during"}
 
 
 def structure_events(trace: list[dict], rapp: str) -> list[str]:
@@ -31,6 +32,8 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     # realism is asked for, never the default
     assert result["lived_in"] is None and result["link"] is None and result["daylight"] is None
     assert result["drive"] == "statistical"
+    # what a re-simulation gives again (tests/test_hazard_resim.py): when the command was given, in simulated s
+    assert isinstance(result["command_sim_s"], float) and result["command_sim_s"] >= 0.0
     assert {h["id"] for h in result["hazards"]} == hazard_ids
     assert result["all_correct"], result["hazards"]
     assert result["ok"] and result["finished"], result["reason"]
