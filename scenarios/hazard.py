@@ -99,7 +99,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                live: bool | None = None, record: bool = True, frames: bool = True,
                                scheduled: str | None = None, link: LinkFaults | None = None,
                                lived_in: LivedIn | None = None, daylight: Daylight | None = None,
-                               mechanical_drive: bool = False, command_at: float | None = None) -> dict:
+                               mechanical_drive: bool = False, command_at: float | None = None,
+                               rapp: Path | None = None) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
@@ -114,7 +115,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     `daylight`: the light of a time of day, windows and lamps of several strengths (robots/lighting.py;
     the result's `daylight`). `mechanical_drive`: the NAO's body moves by steps, the Elektron's by its
     wheel sides (robots/failure_modes.py mechanical; the result's `drive`). `command_at`: the simulated
-    time the owner gives the command at (a re-simulation's: the recorded `command_sim_s`)."""
+    time the owner gives the command at (a re-simulation's: the recorded `command_sim_s`). `rapp`: the
+    hazard RApp's source folder or a built package (default rapps/hazard_detection)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     # one robot: its large frames in two bands, one on each core (robots/render_process.py)
@@ -129,7 +131,7 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
         owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home, link=link, command_at=command_at)
         if scheduled:
             owner.command, owner.deliver, owner.core_kw = schedule_owner(world, scheduled)
-        run = Run(out, world, RAPP_DIR, [owner], settings=settings,
+        run = Run(out, world, rapp or RAPP_DIR, [owner], settings=settings,
                   platform_kw={"services_state": ServiceState(work_dir=out / "services")},
                   record=record, frames=frames, grid=home_map(world, house))
         side = None if during is None else (lambda run: during(owner.handle, world, recorder))
@@ -398,6 +400,16 @@ def summary(result: dict) -> str:
 REPLAY_SETS = ("robot", "seed", "house", "rtf", "scheduled", "realism", "mechanical_drive", "daylight", "lived_in", "link")
 
 
+def recorded_package(run_dir) -> Path | None:
+    """The hazard RApp's package the recorded run ran (packages/), None if it kept none."""
+    from rapps.replay import RecordingError, load_recording
+
+    try:
+        return load_recording(run_dir).package
+    except RecordingError:
+        return None
+
+
 def describe_settings(settings: dict) -> str:
     knobs = [k for k in ("lived_in", "link", "daylight") if settings.get(k) is not None]
     knobs += ["mechanical drive"] if settings.get("mechanical_drive") else []
@@ -405,7 +417,9 @@ def describe_settings(settings: dict) -> str:
     knobs += [f"scheduled at {settings['scheduled']}"] if settings.get("scheduled") else []
     return (f"re-simulating {settings['robot']} seed {settings['seed']} in {settings['house']}"
             + (f", command at {settings['command_at']:.2f} s simulated" if settings.get("command_at") is not None else "")
-            + f"; realism: {', '.join(k.replace('_', '-') for k in knobs) or 'none'}")
+            + f"; realism: {', '.join(k.replace('_', '-') for k in knobs) or 'none'}; "
+            + (f"the recorded package {settings['rapp'].name}" if settings.get("rapp")
+               else f"no package kept: the RApp of {RAPP_DIR}"))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -454,6 +468,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"rapp run hazard-detection: cannot re-simulate {args.replay}: {exc}", file=sys.stderr)
             return 2
         args.robot = settings["robot"]
+        settings["rapp"] = recorded_package(args.replay)
         print(f"[resim] {describe_settings(settings)}", flush=True)
     else:
         settings = {"robot": args.robot, "seed": args.seed, "house": args.house, "rtf": args.rtf,

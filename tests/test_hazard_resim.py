@@ -73,13 +73,34 @@ def test_a_realistic_run_is_re_simulated_with_every_recorded_knob(tmp_path, real
     assert "realism: lived-in, link, daylight, mechanical drive" in capsys.readouterr().out
 
 
+def test_the_recorded_package_is_run_again_not_todays_source(tmp_path, realistic, started, capsys):
+    """The RApp of the recorded run (packages/, what its Core downloaded), where the recording kept it."""
+    import hashlib
+
+    data = b"the recorded hazard RApp"
+    sha = hashlib.sha256(data).hexdigest()
+    (tmp_path / "packages").mkdir()
+    (tmp_path / "packages" / f"{sha}.rapp").write_bytes(data)
+    core, dyn = "core-nao1@localhost", "dyn-nao1-hazard-detection-1@localhost"
+    trace = [{"t": 1.0, "kind": "structure", "pid": 1, "agent": core, "event": "download", "rapp": "hazard-detection",
+              "sha256": sha},
+             {"t": 2.0, "kind": "structure", "pid": 1, "agent": core, "event": "spawn", "rapp": "hazard-detection",
+              "dynamic": dyn}]
+    (tmp_path / "trace.jsonl").write_text("".join(json.dumps(r) + "\n" for r in trace))
+    (tmp_path / "messages.jsonl").write_text("")
+    with pytest.raises(Started) as run:
+        main(["--replay", str(_recording(tmp_path, realistic)), "--quiet"])
+    assert run.value.kw["rapp"] == tmp_path / "packages" / f"{sha}.rapp"  # before: today's rapps/hazard_detection
+    assert f"the recorded package {sha}.rapp" in capsys.readouterr().out
+
+
 def test_an_older_recording_without_knobs_runs_the_plain_world(tmp_path, started):
     old = {"robot": "elektron", "seed": 3, "house": "house", "hazards": [], "ok": True, "trigger": "command"}
     with pytest.raises(Started) as run:
         main(["--replay", str(_recording(tmp_path, old)), "--quiet"])
     kw = run.value.kw
     assert (kw["robot"], kw["seed"], kw["house"]) == ("elektron", 3, "house")
-    assert kw["lived_in"] is kw["daylight"] is kw["link"] is kw["command_at"] is None
+    assert kw["lived_in"] is kw["daylight"] is kw["link"] is kw["command_at"] is kw["rapp"] is None
     assert kw["mechanical_drive"] is False
 
 
