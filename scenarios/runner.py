@@ -358,12 +358,14 @@ def main_loop(coro) -> Any:
     return asyncio.run(main())
 
 
-def add_recording_options(parser) -> None:
-    """--no-record, --no-frames, --replay, --tolerance: the recording options every `rapp run` scenario
-    that records takes (docs/recordings.md)."""
+def add_recording_options(parser, replay: bool = True) -> None:
+    """--no-record, --no-frames and (`replay`) --replay, --tolerance: the recording options every
+    `rapp run` scenario that records takes (docs/recordings.md)."""
     parser.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
                                                                   "packages/ nor run.mcap (docs/recordings.md)")
     parser.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
+    if not replay:
+        return
     parser.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run (its robot, house, seed, "
                         "realism and disturbances, and its command at its simulated time), then compare reports "
                         "and trajectory with it (docs/recordings.md)")

@@ -2,7 +2,7 @@
 world again, with every setting the recorded result.json names (robot, seed, house, the realism knobs:
 lived-in, link, daylight, drive; disturbances, schedule, the command's simulated time), and refuses
 with a clear error a recording whose settings it cannot apply. No simulation runs here: the hazard run
-is replaced by one that keeps the keywords it was given."""
+is replaced by one that keeps the keywords it was given (so are two-robots' recording options)."""
 from __future__ import annotations
 
 import argparse
@@ -159,3 +159,20 @@ def test_a_time_of_day_on_the_clock_is_taken():
     assert time_of_day("18:30") == 18.5 and time_of_day("07:15") == 7.25 and time_of_day("0:00") == 0.0
     assert time_of_day("23:59") == pytest.approx(23 + 59 / 60) and time_of_day("18.5") == 18.5
     assert time_of_day("7") == 7.0 and time_of_day("random") is None
+
+
+def test_two_robots_can_be_run_without_a_recording(monkeypatch):
+    """`rapp run two-robots --no-record` / `--no-frames`, as every other scenario that records
+    (docs/recordings.md); the option did not exist."""
+    from scenarios import two_robots
+
+    async def fake_run(*args, **kw):
+        raise Started(kw)
+
+    monkeypatch.setattr(two_robots, "run_two_robots", fake_run)
+    with pytest.raises(Started) as run:
+        two_robots.main(["--no-record"])
+    assert run.value.kw["record"] is False and run.value.kw["frames"] is True
+    with pytest.raises(Started) as run:
+        two_robots.main(["--no-frames"])
+    assert run.value.kw["record"] is True and run.value.kw["frames"] is False
