@@ -161,10 +161,10 @@ def test_a_time_of_day_on_the_clock_is_taken():
     assert time_of_day("7") == 7.0 and time_of_day("random") is None
 
 
-def test_two_robots_can_be_run_without_a_recording(monkeypatch):
-    """`rapp run two-robots --no-record` / `--no-frames`, as every other scenario that records
-    (docs/recordings.md); the option did not exist."""
-    from scenarios import two_robots
+def test_two_robots_and_the_disturbances_can_be_run_without_a_recording(monkeypatch):
+    """`rapp run two-robots|disturbances --no-record` / `--no-frames`, as every other scenario that
+    records (docs/recordings.md); the options did not exist."""
+    from scenarios import disturbance_suite, two_robots
 
     async def fake_run(*args, **kw):
         raise Started(kw)
@@ -176,3 +176,7 @@ def test_two_robots_can_be_run_without_a_recording(monkeypatch):
     with pytest.raises(Started) as run:
         two_robots.main(["--no-frames"])
     assert run.value.kw["record"] is True and run.value.kw["frames"] is False
+    monkeypatch.setattr(disturbance_suite, "run_case", fake_run)
+    with pytest.raises(Started) as run:
+        disturbance_suite.main(["--no-record", "--case", "door-closed", "--robot", "nao"])
+    assert run.value.kw["record"] is False and run.value.kw["frames"] is True
