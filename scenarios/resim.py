@@ -150,6 +150,10 @@ def compare(old_dir: str | Path, new_dir: str | Path, robot: str, tolerance_m: f
         if key in old and _setting(key, old.get(key)) != _setting(key, new.get(key)):
             c.differ.append(f"{key}: {_short(new.get(key))} now, {_short(old.get(key))} recorded "
                             "(not a re-simulation of it)")
+    knobs = [k for k in ("lived_in", "daylight", "link", "disturbances") if old.get(k)
+             and _setting(k, old[k]) == _setting(k, new.get(k))]
+    if knobs:
+        c.same.append(f"the world's {', '.join(knobs)} as recorded")
     truth_old, truth_new = old.get("truth") or {}, new.get("truth") or {}
     for key in ("doors", "lamps"):
         if key in truth_old:
@@ -191,6 +195,12 @@ def _report(r: dict) -> dict:
 
 def _compare_hazards(old: list[dict], new: list[dict], c: Comparison) -> None:
     by_id = {h["id"]: h for h in new}
+    truth = [{k: h.get(k) for k in ("id", "true_state", "true_angle")} for h in old]
+    if truth == [{k: by_id.get(h["id"], {}).get(k) for k in ("id", "true_state", "true_angle")} for h in old]:
+        c.same.append("the world's hazards drawn from the seed (true states and angles)")
+    else:
+        c.differ.append("the world's hazards: " + _short([{k: h.get(k) for k in ("id", "true_state", "true_angle")}
+                                                         for h in new]) + " now")
     for h in old:
         n = by_id.get(h["id"])
         if n is None:

@@ -129,6 +129,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                       f"{'finished' if ok else run.interrupted or 'error'}",
                 trajectory=[p[1:3] for p in run.trajectories[robot]])
             result = {"rapp": run.name, "robot": robot, "house": house, "seed": seed, "command": owner.command,
+                      "delivery": "listen" if listen else "speech" if speak else "chat",
                       "command_sim_s": owner.given_at,
                       "scenario": str(disturbances) if disturbances else None,
                       "spoken": voice.spoken, "person_contacts": world.person_contacts(),
@@ -239,8 +240,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _from_recording(a, p) -> argparse.Namespace:
-    """A re-simulation's settings: the recorded run's robot, house, seed, command and its time, scenario
-    file, and (no RApp given) its recorded package."""
+    """A re-simulation's settings: the recorded run's robot, house, seed, command, how it was given
+    (typed, said aloud, or by voice to a listening robot) and its time, scenario file, and (no RApp
+    given) its recorded package."""
     from scenarios.resim import recorded_result
 
     rec = recorded_result(a.replay)
@@ -250,6 +252,13 @@ def _from_recording(a, p) -> argparse.Namespace:
             setattr(a, key, rec[field])
     if a.scenario is None and rec.get("scenario"):
         a.scenario = rec["scenario"]
+    delivery = rec.get("delivery", "chat")
+    if delivery not in ("chat", "speech", "listen"):
+        raise ValueError(f"{a.replay}: the command came by {delivery!r}, which this build cannot give again")
+    if delivery == "listen" and not a.scenario:
+        raise ValueError(f"{a.replay}: the owner gave the command by voice while it listened (`rapp say`), "
+                         "which a re-simulation cannot say again; a --scenario file's speech lines can")
+    a.speak, a.listen = a.speak or delivery == "speech", a.listen or delivery == "listen"
     a.command_at = rec.get("command_sim_s")
     if a.rapp is None:
         from rapps.replay import load_recording

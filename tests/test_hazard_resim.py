@@ -141,9 +141,20 @@ def test_a_re_simulation_in_another_world_is_told_apart(tmp_path, realistic):
     _recording(new, {**realistic, **traj, "link": other_link})
     c = resim.compare(old, new, "nao")
     assert c.ok, c.text()
+    assert "the world's lived_in, daylight, link as recorded" in c.same
     _recording(new, {**realistic, **traj, "lived_in": None, "drive": "statistical"})
     c = resim.compare(old, new, "nao")
     assert not c.ok and any(d.startswith("lived_in:") for d in c.differ) and any(d.startswith("drive:") for d in c.differ)
+
+    door = {"id": "d1", "type": "door", "true_state": "open", "reported_state": "open", "true_angle": 40.0,
+            "estimated_angle": 41.0}
+    _recording(old, {**realistic, **traj, "hazards": [door]})
+    _recording(new, {**realistic, **traj, "hazards": [{**door, "estimated_angle": 43.0}]})
+    c = resim.compare(old, new, "nao")
+    assert c.ok and any("hazards drawn from the seed" in x for x in c.same), c.text()
+    _recording(new, {**realistic, **traj, "hazards": [{**door, "true_angle": 55.0}]})  # another world, same report
+    c = resim.compare(old, new, "nao")
+    assert not c.ok and any("the world's hazards" in d for d in c.differ), c.text()
 
 
 @pytest.mark.parametrize("bad", ["18:70", "18:", "18:5", "7:60", "24:00", "-1", "-0:30", "nan", "inf", "1e1", "noon"])

@@ -310,6 +310,44 @@ async def test_resimulation_matches_the_recording(recorded, tmp_path):
     assert not c.ok and any("seed" in d for d in c.differ) and any("doors" in d for d in c.differ)
 
 
+@pytest.mark.parametrize("delivery, speak, listen, scenario", [("speech", True, False, None),
+                                                            ("listen", False, True, "speech.yaml"),
+                                                            ("chat", False, False, None)])
+def test_a_re_simulation_gives_the_command_as_it_was_given(tmp_path, monkeypatch, delivery, speak, listen, scenario):
+    """Said aloud, or by voice to a listening robot (its scenario's speech lines): so again, not typed."""
+    from scenarios import run_rapp as R
+
+    kept = {}
+
+    class Began(Exception):
+        pass
+
+    async def fake_run(*args, **kw):  # the run itself is not this test's subject
+        kept.update(kw)
+        raise Began
+
+    monkeypatch.setattr(R, "run_rapp", fake_run)
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    if scenario:
+        (tmp_path / scenario).write_text("speech:\n  - {at: 1.0, say: double it}\n")
+    (rec / "result.json").write_text(json.dumps({"robot": "nao", "house": "small", "seed": 3, "command": "double it",
+                                                 "delivery": delivery, "command_sim_s": 2.0,
+                                                 "scenario": str(tmp_path / scenario) if scenario else None}))
+    with pytest.raises(Began):
+        R.main([str(APP), "--replay", str(rec), "--out", str(tmp_path / "out"), "--quiet"])
+    assert (kept["speak"], kept["listen"], kept["command_at"]) == (speak, listen, 2.0)
+
+
+def test_a_voice_command_given_by_rapp_say_cannot_be_re_simulated(tmp_path, capsys):
+    from scenarios.run_rapp import main
+
+    (tmp_path / "result.json").write_text(json.dumps({"robot": "nao", "house": "small", "seed": 3, "command": None,
+                                                      "delivery": "listen", "scenario": None}))
+    assert main([str(APP), "--replay", str(tmp_path), "--quiet"]) == 2
+    assert "rapp say" in capsys.readouterr().err
+
+
 def test_the_trace_page_shows_the_scene_at_the_record_clicked(recorded, browser_page, tmp_path):
     """Item 5: clicking a message moves the scene to its time: the robot where it was then, the path
     it was following, the latest frame; the slider scrubs through the run."""
