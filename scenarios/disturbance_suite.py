@@ -28,7 +28,7 @@ from typing import Awaitable, Callable
 from ontology import robot_types
 
 from .hazard import run_hazard_detection
-from .runner import RunInterrupted, main_loop
+from .runner import RunInterrupted, add_recording_options, main_loop
 
 HOUSE = "twodoors"
 ROBOTS = robot_types.names()  # ontology/robot_types.py
@@ -88,11 +88,11 @@ def judge(case: Case, result: dict) -> dict:
 
 
 async def run_case(case: Case, robot: str, seed: int = 1, out_dir: Path | None = None,
-                   timeout_s: float = 900.0) -> dict:
+                   timeout_s: float = 900.0, record: bool = True, frames: bool = True) -> dict:
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"disturbance-{case.name}-{robot}-"))
     result = await run_hazard_detection(robot, seed, HOUSE, out_dir=out, timeout_s=timeout_s,
                                         disturbances={"disturbances": case.disturbances} if case.disturbances
-                                        else None, during=case.during)
+                                        else None, during=case.during, record=record, frames=frames)
     return judge(case, result)
 
 
@@ -114,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="draws the world (as in every scenario)")
     ap.add_argument("--json", dest="json_path", help="write the rows here (after every case)")
     ap.add_argument("--out", help="folder for each run's result, trace, plot and frames (default: temporary)")
+    add_recording_options(ap, replay=False)
     a = ap.parse_args(argv)
     rows = []
     for name in a.case or list(CASES):
@@ -121,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
             out = Path(a.out) / f"{name}-{robot}" if a.out else None
             print(f"[disturbances] {name} on {robot} ...", flush=True)
             try:
-                row = main_loop(run_case(CASES[name], robot, a.seed, out))
+                row = main_loop(run_case(CASES[name], robot, a.seed, out, record=not a.no_record,
+                                         frames=not a.no_frames))
             except RunInterrupted as stop:  # the interrupted case is a row too (not passed), then the table
                 if stop.result:
                     rows.append(judge(CASES[name], stop.result))

@@ -17,9 +17,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 import tempfile
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 from agents.services.context import ServiceState
@@ -32,7 +33,7 @@ from robots import OdometryNoise, RobotAPI
 from robots.failure_modes import mechanical
 from robots.lighting import Daylight
 from robots.lived_in import LivedIn
-from xmpp_server.link import LinkFaults
+from xmpp_server.link import LinkFaults, LinkStats
 
 from .home_setup import DOOR_OPEN_DEG, HOUSES, home_description, home_map, scenario_world
 from .plots import plot_hazard_run
@@ -98,7 +99,8 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                                live: bool | None = None, record: bool = True, frames: bool = True,
                                scheduled: str | None = None, link: LinkFaults | None = None,
                                lived_in: LivedIn | None = None, daylight: Daylight | None = None,
-                               mechanical_drive: bool = False) -> dict:
+                               mechanical_drive: bool = False, command_at: float | None = None,
+                               rapp: Path | None = None) -> dict:
     """`disturbances`: people, doors and boxes of a scenario (robots/disturbances.py); `during`: an
     `async fn(handle, world, recorder)` run while the task runs (cancelled at its end), e.g. the
     owner's stop and resume; `progress`: show it (`live`: the rich panel, None = on a terminal). The
@@ -112,7 +114,9 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
     `lived_in`: the house changed since its map was made (robots/lived_in.py; the result's `lived_in`).
     `daylight`: the light of a time of day, windows and lamps of several strengths (robots/lighting.py;
     the result's `daylight`). `mechanical_drive`: the NAO's body moves by steps, the Elektron's by its
-    wheel sides (robots/failure_modes.py mechanical; the result's `drive`)."""
+    wheel sides (robots/failure_modes.py mechanical; the result's `drive`). `command_at`: the simulated
+    time the owner gives the command at (a re-simulation's: the recorded `command_sim_s`). `rapp`: the
+    hazard RApp's source folder or a built package (default rapps/hazard_detection)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"hazard-{robot}-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     # one robot: its large frames in two bands, one on each core (robots/render_process.py)
@@ -124,10 +128,10 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
             await world.run(body.set_failure_modes, mechanical(body.failure_modes))
         recorder = RecordingAPI(RobotAPI(body), frames_dir=out / "frames")
         home = home_description(world, house, out)
-        owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home, link=link)
+        owner = Owner(robot, recorder, f"owner-{robot}-{seed}", COMMAND, home=home, link=link, command_at=command_at)
         if scheduled:
             owner.command, owner.deliver, owner.core_kw = schedule_owner(world, scheduled)
-        run = Run(out, world, RAPP_DIR, [owner], settings=settings,
+        run = Run(out, world, rapp or RAPP_DIR, [owner], settings=settings,
                   platform_kw={"services_state": ServiceState(work_dir=out / "services")},
                   record=record, frames=frames, grid=home_map(world, house))
         side = None if during is None else (lambda run: during(owner.handle, world, recorder))
@@ -152,6 +156,9 @@ async def run_hazard_detection(robot: str = "nao", seed: int = 1, house: str = "
                 "trace": str(run.trace), "plot": str(out / "hazard_run.png"),
                 "link": link_result(run, owner, link), "lived_in": world.lived_in, "daylight": world.daylight,
                 "drive": "mechanical" if mechanical_drive else "statistical",
+                "scheduled": scheduled, "rtf": rtf, "command_sim_s": owner.given_at,
+                "disturbances": None if disturbances is None else _jsonable(disturbances),
+                "during": None if during is None else getattr(during, "__name__", repr(during)),
             }
             plot_hazard_run(out / "hazard_run.png", home_map(world, house), recorder.paths, recorder.localizations,
                             info.landmarks, rows, info.hazards,
@@ -198,23 +205,102 @@ def realism(level: str, seed: int, lived_in: bool = False, link: LinkFaults | No
             "mechanical_drive": mechanical_drive or full}
 
 
+_CLOCK = re.compile(r"(\d{1,2}):(\d{2})")
+_HOURS = re.compile(r"\d{1,2}(?:\.\d+)?")
+
+
 def time_of_day(text: str) -> float | None:
-    """--daylight's value: "random" (None: drawn from the seed), "HH:MM" or hours ("18.5")."""
+    """--daylight's value: "random" (None: drawn from the seed), "HH:MM" (00:00-23:59) or hours ("18.5")."""
     if text == "random":
         return None
-    try:
-        hours, _, minutes = text.partition(":")
-        value = float(hours) + (float(minutes) / 60.0 if minutes else 0.0)
-    except ValueError:
-        value = -1.0
-    if not 0.0 <= value < 24.0:
-        raise argparse.ArgumentTypeError(f"--daylight: {text!r} is not 'random', HH:MM or hours 0-24")
-    return value
+    clock = _CLOCK.fullmatch(text)
+    if clock and int(clock[1]) < 24 and int(clock[2]) < 60:
+        return int(clock[1]) + int(clock[2]) / 60.0
+    if _HOURS.fullmatch(text) and float(text) < 24.0:
+        return float(text)
+    raise argparse.ArgumentTypeError(f"--daylight: {text!r} is not 'random', HH:MM (00:00-23:59) or hours 0-24")
 
 
 def daylight_arg(text: str) -> str:
     time_of_day(text)  # checked here, drawn per run
     return text
+
+
+def _jsonable(value):
+    return value if isinstance(value, (dict, list)) else str(value)
+
+
+# what a re-simulation takes from a recorded result.json (--replay), and what the run found: every key a
+# result has is one or the other, so a recording with a key this build does not know is refused, not
+# re-simulated in another world (tests/test_hazard_resim.py holds the run's keys to these two sets)
+REPLAYED = frozenset({"robot", "seed", "house", "rtf", "lived_in", "link", "daylight", "drive", "trigger",
+                      "scheduled", "command_sim_s", "disturbances", "during"})
+OUTCOMES = frozenset({"hazards", "all_correct", "localization_error_m", "max_tracking_error_m", "frames",
+                      "duration_sim_s", "duration_wall_s", "finished", "end", "ok", "reason",
+                      "routes_blocked", "person_contacts", "object_contacts", "strategies", "replans",
+                      "obstacles_marked", "estops", "trace", "plot"})
+
+
+def recorded_settings(rec: dict) -> dict:
+    """run_hazard_detection's keywords that re-run a recorded run (`rapp run hazard-detection --replay`):
+    its robot, seed, house, real-time factor, every realism knob (lived-in, link, daylight, drive), its
+    disturbances, schedule and the simulated time of its command. ResimError (scenarios/resim.py) for a
+    recording with something this build cannot apply: re-simulating it would run another world."""
+    from .resim import ResimError
+
+    unknown = sorted(set(rec) - REPLAYED - OUTCOMES)
+    if unknown:
+        raise ResimError(f"the recording's result.json has {', '.join(unknown)}, which this build does not know: "
+                         "it cannot re-simulate that run")
+    if rec.get("during"):
+        raise ResimError(f"the recorded run had {rec['during']!r} acting during it (a disturbance-suite case), "
+                         "which result.json cannot give again: re-run that case with `rapp run disturbances`")
+    if rec.get("trigger") == "scheduled" and not rec.get("scheduled"):
+        raise ResimError("the recorded run was started by a schedule whose time it did not record")
+    missing = [k for k in ("robot", "seed", "house") if rec.get(k) is None]
+    if missing:
+        raise ResimError(f"the recording's result.json names no {', '.join(missing)}: not a hazard-detection run")
+    if rec.get("drive", "statistical") not in ("statistical", "mechanical"):
+        raise ResimError(f"the recorded drive {rec['drive']!r} is not one this build has")
+    return {"robot": rec["robot"], "seed": rec["seed"], "house": rec["house"], "rtf": rec.get("rtf") or 0.0,
+            "scheduled": rec.get("scheduled"), "command_at": rec.get("command_sim_s"),
+            "disturbances": rec.get("disturbances"),
+            "lived_in": _knobs(rec, "lived_in", LivedIn), "daylight": _knobs(rec, "daylight", Daylight),
+            "link": _recorded_link(rec),
+            "mechanical_drive": rec.get("drive") == "mechanical"}
+
+
+def _knobs(rec: dict, key: str, cls):
+    """The knobs of a recorded world change (result.json's lived_in or daylight: what changed, and `knobs`)."""
+    from .resim import ResimError
+
+    if not rec.get(key):
+        return None
+    knobs = rec[key].get("knobs") if isinstance(rec[key], dict) else None
+    names = {f.name for f in fields(cls)}
+    if not isinstance(knobs, dict) or set(knobs) - names:
+        raise ResimError(f"the recording's {key} {json.dumps(rec[key])[:200]} does not name the knobs this build "
+                         f"has ({', '.join(sorted(names))}): it cannot re-simulate that run")
+    return cls(**knobs)
+
+
+def _recorded_link(rec: dict) -> LinkFaults | None:
+    """The link's faults as recorded (result.json's `link` also holds what the link did: LinkStats)."""
+    from .resim import ResimError
+
+    link = rec.get("link")
+    if not link:
+        return None
+    faults, stats = {f.name for f in fields(LinkFaults)}, {f.name for f in fields(LinkStats)}
+    if not isinstance(link, dict) or set(link) - faults - stats:
+        raise ResimError(f"the recording's link {json.dumps(link)[:200]} names faults this build does not have")
+    kw = {k: v for k, v in link.items() if k in faults}
+    if "outages" in kw:
+        kw["outages"] = tuple(tuple(o) for o in kw["outages"])
+    try:
+        return LinkFaults(**kw)
+    except (TypeError, ValueError) as e:
+        raise ResimError(f"the recording's link cannot be made again: {e}") from None
 
 
 def link_faults(text: str) -> LinkFaults:
@@ -310,6 +396,32 @@ def summary(result: dict) -> str:
     return "\n".join(lines)
 
 
+# the options a re-simulation takes from the recording instead (--replay refuses them)
+REPLAY_SETS = ("robot", "seed", "house", "rtf", "scheduled", "realism", "mechanical_drive", "daylight", "lived_in", "link")
+
+
+def recorded_package(run_dir) -> Path | None:
+    """The hazard RApp's package the recorded run ran (packages/), None if it kept none."""
+    from rapps.replay import RecordingError, load_recording
+
+    try:
+        return load_recording(run_dir).package
+    except RecordingError:
+        return None
+
+
+def describe_settings(settings: dict) -> str:
+    knobs = [k for k in ("lived_in", "link", "daylight") if settings.get(k) is not None]
+    knobs += ["mechanical drive"] if settings.get("mechanical_drive") else []
+    knobs += ["disturbances"] if settings.get("disturbances") else []
+    knobs += [f"scheduled at {settings['scheduled']}"] if settings.get("scheduled") else []
+    return (f"re-simulating {settings['robot']} seed {settings['seed']} in {settings['house']}"
+            + (f", command at {settings['command_at']:.2f} s simulated" if settings.get("command_at") is not None else "")
+            + f"; realism: {', '.join(k.replace('_', '-') for k in knobs) or 'none'}; "
+            + (f"the recorded package {settings['rapp'].name}" if settings.get("rapp")
+               else f"no package kept: the RApp of {RAPP_DIR}"))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rapp run hazard-detection", description=__doc__.split("\n\n")[0].replace("\n", " "))
     ap.add_argument("--robot", choices=ROBOTS, default="nao", help="the simulated robot (default nao)")
@@ -347,20 +459,25 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.replay:
         from .resim import ResimError, recorded_result
+        given = [f"--{k.replace('_', '-')}" for k in REPLAY_SETS if getattr(args, k) != ap.get_default(k)]
+        if given:
+            ap.error(f"--replay runs the recording's world again: {', '.join(given)} cannot be given with it")
         try:
-            rec = recorded_result(args.replay)
+            settings = recorded_settings(recorded_result(args.replay))
         except ResimError as exc:
-            print(f"rapp run hazard-detection: {exc}", file=sys.stderr)
+            print(f"rapp run hazard-detection: cannot re-simulate {args.replay}: {exc}", file=sys.stderr)
             return 2
-        args.robot, args.seed, args.house = rec.get("robot", args.robot), rec.get("seed", args.seed), \
-            rec.get("house", args.house)
+        args.robot = settings["robot"]
+        settings["rapp"] = recorded_package(args.replay)
+        print(f"[resim] {describe_settings(settings)}", flush=True)
+    else:
+        settings = {"robot": args.robot, "seed": args.seed, "house": args.house, "rtf": args.rtf,
+                    "scheduled": args.scheduled, **realism(args.realism, args.seed, args.lived_in, args.link,
+                                                           args.daylight, args.mechanical_drive)}
     try:
-        result = main_loop(run_hazard_detection(args.robot, args.seed, args.house, args.json_path, args.out_dir,
-                                                args.rtf, timeout_s=args.timeout, progress=not args.quiet,
-                                                live=False if args.plain else None, record=not args.no_record,
-                                                frames=not args.no_frames, scheduled=args.scheduled,
-                                                **realism(args.realism, args.seed, args.lived_in, args.link,
-                                                          args.daylight, args.mechanical_drive)))
+        result = main_loop(run_hazard_detection(json_path=args.json_path, out_dir=args.out_dir, timeout_s=args.timeout,
+                                                progress=not args.quiet, live=False if args.plain else None,
+                                                record=not args.no_record, frames=not args.no_frames, **settings))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

@@ -226,13 +226,25 @@ def _trace_channels(b: McapBuilder, records: list[dict]) -> None:
                                                       f"{r.get('event')} {json.dumps(fields, default=str)}"))
 
 
+def _bare(jid) -> str:
+    return str(jid or "").split("/", 1)[0]
+
+
+def own_account(r: dict) -> bool:
+    """A record a trusted agent wrote, or a RApp's (stamped with its `origin` by its relay) of a
+    message it sent itself: what a RApp's process says another agent sent or received is its claim
+    only, and is left out (else a RApp could put words on its Core's channel)."""
+    return not r.get("origin") or (r.get("dir") == "send" and _bare(r.get("sender")) == _bare(r["origin"]))
+
+
 def _acl_channels(b: McapBuilder, run: Path, records: list[dict]) -> None:
     """Each message of the trace once (its sender's record where traced, else its receiver's), with
-    its whole body where the run recorded one (messages.jsonl), else the trace's content."""
+    its whole body where the run recorded one (messages.jsonl), else the trace's content; a RApp's
+    records count only for the messages it sent (own_account)."""
     bodies = {(r.get("sender"), r.get("message_id")): r["body"] for r in _bodies(run / BODIES, run / BLOBS)
-              if r.get("message_id")}
+              if r.get("message_id") and own_account(r)}
     seen: set[tuple] = set()
-    messages = [r for r in records if r.get("kind") == RecordKind.MESSAGE]
+    messages = [r for r in records if r.get("kind") == RecordKind.MESSAGE and own_account(r)]
     messages.sort(key=lambda r: (r.get("dir") != "send", r.get("t", 0.0)))  # senders' records first
     for r in messages:
         key = (r.get("sender"), r.get("message_id")) if r.get("message_id") else \

@@ -20,10 +20,12 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
+
+from xmpp_server.link import LinkFaults
 
 from .recorder import distance_to_polyline
 from .recording import ROBOT_LOG
@@ -31,6 +33,7 @@ from .recording import ROBOT_LOG
 TRAJECTORY_TOL_M = 0.25
 NUMBER_TOL = 0.05  # relative, of a number in a report (at least 0.05 absolute)
 ANGLE_TOL_DEG = 5.0
+LINK_FAULTS = {f.name for f in fields(LinkFaults)}
 _NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
 
 
@@ -142,9 +145,15 @@ def _short(v) -> str:
 def compare(old_dir: str | Path, new_dir: str | Path, robot: str, tolerance_m: float = TRAJECTORY_TOL_M) -> Comparison:
     old, new = recorded_result(old_dir), recorded_result(new_dir)
     c = Comparison()
-    for key in ("seed", "house", "robot", "rapp", "command"):
-        if key in old and old.get(key) != new.get(key):
-            c.differ.append(f"{key}: {new.get(key)!r} now, {old.get(key)!r} recorded (not a re-simulation of it)")
+    for key in ("seed", "house", "robot", "rapp", "command", "scenario", "disturbances", "scheduled", "drive",
+                "lived_in", "daylight", "link"):
+        if key in old and _setting(key, old.get(key)) != _setting(key, new.get(key)):
+            c.differ.append(f"{key}: {_short(new.get(key))} now, {_short(old.get(key))} recorded "
+                            "(not a re-simulation of it)")
+    knobs = [k for k in ("lived_in", "daylight", "link", "disturbances") if old.get(k)
+             and _setting(k, old[k]) == _setting(k, new.get(k))]
+    if knobs:
+        c.same.append(f"the world's {', '.join(knobs)} as recorded")
     truth_old, truth_new = old.get("truth") or {}, new.get("truth") or {}
     for key in ("doors", "lamps"):
         if key in truth_old:
@@ -173,12 +182,25 @@ def compare(old_dir: str | Path, new_dir: str | Path, robot: str, tolerance_m: f
     return c
 
 
+def _setting(key: str, value):
+    """What of a recorded setting must be equal in its re-simulation: a link's faults, not what it did."""
+    if key == "link" and isinstance(value, dict):
+        return {k: v for k, v in value.items() if k in LINK_FAULTS}
+    return value
+
+
 def _report(r: dict) -> dict:
     return {"text": r.get("text", ""), "data": r.get("data", {})}
 
 
 def _compare_hazards(old: list[dict], new: list[dict], c: Comparison) -> None:
     by_id = {h["id"]: h for h in new}
+    truth = [{k: h.get(k) for k in ("id", "true_state", "true_angle")} for h in old]
+    if truth == [{k: by_id.get(h["id"], {}).get(k) for k in ("id", "true_state", "true_angle")} for h in old]:
+        c.same.append("the world's hazards drawn from the seed (true states and angles)")
+    else:
+        c.differ.append("the world's hazards: " + _short([{k: h.get(k) for k in ("id", "true_state", "true_angle")}
+                                                         for h in new]) + " now")
     for h in old:
         n = by_id.get(h["id"])
         if n is None:

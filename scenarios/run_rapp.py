@@ -75,7 +75,6 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
     view = RunView()
     voice_tasks: list[asyncio.Task] = []
     outputs: list[str] = []
-    given_at: list[float] = []  # the simulated time the command was given
     try:
         # every image the RApp captures is kept in out/frames; legs and localizations are recorded
         api = RecordingAPI(RobotAPI(world.add_robot(robot)), frames_dir=out / "frames", every_capture=True)
@@ -86,7 +85,7 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
         name = Path(house).stem
         home = home_description(world, name, out) if has_layout(name, world) else None
         voice = OwnerVoice(world, api, out)
-        owner = Owner(robot, api, f"owner-{robot}1", None, home=home)
+        owner = Owner(robot, api, f"owner-{robot}1", None, home=home, command_at=command_at)
         run = Run(out, world, src, [owner], record=record, frames=frames, grid=plot_grid(world, house))
 
         async def before(run: Run) -> None:
@@ -102,9 +101,6 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                                 asyncio.create_task(voice.run_script(script or []))])
 
         async def deliver(owner: Owner) -> None:
-            if command_at is not None and command_at > world.time:
-                await world.sleep(command_at - world.time)  # as late as in the recorded run
-            given_at.append(round(world.time, 3))
             if listen:  # the command comes by voice: `rapp say` or the scenario's speech lines
                 print(f"[run] {robot} in {house}: listening; speak with `rapp say TEXT`", flush=True)
             elif speak:
@@ -134,7 +130,8 @@ async def run_rapp(src: Path, robot: str, house: str, seed: int, say: str | None
                       f"{'finished' if ok else run.interrupted or 'error'}",
                 trajectory=[p[1:3] for p in run.trajectories[robot]])
             result = {"rapp": run.name, "robot": robot, "house": house, "seed": seed, "command": owner.command,
-                      "command_sim_s": given_at[0] if given_at else None,
+                      "delivery": "listen" if listen else "speech" if speak else "chat",
+                      "command_sim_s": owner.given_at,
                       "scenario": str(disturbances) if disturbances else None,
                       "spoken": voice.spoken, "person_contacts": world.person_contacts(),
                       "object_contacts": world.object_contacts(),
@@ -244,8 +241,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _from_recording(a, p) -> argparse.Namespace:
-    """A re-simulation's settings: the recorded run's robot, house, seed, command and its time, scenario
-    file, and (no RApp given) its recorded package."""
+    """A re-simulation's settings: the recorded run's robot, house, seed, command, how it was given
+    (typed, said aloud, or by voice to a listening robot) and its time, scenario file, and (no RApp
+    given) its recorded package."""
     from scenarios.resim import recorded_result
 
     rec = recorded_result(a.replay)
@@ -255,6 +253,13 @@ def _from_recording(a, p) -> argparse.Namespace:
             setattr(a, key, rec[field])
     if a.scenario is None and rec.get("scenario"):
         a.scenario = rec["scenario"]
+    delivery = rec.get("delivery", "chat")
+    if delivery not in ("chat", "speech", "listen"):
+        raise ValueError(f"{a.replay}: the command came by {delivery!r}, which this build cannot give again")
+    if delivery == "listen" and not a.scenario:
+        raise ValueError(f"{a.replay}: the owner gave the command by voice while it listened (`rapp say`), "
+                         "which a re-simulation cannot say again; a --scenario file's speech lines can")
+    a.speak, a.listen = a.speak or delivery == "speech", a.listen or delivery == "listen"
     a.command_at = rec.get("command_sim_s")
     if a.rapp is None:
         from rapps.replay import load_recording

@@ -62,12 +62,14 @@ class Owner:
     core_kw: dict = field(default_factory=dict)
     deliver: Callable[["Owner"], Awaitable[None]] | None = None  # how the command is given (default: chat)
     link: LinkFaults | None = None  # the robot's connection to the server (xmpp_server/link.py); None: perfect
+    command_at: float | None = None  # the simulated time to give the command at (a re-simulation's; None: at once)
     # filled in by the run
     handle: RobotHandle | None = None
     record: TaskRecord | None = None
     chat: list[str] = field(default_factory=list)
     transcript: list[str] = field(default_factory=list)  # the chat with each line's sender (chat.txt)
     wall_s: float = 0.0
+    given_at: float | None = None  # the simulated time the command was given (result.json's command_sim_s)
     told_from: int = 0  # the owner client's ends and chat before the command: not this run's
     chat_from: int = 0
 
@@ -138,6 +140,9 @@ class Run:
             for owner in self.owners:
                 owner.told_from = len(owner.handle.user.ended)
                 owner.chat_from = len(owner.handle.user.received)
+                if owner.command_at is not None and owner.command_at > self.world.time:
+                    await self.world.sleep(owner.command_at - self.world.time)  # as late as in the recorded run
+                owner.given_at = round(self.world.time, 3)
                 await (owner.deliver or _chat)(owner)
             side = asyncio.create_task(during(self)) if during is not None else None
             ends = await asyncio.gather(*(self._wait(o, timeout_s, accept) for o in self.owners))
@@ -367,14 +372,16 @@ def main_loop(coro) -> Any:
     return asyncio.run(main())
 
 
-def add_recording_options(parser) -> None:
-    """--no-record, --no-frames, --replay, --tolerance: the recording options every `rapp run` scenario
-    that records takes (docs/recordings.md)."""
+def add_recording_options(parser, replay: bool = True) -> None:
+    """--no-record, --no-frames and (`replay`) --replay, --tolerance: the recording options every
+    `rapp run` scenario that records takes (docs/recordings.md)."""
     parser.add_argument("--no-record", action="store_true", help="no recording: no message bodies, robot.jsonl, "
                                                                   "packages/ nor run.mcap (docs/recordings.md)")
     parser.add_argument("--no-frames", action="store_true", help="a recording without the camera's frames")
-    parser.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run (its robot, house, seed and "
-                        "command, at its simulated time), then compare reports and trajectory with it "
-                        "(docs/recordings.md)")
+    if not replay:
+        return
+    parser.add_argument("--replay", metavar="RUN_DIR", help="re-simulate a recorded run (its robot, house, seed, "
+                        "realism and disturbances, and its command at its simulated time), then compare reports "
+                        "and trajectory with it (docs/recordings.md)")
     parser.add_argument("--tolerance", type=float, default=None, metavar="M",
                         help="--replay: how far (m) the trajectories may be apart (default 0.25)")

@@ -24,7 +24,8 @@ from .hazard import COMMAND, RAPP_DIR, cm, finished, finite, score_owner
 from .home_setup import HOUSES, home_description, home_map, scenario_world
 from .plots import plot_hazard_run
 from .recorder import RecordingAPI
-from .runner import Owner, Run, RunInterrupted, check_interrupted, files_written, main_loop, saving
+from .runner import (Owner, Run, RunInterrupted, add_recording_options, check_interrupted, files_written, main_loop,
+                     saving)
 
 ROBOTS = ("nao", "elektron")  # the scenario's pair (paper 001's two robots), not every robot type
 
@@ -43,7 +44,9 @@ def split(house: str, hazards) -> dict[str, set[str]]:
 
 
 async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json_path=None, shared: bool = False,
-                         rtf: float = 0.0, settings=None, timeout_s: float = 1800.0) -> dict:
+                         rtf: float = 0.0, settings=None, timeout_s: float = 1800.0, record: bool = True,
+                         frames: bool = True) -> dict:
+    """`record`: the run's recording and run.mcap (`frames`: with the cameras' frames; docs/recordings.md)."""
     out = Path(out_dir or tempfile.mkdtemp(prefix=f"two-robots-{seed}-"))
     out.mkdir(parents=True, exist_ok=True)
     world = scenario_world(house, seed, rtf=rtf)
@@ -59,7 +62,7 @@ async def run_two_robots(seed: int = 1, house: str = "house", out_dir=None, json
                   for kind in ROBOTS]
         run = Run(out, world, RAPP_DIR, owners, settings=settings,
                   platform_kw={"services_state": ServiceState(work_dir=out / "services")},
-                  grid=home_map(world, house))
+                  grid=home_map(world, house), record=record, frames=frames)
         await run.run(timeout_s)
         with saving():
             result = {"seed": seed, "house": house, "shared": shared, "duration_sim_s": round(run.sim_s, 2),
@@ -116,10 +119,12 @@ def main(argv: list[str] | None = None) -> int:
                                                                  "(default: a new temporary directory)")
     ap.add_argument("--rtf", type=float, default=0.0, help="real-time factor (0 = as fast as possible)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds to wait for the RApps' ends")
+    add_recording_options(ap, replay=False)
     args = ap.parse_args(argv)
     try:
         result = main_loop(run_two_robots(args.seed, args.house, args.out_dir, args.json_path, args.shared, args.rtf,
-                                          timeout_s=args.timeout))
+                                          timeout_s=args.timeout, record=not args.no_record,
+                                          frames=not args.no_frames))
     except RunInterrupted as stop:
         if stop.result:
             print(summary(stop.result))

@@ -18,7 +18,8 @@ from scenarios.home_setup import hazard_list, hazard_overrides
 RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
                "duration_sim_s", "duration_wall_s", "trace", "plot", "finished", "end", "routes_blocked",
                "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops",
-               "ok", "reason", "frames", "trigger", "house", "lived_in", "link", "daylight", "drive"}
+               "ok", "reason", "frames", "trigger", "house", "lived_in", "link", "daylight", "drive",
+               "scheduled", "rtf", "command_sim_s", "disturbances", "during"}
 
 
 def structure_events(trace: list[dict], rapp: str) -> list[str]:
@@ -31,6 +32,8 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     # realism is asked for, never the default
     assert result["lived_in"] is None and result["link"] is None and result["daylight"] is None
     assert result["drive"] == "statistical"
+    # what a re-simulation gives again (tests/test_hazard_resim.py): when the command was given, in simulated s
+    assert isinstance(result["command_sim_s"], float) and result["command_sim_s"] >= 0.0
     assert {h["id"] for h in result["hazards"]} == hazard_ids
     assert result["all_correct"], result["hazards"]
     assert result["ok"] and result["finished"], result["reason"]
@@ -47,6 +50,36 @@ def check_run(result: dict, out: Path, hazard_ids: set[str]) -> None:
     stems = {p.stem for p in (out / "frames").glob("*.*")}  # PNG, or JPEG from a noisy camera
     assert {s.split("-look")[0] for s in stems} == hazard_ids <= stems  # a door looked at again: <id>-lookN too
     assert json.loads((out / "result.json").read_text()) == result
+    assert check_recording(out, [result["robot"]])[result["robot"]] == result["frames"]["captured"]
+
+
+RANGE_SENSOR = {"nao": "sonar", "elektron": "laser"}  # what each robot's safety check reads
+
+
+def check_recording(out: Path, robots: list[str]) -> dict[str, int]:
+    """run.mcap read back (issue 45 item 1): per robot its true pose, path, estimate, every frame
+    robot.jsonl recorded and its range sensor's scans (the NAO's sonars, the Elektron's laser:
+    foxglove.LaserScan), with Foxglove's schemas; the map, the transforms, the chat and the Cores'
+    ACL messages. Returns the frames per robot."""
+    from .test_recording import _channels, _robot
+
+    channels = _channels(out / "run.mcap")
+    samples = _robot(out)
+    frames = {kind: sum(s["kind"] == "image" and s["robot"] == kind for s in samples) for kind in robots}
+    schema = {t: c[0] for t, c in channels.items()}
+    count = {t: c[3] for t, c in channels.items()}
+    assert schema["/map"] == "foxglove.Grid" and count["/map"] == 1
+    assert schema["/chat"] == "foxglove.Log" and schema["/events"] == "foxglove.Log"
+    for kind in robots:
+        expect = {"pose": "foxglove.PoseInFrame", "estimate": "foxglove.PoseInFrame", "path": "foxglove.PosesInFrame",
+                  "camera": "foxglove.CompressedImage", RANGE_SENSOR[kind]: "foxglove.LaserScan"}
+        for name, want in expect.items():
+            assert schema.get(f"/{kind}/{name}") == want and count[f"/{kind}/{name}"] > 0, (kind, name, sorted(channels))
+        assert count[f"/{kind}/camera"] == frames[kind]
+        cores = [t for t in channels if t.startswith(f"/acl/core-{kind}")]
+        assert cores and all(schema[t] == "rapp.AclMessage" for t in cores), sorted(channels)
+    assert count["/tf"] == sum(count[f"/{kind}/pose"] for kind in robots)
+    return frames
 
 
 # the Elektron's small-house run is slow-marked for the suite's time: by default it runs the door
@@ -110,6 +143,7 @@ def check_two_robots(result: dict, out: Path, split: dict) -> None:
         assert r["localization_error_m"] <= 0.05 and r["max_tracking_error_m"] <= 0.10, (kind, r)
         assert "hazard-detection finished" in (out / kind / "chat.txt").read_text()
     assert json.loads((out / "result.json").read_text()) == result
+    check_recording(out, list(result["robots"]))
 
 
 async def test_two_robots_small_house(tmp_path):

@@ -80,6 +80,41 @@ async def test_a_rapps_bodies_are_masked_and_stamped_by_its_relay(tmp_path):
         writer.close()
 
 
+def test_a_rapps_records_cannot_put_words_on_another_agents_channel(tmp_path):
+    """run.mcap is assembled from the trace, where a RApp's lines come through its relay stamped with
+    its `origin`: they count for the messages it sent itself, never as its Core's (a forged record or
+    body of the Core's, which the relay does not stop, stays out of /acl/core-nao1)."""
+    from scenarios.mcap_export import export_mcap
+
+    core, dyn = "core-nao1@localhost", "dyn-nao1-x-1@localhost"
+
+    def msg(t, direction, sender, receiver, mid, content, **kw):
+        return {"t": t, "kind": "message", "pid": 1, "agent": kw.pop("agent", sender), "dir": direction,
+                "sender": sender, "receiver": receiver, "performative": "inform", "conversation_id": "c-1",
+                "ontology": "core", "action": "get_global_pose", "message_id": mid, "in_reply_to": "",
+                "content": json.dumps(content), "size": 9, **kw}
+
+    records = [msg(1.0, "send", core, dyn, "m-1", {"x": 1}),  # the Core's own record
+               msg(1.1, "recv", dyn, core, "m-1", {"x": 1}, agent=dyn, origin=dyn),  # the RApp's, of the same
+               msg(2.0, "send", dyn, core, "m-2", {"ask": 1}, agent=dyn, origin=dyn),  # the RApp's own message
+               msg(2.1, "recv", dyn, core, "m-2", {"ask": 1}, agent=core),  # the Core's, of the RApp's
+               # forged by the RApp: the Core "sending" and a reception "from" the Core it never sent
+               msg(0.5, "send", core, dyn, "m-3", {"forged": True}, agent=dyn, origin=dyn, claimed_agent=core),
+               msg(3.0, "recv", core, dyn, "m-4", {"forged": True}, agent=dyn, origin=dyn)]
+    (tmp_path / "trace.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    bodies = [{"kind": "body", "t": 1.0, "dir": "send", "agent": core, "sender": core, "receiver": dyn,
+               "message_id": "m-1", "body": json.dumps({"x": 1})},
+              {"kind": "body", "t": 1.2, "dir": "recv", "agent": dyn, "origin": dyn, "sender": core, "receiver": dyn,
+               "message_id": "m-1", "body": json.dumps({"x": 666})},  # later: it would have won
+              {"kind": "body", "t": 1.3, "dir": "send", "agent": dyn, "origin": dyn, "sender": core, "receiver": dyn,
+               "message_id": "m-1", "body": json.dumps({"x": 667})}]
+    (tmp_path / BODIES).write_text("".join(json.dumps(b) + "\n" for b in bodies))
+    path = export_mcap(tmp_path)
+    from_core = _messages(path, "/acl/core-nao1")
+    assert [(m["message_id"], m["content"]) for m in from_core] == [("m-1", {"x": 1})]
+    assert [(m["message_id"], m["content"]) for m in _messages(path, "/acl/dyn-nao1-x-1")] == [("m-2", {"ask": 1})]
+
+
 def test_comparison_follows_placeholders_consistently():
     seen: dict = {}
     p = placeholder("t1")
@@ -286,6 +321,44 @@ async def test_resimulation_matches_the_recording(recorded, tmp_path):
     (tmp_path / "result.json").write_text(json.dumps(other))
     c = resim.compare(out, tmp_path, "nao")
     assert not c.ok and any("seed" in d for d in c.differ) and any("doors" in d for d in c.differ)
+
+
+@pytest.mark.parametrize("delivery, speak, listen, scenario", [("speech", True, False, None),
+                                                            ("listen", False, True, "speech.yaml"),
+                                                            ("chat", False, False, None)])
+def test_a_re_simulation_gives_the_command_as_it_was_given(tmp_path, monkeypatch, delivery, speak, listen, scenario):
+    """Said aloud, or by voice to a listening robot (its scenario's speech lines): so again, not typed."""
+    from scenarios import run_rapp as R
+
+    kept = {}
+
+    class Began(Exception):
+        pass
+
+    async def fake_run(*args, **kw):  # the run itself is not this test's subject
+        kept.update(kw)
+        raise Began
+
+    monkeypatch.setattr(R, "run_rapp", fake_run)
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    if scenario:
+        (tmp_path / scenario).write_text("speech:\n  - {at: 1.0, say: double it}\n")
+    (rec / "result.json").write_text(json.dumps({"robot": "nao", "house": "small", "seed": 3, "command": "double it",
+                                                 "delivery": delivery, "command_sim_s": 2.0,
+                                                 "scenario": str(tmp_path / scenario) if scenario else None}))
+    with pytest.raises(Began):
+        R.main([str(APP), "--replay", str(rec), "--out", str(tmp_path / "out"), "--quiet"])
+    assert (kept["speak"], kept["listen"], kept["command_at"]) == (speak, listen, 2.0)
+
+
+def test_a_voice_command_given_by_rapp_say_cannot_be_re_simulated(tmp_path, capsys):
+    from scenarios.run_rapp import main
+
+    (tmp_path / "result.json").write_text(json.dumps({"robot": "nao", "house": "small", "seed": 3, "command": None,
+                                                      "delivery": "listen", "scenario": None}))
+    assert main([str(APP), "--replay", str(tmp_path), "--quiet"]) == 2
+    assert "rapp say" in capsys.readouterr().err
 
 
 def test_the_trace_page_shows_the_scene_at_the_record_clicked(recorded, browser_page, tmp_path):

@@ -103,6 +103,15 @@ async def test_trace_of_the_demo_run_validates(tmp_path):
     raw = read_trace(trace)
     assert len(raw) > 10 and read_trace(trace, validate=True) == raw
     assert {r["kind"] for r in raw} >= {"message", "agent", "behaviour"}
+    # its recording (issue 45: every `rapp run` scenario): each ACL message once, on its sender's channel
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "run.mcap", "rb") as f:
+        messages = [(c.topic, s.name, json.loads(m.data)) for s, c, m in make_reader(f).iter_messages()]
+    acl = {(topic, m["performative"], m["action"]) for topic, name, m in messages if name == "rapp.AclMessage"}
+    assert {("/acl/alice", "request", "greet"), ("/acl/bob", "agree", "greet"), ("/acl/bob", "inform", "greet")} <= acl
+    informs = [m for topic, _, m in messages if topic == "/acl/bob" and m["performative"] == "inform"]
+    assert len(informs) == 3 and informs[0]["content"]["text"].startswith("Hello Ada")
 
 
 def test_invalid_records():
