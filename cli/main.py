@@ -320,7 +320,8 @@ def cmd_trace(argv: list[str]) -> int:
             "export": "a run's trace as a Mermaid sequence diagram, JSON or text",
             "html": "a run's trace as one self-contained HTML page"}[action]
     p = argparse.ArgumentParser(prog=f"rapp trace {action}", description=f"{what} (rapp trace show|export|html FILE)")
-    p.add_argument("file", help="a trace.jsonl (every `rapp run` writes one in its --out folder)")
+    p.add_argument("file", help="a trace.jsonl, or the run folder that holds one (every `rapp run` writes one in "
+                                "its --out folder)")
     p.add_argument("--agent", action="append", help="only records of this agent (repeatable): a role ("
                    f"{', '.join(tr.ROLES)}), a name (core-nao1) or a JID")
     p.add_argument("--conversation", action="append", help="only this conversation id (prefix ok)")
@@ -346,6 +347,10 @@ def cmd_trace(argv: list[str]) -> int:
 
     if action == "export" and a.format == "mcap":
         return _export_mcap(Path(a.file), a.output, frames=not a.no_frames)
+    if Path(a.file).is_dir():  # a run's folder: its trace
+        if not (Path(a.file) / "trace.jsonl").is_file():
+            raise CliError(f"{a.file} is a folder without a trace.jsonl (a `rapp run --out` folder has one)")
+        a.file = str(Path(a.file) / "trace.jsonl")
     if not Path(a.file).exists():
         raise CliError(f"no trace file {a.file}")
     records = tr.filter_records(read_trace(a.file), agents=a.agent, conversations=a.conversation)
