@@ -185,7 +185,7 @@ async def test_trace_show_and_export_mermaid(running, tmp_path):
     one_error_line(await arapp("trace", "show", tmp_path / "missing.jsonl"))
     run_dir = tmp_path / "run"  # a run's --out folder stands for its trace
     run_dir.mkdir()
-    assert "no trace.jsonl" in one_error_line(await arapp("trace", "show", run_dir))
+    assert "without a trace.jsonl" in one_error_line(await arapp("trace", "show", run_dir))
     (run_dir / "trace.jsonl").write_bytes(trace.read_bytes())
     res = await arapp("trace", "show", run_dir, "--agent", "store")
     assert res.returncode == 0 and "  store " in res.stdout, res.stderr
