@@ -423,6 +423,9 @@ class Localizer:
         self.odom_ref: tuple[float, float, float] | None = None  # the robot's odometry pose the filter matched last
         self.travelled = self.turned = 0.0  # motion since then (m, rad), as commanded
         self.history: list[PoseEstimate] = []  # every localization's result
+        # labels a fix left out once (they disagreed with the others: moved since the map was made?): a later
+        # fix that leans on one is weighed against the prediction, not taken as the codes' word (judge)
+        self.suspect: set[str] = set()
         self.state: dict[str, Any] = {}  # the localization running now (its own, not the task's memory)
 
     # -- statistics --------------------------------------------------------------------------
@@ -720,14 +723,16 @@ class Localizer:
     async def judge(self, ekf: PoseEKF, found: Localization) -> Verdict:
         """Which fix to fuse, checked for consistency. A fix from two or more codes that agree with each
         other (the Cloud Agent's fit left none out) is taken even against the prediction: the codes
-        outvote a drifted filter. A fix from one code, or one the Cloud Agent had to leave codes out of
-        (they disagree: a label moved since the map was made, a bad corner), must agree with the
+        outvote a drifted filter, unless one of them was left out of a fix before (`suspect`: two labels
+        moved alike agree with each other). A fix from one code, or one the Cloud Agent had to leave codes
+        out of (they disagree: a label moved since the map was made, a bad corner), must agree with the
         prediction (Mahalanobis gate); otherwise the codes left out are solved on their own and their
         fix is taken if it agrees instead. No fix agreeing, or the kept and the left-out codes both
         agreeing but not with each other: unsure, nothing is fused (the pose does not jump)."""
         seen = list(dict.fromkeys(o.text for o in self.state["observations"]))
         left_out = [t for t in seen if t not in found.markers]
-        if len(found.markers) >= 2 and not left_out:
+        doubted = [t for t in found.markers if t in self.suspect]
+        if len(found.markers) >= 2 and not left_out and not doubted:
             return Verdict(found, gate=None)
         options = [found]
         if left_out:
@@ -738,9 +743,13 @@ class Localizer:
         if len(agree) == 1:
             fix = agree[0]
             return Verdict(fix, gate=CHI2_3DOF_99, dropped=[t for t in seen if t not in fix.markers])
-        if not agree:
-            why = ("the codes disagree with each other and with the estimate" if left_out
-                   else f"the code {found.markers[0]} disagrees with the estimate")
+        if not agree and left_out:
+            why = "the codes disagree with each other and with the estimate"
+        elif not agree and len(found.markers) >= 2:
+            why = (f"the codes {', '.join(found.markers)} disagree with the estimate, and {', '.join(doubted)} "
+                   "disagreed with other codes before")
+        elif not agree:
+            why = f"the code {found.markers[0]} disagrees with the estimate"
         else:
             why = f"the codes {', '.join(found.markers)} and {', '.join(left_out)} disagree and either fits the estimate"
         return Verdict(None, unsure=why, dropped=left_out)
@@ -768,6 +777,7 @@ class Localizer:
             verdict = await self.judge(ekf, found)
             if verdict.fix is not None and not certain and verdict.gate is None:
                 verdict.gate = CHI2_3DOF_99  # agreeing codes, but not certain: weighed against the prediction
+        self.suspect |= set(verdict.dropped)
         fix = verdict.fix
         if fix is not None:
             if ekf.update(_z(fix), R=_R(fix), gate=verdict.gate):

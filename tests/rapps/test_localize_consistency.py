@@ -152,3 +152,29 @@ async def test_a_far_lone_code_helps_only_a_lost_filter():
     assert estimate.fixed and off(estimate) < 0.5 * off(estimate, lost) and estimate.std_m < 0.15
     estimate, _, task = await localize_with([seen("E")], believed=TRUTH, std_m=0.03, std_rad=0.02)
     assert not estimate.fixed and task.set_poses == []
+
+
+async def test_a_label_left_out_once_is_doubted_when_it_agrees_with_another_moved_one():
+    """Two labels re-stuck alike (B and C, 0.2 m the same way) agree with each other: their fix was taken
+    as the codes' word and the pose jumped 0.19 m. B was left out of an earlier fix (it disagreed with A and
+    C then): a later fix leaning on it is weighed against the prediction, and the pose stays."""
+    task = Task()
+    loc = Localizer(task, LocalizeSettings(), home=HomeInfo(home_id="h", map_id="m", landmarks=MAP))  # type: ignore[arg-type]
+    loc.head = HEADS["HeadYaw"]
+    loc.ekf, loc.odom_ref = PoseEKF(TRUTH, 0.03, 0.02), TRUTH
+    prior = Pose2D(x=TRUTH[0], y=TRUTH[1], theta=TRUTH[2])
+
+    async def localize(observations):
+        found = solve_pose(SolvePose(observations=observations, landmarks=MAP, prior=prior))
+        loc.state = dict(observations=observations, localization=found, prior=prior, frames=1, empty=0, turned=0.0)
+        memory: dict = {}
+        await loc.set_pose(memory)
+        return memory["estimate"]
+
+    first = await localize([seen("A"), seen("B", moved_m=0.2), seen("C")])
+    assert first.fixed and first.dropped == ["B"] and loc.suspect == {"B"}
+    later = await localize([seen("B", moved_m=0.2), seen("C", moved_m=0.2)])
+    assert not later.fixed and later.unsure and "B disagreed with other codes before" in later.unsure_why
+    assert off(later) < 0.03, f"jumped {off(later):.2f} m"
+    unwarned, _, _ = await localize_with([seen("B", moved_m=0.2), seen("C", moved_m=0.2)])
+    assert unwarned.fixed and off(unwarned) > 0.15  # a localizer that had not doubted B: the pose jumps
