@@ -184,6 +184,14 @@ async def test_trace_show_and_export_mermaid(running, tmp_path):
     assert res.returncode == 0 and res.stdout.startswith("sequenceDiagram")
     one_error_line(await arapp("trace", "show", tmp_path / "missing.jsonl"))
 
+    # fig. 6 drawn (issue 47.3): the Platform's own FSM s0 -> s1 (its request passes: test_lifecycle.py)
+    res = await arapp("trace", "show", trace, "--view", "fsm", "--agent", "platform")
+    assert res.returncode == 0, res.stderr
+    assert "platform: s0_init -> s1_wait" in res.stdout, res.stdout
+    res = await arapp("trace", "export", trace, "--format", "states")
+    assert res.returncode == 0 and res.stdout.startswith("stateDiagram-v2"), res.stderr
+    assert "_platform__s0_init --> " in res.stdout and "__s1_wait: x1" in res.stdout, res.stdout
+
 
 async def test_doctor_reports_running_server_ok(running):
     res = await arapp("doctor", env=running.env)
