@@ -147,12 +147,14 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
             assert clash.event == ScheduleEvent.REFUSED and "clash" in clash.reason
             assert "I cannot schedule that" in user.texts()[-1]
 
-            # a restart of the Core (its data directory kept) keeps the daily one
+            # a restart of the Core (its data directory kept) keeps the daily one; its clock reads 23:15
+            # now (the robot was off meanwhile): tonight's 23:00 is missed, told, and moved to tomorrow
+            later = WorldClock(world, datetime.fromtimestamp(clock.now(), TZ) + timedelta(hours=1, minutes=15))
             kw = dict(name=f"core-{core.robot_id}", robot_id=core.robot_id, robot_type=core.robot_type, robot_api=core.robot,
                       owner=f"owner-{core.robot_id}", platform="platform", store="store", user=core.user, password=core.password,
                       settings=system.settings,
                       options=CoreOptions(workdir=tmp_path / "core-work-2", trusted_keys=[system.public_key],
-                                          require_signature=True, data_dir=tmp_path / "core", clock=clock,
+                                          require_signature=True, data_dir=tmp_path / "core", clock=later,
                                           hear_audio=False))
             await core.stop()
             core = await start_core(system, kw)
@@ -160,6 +162,10 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
                 await user.watch_tasks(core.address)
                 await wait_until(lambda: core.vocabulary and core.listening)
                 assert [(s.kind, s.time_of_day) for s in core.scheduler.schedules()] == [("daily", "23:00")]
+                missed = await user.wait_for(lambda t: t.startswith("I missed"), timeout=30)
+                assert "echo-app was due at 23:00 today: the robot's Core was not running then" in missed, missed
+                assert core.scheduler.schedules()[0].due == pytest.approx(daily.schedules[0].due + 86400)
+                assert any(r.get("event") == "schedule-missed" for r in read_trace(tmp_path / "trace.jsonl"))
                 listed = await tell("what is scheduled?")
                 assert listed.event == ScheduleEvent.LISTED and "every day at 23:00" in user.texts()[-1]
                 gone = await tell("cancel the evening check")
