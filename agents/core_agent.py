@@ -358,14 +358,15 @@ class CoreAgent(RappAgent):
 
     async def recognition(self, utterance: HeardUtterance) -> tuple[str, str]:
         """The Platform's speech_recognition of one utterance, first against the Store's command phrases
-        and keywords, then with the general language model: (text, the search that heard it); "" when
-        neither heard anything."""
+        and keywords (each may end with a time: a schedule), then with the general language model:
+        (text, the search that heard it); "" when neither heard anything."""
         wav = await asyncio.to_thread(lambda: base64.b64encode(encode_wav(utterance.pcm)).decode())
         sentences = sorted({ph for p in self.catalogue for ph in p.phrases} | set(self.vocabulary))
         for allowed in (sentences, []):
             try:
+                # times: a Store sentence said with a time is a schedule's (paper 000 sec. 7's trigger)
                 reply = await self.request(self.platform, SpeechRecognition(
-                    token=await self.fresh_token(), audio_b64=wav, sentences=allowed), timeout=15.0)
+                    token=await self.fresh_token(), audio_b64=wav, sentences=allowed, times=bool(allowed)), timeout=15.0)
             except RequestError as e:
                 if not allowed or e.code != ErrorCode.UNSUPPORTED:
                     raise  # the recording itself was refused (silent, clipped): the model would refuse it too

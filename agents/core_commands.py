@@ -163,7 +163,11 @@ class RobotCommands:
             memory["reporter"] = asyncio.create_task(self._report_motion(req, ctx))
         if self.estop_reason is not None:
             return "held"
+        # the Core's pose estimate predicts each leg on its own: a read as it starts and as it ends
+        localizer = self.localizer if facts(name).device == "base" else None
         try:
+            if localizer is not None:
+                await localizer.read()
             memory["reply"] = await self.robot.handle(req)  # cancelled by the requester: the motion stops
             return "done"
         except MotionBlocked as e:
@@ -178,6 +182,9 @@ class RobotCommands:
         except MotionInterrupted:
             if self.estop_reason is None:
                 raise
+        finally:
+            if localizer is not None:
+                await localizer.read()
         if not resumable(name):
             raise Failure(f"{name} was interrupted by the emergency stop ({self.estop_reason}); "
                           f"a relative motion is not resumed", ErrorCode.ESTOP)

@@ -13,7 +13,10 @@ from both. So the Core does not look for QR codes on its own camera frames (it w
 the camera and the head): it accepts the fixes a RApp sends with add_pose_fix (the SDK's Task.localize
 keeps its own filter and sends the Core each fix it takes), and follows the odometry between them.
 
-The robot's odometry is read every SAMPLE_S (wall clock) from the Core's start; a RApp's set_global_pose
+The robot's odometry is read every SAMPLE_S (wall clock) from the Core's start, with its counters of the
+motion made (RobotInterface.odometry_counters): the estimate's uncertainty grows with the metres and radians
+counted between two reads, not with the displacement alone, so a read that spans several legs (a world run
+many times faster than real time, or a turn and back) is as uncertain as the legs. A RApp's set_global_pose
 resets that odometry (it is the robot's own estimate), so the Core takes the motion up to it, then follows
 the odometry from the pose set: a set pose is not a fix (it carries no uncertainty). The start is the
 odometry's pose when the Core starts, hardly trusted (START_STD_M, START_STD_RAD). The odometry's error
@@ -41,6 +44,7 @@ class CoreLocalizer:
         self.model = ODOMETRY[robot_type] if robot_type in ODOMETRY else ODOMETRY["nao"]  # unknown: the most generous
         self.ekf: PoseEKF | None = None
         self.odom: tuple[float, float, float] | None = None  # the odometry's pose at the last sample
+        self.counted = (0.0, 0.0)  # the odometry's counters then (m travelled, rad turned)
         self.fixes = 0
         self._lock = asyncio.Lock()
         self._task: asyncio.Task | None = None
@@ -67,14 +71,26 @@ class CoreLocalizer:
                 log.log(logging.WARNING if failures == 1 else logging.DEBUG, "localizer: no odometry: %s", e)
             await asyncio.sleep(SAMPLE_S)
 
+    async def read(self) -> None:
+        """Follow the odometry up to now: the Core's command server calls it as a base motion starts and
+        ends, so each leg is predicted on its own whatever the wall clock's sampling caught of it."""
+        try:
+            async with self._lock:
+                await self._sample()
+        except Exception as e:  # noqa: BLE001 - as a sample of _follow: the next read takes the motion along
+            log.debug("localizer: no odometry: %s", e)
+
     async def _sample(self) -> PoseEKF:
         pose = await self.robot.handle(GetGlobalPose())
+        counted = self.robot.odometry_counters()
         odom = (pose.x, pose.y, pose.theta)
         if self.ekf is None or self.odom is None:
             self.ekf, self.odom = PoseEKF(odom, START_STD_M, START_STD_RAD), odom
-        elif odom != self.odom:
-            self.ekf.predict_between(self.odom, odom, self.model)
+        elif odom != self.odom or counted != self.counted:
+            travelled, turned = (max(now - before, 0.0) for now, before in zip(counted, self.counted))
+            self.ekf.predict_between(self.odom, odom, self.model, travelled_m=travelled, turned_rad=turned)
             self.odom = odom
+        self.counted = counted
         return self.ekf
 
     async def handle(self, req) -> PoseEstimate:

@@ -339,7 +339,10 @@ class Scheduler:
                              command=command, kind=kind, time_of_day=time_of_day, due=due, window_s=window)
         running = core.dynamic
         if running is not None and not running.ended.is_set():
-            until = (running.started or now) + running.manifest.time_limit_s
+            # its time limit runs on the machine's clock (the Core's s8) from `started`; the schedule's
+            # time is the robot's clock, a simulated one's far from the machine's: what is left of it
+            left = running.manifest.time_limit_s - (time.time() - (running.started or time.time()))
+            until = now + max(left, 0.0)
             if due < until:
                 raise ScheduleRefused(f"the robot is busy with {running.rapp}, which may run until "
                                       f"{_clock(until, self.clock.tz, now)}")

@@ -4,6 +4,7 @@ int16 audio and checked against a free phone loop.
     dec = PhraseDecoder(["check the hazards", "hazards"])    # words outside the dictionary: pronounce.py
     heard, margin = dec.decode(pcm, accept=0.0)              # phrase or None, log-score per second
     dec.segments                                             # (word, first, last 10 ms frame)
+    PhraseDecoder(phrases, suffix=Suffix(jsgf, whole))       # each phrase may end with <suffix>'s words
 
 Decoders are not thread-safe: one per thread. Each decode starts from a fresh front end
 (fresh_front_end), so a kept decoder's answer depends on its own audio only.
@@ -12,7 +13,8 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Sequence
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -34,6 +36,16 @@ def sphinx_config(**kw: Any) -> Any:
                   samprate=16000, lm=None, loglevel="FATAL", **kw)
 
 
+@dataclass(frozen=True)
+class Suffix:
+    """Words any phrase may end with (a time said after a command: agents/services/interpretation.py).
+    `jsgf`: the JSGF rule `<suffix>` and the rules it names; `whole(words)`: whether the words heard
+    after a phrase are a whole suffix (the search's best path may stop inside one: "every day at")."""
+
+    jsgf: str
+    whole: Callable[[str], bool]
+
+
 class PhraseDecoder:
     """pocketsphinx on 16 kHz int16 audio: a JSGF grammar of phrases, checked against a free phone loop
     (a phrase is accepted only when its path scores at least as well as any phone sequence: the
@@ -41,7 +53,7 @@ class PhraseDecoder:
     Each `decode` starts from a fresh front end, so its answer depends on that audio alone."""
 
     def __init__(self, phrases: list[str] | None = None, jsgf: str | None = None, trust_search: bool = False,
-                 words: Sequence[str] = (), beams: dict[str, float] | None = None):
+                 words: Sequence[str] = (), beams: dict[str, float] | None = None, suffix: Suffix | None = None):
         from pocketsphinx import Decoder, get_model_path
         self.decoder = Decoder(sphinx_config(**(beams or {})))  # beams: e.g. WIDE_BEAMS
         # trust_search: the search's own best path, when a complete phrase, is the answer (see decode)
@@ -54,9 +66,10 @@ class PhraseDecoder:
             known = [p for p in dict.fromkeys(normalize(p) for p in phrases or []) if p and self.known(p)]
             self.unknown = [p for p in phrases or [] if normalize(p) not in known]
             self.phrases = known
-            jsgf = grammar(known) if known else None
+            jsgf = grammar(known, suffix=suffix) if known else None
         else:
             self.phrases = []
+        self.suffix = suffix
         self.has_grammar = jsgf is not None
         self._single: dict[str, str] = {}  # phrase -> the search of a grammar of it alone (least recent first)
         self._made = 0
@@ -149,7 +162,6 @@ class PhraseDecoder:
         self._best_path_complete = False
         if hyp is None:
             return []
-        known = set(self.phrases) if self.phrases else None
         out: list[str] = []
         first = [hyp.hypstr.strip()]
         try:
@@ -157,12 +169,19 @@ class PhraseDecoder:
         except (RuntimeError, TypeError):  # no lattice (nothing decoded)
             more = []
         for words in first + more:
-            if words and (known is None or words in known) and words not in out:
+            if words and self._whole(words) and words not in out:
                 out.append(words)
                 if len(out) >= self.CANDIDATES:
                     break
         self._best_path_complete = bool(out) and out[0] == first[0]
         return out
+
+    def _whole(self, words: str) -> bool:
+        """A path through the whole grammar: one of the phrases, or one and a whole suffix."""
+        if not self.phrases or words in self.phrases:
+            return True
+        return self.suffix is not None and any(
+            words.startswith(p + " ") and self.suffix.whole(words[len(p) + 1:]) for p in self.phrases)
 
     def _align(self, words: str, pcm: np.ndarray) -> tuple[str, float, list[tuple[str, int, int]]] | None:
         """(words, log-score, segments) of a grammar of `words` alone on the audio (the same search as the
@@ -188,8 +207,9 @@ def normalize(phrase: str) -> str:
     return re.sub(r"\s+", " ", re.sub(r"[^\w\s']", " ", phrase.lower())).strip()
 
 
-def grammar(phrases: list[str], repeat: bool = False) -> str:
-    """A JSGF grammar: one of the phrases (repeat: any sequence of them)."""
+def grammar(phrases: list[str], repeat: bool = False, suffix: Suffix | None = None) -> str:
+    """A JSGF grammar: one of the phrases (repeat: any sequence of them; suffix: each may end with it)."""
     body = " | ".join(f"({p})" for p in phrases)
-    rule = f"( {body} )+" if repeat else body
-    return f"#JSGF V1.0;\ngrammar phrases;\npublic <phrase> = {rule};\n"
+    rule = f"( {body} )+" if repeat else f"( {body} ) [<suffix>]" if suffix else body
+    rules = f"{suffix.jsgf.strip()}\n" if suffix else ""
+    return f"#JSGF V1.0;\ngrammar phrases;\npublic <phrase> = {rule};\n{rules}"

@@ -103,6 +103,10 @@ class RobotAPI:
     def protect(self, margin_m: float | None) -> None:
         self.robot.protection_m = margin_m  # read by the base controllers in the pybullet thread
 
+    def odometry_counters(self) -> tuple[float, float]:
+        odometry = self.robot.odometry  # two floats the pybullet thread adds to at each step
+        return odometry.travelled, odometry.turned
+
     def loudspeaker_timing(self):
         return self.robot.loudspeaker  # robots/loudspeaker.py: what it played, in simulation time
 

@@ -52,6 +52,12 @@ class RobotInterface(Protocol):
     def microphone(self) -> Microphone | None:
         """Where the owner's spoken commands are heard, or None (chat only)."""
 
+    def odometry_counters(self) -> tuple[float, float]:
+        """How far the base has moved and turned in all (m, rad), as its odometry counts them (wheel
+        encoders, a walk's steps): between two reads of the pose, the motion made, which may be much
+        longer than the displacement (legs with corners, a turn and back). The Core's pose estimate
+        grows its uncertainty with it (agents/core_localizer.py)."""
+
     def loudspeaker_timing(self) -> LoudspeakerTiming | None:
         """The loudspeaker's timing where the robot can tell it (the simulation keeps what its
         loudspeaker played), so that the Core cuts the robot's own voice out of what it hears; None
@@ -63,5 +69,5 @@ def check_robot(api: object) -> RobotInterface:
     if isinstance(api, RobotInterface):
         return api
     missing = [n for n in ("handle", "moving_forward", "capabilities", "halt", "protect", "microphone",
-                                     "loudspeaker_timing") if not hasattr(api, n)]
+                           "odometry_counters", "loudspeaker_timing") if not hasattr(api, n)]
     raise TypeError(f"{type(api).__name__} is not a robots.interface.RobotInterface: missing {', '.join(missing)}")

@@ -40,7 +40,7 @@ class Odometry:
         self.estimate = tuple(map(float, pose))
         self.noise = noise or OdometryNoise()
         self.rng = rng or np.random.default_rng(0)
-        self.travelled = 0.0
+        self.travelled = self.turned = 0.0  # all the motion counted (m, rad), as wheel encoders or steps count it
 
     def set(self, pose: tuple[float, float, float]) -> None:
         self.estimate = (float(pose[0]), float(pose[1]), wrap(float(pose[2])))
@@ -48,6 +48,7 @@ class Odometry:
     def update(self, dx: float, dy: float, dth: float) -> None:
         d = math.hypot(dx, dy)
         self.travelled += d
+        self.turned += abs(dth)
         n = self.noise
         if n.enabled and (d > 0 or dth != 0):
             s = 1.0 + n.trans_scale

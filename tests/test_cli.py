@@ -190,6 +190,49 @@ async def test_trace_show_and_export_mermaid(running, tmp_path):
     res = await arapp("trace", "show", run_dir, "--agent", "store")
     assert res.returncode == 0 and "  store " in res.stdout, res.stderr
 
+    # fig. 6 drawn (issue 47.3): the Platform's own FSM s0 -> s1 (its request passes: test_lifecycle.py)
+    res = await arapp("trace", "show", trace, "--view", "fsm", "--agent", "platform")
+    assert res.returncode == 0, res.stderr
+    assert "platform: s0_init -> s1_wait" in res.stdout, res.stdout
+    res = await arapp("trace", "export", trace, "--format", "states")
+    assert res.returncode == 0 and res.stdout.startswith("stateDiagram-v2"), res.stderr
+    assert "_platform__s0_init --> " in res.stdout and "__s1_wait: x1" in res.stdout, res.stdout
+
+
+async def test_store_serve_serves_the_developers_page_from_the_running_store(running):
+    """`rapp store serve` as a developer starts it (the page itself, in headless Chromium:
+    tests/test_store_builds.py): the page and the Store's packages and builds as JSON; ended by SIGTERM."""
+    import json
+    import signal
+    import urllib.request
+
+    await running.publish(FIXTURE)
+    port = free_port()
+    base = {k: v for k, v in os.environ.items() if not k.startswith("RAPP_") or k == "RAPP_TEST_RUN"}
+    proc = subprocess.Popen([*RAPP, "store", "serve", "--port", str(port)], cwd=ROOT, env={**base, **running.env},
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
+
+    def get(path: str) -> bytes:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=10) as reply:
+            return reply.read()
+
+    try:
+        for _ in range(150):
+            try:
+                builds = json.loads(await asyncio.to_thread(get, "/builds.json"))
+                break
+            except OSError:
+                assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+                await asyncio.sleep(0.2)
+        else:
+            raise AssertionError("rapp store serve did not answer within 30 s")
+        assert "echo-app" in json.dumps(builds), builds
+        assert b"RAPP Store: packages and builds" in await asyncio.to_thread(get, "/")
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(15)
+
 
 async def test_doctor_reports_running_server_ok(running):
     res = await arapp("doctor", env=running.env)

@@ -64,17 +64,8 @@ async def test_set_global_pose_resets_the_odometry_not_the_estimate_and_the_comm
     world = World.from_file("small", seed=1, render="inline")
     try:
         api = RobotAPI(world.add_robot("elektron", pose=(1.0, 2.4, 0.0)))
-        async def nothing(*a, **k):
-            return None
-
-        host = SimpleNamespace(robot=api, robot_id="el-1", record_structure=lambda *a, **k: None, address="core@x",
-                               tracer=None, tell_user=nothing, notify=nothing, in_background=lambda coro: coro.close(),
-                               dynamic=SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
-                                                       manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS))))
-        core = RobotCommands(host, publish=nothing)  # the Core's command server, with the localizer the Core gives it
+        core, ctx = _stand_in_core(api)  # the Core's command server, with the localizer the Core gives it
         core.localizer = CoreLocalizer(api, "elektron")
-        ctx = SimpleNamespace(sender="dyn@x", wants_feedback=False, feedback=None,
-                              info=SimpleNamespace(conversation_id="c-1"))
         await core._robot_call(AddPoseFix(x=1.0, y=2.4, theta=0.0, std_m=0.02, std_rad=0.02), ctx)
         await api.move_to(MoveTo(x=0.5))
         await core._robot_call(SetGlobalPose(x=5.0, y=1.0, theta=1.0), ctx)  # a RApp's own (wrong) pose
@@ -83,5 +74,51 @@ async def test_set_global_pose_resets_the_odometry_not_the_estimate_and_the_comm
         est = await core._robot_call(GetPoseEstimate(), ctx)
         assert abs(est.pose.x - 1.9) < 0.03 and abs(est.pose.y - 2.4) < 0.03  # ... the Core's estimate followed the motion
         assert est.fixes == 1 and 0.02 < est.std_m < 0.1
+    finally:
+        world.close()
+
+
+
+def _stand_in_core(api):
+    """The Core's command server on a stand-in Core (what RobotCommands needs of its host), and the
+    requester's context of a Dynamic Agent holding every group of the robot API."""
+    async def nothing(*a, **k):
+        return None
+
+    host = SimpleNamespace(robot=api, robot_id="el-1", record_structure=lambda *a, **k: None, address="core@x",
+                           tracer=None, tell_user=nothing, notify=nothing, in_background=lambda coro: coro.close(),
+                           dynamic=SimpleNamespace(jid="dyn@x/r", rapp="r", ended=asyncio.Event(),
+                                                   manifest=SimpleNamespace(robot_api=sorted(ROBOT_API_GROUPS))))
+    ctx = SimpleNamespace(sender="dyn@x", wants_feedback=False, feedback=None,
+                          info=SimpleNamespace(conversation_id="c-1"))
+    return RobotCommands(host, publish=nothing), ctx
+
+
+async def test_a_read_that_spans_several_legs_is_as_uncertain_as_the_legs():
+    """The Core reads the odometry every 0.1 s of wall clock: in a world run much faster than real time one
+    read spans several legs. The uncertainty grows with the motion the odometry counted between reads
+    (RobotInterface.odometry_counters), not with the displacement, which is nothing once round a loop (it
+    grew too little: a filter too sure of itself refused honest fixes); and the command server reads as
+    each leg starts and ends, so a task's legs are predicted one by one whatever the wall clock caught."""
+    from robots import OdometryNoise, RobotAPI, World
+
+    world = World.from_file("small", seed=1, render="inline")
+    try:
+        api = RobotAPI(world.add_robot("nao", pose=(0.9, 1.9, 0.0), odometry_noise=OdometryNoise.typical()))
+        core, ctx = _stand_in_core(api)
+        # none started (no wall-clock reads): the first reads when asked after each leg, the second once at
+        # the end, the third as the command server serves the legs
+        each_leg, once, served = CoreLocalizer(api, "nao"), CoreLocalizer(api, "nao"), CoreLocalizer(api, "nao")
+        core.localizer = served
+        for loc in (each_leg, once, served):  # all start from the same sure fix
+            await loc.handle(AddPoseFix(x=0.9, y=1.9, theta=0.0, std_m=0.01, std_rad=0.01))
+        start = np.trace(np.asarray((await once.handle(GetPoseEstimate())).covariance)[:2, :2])
+        for ahead, turn in LEGS[:4]:  # once round the rectangle, back where it started
+            await core._robot_call(MoveTo(x=ahead, theta=turn), ctx)
+            await each_leg.handle(GetPoseEstimate())
+        covs = [np.asarray((await loc.handle(GetPoseEstimate())).covariance) for loc in (each_leg, once, served)]
+        grown = [np.trace(c[:2, :2]) - start for c in covs]
+        assert grown[0] > 0 and grown[1] > 0.5 * grown[0], grown  # one read for 4.4 m: at least half as unsure
+        assert np.allclose(covs[2], covs[0]), covs  # the served legs: each on its own
     finally:
         world.close()

@@ -6,6 +6,7 @@ cognitive game is then played by voice, end to end."""
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
 import re
 from pathlib import Path
@@ -15,9 +16,14 @@ import numpy as np
 import pytest
 
 from agents.core_agent import CoreAgent
+from agents.services import run_service
+from agents.services.context import ServiceContext
 from agents.core_hearing import CoreHearing
 from agents.tracing import read_trace
 from hearing import tts
+from hearing.keywords import keyword_in_a_sentence
+from hearing.wav import encode_wav
+from ontology.services.speech import SpeechRecognition
 from hearing.vad import HeardUtterance, VoiceActivity
 from robots import RobotAPI, World
 from robots.sound import HouseSound, NoiseSource, house_sound, talker_at
@@ -118,6 +124,27 @@ async def test_a_sentence_said_with_a_pause_is_recognised_whole(system):
     assert joined and joined[-1]["seconds"] > 1.5
 
 
+async def test_a_schedule_said_aloud_is_kept_not_started_and_cancelled_aloud(system):
+    """Paper 000 sec. 7's trigger by voice: a Store sentence said with a time is a schedule (the time
+    had been lost: the Platform's phrases heard "check my inbox" alone and the Core started it at
+    once); "cancel the check" said removes it."""
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start = len(user.received)
+    speak(system, "check my inbox in ten minutes", distance=1.0)
+    kept = await user.wait_for(lambda t: t.startswith(("I will run", "Starting", "I cannot")), timeout=45, start=start)
+    assert kept.startswith("I will run email_reader at"), kept
+    (schedule,) = core.scheduler.schedules()
+    assert schedule.rapp == "email_reader" and schedule.kind == "once"
+    assert schedule.due == pytest.approx(core.scheduler.clock.now() + 600, abs=60)
+    await wait_until(lambda: listening(core), 30)
+    start = len(user.received)
+    speak(system, "cancel the check", distance=1.0, delay=1.0)
+    gone = await user.wait_for(lambda t: t.startswith(("Cancelled", "I cannot")), timeout=45, start=start)
+    assert gone.startswith("Cancelled: email_reader"), gone
+    assert not core.scheduler.schedules() and not any(t.startswith("Starting") for t in user.texts()[start:])
+
+
 async def test_a_failed_recognition_is_answered_and_the_core_listens_again(system):
     core, user = system.handle.core, system.handle.user
     await wait_until(lambda: listening(core), 30)
@@ -147,7 +174,8 @@ def recorded(system, text: str, distance: float, voice: str) -> list[HeardUttera
 async def test_a_keyword_heard_in_a_sentence_starts_nothing(system):
     """ "thank you very much" (this voice, 0.5 m) sounds like "email" to both the spotter and the
     Platform's phrases; the word covers half the speech heard, so it is one word of a sentence, and the
-    general model hears the sentence whole: not understood, no RApp."""
+    general model hears the sentence whole: not understood, no RApp. (With the schedules' times the
+    phrases' search hears "do i have new mail at eleven" in it, too loosely to take: nothing either.)"""
     core, user = system.handle.core, system.handle.user
     (utterance,) = recorded(system, "thank you very much", distance=0.5, voice="en-us+f3")
     await wait_until(lambda: listening(core), 30)
@@ -159,7 +187,12 @@ async def test_a_keyword_heard_in_a_sentence_starts_nothing(system):
     assert spotted == [None] and said.startswith("Sorry")
     assert not any(t.startswith("Starting") for t in user.texts()[begin:])
     heard = [r for r in read_trace(system.settings.trace_file)[records:] if r.get("event") == "speech-recognition"]
-    assert [(r["text"], r.get("keyword_alone")) for r in heard][0] == ("email", False)
+    assert [(r["text"], r.get("keyword_alone")) for r in heard][0] in {("email", False), ("", None)}
+    # the keyword-alone rule on the Platform's phrases alone (without times): "email" is one word of a sentence
+    sentences = sorted({ph for p in core.catalogue for ph in p.phrases} | set(core.vocabulary))
+    reply = run_service("speech_recognition", SpeechRecognition(audio_b64=base64.b64encode(encode_wav(utterance.pcm)).decode(),
+                                                                sentences=sentences), ServiceContext(user="u", state=None))
+    assert reply.text == "email" and keyword_in_a_sentence(reply, core.hearing.keywords.keywords, utterance)
 
 
 @pytest.mark.slow  # 20 s of real-time listening; the services' garbage-audio tests run by default

@@ -15,6 +15,8 @@ from ontology.services.home import GetHomeInfo, HomeInfo, UploadHomeInfo
 from scenarios.hazard import run_hazard_detection
 from scenarios.home_setup import hazard_list, hazard_overrides
 
+from .test_cli import arapp
+
 RESULT_KEYS = {"robot", "seed", "hazards", "all_correct", "localization_error_m", "max_tracking_error_m",
                "duration_sim_s", "duration_wall_s", "trace", "plot", "finished", "end", "routes_blocked",
                "person_contacts", "object_contacts", "strategies", "replans", "obstacles_marked", "estops",
@@ -83,10 +85,25 @@ def check_recording(out: Path, robots: list[str]) -> dict[str, int]:
 
 
 # the Elektron's small-house run is slow-marked for the suite's time: by default it runs the door
-# check in test_two_robots_small_house and both robots' lamp checks in rapps/examples/lamp_patrol
+# check in test_two_robots_small_house and both robots' lamp checks in rapps/examples/lamp_patrol.
+# The NAO's is started by its schedule, as `rapp run hazard-detection --scheduled` starts it (paper 000
+# sec. 7's trigger), a process of its own; the chat command's path is test_two_robots_small_house's
 @pytest.mark.parametrize("robot", ["nao", pytest.param("elektron", marks=pytest.mark.slow)])
 async def test_hazard_detection_small_house(tmp_path, robot):
-    result = await run_hazard_detection(robot, seed=1, house="small", out_dir=tmp_path)
+    if robot == "nao":
+        res = await arapp("run", "hazard-detection", "--robot", robot, "--seed", "1", "--house", "small", "--scheduled",
+                          "--out", tmp_path, "--quiet", timeout=1200)
+        assert res.returncode == 0 and "(started by its schedule)" in res.stdout, (res.stdout[-2000:], res.stderr[-3000:])
+        result = json.loads((tmp_path / "result.json").read_text())
+        assert result["trigger"] == "scheduled"
+        trace = read_trace(result["trace"])
+        kept = next(r for r in trace if r.get("event") == "schedule-kept")
+        due = next(r for r in trace if r.get("event") == "schedule-due")
+        spawn = next(r for r in trace if r.get("event") == "spawn")
+        assert kept["t"] < due["t"] < spawn["t"] and due["trigger"] == "scheduled" and due["rapp"] == "hazard-detection"
+        assert "every day at 22:00" in (tmp_path / "chat.txt").read_text()
+    else:
+        result = await run_hazard_detection(robot, seed=1, house="small", out_dir=tmp_path)
     check_run(result, tmp_path, {"d1", "l1"})
     assert result["localization_error_m"] <= 0.05
     assert result["max_tracking_error_m"] <= 0.10

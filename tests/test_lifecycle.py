@@ -39,6 +39,7 @@ class SpyAPI:
         # the Core cuts its own voice from what it hears by its loudspeaker's times (without them it
         # drops the pieces heard while it spoke, which a late piece escapes)
         self.protect, self.loudspeaker_timing = api.protect, api.loudspeaker_timing
+        self.odometry_counters = api.odometry_counters
 
     async def handle(self, req):
         task = asyncio.current_task()

@@ -8,6 +8,7 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
+import yaml
 
 from agents.core_agent import CoreAgent, CoreOptions
 from agents.scheduler import ScheduleBook, ScheduleRefused, WorldClock, overlap, resolve
@@ -19,6 +20,8 @@ from ontology.results import ScheduleEvent, ScheduleRecord, TaskTrigger
 from ontology.services.interpretation import InterpretCommand, RAppDescription, ScheduleAction, When
 from robots import RobotAPI, World
 from scenarios.system import RappSystem, wait_until
+
+from .test_lifecycle import variant as lifecycle_variant
 
 FIXTURE = Path(__file__).parent / "fixtures" / "echo_app"
 TZ = timezone(timedelta(hours=1))
@@ -101,6 +104,14 @@ def test_the_book_keeps_its_schedules_on_disk(tmp_path):
 
 
 # -- on a real system, the robot's clock simulated ----------------------------------------------------
+def variant(tmp_path: Path, name: str, keyword: str, phrases: list[str], **params) -> Path:
+    """The echo RApp under another name, keyword and phrases, with other default params."""
+    src = lifecycle_variant(tmp_path, name, keyword, **params)
+    manifest = yaml.safe_load((src / "manifest.yaml").read_text())
+    (src / "manifest.yaml").write_text(yaml.safe_dump({**manifest, "phrases": phrases}))
+    return src
+
+
 async def start_core(system, handle_kw: dict) -> CoreAgent:
     core = CoreAgent(**handle_kw)
     await core.start()
@@ -112,6 +123,7 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
     try:
         async with RappSystem(tmp_path / "run", trace_file=tmp_path / "trace.jsonl") as system:
             await system.publish(FIXTURE)
+            await system.publish(variant(tmp_path, "linger-app", "linger", phrases=[], behaviour="linger", seconds=10))
             clock = WorldClock(world, EVENING, fast_forward=True)
             handle = await system.add_robot("nao", api=RobotAPI(world.add_robot("nao")), data_dir=tmp_path / "core",
                                             clock=clock, hear_audio=False)
@@ -147,12 +159,14 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
             assert clash.event == ScheduleEvent.REFUSED and "clash" in clash.reason
             assert "I cannot schedule that" in user.texts()[-1]
 
-            # a restart of the Core (its data directory kept) keeps the daily one
+            # a restart of the Core (its data directory kept) keeps the daily one; its clock reads 23:15
+            # now (the robot was off meanwhile): tonight's 23:00 is missed, told, and moved to tomorrow
+            later = WorldClock(world, datetime.fromtimestamp(clock.now(), TZ) + timedelta(hours=1, minutes=15))
             kw = dict(name=f"core-{core.robot_id}", robot_id=core.robot_id, robot_type=core.robot_type, robot_api=core.robot,
                       owner=f"owner-{core.robot_id}", platform="platform", store="store", user=core.user, password=core.password,
                       settings=system.settings,
                       options=CoreOptions(workdir=tmp_path / "core-work-2", trusted_keys=[system.public_key],
-                                          require_signature=True, data_dir=tmp_path / "core", clock=clock,
+                                          require_signature=True, data_dir=tmp_path / "core", clock=later,
                                           hear_audio=False))
             await core.stop()
             core = await start_core(system, kw)
@@ -160,6 +174,10 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
                 await user.watch_tasks(core.address)
                 await wait_until(lambda: core.vocabulary and core.listening)
                 assert [(s.kind, s.time_of_day) for s in core.scheduler.schedules()] == [("daily", "23:00")]
+                missed = await user.wait_for(lambda t: t.startswith("I missed"), timeout=30)
+                assert "echo-app was due at 23:00 today: the robot's Core was not running then" in missed, missed
+                assert core.scheduler.schedules()[0].due == pytest.approx(daily.schedules[0].due + 86400)
+                assert any(r.get("event") == "schedule-missed" for r in read_trace(tmp_path / "trace.jsonl"))
                 listed = await tell("what is scheduled?")
                 assert listed.event == ScheduleEvent.LISTED and "every day at 23:00" in user.texts()[-1]
                 gone = await tell("cancel the evening check")
@@ -167,6 +185,14 @@ async def test_a_schedule_starts_its_rapp_kept_across_a_restart_refused_and_canc
                 assert not core.scheduler.schedules()
                 none = await tell("cancel the evening check")
                 assert none.event == ScheduleEvent.REFUSED and "nothing is scheduled" in none.reason
+
+                # the robot busy: a task running now may hold it until its start + its time limit (60 s)
+                ended = len(user.ended)
+                await user.say(core.address, "linger")
+                await wait_until(lambda: core.dynamic is not None and core.dynamic.started is not None, 60)  # s8
+                busy = await tell("please echo something back in ten seconds")  # by chat, during the task
+                assert busy.event == ScheduleEvent.REFUSED and "the robot is busy with linger-app" in busy.reason
+                assert (await user.task_end(60, ended)).rapp == "linger-app"
             finally:
                 await core.stop()
     finally:

@@ -160,7 +160,7 @@ PARTS = {"morning": "morning", "afternoon": "afternoon", "evening": "evening", "
 _IN = re.compile(rf"\b(?:in|within)\s+(?:(half an hour|a quarter of an hour|an hour and a half)|({_NUM})\s+"
                  rf"(seconds?|secs?|minutes?|mins?|hours?|hrs?))\b")
 _AT = re.compile(rf"\bat\s+(?:(noon|midday|midnight)|(\d{{1,2}})(?::(\d{{2}}))?|({_NUM}))"
-                 r"(?:\s*(a\.?m\.?|p\.?m\.?|o'?clock))?(?=\W|$)")
+                 r"(?:\s*(a\.?\s?m\.?|p\.?\s?m\.?|o'?clock))?(?=\W|$)")  # "p m": as the recogniser spells pm
 _DAILY = re.compile(r"\b(?:every\s*day|each day|daily|every (morning|afternoon|evening|night))\b")
 _DAY = re.compile(r"\b(today|tonight|tomorrow)\b")
 _DATE = re.compile(r"\bon\s+(\d{4}-\d{2}-\d{2})\b")
@@ -236,7 +236,7 @@ def _clock_time(m: re.Match, evening: bool) -> tuple[int, int]:
     if named:
         return (0 if named == "midnight" else 12), 0
     hour, minute = (int(digits), int(minutes or 0)) if digits else (int(number(words)), 0)
-    suffix = (suffix or "").replace(".", "")
+    suffix = (suffix or "").replace(".", "").replace(" ", "")
     if hour > 23 or minute > 59 or (suffix in ("am", "pm") and not 1 <= hour <= 12):
         raise ServiceError(f"{m.group(0)[3:].strip()} is not a time of day", ErrorCode.INVALID)
     if suffix == "pm" and hour < 12:
@@ -251,3 +251,30 @@ def _clock_time(m: re.Match, evening: bool) -> tuple[int, int]:
 def _without(text: str, spans: list[tuple[int, int]]) -> str:
     keep = [ch if not any(a <= i < b for a, b in spans) else " " for i, ch in enumerate(text)]
     return " ".join("".join(keep).split())
+
+
+# -- schedules as they are said: what the speech recogniser listens for after a command ---------------
+# (the Core asks speech_recognition with `times`: each Store sentence may end with one of these, and
+# the schedules' own sentences are heard; parse_schedule above reads every one of them)
+_HOURS = "one two three four five six seven eight nine ten eleven twelve".split()
+_COUNTS = _HOURS[1:] + ["fifteen", "twenty", "twenty five", "thirty", "forty", "forty five", "fifty"]
+_DAYS = ["every day", "each day", "every morning", "every afternoon", "every evening", "every night",
+         "tomorrow", "tonight", "today"]
+_DELAYS = ["a minute", "one minute", "an hour", "one hour", "half an hour", "a quarter of an hour",
+           "an hour and a half"]
+SAID_TIMES_JSGF = f"""
+<suffix> = [{' | '.join(_DAYS)}] at <clock> | in <delay>;
+<clock> = ({' | '.join(_HOURS)}) [o'clock | a m | p m] | noon | midnight;
+<delay> = ({' | '.join(_COUNTS)}) (minutes | hours) | {' | '.join(_DELAYS)};
+"""
+_SAID_CLOCK = rf"(?:(?:{'|'.join(_HOURS)})(?: o'clock| a m| p m)?|noon|midnight)"
+_SAID_TIME = re.compile(rf"(?:(?:{'|'.join(_DAYS)}) )?at {_SAID_CLOCK}|in (?:(?:{'|'.join(_COUNTS)}) (?:minutes|hours)|"
+                        rf"{'|'.join(_DELAYS)})")
+SCHEDULE_SENTENCES = ["what is scheduled", "what's scheduled", "cancel the check", "cancel all the checks",
+                      "cancel the morning check", "cancel the afternoon check", "cancel the evening check",
+                      "cancel the night check"]
+
+
+def said_time(words: str) -> bool:
+    """Whether `words` are a whole time as SAID_TIMES_JSGF lets it be said ("every day at ten p m")."""
+    return _SAID_TIME.fullmatch(words) is not None

@@ -17,7 +17,7 @@ from ontology.errors import ErrorCode
 from ontology.services.speech import (NoiseProfile, Recognition, RecognizedWord, Speech, SpeechNoiseProfile,
                                       SpeechRecognition, TextToSpeech)
 from hearing import tts
-from hearing.decoder import PhraseDecoder, fresh_front_end, grammar, normalize, sphinx_config
+from hearing.decoder import PhraseDecoder, Suffix, fresh_front_end, grammar, normalize, sphinx_config
 from hearing.errors import HearingError
 from hearing.vad import speech_segments
 from hearing.wav import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
@@ -25,6 +25,7 @@ from hearing.wav import SAMPLE_RATE, decode_wav, encode_wav, level_dbfs
 from .context import ServiceContext
 from .errors import ServiceError
 from .interpretation import SLOT  # the slots interpret_command fills from the text heard
+from .interpretation import SAID_TIMES_JSGF, SCHEDULE_SENTENCES, said_time
 from .interpretation import normalize as said_as  # how a slot value (a room name) is said
 
 MAX_SECONDS = 30.0
@@ -142,7 +143,9 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
             sentences = with_slots_filled(req.sentences, _slot_values(req, ctx))
             if not sentences:  # only sentences with slots of no known value: nothing to search
                 return Recognition(text="", search="sentences")
-            dec, search = _phrase_decoder(("sentences", *sentences)), "sentences"
+            if req.times:  # a schedule said: the sentences, each with an optional time, and the schedules' own
+                sentences = list(dict.fromkeys(sentences + SCHEDULE_SENTENCES))
+            dec, search = _phrase_decoder(("sentences+times" if req.times else "sentences", *sentences)), "sentences"
         else:
             phrases = [p for p in (normalize(w) for w in req.words) if p]
             dec, search = _phrase_decoder(("jsgf", grammar(phrases, repeat=True)), phrases), "words"
@@ -153,6 +156,8 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
                            f"(without a pronunciation: {', '.join(dec.unpronounced[:5])}; words outside its "
                            "dictionary are pronounced by eSpeak NG: the speech extra)", ErrorCode.UNSUPPORTED)
     heard, margin = dec.decode(pcm, accept=SENTENCES_ACCEPT if search == "sentences" else 0.0)
+    if heard is not None and req.times and heard not in dec.phrases and margin < SCHEDULE_ACCEPT:
+        heard = None  # a time after a sentence, fitting only loosely: more often other words (docs/sound.md)
     if heard is None:
         return Recognition(text="", search=search, confidence=_confidence(margin))
     conf = _confidence(margin)
@@ -160,6 +165,7 @@ def speech_recognition(req: SpeechRecognition, ctx: ServiceContext) -> Recogniti
                        search=search)
 
 
+SAID_TIMES = Suffix(SAID_TIMES_JSGF, said_time)  # a schedule's time after a sentence (`times`)
 MAX_FILLED = 2000  # sentences after the slots are filled (a grammar of them builds in ~0.1 s)
 
 
@@ -207,7 +213,8 @@ def _phrase_decoder(key: tuple, words: list[str] = ()) -> PhraseDecoder:
         # the Store's sentences searched wide (PhraseDecoder.WIDE_BEAMS); a grammar of words as before:
         # there the phone loop searched wide too gained as much as the words
         dec = PhraseDecoder(jsgf=key[1], words=words) if key[0] == "jsgf" else \
-            PhraseDecoder(list(key[1:]), beams=PhraseDecoder.WIDE_BEAMS)
+            PhraseDecoder(list(key[1:]), beams=PhraseDecoder.WIDE_BEAMS,
+                          suffix=SAID_TIMES if key[0] == "sentences+times" else None)
     kept[key] = dec
     while len(kept) > KEPT_GRAMMARS:
         kept.popitem(last=False)
@@ -218,6 +225,10 @@ def _phrase_decoder(key: tuple, words: list[str] = ()) -> PhraseDecoder:
 # at 0 other sentences said in a quiet room were taken for a command phrase, and this bound kept every
 # command phrase 0 kept (docs/sound.md, "Keywords")
 SENTENCES_ACCEPT = 0.02
+# a sentence heard with a time after it (`times`) is taken from this margin on: other words after a
+# command phrase ("... from my son") were forced into a time below it, schedules said were heard above
+# it (docs/sound.md, "Schedules said aloud")
+SCHEDULE_ACCEPT = 0.07
 MARGIN_SCALE = 0.03  # margin (PhraseDecoder.decode) at which the confidence is 0.73
 
 

@@ -33,7 +33,9 @@ class SpeechRecognition(ServiceRequest):
     speech_noise_profile to subtract first. A sentence may hold slots, as a RApp's phrases do
     ("check the lamps in the {room}"): `slots` gives the values each may take, and {room} defaults
     to the rooms of the caller's homes on the Platform; a sentence with a slot of no known value is
-    left out (the general model may still hear it)."""
+    left out (the general model may still hear it). `times`: each sentence may end with a time, as a
+    schedule is said ("check the hazards every day at ten p m", "... in ten minutes"), and the
+    schedules' own sentences are heard ("what is scheduled", "cancel the evening check")."""
 
     audio_b64: str = Field(min_length=1, max_length=MAX_WAV_B64)
     language: str = "en"
@@ -42,6 +44,7 @@ class SpeechRecognition(ServiceRequest):
     grammar: str = Field(default="", max_length=20_000)
     noise_profile: str = ""
     slots: dict[str, list[str]] = Field(default_factory=dict, max_length=20)
+    times: bool = False
 
 
 class NoiseProfile(Content):

@@ -300,9 +300,9 @@ class PlatformCalls(_Calls):
         """Store the spectrum of a recording of the room without speech under `name` (per user)."""
         return await self._call("speech_noise_profile", {"token": token, "audio_b64": audio_b64, "name": name}, _timeout, _feedback)
 
-    async def speech_recognition(self, *, audio_b64: str, language: str = 'en', words: list[str] = UNSET, sentences: list[str] = UNSET, grammar: str = '', noise_profile: str = '', slots: dict[str, list[str]] = UNSET, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Recognition:
+    async def speech_recognition(self, *, audio_b64: str, language: str = 'en', words: list[str] = UNSET, sentences: list[str] = UNSET, grammar: str = '', noise_profile: str = '', slots: dict[str, list[str]] = UNSET, times: bool = False, token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> Recognition:
         """Recognise `audio_b64`: against `grammar` (JSGF), else one of `sentences`, else any sequence of"""
-        return await self._call("speech_recognition", {"token": token, "audio_b64": audio_b64, "language": language, "words": words, "sentences": sentences, "grammar": grammar, "noise_profile": noise_profile, "slots": slots}, _timeout, _feedback)
+        return await self._call("speech_recognition", {"token": token, "audio_b64": audio_b64, "language": language, "words": words, "sentences": sentences, "grammar": grammar, "noise_profile": noise_profile, "slots": slots, "times": times}, _timeout, _feedback)
 
     async def start_cloud_agent(self, *, rapp: str, version: str | None = None, owner_jid: str = '', token: str = UNSET, _timeout: float | None = None, _feedback: Callable[[Progress], Any] | None = None) -> CloudAgentReply:
         """Start the run's Cloud Agent (the RApp's cloud part): once per run; the SDK's"""

@@ -32,7 +32,7 @@ def test_an_incomplete_robot_is_refused_naming_what_is_missing():
             return None
 
     with pytest.raises(TypeError, match="missing moving_forward, capabilities, halt, protect, microphone, "
-                                        "loudspeaker_timing"):
+                                        "odometry_counters, loudspeaker_timing"):
         check_robot(OnlyHandle())
 
 

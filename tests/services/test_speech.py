@@ -10,6 +10,7 @@ import pytest
 from pydantic import ValidationError
 
 from agents.services import SERVICES, ServiceError, run_service
+from agents.services.interpretation import parse_schedule
 from agents.services.speech import subtract_noise
 from ontology.errors import ErrorCode
 from ontology.services.speech import SpeechNoiseProfile, SpeechRecognition, TextToSpeech
@@ -58,6 +59,36 @@ def test_synthesised_command_at_1m_is_recognised_with_the_store_phrases(ctx):
 def test_something_else_is_not_forced_into_the_grammar(ctx):
     _, pcm = _heard("open the window please")
     assert _recognise(ctx, pcm, sentences=PHRASES).text == ""
+
+
+@pytest.mark.parametrize("said, kind", [("check the hazards every day at ten p m", ("daily", 22, None)),
+                                       ("read my email in ten minutes", ("in", None, 600)),
+                                       ("tell me the news tonight at eleven", ("at", 23, None)),
+                                       ("cancel the evening check", ("cancel", "evening")),
+                                       ("what is scheduled", ("list",))])
+def test_a_schedule_said_after_a_store_sentence_is_heard_whole(ctx, said, kind):
+    """`times` (what the Core asks): a Store sentence with a time after it is heard whole, and so are
+    the schedules' own sentences; without it, the sentence alone was taken and the time lost (the Core
+    started the task at once)."""
+    _, pcm = _heard(said, voice="en-us+f3")
+    r = _recognise(ctx, pcm, sentences=PHRASES, times=True)
+    assert r.text == said and r.search == "sentences", r
+    asked, _ = parse_schedule(r.text)
+    got = (asked.action.value, asked.part_of_day) if asked.when is None else \
+        (asked.when.kind, asked.when.hour, asked.when.seconds)
+    assert got == kind or (asked.action.value,) == kind
+
+
+def test_with_times_a_plain_command_gets_no_time_and_something_else_is_still_refused(ctx):
+    for said in ("check the hazards", "play a game"):
+        _, pcm = _heard(said)
+        assert _recognise(ctx, pcm, sentences=PHRASES, times=True).text == said
+    _, pcm = _heard("open the window please")
+    assert _recognise(ctx, pcm, sentences=PHRASES, times=True).text == ""
+    for voice in ("en-us", "en-us+m3"):  # other words after a phrase fit a time only loosely: not a schedule
+        _, pcm = _heard("tell me the news about the weather", voice=voice)
+        heard = _recognise(ctx, pcm, sentences=PHRASES, times=True).text
+        assert parse_schedule(heard)[0] is None, heard
 
 
 def test_words_and_a_jsgf_grammar(ctx):
