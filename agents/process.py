@@ -51,9 +51,15 @@ def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
         if not fut.done():
             fut.set_result(code)
 
-    def reap() -> int:
+    def sweep() -> None:
         if before_reap is not None and proc.returncode is None:
-            before_reap()
+            try:
+                before_reap()
+            except Exception:  # noqa: BLE001 - the process is reaped all the same
+                log.exception("the sweep before reaping process %d failed", proc.pid)
+
+    def reap() -> int:
+        sweep()
         return proc.wait()
 
     try:
@@ -68,21 +74,15 @@ def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
         threading.Thread(target=wait_then_reap, name=f"wait-{proc.pid}", daemon=True).start()
         return fut
 
-    def reaped(done: asyncio.Future) -> None:
-        if fut.done():
-            return
-        if done.exception() is not None:
-            fut.set_exception(done.exception())
-        else:
-            resolve(done.result())
-
     def exited() -> None:
         loop.remove_reader(fd)
         os.close(fd)
         if before_reap is None:
             resolve(reap())  # already exited: reaps at once
-        else:  # the sweep waits for what is left to go (up to seconds): in a thread, not on the loop
-            loop.run_in_executor(None, reap).add_done_callback(reaped)
+        else:  # the sweep waits for what is left to go (up to seconds): in a thread, not on the loop; the
+            # reaping stays on the loop, so the future is done as the pid is freed (AgentProcess signals
+            # the group only while its future is not done: the pid is still this process's)
+            loop.run_in_executor(None, sweep).add_done_callback(lambda _: resolve(proc.wait()))
 
     loop.add_reader(fd, exited)
     return fut

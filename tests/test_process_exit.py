@@ -59,6 +59,15 @@ async def test_the_sweep_before_reaping_does_not_hold_the_loop():
     assert max(gaps) < 0.3, f"the loop stood still for {max(gaps):.2f} s"
 
 
+async def test_a_sweep_that_fails_still_reaps_and_reports_the_exit():
+    def failing_sweep() -> None:
+        raise OSError("no such control group")
+
+    p = subprocess.Popen([sys.executable, "-c", "raise SystemExit(4)"])
+    assert await asyncio.wait_for(exit_future(p, before_reap=failing_sweep), 10) == 4
+    assert p.returncode == 4  # reaped: no zombie left
+
+
 LEAVES_A_CHILD = ("import subprocess, sys; child = subprocess.Popen(['sleep', '60']); print(child.pid, flush=True); "
                   "sys.exit(3)")
 
