@@ -241,11 +241,16 @@ def _acl_channels(b: McapBuilder, run: Path, records: list[dict]) -> None:
     """Each message of the trace once (its sender's record where traced, else its receiver's), with
     its whole body where the run recorded one (messages.jsonl), else the trace's content; a RApp's
     records count only for the messages it sent (own_account)."""
-    bodies = {(r.get("sender"), r.get("message_id")): r["body"] for r in _bodies(run / BODIES, run / BLOBS)
-              if r.get("message_id") and own_account(r)}
+    bodies: dict[tuple, str] = {}
+    # a trusted agent's body first: a RApp's record of a message it sent counts only where no trusted
+    # agent recorded that message (else a RApp could rewrite what it asked its Core for)
+    for r in sorted(_bodies(run / BODIES, run / BLOBS), key=lambda r: bool(r.get("origin"))):
+        if r.get("message_id") and own_account(r):
+            bodies.setdefault((r.get("sender"), r.get("message_id")), r["body"])
     seen: set[tuple] = set()
     messages = [r for r in records if r.get("kind") == RecordKind.MESSAGE and own_account(r)]
-    messages.sort(key=lambda r: (r.get("dir") != "send", r.get("t", 0.0)))  # senders' records first
+    # trusted agents' records first, then senders' before receivers'
+    messages.sort(key=lambda r: (bool(r.get("origin")), r.get("dir") != "send", r.get("t", 0.0)))
     for r in messages:
         key = (r.get("sender"), r.get("message_id")) if r.get("message_id") else \
             (r.get("sender"), r.get("receiver"), round(r.get("t", 0.0), 1), r.get("content"))

@@ -96,8 +96,10 @@ def test_a_rapps_records_cannot_put_words_on_another_agents_channel(tmp_path):
 
     records = [msg(1.0, "send", core, dyn, "m-1", {"x": 1}),  # the Core's own record
                msg(1.1, "recv", dyn, core, "m-1", {"x": 1}, agent=dyn, origin=dyn),  # the RApp's, of the same
-               msg(2.0, "send", dyn, core, "m-2", {"ask": 1}, agent=dyn, origin=dyn),  # the RApp's own message
-               msg(2.1, "recv", dyn, core, "m-2", {"ask": 1}, agent=core),  # the Core's, of the RApp's
+               # the RApp's own message, as it claims to have sent it and as its Core received it
+               msg(2.0, "send", dyn, core, "m-2", {"ask": "rewritten"}, agent=dyn, origin=dyn),
+               msg(2.1, "recv", dyn, core, "m-2", {"ask": 1}, agent=core),
+               msg(2.5, "send", dyn, "platform@localhost", "m-5", {"ping": 1}, agent=dyn, origin=dyn),  # no one else saw
                # forged by the RApp: the Core "sending" and a reception "from" the Core it never sent
                msg(0.5, "send", core, dyn, "m-3", {"forged": True}, agent=dyn, origin=dyn, claimed_agent=core),
                msg(3.0, "recv", core, dyn, "m-4", {"forged": True}, agent=dyn, origin=dyn)]
@@ -112,7 +114,9 @@ def test_a_rapps_records_cannot_put_words_on_another_agents_channel(tmp_path):
     path = export_mcap(tmp_path)
     from_core = _messages(path, "/acl/core-nao1")
     assert [(m["message_id"], m["content"]) for m in from_core] == [("m-1", {"x": 1})]
-    assert [(m["message_id"], m["content"]) for m in _messages(path, "/acl/dyn-nao1-x-1")] == [("m-2", {"ask": 1})]
+    # what the Core received, not the RApp's account of it; the RApp's own record where no trusted agent has one
+    assert [(m["message_id"], m["content"]) for m in _messages(path, "/acl/dyn-nao1-x-1")] == [("m-2", {"ask": 1}),
+                                                                                              ("m-5", {"ping": 1})]
 
 
 def test_comparison_follows_placeholders_consistently():
