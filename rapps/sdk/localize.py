@@ -777,10 +777,12 @@ class Localizer:
             verdict = await self.judge(ekf, found)
             if verdict.fix is not None and not certain and verdict.gate is None:
                 verdict.gate = CHI2_3DOF_99  # agreeing codes, but not certain: weighed against the prediction
-        self.suspect |= set(verdict.dropped)
         fix = verdict.fix
         if fix is not None:
             if ekf.update(_z(fix), R=_R(fix), gate=verdict.gate):
+                # the codes this fix left out disagreed with codes that fit the estimate: doubted from now on;
+                # a doubted code in a fix that passed the gate agreed after all (a bad frame, not a move)
+                self.suspect = (self.suspect - set(fix.markers)) | set(verdict.dropped)
                 s_m, s_rad = _floored(fix)
                 p = cast(Pose2D, fix.pose)
                 await self._share_fix(p, s_m, s_rad)

@@ -178,3 +178,9 @@ async def test_a_label_left_out_once_is_doubted_when_it_agrees_with_another_move
     assert off(later) < 0.03, f"jumped {off(later):.2f} m"
     unwarned, _, _ = await localize_with([seen("B", moved_m=0.2), seen("C", moved_m=0.2)])
     assert unwarned.fixed and off(unwarned) > 0.15  # a localizer that had not doubted B: the pose jumps
+    loc.ekf = PoseEKF(TRUTH, 0.5, 0.3)  # a filter that cannot referee two codes that disagree
+    undecided = await localize([seen("A"), seen("C", moved_m=0.25)])
+    assert undecided.unsure and not undecided.fixed and loc.suspect == {"B"}  # nothing decided: no new doubt
+    loc.ekf = PoseEKF(TRUTH, 0.03, 0.02)
+    again = await localize([seen("A"), seen("B"), seen("C")])  # B where the map has it after all (a bad frame)
+    assert again.fixed and "B" in again.markers and loc.suspect == set()
