@@ -570,10 +570,11 @@ class CoreAgent(RappAgent):
                 session.last_beat = now  # our own link was down: silence proves nothing
             silence = now - session.last_beat
             late = self._late_not_hung(session, now, silence)  # looks from the second missed beat on
+            session.charged_s = charged_seconds(now - start, paused, self.strategies.pause_allowance_s)
             if silence > HEARTBEAT_TIMEOUT_S and session.state != "Finished" and not late:
                 session.hung = True  # its loop does not run: it cannot log out, no grace
                 self._end(session, f"no heartbeat for {silence:.1f}s (hung?)")
-            elif charged_seconds(now - start, paused, self.strategies.pause_allowance_s) > limit:
+            elif session.charged_s > limit:
                 waiting = self.strategies.waiting_for()
                 self._end(session, f"time limit of {limit:g}s exceeded" + (f" while waiting for {waiting}"
                                                                           if waiting else ""))

@@ -55,6 +55,7 @@ class DynamicSession:
     account: Identity | None = None  # the run's ephemeral XMPP account, deleted at its end
     command: str = ""  # the owner's command that started it (text; "" when heard as sound)
     started: float | None = None  # when supervision was handed to it (s since the epoch)
+    charged_s: float = 0.0  # of its time limit, used so far (s8: monotonic, paused time left out)
     reports: list[ReportRecord] = field(default_factory=list)  # what it reported, in order
     # what was refused it (by this Core, its sandbox, the Platform): {by, what, why, count}, told at its end
     refusals: list[dict] = field(default_factory=list)

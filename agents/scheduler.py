@@ -339,9 +339,9 @@ class Scheduler:
                              command=command, kind=kind, time_of_day=time_of_day, due=due, window_s=window)
         running = core.dynamic
         if running is not None and not running.ended.is_set():
-            # its time limit runs on the machine's clock (the Core's s8) from `started`; the schedule's
-            # time is the robot's clock, a simulated one's far from the machine's: what is left of it
-            left = running.manifest.time_limit_s - (time.time() - (running.started or time.time()))
+            # its time limit runs on the machine's clock (the Core's s8 charges it, paused time left out);
+            # the schedule's time is the robot's clock, a simulated one's far from the machine's: what is left
+            left = running.manifest.time_limit_s - running.charged_s
             until = now + max(left, 0.0)
             if due < until:
                 raise ScheduleRefused(f"the robot is busy with {running.rapp}, which may run until "
