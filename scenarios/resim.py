@@ -145,8 +145,8 @@ def _short(v) -> str:
 def compare(old_dir: str | Path, new_dir: str | Path, robot: str, tolerance_m: float = TRAJECTORY_TOL_M) -> Comparison:
     old, new = recorded_result(old_dir), recorded_result(new_dir)
     c = Comparison()
-    for key in ("seed", "house", "robot", "rapp", "command", "scenario", "disturbances", "scheduled", "drive",
-                "lived_in", "daylight", "link"):
+    for key in ("seed", "house", "robot", "rapp", "command", "delivery", "scenario", "disturbances", "scheduled",
+                "drive", "lived_in", "daylight", "link"):
         if key in old and _setting(key, old.get(key)) != _setting(key, new.get(key)):
             c.differ.append(f"{key}: {_short(new.get(key))} now, {_short(old.get(key))} recorded "
                             "(not a re-simulation of it)")

@@ -145,6 +145,10 @@ def test_a_re_simulation_in_another_world_is_told_apart(tmp_path, realistic):
     _recording(new, {**realistic, **traj, "lived_in": None, "drive": "statistical"})
     c = resim.compare(old, new, "nao")
     assert not c.ok and any(d.startswith("lived_in:") for d in c.differ) and any(d.startswith("drive:") for d in c.differ)
+    _recording(old, {**realistic, **traj, "delivery": "speech"})  # said aloud then, typed now: another run
+    _recording(new, {**realistic, **traj, "delivery": "chat"})
+    c = resim.compare(old, new, "nao")
+    assert not c.ok and any(d.startswith("delivery:") for d in c.differ), c.text()
 
     door = {"id": "d1", "type": "door", "true_state": "open", "reported_state": "open", "true_angle": 40.0,
             "estimated_angle": 41.0}
