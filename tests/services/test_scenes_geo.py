@@ -44,10 +44,10 @@ async def look_around(world, robot, api, pose) -> list[str]:
 
 
 async def test_the_room_is_recognized_from_a_look_around_in_a_generated_house(ctx):
-    """Learned from a look-around at 3 places per room, asked at 2 other places per room of a house
+    """Learned from a look-around at 3 places per room, asked at 4 other places per room of a house
     generated from a seed drawn at run time: twice as many right answers as chance at least (it had
-    75-88 % right over 32-40 places a house, docs/scene-recognition.md; this test's 8-16 answers
-    vary too much to assert that)."""
+    75-88 % right over 32-40 places a house, docs/scene-recognition.md; this test's answers vary too
+    much to assert that. With 2 places a room asked, house 4073 failed it in CI at 3 of 6)."""
     from robots import RobotAPI, World
 
     seed = random.randrange(1, 10_000)
@@ -55,7 +55,7 @@ async def test_the_room_is_recognized_from_a_look_around_in_a_generated_house(ct
     try:
         robot = world.add_robot("nao")
         api = RobotAPI(robot)
-        spots = places(world.plan, random.Random(seed), 5)
+        spots = places(world.plan, random.Random(seed), 7)
         asked = []
         for room, poses in spots.items():
             for i, pose in enumerate(poses):
