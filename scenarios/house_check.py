@@ -66,16 +66,10 @@ def summary(plan) -> str:
     sizes = Counter(m.size for m in plan.landmarks)
     qr = ", ".join(f"{n} of {s:g} m" for s, n in sorted(sizes.items()))
     x0, y0, x1, y1 = plan.bounds
-    counts = ", ".join(_count(len(items), noun) for items, noun in (
-        (plan.rooms, "room"), (plan.doors, "door"), (plan.lamps, "lamp"), (plan.furniture, "piece of furniture"),
-        (plan.landmarks, "landmark")))
+    counts = ", ".join(f"{len(items)} {one if len(items) == 1 else many}" for items, one, many in (
+        (plan.rooms, "room", "rooms"), (plan.doors, "door", "doors"), (plan.lamps, "lamp", "lamps"),
+        (plan.furniture, "piece of furniture", "pieces of furniture"), (plan.landmarks, "landmark", "landmarks")))
     return f"{plan.name}: {x1 - x0:.1f} m x {y1 - y0:.1f} m, {counts}" + (f" ({qr})" if qr else "")
-
-
-def _count(n: int, noun: str) -> str:
-    if n == 1:
-        return f"1 {noun}"
-    return f"{n} pieces of furniture" if noun == "piece of furniture" else f"{n} {noun}s"
 
 
 def draw(plan, out: str | Path) -> Path:

@@ -8,10 +8,13 @@ from pathlib import Path
 
 import pytest
 
+from ontology.manifest import load_manifest
 from scenarios.run_rapp import run_rapp
 
 HERE = Path(__file__).resolve().parent.parent
-ROBOTS = [os.environ["RAPP_ROBOT_TYPE"]] if os.environ.get("RAPP_ROBOT_TYPE") else ["nao", "elektron"]
+# the robots the manifest declares (the Store builds it for each), or the one the build runs for now
+ROBOTS = ([os.environ["RAPP_ROBOT_TYPE"]] if os.environ.get("RAPP_ROBOT_TYPE")
+          else load_manifest(Path(__file__).resolve().parent.parent).robot_types)
 pytestmark = pytest.mark.asyncio  # async tests run under pytest-asyncio, in or out of this checkout
 
 
