@@ -524,6 +524,7 @@ async def replay(run_dir: str | Path, *, rapp_dir: str | Path | None = None, run
     recorded time, the RApp may take to send the request the recording has next."""
     from agents.process import Limits, spawn_agent
     from agents.sandbox import Sandbox
+    from agents.warm_pool import WarmPool
     from xmpp_server import EmbeddedServer
 
     rec = load_recording(run_dir, run)
@@ -540,10 +541,18 @@ async def replay(run_dir: str | Path, *, rapp_dir: str | Path | None = None, run
     stand_ins: list[StandIn] = []
     process = None
     script_ref: list[Script] = []
+    sandbox = Sandbox() if mode == "process" else None
+    # a warm worker imports the runtime (about a second) while the server and the stand-ins start
+    pool = WarmPool(work, server.settings(trace_file=trace_file, credentials_dir=work / "credentials"), size=1,
+                    sandbox=sandbox) if sandbox is not None else None
     try:
-        await asyncio.to_thread(unpack_package, data, work / "run" / "package")
-        await server.astart()
+        if pool is not None:
+            pool.start()
+        await asyncio.gather(asyncio.to_thread(unpack_package, data, work / "run" / "package"), server.astart())
         settings = server.settings(trace_file=trace_file, credentials_dir=work / "credentials")
+        if pool is not None and settings != pool.settings:  # the server took another port: the worker cannot reach it
+            await pool.close()
+            pool = None
         loop = asyncio.get_running_loop()
 
         def deliver(e: Exchanged, conv: str, in_reply_to: str, body: str) -> None:
@@ -570,9 +579,10 @@ async def replay(run_dir: str | Path, *, rapp_dir: str | Path | None = None, run
         spec = SpawnSpec(kind="dynamic", name=rec.dynamic.split("@")[0], password=generate_password(),
                          package_dir="", core=rec.core, platform=rec.platform,
                          token="replay-" + secrets.token_urlsafe(16), params=rec.params, robot=rec.robot)
-        process = spawn_agent(spec, work / "run", settings, mode=mode, limits=Limits(),
-                              sandbox=Sandbox() if mode == "process" else None)
+        process = spawn_agent(spec, work / "run", settings, mode=mode, limits=Limits(), sandbox=sandbox, pool=pool)
         await process.start()
+        if pool is not None:
+            await pool.close()  # its one worker is the run's now: no refill
         ended = asyncio.ensure_future(process.wait())
         deadline = time.monotonic() + timeout_s
         while not ended.done():
@@ -599,11 +609,9 @@ async def replay(run_dir: str | Path, *, rapp_dir: str | Path | None = None, run
                 await process.stop(grace=1.0)
             except Exception:  # noqa: BLE001 - best effort: the replay's result stands
                 pass
-        for a in stand_ins:
-            try:
-                await a.stop()
-            except Exception:  # noqa: BLE001
-                pass
+        if pool is not None:
+            await pool.close()
+        await asyncio.gather(*(a.stop() for a in stand_ins), return_exceptions=True)
         await asyncio.to_thread(server.close)
         shutil.rmtree(work, ignore_errors=True)
 
