@@ -252,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from .sandbox import confine
     confine()  # first: the sandbox, as the Core or Platform asked (it never forks with a preexec_fn)
+    from xmpp_server.compat import spade_without_its_server
+    spade_without_its_server()  # before SPADE's import: an agent's process runs no server
     say_confined()
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # a crash in native code (a Cloud Agent's OpenCV work, say) leaves its Python stack in stderr.log,

@@ -136,3 +136,26 @@ def test_the_door_check_sees_an_override_and_a_patch():
     found = reach_ins([("agents/fake.py", ast.parse(src))])
     assert [f.split(" ", 1)[1] for f in found] == ["Mine sets _message_received", "B sets _exit_code",
                                                    "patches ClientXMPP.connect"], found
+
+
+def test_an_agents_process_imports_spade_without_its_xmpp_server(tmp_path):
+    """agents/runtime.py stands in for pyjabber before SPADE's import: the server's sqlalchemy, alembic
+    and x509 are not loaded (0.4 s and ~35 MB per RApp process), SPADE's agents work, and the stand-in
+    refuses to run a server with a clear error. A process with pyjabber loaded is left as it is."""
+    import subprocess
+    import sys
+
+    probe = ("import sys\nfrom xmpp_server.compat import spade_without_its_server\n"
+             "spade_without_its_server()\nimport agents.dynamic_agent, agents.cloud_agent, spade.container\n"
+             "print(sorted({m.split('.')[0] for m in sys.modules} & {'sqlalchemy', 'alembic', 'cryptography'}))\n"
+             "try:\n    spade.container.Server(None)\nexcept RuntimeError as e:\n    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, check=True).stdout
+    assert out.splitlines()[0] == "[]", out
+    assert "runs agents only" in out.splitlines()[1]
+    server_first = ("import pyjabber.server\nfrom xmpp_server.compat import spade_without_its_server\n"
+                    "spade_without_its_server()\nimport spade.container, sys\n"
+                    "print(spade.container.Server is sys.modules['pyjabber.server'].Server, 'alembic' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", server_first], capture_output=True, text=True, timeout=120,
+                         check=True).stdout
+    assert out.split() == ["True", "True"]
+    assert "spade_without_its_server()" in inspect.getsource(importlib.import_module("agents.runtime").main)

@@ -78,6 +78,36 @@ def install_agent_patches() -> None:
     _installed.add("agent")
 
 
+def spade_without_its_server() -> None:
+    """Before SPADE's first import in a process that never runs an XMPP server (a Dynamic or Cloud
+    Agent's runtime): spade/container.py (spade 4.1) imports `pyjabber.server` at module level for
+    `run_container(embedded_xmpp_server=True)` alone, and with it sqlalchemy, alembic, aiohttp's web
+    server and cryptography's x509 (0.4 s of a 0.65 s SPADE import, and their memory, in every RApp
+    process; pyjabber also made an upload directory in each). `pyjabber` is stood in for by a module
+    whose Server and Parameters refuse to be used. No effect where pyjabber is already imported."""
+    import sys
+    import types
+
+    if "pyjabber" in sys.modules or "spade" in sys.modules:
+        return
+    _check_once("spade", "pyjabber")
+
+    class _NoServer:
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            raise RuntimeError("this process runs agents only: SPADE's embedded XMPP server is not loaded "
+                               "(xmpp_server.compat.spade_without_its_server)")
+
+    package = types.ModuleType("pyjabber", "stand-in: this process runs no XMPP server")
+    package.__path__ = []  # a package: `import pyjabber.x` finds no other submodule
+    for name in ("server", "server_parameters"):
+        module = types.ModuleType(f"pyjabber.{name}", package.__doc__)
+        module.Server = module.Parameters = _NoServer
+        setattr(package, name, module)
+        sys.modules[module.__name__] = module
+    package.Server = package.Parameters = _NoServer
+    sys.modules["pyjabber"] = package
+
+
 def install_server_patches() -> None:
     """pyjabber patches of the embedded server (once per process)."""
     if "server" in _installed:
