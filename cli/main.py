@@ -422,6 +422,9 @@ def cmd_replay(argv: list[str]) -> int:
     p.add_argument("--timeout", type=float, default=600.0, help="seconds the whole replay may take (default 600)")
     p.add_argument("--trace", metavar="FILE", help="write the replay's own trace there")
     a = p.parse_args(argv)
+    from xmpp_server.compat import spade_without_its_server
+
+    spade_without_its_server()  # the replay's server is a process of its own
     from rapps.replay import RecordingError, list_runs, replay, save_recording
 
     try:
