@@ -422,9 +422,6 @@ def cmd_replay(argv: list[str]) -> int:
     p.add_argument("--timeout", type=float, default=600.0, help="seconds the whole replay may take (default 600)")
     p.add_argument("--trace", metavar="FILE", help="write the replay's own trace there")
     a = p.parse_args(argv)
-    from xmpp_server.compat import spade_without_its_server
-
-    spade_without_its_server()  # the replay's server is a process of its own
     from rapps.replay import RecordingError, list_runs, replay, save_recording
 
     try:
@@ -595,6 +592,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv is None and next((a for a in sys.argv[1:] if not a.startswith("-")), "") != "server":
+        # the program (not a caller's main([...])): only `rapp server` runs pyjabber in this process
+        from xmpp_server.compat import spade_without_its_server
+        spade_without_its_server()
     argv = list(sys.argv[1:] if argv is None else argv)
     try:  # a native crash in a library prints every thread's Python stack to stderr
         faulthandler.enable()

@@ -159,3 +159,21 @@ def test_an_agents_process_imports_spade_without_its_xmpp_server(tmp_path):
                          check=True).stdout
     assert out.split() == ["True", "True"]
     assert "spade_without_its_server()" in inspect.getsource(importlib.import_module("agents.runtime").main)
+
+
+def test_the_rapp_program_loads_no_server_unless_it_is_one():
+    """`rapp` started as a program stands in for pyjabber (its servers are child processes), except
+    `rapp server`, which runs pyjabber itself; a caller's main([...]) changes nothing in its process."""
+    import subprocess
+    import sys
+
+    probe = ("import sys\nsys.argv = ['rapp', *sys.argv[1:]]\nfrom cli import main\n"
+             "try:\n    main.main()\nexcept SystemExit:\n    pass\n"
+             "stand_in = 'stand-in' in (getattr(sys.modules.get('pyjabber'), '__doc__', None) or '')\n"
+             "print('STOOD-IN' if stand_in else 'AS-SHIPPED')\n")
+    said = {}
+    for args in (["trace", "--help"], ["--debug", "server", "--help"]):
+        out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, timeout=120,
+                             stdin=subprocess.DEVNULL).stdout
+        said[args[-2]] = out.split()[-1]
+    assert said == {"trace": "STOOD-IN", "server": "AS-SHIPPED"}, said
