@@ -284,6 +284,7 @@ class NaoGait(Locomotion):
         self.noise = (0.0, 0.0, 0.0)  # this step's (along, across, heading) unit normals
         self.stride = (0.0, 0.0, 0.0)  # the velocity the step under way was last driven at (robot frame)
         self.driven = False  # a motion drove the body in this world step (mechanical drive)
+        self.stopped = False  # the step under way is one a stopped walk finishes (mechanical drive)
 
     def effort(self, vx: float, vy: float, wz: float) -> float:
         s = self.spec
@@ -343,6 +344,9 @@ class NaoGait(Locomotion):
 
     def drive(self, robot: "Body", vx: float, vy: float, wz: float, dt: float) -> bool:
         if self.walk.steps:
+            self.stopped = self.stopped and self.finishing()
+            if self.stopped:  # a new motion starts once the stopped walk's step has landed
+                vx, vy, wz = self.stride
             self.driven, self.stride = True, (vx, vy, wz)
         return super().drive(robot, vx, vy, wz, dt)
 
@@ -353,13 +357,15 @@ class NaoGait(Locomotion):
         """A walk stopped mid-step (a stop, an emergency stop, a motion that failed) finishes the step: the
         swing foot is in the air and lands where it was going. The body walks the rest of the step at
         the velocity it was walked at, and the odometry counts it (the walk engine reports the step it
-        made); then the body comes to rest over its feet. An obstacle ends it where it stands."""
+        made); then the body comes to rest over its feet. An obstacle ends it where it stands. A motion
+        commanded meanwhile walks from the next step on (`drive`)."""
         if self.driven:
             self.driven = False
             return
         if not self.finishing():
             return
         robot.base.steps += 1  # walking, for the contact sensors
+        self.stopped = True
         blocked = super().drive(robot, *self.stride, dt)
         if blocked or self.step_left <= 1e-9:
             self.step_left, self.stride = 0.0, (0.0, 0.0, 0.0)
@@ -367,7 +373,7 @@ class NaoGait(Locomotion):
 
     def settle(self, robot: "Body") -> None:
         if self.walk.steps:  # a motion that reached its goal: the walk engine landed its last step there
-            self.step_left, self.stride = 0.0, (0.0, 0.0, 0.0)
+            self.step_left, self.stride, self.stopped = 0.0, (0.0, 0.0, 0.0), False
         super().settle(robot)
         if not self.offset:
             self.amplitude, self.phase = 0.0, 0.0

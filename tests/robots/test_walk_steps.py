@@ -168,6 +168,35 @@ async def test_a_walk_stopped_mid_step_finishes_the_step(make_world, stop):
     assert r.odometry.estimate[0] == pytest.approx(est0[0] + v * left, abs=0.002) and w.time == pytest.approx(t1 + 0.2)
 
 
+async def test_a_motion_commanded_after_a_stop_waits_for_the_step_to_land(make_world):
+    """Backing off right after a stop mid-step: the step under way lands forward first (the world's
+    steps done by hand here, so that the new command comes while the stopped step is under way)."""
+    from robots.controllers import drive_base
+
+    w = small(make_world)
+    api = by_steps(api_at(w, "nao", START))
+    r, dt = api.robot, w.clock.step
+    await api.move_vel(MoveVel(x=0.1, y=0.0, theta=0.0))
+    await w.sleep(1.75)  # (the unpaced world stops here, the walk mid-step)
+    left, est0 = r.locomotion.step_left, r.odometry.estimate[0]
+
+    def world_steps():
+        r.locomotion.tick(r, dt)  # a world step that no motion drove: the stopped walk's step goes on
+        moves = []
+        for _ in range(int(0.5 / dt)):  # a newer motion backs off
+            before = r.odometry.estimate[0]
+            drive_base(r, -0.06, 0.0, 0.0, dt)
+            r.locomotion.tick(r, dt)
+            moves.append(r.odometry.estimate[0] - before)
+        return moves
+
+    moves = w.run_sync(world_steps)
+    forward = [m for m in moves if m > 0]
+    assert len(forward) == pytest.approx(left / dt - 1, abs=1.01) and moves[len(forward)] < 0, moves
+    assert r.odometry.estimate[0] - est0 == pytest.approx(0.1 * left - 0.06 * (0.5 - left + dt), abs=0.002)
+    await api.move_stop(MoveStop())
+
+
 async def test_without_the_knob_a_stopped_walk_stops_dead(make_world):
     w = small(make_world)
     api = api_at(w, "nao", START)
