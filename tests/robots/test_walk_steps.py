@@ -13,7 +13,6 @@ import pytest
 from ontology.robot import GetGlobalPose, GetTransform, LookAtPoint, MoveStop, MoveTo, MoveVel
 from robots import MotionBlocked
 from robots.failure_modes import mechanical
-from robots.receptors import R_LINK_OPTICAL
 
 from .conftest import api_at
 
