@@ -128,6 +128,7 @@ class RobotAPI:
         ctrl = self.robot.controllers.pop(key, None)
         if ctrl is not None and not ctrl.done:
             ctrl.cancel(MotionInterrupted(f"{self.robot.name}: {why}"))
+            self.world.keep_stepping()  # a walk stopped mid-step finishes it (mechanical drive)
 
     # ------------------------------------------------------------------ communication
     async def say(self, req: Say) -> Done:
@@ -310,7 +311,8 @@ class RobotAPI:
         r = self.robot
         c = chain.lower()
         if c in ("camera", "main") or c in r.cameras:
-            return self._camera("" if c in ("camera", "main") else c).optical_pose()
+            # the robot's kinematics: not the walking torso's roll and bob, which the robot does not know
+            return self._camera("" if c in ("camera", "main") else c).optical_pose(nominal=True)
         named = {"head": r.spec.head_pitch, "neck": r.spec.head_yaw}
         if c in named:
             j = named[c]

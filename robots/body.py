@@ -95,6 +95,18 @@ class Gait(Protocol):
     def sway_speed(self) -> float:
         """The body's sideways speed from its sway now (m/s), for motion blur."""
 
+    def tilt(self) -> tuple[float, float]:
+        """The torso's roll toward the stance foot (rad, + = left) and its height off the standing one (m)."""
+
+    def tilt_rates(self) -> tuple[float, float]:
+        """How fast the roll (rad/s) and the height (m/s) change now, for motion blur."""
+
+    def finishing(self) -> bool:
+        """A stopped walk's step is still under way (the world steps it to its end)."""
+
+    def tick(self, robot: Body, dt: float) -> None:
+        """After each world step: a stopped walk's step goes on to its end."""
+
 
 class Body(Protocol):
     """A robot in a world, as its parts see it."""
@@ -179,7 +191,13 @@ class Body(Protocol):
         without range sensors."""
 
     def link_pose(self, link: str) -> np.ndarray:
-        """4x4 world pose of a link."""
+        """4x4 world pose of a link, as the robot's kinematics give it (no torso roll or bob)."""
+
+    def body_sway(self) -> np.ndarray | None:
+        """The world transform of the torso's roll and bob now (a NAO walking by steps), None: upright."""
+
+    def tilt_pivot_z(self) -> float:
+        """Height of the torso's roll axis, m."""
 
     def joint_offset(self, joint: str) -> np.ndarray:
         """Fixed transform parent link frame -> joint frame (at joint angle 0)."""

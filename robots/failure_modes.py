@@ -65,8 +65,24 @@ class NaoWalk:
     slip_bias: float = 0.03
     # the body moves by steps (issue 48.5; `--mechanical-drive`): within each step its speed rises from
     # double support and falls back (1 - cos over the step, the linear inverted pendulum's shape), so
-    # it is ahead of and behind the walk engine's even odometry by turns; off: an even glide
+    # it is ahead of and behind the walk engine's even odometry by turns; the torso rolls and bobs with
+    # the steps (what the camera sees from, not what the robot's kinematics report); a walk that is
+    # stopped finishes the step under way (NAOqi's stopMove ends the walk "on the next double support",
+    # Aldebaran NAOqi 2.8 docs, locomotion control). Off: an even glide that stops dead, an upright torso
     steps: bool = False
+    # ESTIMATE, the torso's roll toward the stance foot at full sway (rad, 1 amplitude): an inverted pendulum
+    # rocking its 2 cm sway over the ankle at the CoM's 0.26 m would roll atan(0.02 / 0.26) = 4.4 deg;
+    # NAOqi's walk moves the CoM with the hip and ankle roll joints and commands the torso upright
+    # (moveConfig TorsoWx, default 0), so what rolls is the compliance of those joints under the whole
+    # weight in single support: we take half, 2 deg. (B-Human's walk docs describe the torso "in a
+    # pendulum-like swinging motion" from foot to foot; no published NAO figure was found)
+    roll_rad: float = 0.035
+    # ESTIMATE, the torso's height oscillation at the step frequency (m, 1 amplitude): the linear inverted
+    # pendulum of NAOqi's walk keeps the CoM height constant (Kajita et al. 2001); what bobs is the stance
+    # leg's sag under the whole weight in single support (lowest mid-step, highest in double support). A
+    # human's CoM rises and falls 2-3 cm peak to peak (modern motion capture; 5 cm the classic figure) on
+    # a 0.9 m leg: scaled to the NAO's 0.25 m leg, 6-8 mm peak to peak, a flat LIPM walk less: +-3 mm
+    bob_m: float = 0.003
 
 
 @dataclass(frozen=True)
@@ -199,6 +215,22 @@ class Locomotion:
         """Sideways speed of the body from the sway now (m/s), for motion blur."""
         return 0.0
 
+    def tilt(self) -> tuple[float, float]:
+        """The torso's roll toward the stance foot now (rad, + = to the left) and its height off the
+        standing one (m): what the camera sees from, not what the robot's kinematics report."""
+        return 0.0, 0.0
+
+    def tilt_rates(self) -> tuple[float, float]:
+        """How fast the roll (rad/s) and the height (m/s) of `tilt` change now, for motion blur."""
+        return 0.0, 0.0
+
+    def finishing(self) -> bool:
+        """A step is under way that no motion drives any more: the world steps it to its end (`tick`)."""
+        return False
+
+    def tick(self, robot: "Body", dt: float) -> None:
+        """After each world step (pybullet thread): finish a step that a stopped walk left under way."""
+
     def drive(self, robot: "Body", vx: float, vy: float, wz: float, dt: float) -> bool:
         """One step of the base (as BaseEffector.drive, with the errors); True when an obstacle blocked it."""
         robot.base.command = (vx, vy, wz)
@@ -250,6 +282,9 @@ class NaoGait(Locomotion):
         self.amplitude = 0.0
         self.step_left = 0.0  # s of the current step still to walk
         self.noise = (0.0, 0.0, 0.0)  # this step's (along, across, heading) unit normals
+        self.stride = (0.0, 0.0, 0.0)  # the velocity the step under way was last driven at (robot frame)
+        self.driven = False  # a motion drove the body in this world step (mechanical drive)
+        self.stopped = False  # the step under way is one a stopped walk finishes (mechanical drive)
 
     def effort(self, vx: float, vy: float, wz: float) -> float:
         s = self.spec
@@ -292,7 +327,53 @@ class NaoGait(Locomotion):
     def sway_speed(self) -> float:
         return self.amplitude * math.pi / self.walk.step_period_s * math.cos(self.phase)
 
+    def tilt(self) -> tuple[float, float]:
+        w = self.walk
+        if not w.steps or self.amplitude <= 1e-6:
+            return 0.0, 0.0
+        k = self.amplitude / w.sway_amplitude_m  # slow walks sway, roll and bob less
+        # rolled over the stance foot with the sway; lowest mid-step (one leg carries all), highest in double support
+        return k * w.roll_rad * math.sin(self.phase), k * w.bob_m * math.cos(2 * self.phase)
+
+    def tilt_rates(self) -> tuple[float, float]:
+        w = self.walk
+        if not w.steps or self.amplitude <= 1e-6:
+            return 0.0, 0.0
+        k, f = self.amplitude / w.sway_amplitude_m, math.pi / w.step_period_s  # the phase's rate
+        return k * w.roll_rad * f * math.cos(self.phase), -2 * k * w.bob_m * f * math.sin(2 * self.phase)
+
+    def drive(self, robot: "Body", vx: float, vy: float, wz: float, dt: float) -> bool:
+        if self.walk.steps:
+            self.stopped = self.stopped and self.finishing()
+            if self.stopped:  # a new motion starts once the stopped walk's step has landed
+                vx, vy, wz = self.stride
+            self.driven, self.stride = True, (vx, vy, wz)
+        return super().drive(robot, vx, vy, wz, dt)
+
+    def finishing(self) -> bool:
+        return self.walk.steps and self.step_left > 1e-9 and any(self.stride)
+
+    def tick(self, robot: "Body", dt: float) -> None:
+        """A walk stopped mid-step (a stop, an emergency stop, a motion that failed) finishes the step: the
+        swing foot is in the air and lands where it was going. The body walks the rest of the step at
+        the velocity it was walked at, and the odometry counts it (the walk engine reports the step it
+        made); then the body comes to rest over its feet. An obstacle ends it where it stands. A motion
+        commanded meanwhile walks from the next step on (`drive`)."""
+        if self.driven:
+            self.driven = False
+            return
+        if not self.finishing():
+            return
+        robot.base.steps += 1  # walking, for the contact sensors
+        self.stopped = True
+        blocked = super().drive(robot, *self.stride, dt)
+        if blocked or self.step_left <= 1e-9:
+            self.step_left, self.stride = 0.0, (0.0, 0.0, 0.0)
+            self.settle(robot)
+
     def settle(self, robot: "Body") -> None:
+        if self.walk.steps:  # a motion that reached its goal: the walk engine landed its last step there
+            self.step_left, self.stride, self.stopped = 0.0, (0.0, 0.0, 0.0), False
         super().settle(robot)
         if not self.offset:
             self.amplitude, self.phase = 0.0, 0.0
@@ -371,19 +452,27 @@ def noisy_ranges(ranges: np.ndarray, noise: RangeNoise, rng: np.random.Generator
     return np.where(hit, out, r)
 
 
-def camera_motion(robot: "Body", depth_m: float) -> tuple[float, float]:
-    """Angular rates (rad/s, image horizontal and vertical) of the scene in a camera now: the base's
-    turn and sideways speed, the NAO's sway and the head joints' motion (pybullet thread)."""
+def camera_motion(robot: "Body", depth_m: float, link: str | None = None) -> tuple[float, float]:
+    """Angular rates (rad/s, image horizontal and vertical) of the scene in a camera (on `link`) now:
+    the base's turn and sideways speed, the NAO's sway, the roll and bob of its torso and the head
+    joints' motion (pybullet thread)."""
     s = robot.spec
     wh = wv = 0.0
     base = robot.controllers.get("base")  # (controllers change in the event loop's thread: read once)
+    loco = robot.locomotion
     vx = vy = 0.0
     if base is not None and not base.done and not base.cancelled:
         vx, vy, wz = robot.base.command
         wh += wz
-    loco = robot.locomotion
+    elif loco is not None and loco.finishing():  # a stopped walk finishing its step
+        vx, vy, wz = robot.base.command
+        wh += wz
     if loco is not None:
         vy += loco.sway_speed()
+        roll_rate, bob_rate = loco.tilt_rates()
+        if (roll_rate or bob_rate) and link is not None:  # the head swings sideways with the roll, and bobs
+            vy += roll_rate * (robot.link_pose(link)[2, 3] - robot.tilt_pivot_z())
+            wv += bob_rate / depth_m
     yaw = robot.q.get(s.head_yaw, 0.0)
     wh += (-vx * math.sin(yaw) + vy * math.cos(yaw)) / depth_m
     for key, ctrl in list(robot.controllers.items()):  # head joints on their way to a target

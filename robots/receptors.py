@@ -230,7 +230,7 @@ class Camera:
         step = int(round(r.world.clock.time / r.world.clock.step))
         return replace(self.settings, metering="centre", shot_variance=n.shot_variance, read_std=n.read_std,
                        noise_seed=tuple(seed_sequence(r.world.plan.seed, "camera", r.name, self.name)) + (step,),
-                       blur_rate=camera_motion(r, n.scene_depth_m), exposure_time_s=n.exposure_time_s,
+                       blur_rate=camera_motion(r, n.scene_depth_m, self.spec.link), exposure_time_s=n.exposure_time_s,
                        hfov_rad=math.radians(self.spec.hfov_deg))
 
     @params.setter
@@ -258,12 +258,16 @@ class Camera:
         return self.settings
 
     # ---- pybullet thread
-    def link_pose(self) -> np.ndarray:
-        return self.robot.link_pose(self.spec.link)
+    def link_pose(self, nominal: bool = False) -> np.ndarray:
+        """4x4 world pose of the camera link as it is: the robot's kinematics, and a walking NAO's torso
+        roll and bob (Robot.body_sway) unless `nominal` (what the robot's kinematics report: get_transform)."""
+        T = self.robot.link_pose(self.spec.link)
+        sway = None if nominal else self.robot.body_sway()
+        return T if sway is None else sway @ T
 
-    def optical_pose(self) -> np.ndarray:
-        """4x4 world pose of the optical frame (x right, y down, z forward)."""
-        T = self.link_pose()
+    def optical_pose(self, nominal: bool = False) -> np.ndarray:
+        """4x4 world pose of the optical frame (x right, y down, z forward), as it is or `nominal` (link_pose)."""
+        T = self.link_pose(nominal)
         T[:3, :3] = T[:3, :3] @ R_LINK_OPTICAL
         return T
 

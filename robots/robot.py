@@ -160,6 +160,30 @@ class Robot:
         return (math.cos(th) * dx + math.sin(th) * dy, -math.sin(th) * dx + math.cos(th) * dy,
                 math.remainder(math.atan2(T[1, 0], T[0, 0]) - th, math.tau))
 
+    def tilt_pivot_z(self) -> float:
+        """Height of the torso's roll axis (the hips: a NAO's lift joint), m."""
+        lift = self.spec.lift_joint
+        return self.q.get(lift, 0.0) if lift else 0.0
+
+    def body_sway(self) -> np.ndarray | None:
+        """The 4x4 world transform that the torso's roll toward the stance foot and its bob (a NAO walking
+        by steps, robots/failure_modes.py NaoWalk) apply to the upper body now; None when it is upright.
+        link_pose and so the robot's own kinematics (get_transform) leave it out: the robot does not know
+        its sway; its cameras see from it (receptors.Camera.link_pose)."""
+        roll, bob = self.locomotion.tilt() if self.locomotion is not None else (0.0, 0.0)
+        if not (roll or bob):
+            return None
+        x, y, th = self.pose
+        u = np.array([math.cos(th), math.sin(th), 0.0])  # about the heading: + roll takes the head to the left
+        a = -roll
+        K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+        R = np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
+        pivot = np.array([x, y, self.tilt_pivot_z()])
+        S = np.eye(4)
+        S[:3, :3] = R
+        S[:3, 3] = pivot - R @ pivot + [0.0, 0.0, bob]
+        return S
+
     def link_pose(self, link: str) -> np.ndarray:
         cid = self.world.cid
         idx = self.link_index[link]

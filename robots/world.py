@@ -322,22 +322,46 @@ class World(Scene):
         """Wait until the pybullet thread has finished everything submitted before."""
         await self.run(lambda: None)
 
+    def finishing_steps(self) -> bool:
+        """Event-loop thread: does a robot stopped mid-step (mechanical drive) still walk that step, with no
+        motion of its own under way? Such a step keeps an unpaced world stepping until it ends."""
+        for r in list(self.robots.values()):
+            base = r.controllers.get("base")
+            if (r.locomotion is not None and r.locomotion.finishing()
+                    and (base is None or base.done or base.cancelled)):
+                return True
+        return False
+
+    def keep_stepping(self) -> None:
+        """Event-loop thread, after a motion was stopped: step the world while a stopped walk finishes its step."""
+        if self._closed or not self.finishing_steps():
+            return
+        if self._stepper is None or self._stepper.done():
+            self.clock.restart_pacing()
+            self._stepper = asyncio.get_running_loop().create_task(self._step_loop(), name=f"world-stepper-{self.plan.name}")
+
     async def _step_loop(self) -> None:
         while not self._closed:
             self._active = [c for c in self._active if not c.done and not c.cancelled]
             active = list(self._active)
+            finishing_only = False
             if not active or (self.clock.rtf <= 0 and not any(c.blocking for c in active)):
-                break
-            finished = await self.run(self._advance, active, self.clock.chunk_steps())
+                if not self.finishing_steps():
+                    break
+                finishing_only = self.clock.rtf <= 0  # unpaced: only until the steps are done
+            finished = await self.run(self._advance, active, self.clock.chunk_steps(), finishing_only)
             for c in finished:
                 c.resolve()
             delay = self.clock.delay()
             await asyncio.sleep(delay)
 
-    def _advance(self, active: list[Controller], n: int) -> list[Controller]:
+    def _advance(self, active: list[Controller], n: int, finishing_only: bool = False) -> list[Controller]:
         dt = self.clock.step
         finished: list[Controller] = []
         for _ in range(n):
+            if finishing_only and not any(r.locomotion is not None and r.locomotion.finishing()
+                                          for r in self.robots.values()):
+                break
             for c in active:
                 if c.done or c.cancelled:
                     continue
@@ -348,6 +372,9 @@ class World(Scene):
                 except Exception as e:  # noqa: BLE001 - any failure ends the motion and reaches the caller
                     c.done, c.error = True, e if isinstance(e, RobotError) else RobotError(f"{type(e).__name__}: {e}")
                     finished.append(c)
+            for r in self.robots.values():  # a walk stopped mid-step finishes it (mechanical drive)
+                if r.locomotion is not None:
+                    r.locomotion.tick(r, dt)
             self.clock.time += dt
             if self.disturbances is not None:
                 self.disturbances.advance(self.clock.time)
