@@ -45,9 +45,12 @@ VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
 ACOUSTICS: dict[str, float] = {}  # the house's reverberation under test (--rt60 0.5: rt60_s; --equal-tv: tv_db)
 ARRAY: dict = {}  # the NAO's four microphones and a beamformer under test (--beam mvdr|das, --loading)
 ACCEPT: dict[str, float] = {}  # the keyword threshold under test (--accept -0.02: accept)
-PATHS = ("keyword", "platform", "supervision", "words")
+PATHS = ("keyword", "platform", "supervision", "words", "confirm")
 # the cognitive game's answers said alone (its word_spotting hears numbers 0-300 as words or digits)
 ANSWERS = ("five", "six", "nine", "twelve", "twenty", "thirty five", "sixty", "one hundred", "pass")
+# the owner's answers to the Core's question before it keeps a schedule heard by voice (hearing/answers.py)
+CONFIRM = (("yes", "yes"), ("yeah", "yes"), ("yes please", "yes"), ("okay", "yes"), ("no", "no"), ("nope", "no"),
+           ("no thanks", "no"), ("cancel", "no"))
 MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/microphones.py AudioInput)
 
 
@@ -58,6 +61,9 @@ def items(path: str) -> list[tuple[str, str | None]]:
         from agents.core_agent import SUPERVISION_WORDS
         commands = [(t, None) for ws, ps in VOCABULARY.values() for t in (*ws, *ps)]
         return sorted(SUPERVISION_WORDS.items()) + commands + [(t, None) for t in OTHER]
+    if path == "confirm":  # every keyword too: a command said instead of an answer is none
+        keywords = [(w, None) for ws, _ in VOCABULARY.values() for w in ws]
+        return list(CONFIRM) + keywords + [(t, None) for t in OTHER]
     if path == "words":
         meaning = _answer_words()
         return [(a, meaning[a]) for a in ANSWERS] + [(t, None) for t in OTHER]
@@ -291,7 +297,22 @@ def decide_words(heard: np.ndarray) -> str | None:
     return None
 
 
-_SUPERVISION = _WORDS = None
+_SUPERVISION = _WORDS = _ANSWERS = None
+
+
+def decide_confirm(utts: list) -> str | None:
+    """The Core's confirmation (agents/core_confirm.py): the first utterance cut after its question is
+    the answer, "yes", "no" or none, heard as hearing/answers.py AnswerSpotter hears it (the Store's
+    keywords and phrases competing, as the Core builds it)."""
+    global _ANSWERS
+    from hearing.answers import AnswerSpotter
+    from hearing.vad import HeardUtterance
+    if _ANSWERS is None:
+        _ANSWERS = AnswerSpotter(sorted(_vocabulary()) + [p for _, ps in VOCABULARY.values() for p in ps], **ACCEPT)
+    if not utts:
+        return None
+    pcm, speech, too_long, _, _, loud = utts[0]
+    return _ANSWERS.spot(HeardUtterance(pcm, speech, too_long, loud=loud))
 
 
 def decide_platform(utts: list) -> str | None:
@@ -357,7 +378,7 @@ def _one(args: tuple) -> dict:
     heard = _record(cond, whole=path == "words")
     t1 = time.perf_counter()
     got = {"keyword": decide_keyword, "platform": decide_platform, "supervision": decide_supervision,
-           "words": decide_words}[path](heard)
+           "words": decide_words, "confirm": decide_confirm}[path](heard)
     if path == "words":
         from hearing.vad import speech_segments
         heard = speech_segments(heard)
