@@ -6,12 +6,14 @@ more recordings per cell, so a change to a recogniser is judged on more than 10 
 
     python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong] [--rt60 S]
 
-Two more keyword paths, measured on request (--only): `supervision`, the Core's supervision words
+Three more keyword paths, measured on request (--only): `supervision`, the Core's supervision words
 ("stop", "cancel", "resume", ...) said alone, spotted as the Core spots them during a task, and
 everything else the owner says, which must not be taken for one; `words`, the cognitive game's
 answers said alone, found as the robot's word_spotting finds them (robots/microphones.py
 spot_in_audio: the recording cut by level, each piece decoded with the game's words), and the
-other sentences. `--accept X` puts every keyword spotter's threshold (hearing/keywords.py ACCEPT)
+other sentences; `confirm`, the owner's yes or no to the Core's question before it keeps a schedule
+heard by voice (hearing/answers.py, the first utterance cut), and every keyword and other sentence,
+which must be neither. `--accept X` puts every keyword spotter's threshold (hearing/keywords.py ACCEPT)
 under test.
 
 Recordings are cached in /tmp (keyed by the conditions, the synthesiser's output and the source of
@@ -387,10 +389,31 @@ def _one(args: tuple) -> dict:
                 record_ms=(t1 - t0) * 1e3)
 
 
+def report_confirm(mine: list[dict]) -> None:
+    """The answers: yes and no said, heard right or as the other; anything else heard as yes or no."""
+    print("confirm: yes said heard yes (as no), no said heard no (as yes), other speech heard as yes / as no")
+    for noise in NOISE:
+        at = [r for r in mine if r["noise"] == noise]
+        yes, no, other = ([r for r in at if r["expected"] == e] for e in ("yes", "no", None))
+        print(f"  {noise:6s} yes {sum(r['got'] == 'yes' for r in yes)}/{len(yes)} ({sum(r['got'] == 'no' for r in yes)})"
+              f"   no {sum(r['got'] == 'no' for r in no)}/{len(no)} ({sum(r['got'] == 'yes' for r in no)})"
+              f"   other {sum(r['got'] == 'yes' for r in other)} / {sum(r['got'] == 'no' for r in other)} of {len(other)}")
+        print("         " + "  ".join(f"{v} {sum(r['got'] == r['expected'] for r in by)}/{len(by)}"
+                                      for v in VOICES for by in [[r for r in yes + no if r["voice"] == v]]))
+
+
 def report(rows: list[dict], show_wrong: bool) -> None:
     for path in PATHS:
         mine = [r for r in rows if r["path"] == path]
         if not mine:
+            continue
+        if path == "confirm":
+            report_confirm(mine)
+            if show_wrong:
+                for r in mine:
+                    if r["got"] != r["expected"]:
+                        print(f"    {r['noise']:6s} {r['text']!r} {r['voice']} {r['speed']} {r['distance']} m"
+                              f" -> {r['got']} ({r['utterances']} utterances)")
             continue
         print(f"{path}: right commands / commands (wrong RApps), other sentences taken as a command")
         for noise in NOISE:
