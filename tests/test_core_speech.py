@@ -164,19 +164,6 @@ async def test_a_schedule_said_aloud_is_confirmed_then_kept_not_started_and_canc
     assert not core.scheduler.schedules() and not any(t.startswith("Starting") for t in user.texts()[start:])
 
 
-async def test_a_schedule_said_aloud_and_denied_is_not_kept(system):
-    core, user = system.handle.core, system.handle.user
-    await wait_until(lambda: listening(core), 30)
-    start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
-    speak(system, "tell me the forecast every day at seven a m", distance=1.0)
-    question = await answer_aloud(system, spoken, "no", voice="en-us+m3")
-    assert question == "Shall I tell you the forecast every day at seven a.m.? Say yes or no."
-    told = await user.wait_for(lambda t: t.startswith(("I will run", "I cannot", "I did not", "All right")),
-                               timeout=45, start=start)
-    assert told == "All right, I have not scheduled it." and not core.scheduler.schedules()
-    await said_after(system, spoken, r"^All right, I have not scheduled it")
-
-
 @pytest.mark.slow  # ~25 s: two questions said and two answers awaited
 async def test_an_unclear_answer_then_silence_drops_the_schedule_after_asking_once_more(system):
     core, user = system.handle.core, system.handle.user
@@ -205,7 +192,7 @@ async def test_while_the_core_waits_for_an_answer_a_due_task_waits_no_longer_tha
     confirmation = core.confirmation
     await wait_until(lambda: listening(core), 30)
     start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
-    confirmation.answer_s, confirmation.timeout_s = 120.0, 6.0
+    confirmation.answer_s, confirmation.timeout_s = 120.0, 4.0
     try:
         speak(system, "check my inbox in ten minutes", distance=1.0)
         await said_after(system, spoken, r"^Shall I")
@@ -227,28 +214,29 @@ async def test_while_the_core_waits_for_an_answer_a_due_task_waits_no_longer_tha
         confirmation.answer_s, confirmation.timeout_s = ANSWER_S, TIMEOUT_S
 
 
-async def test_a_typed_schedule_is_kept_without_a_question_and_a_typed_answer_counts(system):
+async def test_a_typed_schedule_is_kept_without_a_question_and_one_said_is_dropped_on_no(system):
+    """Typed text is not misheard: kept at once. Said, the schedule waits for the owner's answer; "no"
+    drops it (the answer typed in the chat counts too: tests/test_core_confirm.py)."""
     core, user = system.handle.core, system.handle.user
     await wait_until(lambda: listening(core), 30)
     start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
     await user.say(core.address, "check my inbox in ten minutes")
     kept = await user.wait_for(lambda t: t.startswith(("I will run", "Shall I", "I cannot")), timeout=30, start=start)
     assert kept.startswith("I will run email_reader at") and len(core.scheduler.schedules()) == 1
-    # a schedule said aloud, answered in the chat (the question is there too)
     await wait_until(lambda: listening(core), 30)
-    start = len(user.received)
+    start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
     speak(system, "tell me the forecast every day at seven a m", distance=1.0)
-    await user.wait_for(lambda t: t.startswith("Shall I tell you the forecast"), timeout=45, start=start)
-    await user.say(core.address, "No.")
-    told = await user.wait_for(lambda t: t.startswith(("I will run", "I did not", "All right")), timeout=30,
-                               start=start)
+    question = await answer_aloud(system, spoken, "no", voice="en-us+m3")
+    assert question == "Shall I tell you the forecast every day at seven a.m.? Say yes or no."
+    told = await user.wait_for(lambda t: t.startswith(("I will run", "I cannot", "I did not", "All right")),
+                               timeout=45, start=start)
     assert told == "All right, I have not scheduled it." and len(core.scheduler.schedules()) == 1
+    await said_after(system, spoken, r"^All right, I have not scheduled it")
     await wait_until(lambda: listening(core), 30)
     start = len(user.received)
     await user.say(core.address, "cancel all the checks")
     gone = await user.wait_for(lambda t: t.startswith(("Cancelled", "I cannot")), timeout=30, start=start)
     assert gone.startswith("Cancelled: email_reader") and not core.scheduler.schedules()
-    assert not [t for _, t in system.nao.loudspeaker.spoken[spoken:] if t.startswith("Shall I check my")]
 
 
 async def test_a_failed_recognition_is_answered_and_the_core_listens_again(system):
