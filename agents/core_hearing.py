@@ -58,11 +58,7 @@ class Continuation:
 
     def offer(self, utterance: HeardUtterance) -> bool:
         """Take `utterance` as the next part awaited, if one is; True when taken."""
-        awaited = self._awaited
-        if awaited is None or awaited.done():
-            return False
-        awaited.set_result(utterance)
-        return True
+        return _hand_over(self._awaited, utterance)
 
     async def after(self, poll_s: float = 0.02) -> HeardUtterance | None:
         """What the owner says next, when they go on within CONTINUE_WITHIN_S of the last cut."""
@@ -86,6 +82,14 @@ class Continuation:
             return None
         finally:
             self._awaited = None
+
+
+def _hand_over(awaited: asyncio.Future | None, utterance: HeardUtterance) -> bool:
+    """Give `utterance` to whoever awaits one (a sentence's next part, an answer); True when taken."""
+    if awaited is None or awaited.done():
+        return False
+    awaited.set_result(utterance)
+    return True
 
 
 Recognition = Callable[[HeardUtterance], Awaitable[tuple[str, str]]]  # the Platform's: (text, search)
@@ -201,11 +205,7 @@ class CoreHearing:
 
     # -- the answer to the Core's question (agents/core_confirm.py) --------------------------------
     def _offer_answer(self, utterance: HeardUtterance) -> bool:
-        awaited = self._answer
-        if awaited is None or awaited.done():
-            return False
-        awaited.set_result(utterance)
-        return True
+        return _hand_over(self._answer, utterance)
 
     async def hear_answer(self, within_s: float, poll_s: float = 0.02) -> HeardUtterance | None:
         """The utterance the owner begins within `within_s` of sound from now (the microphone's time,
