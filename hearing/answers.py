@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Sequence
 
 from .decoder import normalize
-from .keywords import KeywordSpotter
+from .keywords import ACCEPT, KeywordSpotter
 from .vad import HeardUtterance
 
 YES_WORDS = ("yes", "yeah", "yes please", "okay")
@@ -28,12 +28,9 @@ class AnswerSpotter:
     Store's keywords and command phrases), so a command is heard as the command it is and not
     squeezed into "no". Decoders per thread (KeywordSpotter)."""
 
-    def __init__(self, competitors: Sequence[str] = (), **kw):
+    def __init__(self, competitors: Sequence[str] = (), accept: float = ACCEPT):
         others = [c for c in competitors if normalize(c) not in MEANING]
-        self.spotter = KeywordSpotter(sorted(MEANING), others, groups=MEANING, **kw)
-
-    def warm_up(self) -> None:
-        self.spotter.warm_up()
+        self.spotter = KeywordSpotter(sorted(MEANING), others, groups=MEANING, accept=accept)
 
     def spot(self, utterance: HeardUtterance) -> str | None:
         word = self.spotter.spot(utterance)
