@@ -72,6 +72,7 @@ from hearing.wav import encode_wav
 from .base import RappAgent
 from .core_behaviours import HeartbeatMonitor, MicrophoneListener, SafetyMonitor, UserChat, heartbeat_template
 from .core_commands import RobotCommands
+from .core_confirm import Confirmation
 from .core_localizer import CoreLocalizer
 from .core_hearing import CoreHearing
 from .core_events import CoreEvents
@@ -185,6 +186,7 @@ class CoreAgent(RappAgent):
         # the members (agents/core_parts.py says what each needs of the Core)
         self.hearing = CoreHearing(self, SUPERVISION_WORDS, hear_audio=o.hear_audio,
                                    voice_supervision=o.voice_supervision)
+        self.confirmation = Confirmation(self, self.hearing)  # a schedule heard by voice (agents/core_confirm.py)
         self.robot_commands = RobotCommands(self, self._publish, safety_distance=o.safety_distance)
         self.events = CoreEvents(self, self.robot_commands.nearest_echo)
         self.strategies = Strategies(self, self.robot_commands, self.events.publish_echo)
@@ -245,6 +247,8 @@ class CoreAgent(RappAgent):
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
+        if self.confirmation.take_typed(text):  # "yes" / "no" to the question waiting (s4c)
+            return
         word = text.lower().strip(" .!")
         if word in STOP_WORDS | CANCEL_WORDS:
             await self.robot_commands.emergency_stop("stopped by the user")

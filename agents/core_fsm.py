@@ -21,7 +21,8 @@ keyword is mapped to its RApp on the robot (s4a: pocketsphinx with the vocabular
 else goes to the Platform (s4b: speech_recognition for speech, then interpret_command).
 A schedule come due (agents/scheduler.py) enters s3 as a command the Core knows and takes s4a,
 as an isolated keyword does; s4c (not in the figure: the paper's sec. 7 trigger) keeps, cancels or
-lists schedules when the Platform's interpretation names a time, and tells the owner.
+lists schedules when the Platform's interpretation names a time, and tells the owner; a new schedule
+heard by voice is kept only when the owner says yes to it (agents/core_confirm.py).
 A failed recognition or interpretation tells the user why (spoken: "Sorry, I did not understand")
 and returns to s3; so does a failed download; a failed activation goes through s10 so nothing is
 left running.
@@ -137,8 +138,10 @@ class Interpret(CoreState):  # s4b: anything else -> the Platform (speech recogn
 
 class Schedule(CoreState):  # s4c (sec. 7's trigger): keep, cancel or list schedules; the owner is told
     async def action(self):
+        # heard by voice: a new schedule is kept only when the owner says yes (agents/core_confirm.py)
+        heard = isinstance(self.memory["command"], HeardUtterance)
         await self.core.scheduler.handle(self.memory["schedule"], self.memory["rapp"], self.memory["params"],
-                                         self.memory["text"])
+                                         self.memory["text"], confirm=self.core.confirmation.ask if heard else None)
         self.core.command_answered()
 
 

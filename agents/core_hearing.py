@@ -32,6 +32,7 @@ import math
 import time
 from collections.abc import Awaitable, Callable
 
+from hearing.answers import AnswerSpotter
 from hearing.keywords import KeywordSpotter, LookAhead
 from hearing.steering import Steering
 from hearing.vad import HeardUtterance, VoiceActivity
@@ -57,11 +58,7 @@ class Continuation:
 
     def offer(self, utterance: HeardUtterance) -> bool:
         """Take `utterance` as the next part awaited, if one is; True when taken."""
-        awaited = self._awaited
-        if awaited is None or awaited.done():
-            return False
-        awaited.set_result(utterance)
-        return True
+        return _hand_over(self._awaited, utterance)
 
     async def after(self, poll_s: float = 0.02) -> HeardUtterance | None:
         """What the owner says next, when they go on within CONTINUE_WITHIN_S of the last cut."""
@@ -85,6 +82,14 @@ class Continuation:
             return None
         finally:
             self._awaited = None
+
+
+def _hand_over(awaited: asyncio.Future | None, utterance: HeardUtterance) -> bool:
+    """Give `utterance` to whoever awaits one (a sentence's next part, an answer); True when taken."""
+    if awaited is None or awaited.done():
+        return False
+    awaited.set_result(utterance)
+    return True
 
 
 Recognition = Callable[[HeardUtterance], Awaitable[tuple[str, str]]]  # the Platform's: (text, search)
@@ -111,6 +116,8 @@ class CoreHearing:
         self._steerings = Steering(), Steering()  # the array beside each detector, as long-lived
         self.continuation = Continuation(self._voices[0])  # a sentence the owner pauses in (s4b)
         self.look_ahead = LookAhead()  # s4a's spotting begun before the detector's cut
+        self.answers = AnswerSpotter()  # yes or no to the Core's question (agents/core_confirm.py)
+        self._answer: asyncio.Future | None = None  # the answer awaited (hear_answer)
 
     @property
     def hears_sound(self) -> bool:
@@ -123,6 +130,7 @@ class CoreHearing:
         # or a keyword is heard as what it is, not squeezed into "stop"
         self.supervision_words = KeywordSpotter(sorted(self.supervision), sorted(vocabulary) + phrases,
                                                 groups=self.supervision, min_cover=0.0)
+        self.answers = AnswerSpotter(sorted(vocabulary) + phrases)  # a command said is no answer either
         if vocabulary and self.hears_sound:
             # its decoder loads in the background, not at the first word (and only where it can hear)
             self.host.in_background(asyncio.to_thread(self.keywords.warm_up))
@@ -145,7 +153,7 @@ class CoreHearing:
         listening = self.host.listening
         # outside s3 it may be the rest of the sentence s4b recognises (Continuation)
         fate = {} if listening else {"continues": True} if self.continuation.offer(utterance) \
-            else {"dropped": "not listening"}
+            else {"answer": True} if self._offer_answer(utterance) else {"dropped": "not listening"}
         where = {} if utterance.bearing is None else {"bearing_deg": round(math.degrees(utterance.bearing))}
         self.host.record_structure("speech-heard", seconds=round(utterance.seconds, 2),
                                    speech_s=round(utterance.speech_seconds, 2), too_long=utterance.too_long,
@@ -194,6 +202,38 @@ class CoreHearing:
             first.cancel()
             return whole
         return (await first)[0]
+
+    # -- the answer to the Core's question (agents/core_confirm.py) --------------------------------
+    def _offer_answer(self, utterance: HeardUtterance) -> bool:
+        return _hand_over(self._answer, utterance)
+
+    async def hear_answer(self, within_s: float, poll_s: float = 0.02) -> HeardUtterance | None:
+        """The utterance the owner begins within `within_s` of sound from now (the microphone's time,
+        as Continuation's; wall-clock time where no sound comes), or None: nothing said."""
+        vad = self._voices[0]
+        awaited = self._answer = asyncio.get_running_loop().create_future()
+        try:
+            start = heard = vad.heard_s
+            since = quiet_since = time.monotonic()
+            while not vad.active and not awaited.done():
+                if vad.heard_s - start >= within_s:
+                    return None
+                if vad.heard_s != heard:
+                    heard, since = vad.heard_s, time.monotonic()
+                elif time.monotonic() - since > STALL_S and time.monotonic() - quiet_since > within_s:
+                    return None  # nobody feeds the detector (a robot without a microphone stream)
+                await asyncio.sleep(poll_s)
+            return await asyncio.wait_for(asyncio.shield(awaited), MAX_WAIT_S)
+        except asyncio.TimeoutError:
+            return None
+        finally:
+            self._answer = None
+
+    async def spot_answer(self, utterance: HeardUtterance) -> str | None:
+        """"yes", "no" or None (not understood as either) in the owner's answer."""
+        if utterance.too_long:
+            return None
+        return await asyncio.get_running_loop().run_in_executor(None, self.answers.spot, utterance)
 
     # -- during a task: the supervision words -----------------------------------------------------
     def start_task_listening(self) -> None:

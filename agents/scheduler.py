@@ -37,7 +37,7 @@ import time
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta, tzinfo
 from pathlib import Path
-from typing import Protocol
+from typing import Awaitable, Callable, Protocol
 
 from ontology import store as S
 from ontology.results import ScheduleChanged, ScheduleEvent, ScheduleRecord
@@ -72,6 +72,18 @@ MIGRATIONS: tuple = (_SCHEMA,)
 
 class ScheduleRefused(Exception):
     """A schedule the Core cannot keep; the message is what the owner is told."""
+
+
+class ScheduleDeclined(Exception):
+    """A schedule the owner did not confirm (agents/core_confirm.py): `told`, what the owner is told;
+    the message, the reason recorded."""
+
+    def __init__(self, reason: str, told: str):
+        super().__init__(reason)
+        self.told = told
+
+
+Confirm = Callable[[str], Awaitable[None]]  # asks the owner about the words heard; ScheduleDeclined: not kept
 
 
 @dataclass
@@ -303,12 +315,14 @@ class Scheduler:
         return self.book.all()
 
     # -- the owner's words ------------------------------------------------------------------------
-    async def handle(self, asked: ScheduleRequest, rapp: str, params: dict, command: str) -> None:
+    async def handle(self, asked: ScheduleRequest, rapp: str, params: dict, command: str,
+                     confirm: Confirm | None = None) -> None:
         """Keep, cancel or list schedules as the owner asked; the owner is told the outcome (chat,
-        and a ScheduleChanged to the task subscribers), refusals with their reason."""
+        and a ScheduleChanged to the task subscribers), refusals with their reason. `confirm`: a new
+        schedule is first checked, then kept only if the owner confirms it (a schedule heard by voice)."""
         try:
             if asked.action == ScheduleAction.ADD:
-                rec = await self._keep(asked, rapp, params, command)
+                rec = await self._keep(asked, rapp, params, command, confirm)
                 await self._tell(ScheduleEvent.KEPT, f"I will run {describe(rec, self.clock.tz, self.clock.now())}.",
                                  [rec], command=command)
             elif asked.action == ScheduleAction.CANCEL:
@@ -323,8 +337,18 @@ class Scheduler:
                 await self._tell(ScheduleEvent.LISTED, text, kept, command=command)
         except ScheduleRefused as e:
             await self._tell(ScheduleEvent.REFUSED, f"I cannot schedule that: {e}.", [], reason=str(e), command=command)
+        except ScheduleDeclined as e:
+            await self._tell(ScheduleEvent.REFUSED, e.told, [], reason=str(e), command=command)
 
-    async def _keep(self, asked: ScheduleRequest, rapp: str, params: dict, command: str) -> ScheduleRecord:
+    async def _keep(self, asked: ScheduleRequest, rapp: str, params: dict, command: str,
+                    confirm: Confirm | None = None) -> ScheduleRecord:
+        if confirm is not None:
+            await self._check(asked, rapp, params, command)  # no question about what would be refused
+            await confirm(command)
+        return await self._check(asked, rapp, params, command, add=True)  # its time from now, after the answer
+
+    async def _check(self, asked: ScheduleRequest, rapp: str, params: dict, command: str,
+                     add: bool = False) -> ScheduleRecord:
         core, now = self.core, self.clock.now()
         if rapp not in {p.name for p in core.catalogue}:
             raise ScheduleRefused(f"the Store offers no application {rapp or '(none named)'} for a "
@@ -351,6 +375,8 @@ class Scheduler:
             if at is not None:
                 raise ScheduleRefused(f"it would clash with {describe(other, self.clock.tz, now)}, which may run "
                                       f"for {other.window_s / 60:.0f} min")
+        if not add:
+            return rec
         rec = await asyncio.to_thread(self.book.add, rec)
         self._changed.set()
         return rec

@@ -6,12 +6,14 @@ more recordings per cell, so a change to a recogniser is judged on more than 10 
 
     python -m bench.speech_offline [--quick] [--only platform|keyword] [--show-wrong] [--rt60 S]
 
-Two more keyword paths, measured on request (--only): `supervision`, the Core's supervision words
+Three more keyword paths, measured on request (--only): `supervision`, the Core's supervision words
 ("stop", "cancel", "resume", ...) said alone, spotted as the Core spots them during a task, and
 everything else the owner says, which must not be taken for one; `words`, the cognitive game's
 answers said alone, found as the robot's word_spotting finds them (robots/microphones.py
 spot_in_audio: the recording cut by level, each piece decoded with the game's words), and the
-other sentences. `--accept X` puts every keyword spotter's threshold (hearing/keywords.py ACCEPT)
+other sentences; `confirm`, the owner's yes or no to the Core's question before it keeps a schedule
+heard by voice (hearing/answers.py, the first utterance cut), and every keyword and other sentence,
+which must be neither. `--accept X` puts every keyword spotter's threshold (hearing/keywords.py ACCEPT)
 under test.
 
 Recordings are cached in /tmp (keyed by the conditions, the synthesiser's output and the source of
@@ -45,9 +47,12 @@ VAD: dict[str, float] = {}  # VoiceActivity options under test (--vad pad=0.3)
 ACOUSTICS: dict[str, float] = {}  # the house's reverberation under test (--rt60 0.5: rt60_s; --equal-tv: tv_db)
 ARRAY: dict = {}  # the NAO's four microphones and a beamformer under test (--beam mvdr|das, --loading)
 ACCEPT: dict[str, float] = {}  # the keyword threshold under test (--accept -0.02: accept)
-PATHS = ("keyword", "platform", "supervision", "words")
+PATHS = ("keyword", "platform", "supervision", "words", "confirm")
 # the cognitive game's answers said alone (its word_spotting hears numbers 0-300 as words or digits)
 ANSWERS = ("five", "six", "nine", "twelve", "twenty", "thirty five", "sixty", "one hundred", "pass")
+# the owner's answers to the Core's question before it keeps a schedule heard by voice (hearing/answers.py)
+CONFIRM = (("yes", "yes"), ("yeah", "yes"), ("yes please", "yes"), ("okay", "yes"), ("no", "no"), ("nope", "no"),
+           ("no thanks", "no"), ("cancel", "no"))
 MIC_Z = 0.50  # a NAO's microphones: its collision height + 0.05 (robots/microphones.py AudioInput)
 
 
@@ -58,6 +63,9 @@ def items(path: str) -> list[tuple[str, str | None]]:
         from agents.core_agent import SUPERVISION_WORDS
         commands = [(t, None) for ws, ps in VOCABULARY.values() for t in (*ws, *ps)]
         return sorted(SUPERVISION_WORDS.items()) + commands + [(t, None) for t in OTHER]
+    if path == "confirm":  # every keyword too: a command said instead of an answer is none
+        keywords = [(w, None) for ws, _ in VOCABULARY.values() for w in ws]
+        return list(CONFIRM) + keywords + [(t, None) for t in OTHER]
     if path == "words":
         meaning = _answer_words()
         return [(a, meaning[a]) for a in ANSWERS] + [(t, None) for t in OTHER]
@@ -291,7 +299,22 @@ def decide_words(heard: np.ndarray) -> str | None:
     return None
 
 
-_SUPERVISION = _WORDS = None
+_SUPERVISION = _WORDS = _ANSWERS = None
+
+
+def decide_confirm(utts: list) -> str | None:
+    """The Core's confirmation (agents/core_confirm.py): the first utterance cut after its question is
+    the answer, "yes", "no" or none, heard as hearing/answers.py AnswerSpotter hears it (the Store's
+    keywords and phrases competing, as the Core builds it)."""
+    global _ANSWERS
+    from hearing.answers import AnswerSpotter
+    from hearing.vad import HeardUtterance
+    if _ANSWERS is None:
+        _ANSWERS = AnswerSpotter(sorted(_vocabulary()) + [p for _, ps in VOCABULARY.values() for p in ps], **ACCEPT)
+    if not utts:
+        return None
+    pcm, speech, too_long, _, _, loud = utts[0]
+    return _ANSWERS.spot(HeardUtterance(pcm, speech, too_long, loud=loud))
 
 
 def decide_platform(utts: list) -> str | None:
@@ -357,7 +380,7 @@ def _one(args: tuple) -> dict:
     heard = _record(cond, whole=path == "words")
     t1 = time.perf_counter()
     got = {"keyword": decide_keyword, "platform": decide_platform, "supervision": decide_supervision,
-           "words": decide_words}[path](heard)
+           "words": decide_words, "confirm": decide_confirm}[path](heard)
     if path == "words":
         from hearing.vad import speech_segments
         heard = speech_segments(heard)
@@ -366,10 +389,31 @@ def _one(args: tuple) -> dict:
                 record_ms=(t1 - t0) * 1e3)
 
 
+def report_confirm(mine: list[dict]) -> None:
+    """The answers: yes and no said, heard right or as the other; anything else heard as yes or no."""
+    print("confirm: yes said heard yes (as no), no said heard no (as yes), other speech heard as yes / as no")
+    for noise in NOISE:
+        at = [r for r in mine if r["noise"] == noise]
+        yes, no, other = ([r for r in at if r["expected"] == e] for e in ("yes", "no", None))
+        print(f"  {noise:6s} yes {sum(r['got'] == 'yes' for r in yes)}/{len(yes)} ({sum(r['got'] == 'no' for r in yes)})"
+              f"   no {sum(r['got'] == 'no' for r in no)}/{len(no)} ({sum(r['got'] == 'yes' for r in no)})"
+              f"   other {sum(r['got'] == 'yes' for r in other)} / {sum(r['got'] == 'no' for r in other)} of {len(other)}")
+        print("         " + "  ".join(f"{v} {sum(r['got'] == r['expected'] for r in by)}/{len(by)}"
+                                      for v in VOICES for by in [[r for r in yes + no if r["voice"] == v]]))
+
+
 def report(rows: list[dict], show_wrong: bool) -> None:
     for path in PATHS:
         mine = [r for r in rows if r["path"] == path]
         if not mine:
+            continue
+        if path == "confirm":
+            report_confirm(mine)
+            if show_wrong:
+                for r in mine:
+                    if r["got"] != r["expected"]:
+                        print(f"    {r['noise']:6s} {r['text']!r} {r['voice']} {r['speed']} {r['distance']} m"
+                              f" -> {r['got']} ({r['utterances']} utterances)")
             continue
         print(f"{path}: right commands / commands (wrong RApps), other sentences taken as a command")
         for noise in NOISE:

@@ -94,6 +94,8 @@ class StructureEvent(StrEnum):
     SCHEDULE_LISTED = "schedule-listed"  # the schedules told to the owner
     SCHEDULE_DUE = "schedule-due"  # a schedule's time came: its RApp starts (trigger "scheduled")
     SCHEDULE_MISSED = "schedule-missed"  # its time came while the robot could not start it
+    SCHEDULE_ASKED = "schedule-asked"  # a schedule heard by voice: the owner asked to confirm it (agents/core_confirm.py)
+    SCHEDULE_ANSWER = "schedule-answer"  # ... and what the owner answered (yes, no, none), by voice or chat
     # a Dynamic Agent's plan monitor (rapps/sdk/monitor.py)
     PLAN_FAILED = "plan-failed"  # an expectation of the running plan failed: the task re-plans
     OBSTACLE_MARKED = "obstacle-marked"  # an obstacle entered into the Platform's temporary layer

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from agents.core_agent import CoreAgent
+from agents.core_confirm import ANSWER_S, TIMEOUT_S
 from agents.services import run_service
 from agents.services.context import ServiceContext
 from agents.core_hearing import CoreHearing
@@ -124,25 +125,118 @@ async def test_a_sentence_said_with_a_pause_is_recognised_whole(system):
     assert joined and joined[-1]["seconds"] > 1.5
 
 
-async def test_a_schedule_said_aloud_is_kept_not_started_and_cancelled_aloud(system):
+async def answer_aloud(system, start: int, said: str | None, voice: str = "en-us") -> str:
+    """The owner waits for the Core's question about a schedule (said from loudspeaker entry `start`
+    on), then says `said` (None: nothing); returns the question."""
+    core = system.handle.core
+    question = await said_after(system, start, r"Shall I .* Say yes or no\.$")
+    await wait_until(lambda: core.confirmation.pending and not core.speaking(), 30)
+    if said is not None:
+        speak(system, said, distance=1.0, voice=voice, delay=0.5)
+    return question
+
+
+async def test_a_schedule_said_aloud_is_confirmed_then_kept_not_started_and_cancelled_aloud(system):
     """Paper 000 sec. 7's trigger by voice: a Store sentence said with a time is a schedule (the time
     had been lost: the Platform's phrases heard "check my inbox" alone and the Core started it at
-    once); "cancel the check" said removes it."""
+    once); the Core says what it understood and keeps it on "yes" (agents/core_confirm.py); "cancel
+    the check" said removes it."""
     core, user = system.handle.core, system.handle.user
     await wait_until(lambda: listening(core), 30)
-    start = len(user.received)
+    start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
     speak(system, "check my inbox in ten minutes", distance=1.0)
-    kept = await user.wait_for(lambda t: t.startswith(("I will run", "Starting", "I cannot")), timeout=45, start=start)
+    question = await answer_aloud(system, spoken, "yes", voice="en-us+f3")
+    assert question == "Shall I check your inbox in ten minutes? Say yes or no."
+    assert not core.scheduler.schedules()  # not before the answer
+    kept = await user.wait_for(lambda t: t.startswith(("I will run", "Starting", "I cannot", "I did not", "All right")),
+                               timeout=45, start=start)
     assert kept.startswith("I will run email_reader at"), kept
     (schedule,) = core.scheduler.schedules()
     assert schedule.rapp == "email_reader" and schedule.kind == "once"
     assert schedule.due == pytest.approx(core.scheduler.clock.now() + 600, abs=60)
+    answers = [r for r in read_trace(system.settings.trace_file) if r.get("event") == "schedule-answer"]
+    assert (answers[-1]["answer"], answers[-1]["by"]) == ("yes", "voice")
     await wait_until(lambda: listening(core), 30)
     start = len(user.received)
     speak(system, "cancel the check", distance=1.0, delay=1.0)
     gone = await user.wait_for(lambda t: t.startswith(("Cancelled", "I cannot")), timeout=45, start=start)
     assert gone.startswith("Cancelled: email_reader"), gone
     assert not core.scheduler.schedules() and not any(t.startswith("Starting") for t in user.texts()[start:])
+
+
+@pytest.mark.slow  # ~25 s: two questions said and two answers awaited
+async def test_an_unclear_answer_then_silence_drops_the_schedule_after_asking_once_more(system):
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
+    speak(system, "read my email tomorrow at nine", distance=1.0)
+    await answer_aloud(system, spoken, "open the window please")  # neither yes nor no: asked again
+    again = await said_after(system, spoken, r"^Sorry, I did not hear yes or no\. Shall I")
+    assert again == "Sorry, I did not hear yes or no. Shall I read your e-mail tomorrow at nine? Say yes or no."
+    told = await user.wait_for(lambda t: t.startswith(("I will run", "I cannot", "I did not", "All right")),
+                               timeout=60, start=start)  # nothing said the second time
+    assert told == "I did not hear yes or no, so I have not scheduled it." and not core.scheduler.schedules()
+    await said_after(system, spoken, r"^I did not hear yes or no, so")
+    answers = [r for r in read_trace(system.settings.trace_file) if r.get("event") == "schedule-answer"][-2:]
+    assert [(r["answer"], r["by"]) for r in answers] == [("", "voice"), ("", "none")]
+
+
+async def test_while_the_core_waits_for_an_answer_a_due_task_waits_no_longer_than_the_time_out(system):
+    """The question holds the FSM in s4c; a schedule come due and a typed command wait in the queue,
+    as they do in s4-s6, and are served once the exchange's time-out ends it (the owner said nothing,
+    kept talking to someone else, or the microphone went quiet)."""
+    from agents.scheduler import ScheduledStart
+    from ontology.results import ScheduleRecord
+
+    core, user = system.handle.core, system.handle.user
+    confirmation = core.confirmation
+    await wait_until(lambda: listening(core), 30)
+    start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
+    confirmation.answer_s, confirmation.timeout_s = 120.0, 4.0
+    try:
+        speak(system, "check my inbox in ten minutes", distance=1.0)
+        await said_after(system, spoken, r"^Shall I")
+        asked_at = asyncio.get_running_loop().time()
+        now = core.scheduler.clock.now()
+        due = ScheduleRecord(id=99, robot_id=core.robot_id, rapp="weather_reporter", params={}, command="forecast",
+                             kind="once", due=now, window_s=60.0)
+        core.commands.put_nowait(ScheduledStart(due, now))  # as the scheduler queues one come due
+        await user.say(core.address, "what is scheduled")  # typed: waits its turn, not taken as the answer
+        told = await user.wait_for(lambda t: t.startswith(("I will run", "I did not", "All right")), timeout=30,
+                                   start=start)
+        assert told == "I did not hear yes or no, so I have not scheduled it."
+        await user.wait_for(lambda t: t == "Starting weather_reporter.", timeout=30, start=start)
+        assert asyncio.get_running_loop().time() - asked_at < confirmation.timeout_s + 10
+        listed = await user.wait_for(lambda t: t.startswith(("Scheduled:", "Nothing is scheduled")), timeout=45,
+                                     start=start)
+        assert listed == "Nothing is scheduled."
+    finally:
+        confirmation.answer_s, confirmation.timeout_s = ANSWER_S, TIMEOUT_S
+
+
+async def test_a_typed_schedule_is_kept_without_a_question_and_one_said_is_dropped_on_no(system):
+    """Typed text is not misheard: kept at once. Said, the schedule waits for the owner's answer; "no"
+    drops it (the answer typed in the chat counts too: tests/test_core_confirm.py)."""
+    core, user = system.handle.core, system.handle.user
+    await wait_until(lambda: listening(core), 30)
+    start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
+    await user.say(core.address, "check my inbox in ten minutes")
+    kept = await user.wait_for(lambda t: t.startswith(("I will run", "Shall I", "I cannot")), timeout=30, start=start)
+    assert kept.startswith("I will run email_reader at") and len(core.scheduler.schedules()) == 1
+    await wait_until(lambda: listening(core), 30)
+    start, spoken = len(user.received), len(system.nao.loudspeaker.spoken)
+    speak(system, "tell me the forecast every day at seven a m", distance=1.0)
+    question = await answer_aloud(system, spoken, "no", voice="en-us+m3")
+    assert question == "Shall I tell you the forecast every day at seven a.m.? Say yes or no."
+    told = await user.wait_for(lambda t: t.startswith(("I will run", "I cannot", "I did not", "All right")),
+                               timeout=45, start=start)
+    assert told == "All right, I have not scheduled it." and len(core.scheduler.schedules()) == 1
+    await said_after(system, spoken, r"^All right, I have not scheduled it")
+    await wait_until(lambda: listening(core), 30)
+    start = len(user.received)
+    await user.say(core.address, "cancel all the checks")
+    gone = await user.wait_for(lambda t: t.startswith(("Cancelled", "I cannot")), timeout=30, start=start)
+    assert gone.startswith("Cancelled: email_reader") and not core.scheduler.schedules()
 
 
 async def test_a_failed_recognition_is_answered_and_the_core_listens_again(system):
