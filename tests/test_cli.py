@@ -381,7 +381,7 @@ def test_rapp_test_runs_a_folders_tests_outside_the_checkout(tmp_path):
     assert "warning" not in res.stdout.lower(), res.stdout[-2000:]
 
 
-@pytest.mark.parametrize("example, tests", [("door_audit", 1), ("lamp_patrol", 2)])
+@pytest.mark.parametrize("example, tests", [("door_audit", 2), ("lamp_patrol", 2)])
 def test_rapp_test_robot_runs_the_examples_tests_for_that_robot_only(example, tests):
     """The Store's build runs a RApp's tests once per robot type (RAPP_ROBOT_TYPE): the closing RApp of issue 43
     ran both robots' full-house audits in each, lamp patrol both robots' full-house patrols."""
