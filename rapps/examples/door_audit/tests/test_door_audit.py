@@ -12,22 +12,29 @@ import pytest
 import yaml
 
 from ontology.manifest import load_manifest
-from robots import HOUSES, ROBOT_SPECS
-from robots.floorplan import load_plan
-from scenarios.home_setup import doorway, hazard_overrides
-from scenarios.run_rapp import run_rapp
 
+# the simulator's modules are imported in the tests: collecting them (the Store's build per robot type,
+# `rapp test --collect-only`) took 4 s of imports
 HERE = Path(__file__).resolve().parent.parent
 HOUSE = "house"
 # the robots the manifest declares (the Store builds it for each), or the one the build runs for now
 ROBOTS = [os.environ["RAPP_ROBOT_TYPE"]] if os.environ.get("RAPP_ROBOT_TYPE") else load_manifest(HERE).robot_types
 
 
-def start_room(robot: str, seed: int, house: Path | dict = HOUSES / f"{HOUSE}.yaml") -> tuple[str | None, set[str]]:
+def house_file() -> Path:
+    from robots import HOUSES
+    return HOUSES / f"{HOUSE}.yaml"
+
+
+def start_room(robot: str, seed: int, house: Path | dict | None = None) -> tuple[str | None, set[str]]:
     """The room `robot` starts in at `seed` (the house file's start spec, drawn as the run's world
     draws it) and the doors the home description lists for that room with check poses (the RApp's
     list for `audit the doors of the ROOM`)."""
-    plan = load_plan(house, seed, hazard_overrides(HOUSE, seed))
+    from robots import ROBOT_SPECS
+    from robots.floorplan import load_plan
+    from scenarios.home_setup import doorway, hazard_overrides
+
+    plan = load_plan(house or house_file(), seed, hazard_overrides(HOUSE, seed))
     x, y, _ = plan.start_pose(robot, robot, ROBOT_SPECS[robot].radius)
     room = plan.room_at(x, y)
     return room, {d.id for d in plan.doors if (way := doorway(plan, d)).checks and room in way.rooms}
@@ -39,7 +46,7 @@ def _starting_in(desc: dict, robot: str, room: str) -> dict:
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_the_start_room_follows_the_house_file(robot):
-    desc = yaml.safe_load((HOUSES / f"{HOUSE}.yaml").read_text())
+    desc = yaml.safe_load(house_file().read_text())
     room, doors = start_room(robot, 1)
     assert doors and room == desc["robots"][robot].get("room", room)
     moved = {r["name"]: start_room(robot, 1, _starting_in(desc, robot, r["name"])) for r in desc["rooms"]}
@@ -52,6 +59,8 @@ def test_the_start_room_follows_the_house_file(robot):
 @pytest.mark.asyncio  # under pytest-asyncio, in or out of this checkout
 @pytest.mark.parametrize("robot", ROBOTS)
 async def test_door_audit_reports_each_door_of_the_room_right(tmp_path, robot):
+    from scenarios.run_rapp import run_rapp
+
     seed = int(os.environ.get("DOOR_AUDIT_SEED") or random.randrange(1, 10_000))
     room, expected = start_room(robot, seed)
     assert room, f"{robot} starts outside every room at seed {seed}"
