@@ -42,7 +42,7 @@ CONFINED_WITHIN_S = 5.0
 # `to_thread` of the Platform and the Core in the same process. Its threads are joined at interpreter
 # exit (concurrent.futures does), so a sweep under way still kills what its run left; each sweep is
 # bounded by its own timeout. A forked child drops the parent's (its threads are not in the child).
-SWEEPERS = 4
+SWEEPERS = 8  # threads start only as sweeps overlap; no fewer than the default executor's on 2 cores (6)
 _sweeper = None
 _sweeper_lock = threading.Lock()
 

@@ -59,10 +59,15 @@ async def test_the_sweep_before_reaping_does_not_hold_the_loop():
     assert max(gaps) < 0.3, f"the loop stood still for {max(gaps):.2f} s"
 
 
-async def test_sweeps_that_block_do_not_starve_to_thread():
+def test_sweeps_that_block_do_not_starve_to_thread():
     """Many runs ending at once each sweep what they left (up to seconds): on the loop's default
     executor the sweeps held its few workers and every `to_thread` of the Platform and the Core in
-    the same process waited behind them. Here the default executor has a single worker."""
+    the same process waited behind them. Here the default executor has a single worker (on a loop
+    of this test's own: the session's loop keeps its executor)."""
+    asyncio.run(_sweeps_block_while_to_thread_runs())
+
+
+async def _sweeps_block_while_to_thread_runs():
     import concurrent.futures
     import threading
 
