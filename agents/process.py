@@ -37,13 +37,41 @@ log = logging.getLogger("rapp.process")
 CONFINED_WITHIN_S = 5.0
 
 
+# The sweeps before reaping (exit_future's before_reap: up to ~2 s each) run on an executor of their own:
+# on the loop's default one, many runs ending at once held its few workers and starved every
+# `to_thread` of the Platform and the Core in the same process. Its threads are joined at interpreter
+# exit (concurrent.futures does), so a sweep under way still kills what its run left; each sweep is
+# bounded by its own timeout. A forked child drops the parent's (its threads are not in the child).
+SWEEPERS = 8  # threads start only as sweeps overlap; no fewer than the default executor's on 2 cores (6)
+_sweeper = None
+_sweeper_lock = threading.Lock()
+
+
+def _sweeper_pool():
+    global _sweeper
+    with _sweeper_lock:
+        if _sweeper is None:
+            from concurrent.futures import ThreadPoolExecutor
+            _sweeper = ThreadPoolExecutor(SWEEPERS, thread_name_prefix="rapp-sweep")
+        return _sweeper
+
+
+def _forget_sweeper() -> None:
+    global _sweeper, _sweeper_lock
+    _sweeper, _sweeper_lock = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_sweeper)
+
+
 def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
     """Resolves with the process's return code when it exits. The loop watches a pidfd; a thread
     blocked in `proc.wait()` would hold one of the loop's default executor's few workers for the
     process's whole life (20 running Dynamic Agents starved every `to_thread` call of the Platform
     in the same process). Without pidfds (not Linux), a daemon thread of its own waits.
     `before_reap()` runs once the process has exited and before it is reaped: while its pid cannot
-    yet be another process's (AgentProcess kills what is left of its process group then)."""
+    yet be another process's (AgentProcess kills what is left of its process group then), on the
+    sweepers' executor (above), never the loop's default one."""
     loop = asyncio.get_running_loop()
     fut = loop.create_future()
 
@@ -82,7 +110,13 @@ def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
         else:  # the sweep waits for what is left to go (up to seconds): in a thread, not on the loop; the
             # reaping stays on the loop, so the future is done as the pid is freed (AgentProcess signals
             # the group only while its future is not done: the pid is still this process's)
-            loop.run_in_executor(None, sweep).add_done_callback(lambda _: resolve(proc.wait()))
+            try:
+                swept = loop.run_in_executor(_sweeper_pool(), sweep)
+            except RuntimeError:  # the interpreter is exiting: no new executor threads; sweep here
+                sweep()
+                resolve(proc.wait())
+            else:
+                swept.add_done_callback(lambda _: resolve(proc.wait()))
 
     loop.add_reader(fd, exited)
     return fut

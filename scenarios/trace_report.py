@@ -376,6 +376,14 @@ SUMMARY_EVENTS = {"spawn", "handoff", "ended", "destroy", "resume", "cloud-spawn
                   "estop", "strategy", "plan-failed", "heartbeat-late", "catalogue-changed"}
 
 
+def idle_warm_workers(records: list[dict], agents: Iterable[str], per_agent: dict) -> set[str]:
+    """The Cloud accounts among `agents` that sent and received nothing and that no cloud-spawn named:
+    the Platform's warm workers, logged in ahead of time (agents/warm_pool.py) and never handed a run."""
+    spawned = {bare(r.get("cloud")) for r in records
+               if r.get("kind") == RecordKind.STRUCTURE and r.get("event") == "cloud-spawn" and r.get("cloud")}
+    return {j for j in agents if role(j) == "cloud" and j not in spawned and not any(per_agent.get(j, {}).values())}
+
+
 def summary_text(records: list[dict], title: str = "trace", events_shown: int = 40) -> str:
     """What `rapp trace show` prints by default: the agents (role, messages sent and received), the
     messages per performative, the task's structure changes in time order (repeated ones counted),
@@ -389,12 +397,16 @@ def summary_text(records: list[dict], title: str = "trace", events_shown: int = 
     lines = [f"{title}: {len(records)} records over {span:.1f} s, {s['messages']} messages "
              f"({', '.join(f'{n} {p}' for p, n in sorted(s['per_performative'].items(), key=lambda kv: -kv[1]))})",
              "", "agents (--agent ROLE, NAME or JID):"]
-    agents = sorted({bare(r["agent"]) for r in records if r.get("agent")} | set(s["per_agent"]),
-                    key=lambda j: (list(ROLES).index(role(j)) if role(j) else len(ROLES), j))
-    width = max(len(local(j)) for j in agents)
+    agents = {bare(r["agent"]) for r in records if r.get("agent")} | set(s["per_agent"])
+    idle = idle_warm_workers(records, agents, s["per_agent"])
+    agents = sorted(agents - idle, key=lambda j: (list(ROLES).index(role(j)) if role(j) else len(ROLES), j))
+    width = max((len(local(j)) for j in agents), default=0)
     for j in agents:
         n = s["per_agent"].get(j, {"sent": 0, "received": 0})
         lines.append(f"  {role(j) or '-':8s} {local(j):{width}s}  sent {n['sent']:6d}  received {n['received']:6d}")
+    if idle:
+        lines.append(f"  (and {len(idle)} idle warm Cloud worker{'s' if len(idle) > 1 else ''}, logged in ahead of "
+                     f"time and never handed a run: {', '.join(sorted(local(j) for j in idle))})")
     events = [r for r in records if r.get("kind") == RecordKind.STRUCTURE and r.get("event") in SUMMARY_EVENTS]
     counts = Counter(r["event"] for r in events)
     lines += ["", f"structure ({', '.join(f'{n} {e}' for e, n in counts.most_common()) or 'none'}):"]

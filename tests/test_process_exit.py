@@ -59,6 +59,54 @@ async def test_the_sweep_before_reaping_does_not_hold_the_loop():
     assert max(gaps) < 0.3, f"the loop stood still for {max(gaps):.2f} s"
 
 
+def test_sweeps_that_block_do_not_starve_to_thread():
+    """Many runs ending at once each sweep what they left (up to seconds): on the loop's default
+    executor the sweeps held its few workers and every `to_thread` of the Platform and the Core in
+    the same process waited behind them. Here the default executor has a single worker (on a loop
+    of this test's own: the session's loop keeps its executor)."""
+    asyncio.run(_sweeps_block_while_to_thread_runs())
+
+
+async def _sweeps_block_while_to_thread_runs():
+    import concurrent.futures
+    import threading
+
+    loop = asyncio.get_running_loop()
+    loop.set_default_executor(concurrent.futures.ThreadPoolExecutor(1))
+    release = threading.Event()
+    procs = [subprocess.Popen([sys.executable, "-c", "raise SystemExit(6)"]) for _ in range(3)]
+    done = [exit_future(p, before_reap=lambda: release.wait(10)) for p in procs]
+    try:
+        for p in procs:  # exited (not reaped: the sweeps hold the reaping)
+            os.waitid(os.P_PID, p.pid, os.WEXITED | os.WNOWAIT)
+        await asyncio.sleep(0.2)  # the loop has seen the exits and handed the sweeps out
+        assert not any(f.done() for f in done)
+        t0 = time.monotonic()
+        assert await asyncio.wait_for(asyncio.to_thread(lambda: 42), 5.0) == 42
+        assert time.monotonic() - t0 < 1.0
+    finally:
+        release.set()
+    assert await asyncio.wait_for(asyncio.gather(*done), 10) == [6, 6, 6]
+
+
+def test_a_forked_child_sweeps_with_a_sweeper_of_its_own():
+    """The sweeper's threads are not in a forked child: it starts its own there instead of queueing
+    sweeps for threads that do not exist."""
+    async def one_exit() -> int:
+        p = subprocess.Popen([sys.executable, "-c", "raise SystemExit(9)"])
+        return await asyncio.wait_for(exit_future(p, before_reap=lambda: None), 10)
+
+    assert asyncio.run(one_exit()) == 9  # the parent's sweeper exists, with a thread
+    pid = os.fork()
+    if pid == 0:
+        try:
+            os._exit(0 if asyncio.run(one_exit()) == 9 else 1)
+        except BaseException:  # noqa: BLE001 - a forked child never returns into pytest
+            os._exit(2)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
+
+
 async def test_a_sweep_that_fails_still_reaps_and_reports_the_exit():
     def failing_sweep() -> None:
         raise OSError("no such control group")

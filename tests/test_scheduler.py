@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from agents.core_agent import CoreAgent, CoreOptions
-from agents.scheduler import ScheduleBook, ScheduleRefused, WorldClock, overlap, resolve
+from agents.scheduler import LATE_S, ScheduleBook, ScheduledStart, ScheduleRefused, Scheduler, WorldClock, overlap, resolve
 from agents.services.context import ServiceContext
 from agents.services.errors import ServiceError
 from agents.services.interpretation import interpret_command, parse_schedule
@@ -89,6 +89,31 @@ def test_schedules_clash_when_their_tasks_could_overlap():
     assert overlap(daily, rec("once", t + 5 * 86400 + 4000, 60)) is None
     assert overlap(rec("once", t, 60), rec("once", t + 30, 60)) is not None
     assert overlap(rec("once", t, 60), rec("once", t + 61, 60)) is None
+
+
+class RacingClock:
+    """The robot's clock of a simulation running far ahead of the machine: it moves only when told."""
+
+    tz = TZ
+
+    def __init__(self):
+        self.t = EVENING.timestamp()
+
+    def now(self) -> float:
+        return self.t
+
+
+def test_how_late_a_schedule_may_start_is_counted_on_the_robots_clock():
+    # a schedule come due while a commanded task held the robot: LATE_S of the robot's clock, however
+    # few of the machine's seconds went by meanwhile (here none)
+    clock = RacingClock()
+    scheduler = Scheduler(core=None, path=None, clock=clock)
+    start = ScheduledStart(rec("once", clock.now()), clock.now())
+    clock.t += LATE_S - 1
+    assert not scheduler.too_late(start)
+    clock.t += 2
+    assert scheduler.too_late(start)
+    scheduler.book.close()
 
 
 def test_the_book_keeps_its_schedules_on_disk(tmp_path):

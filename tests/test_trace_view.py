@@ -27,6 +27,7 @@ from scenarios.trace_report import (
     message_events,
     sequence_text,
     summary,
+    summary_text,
     table,
     timeline,
     unanswered_requests,
@@ -212,6 +213,25 @@ def test_filter_by_conversation_by_id_or_short_prefix(records):
                           conversations=[dropped["conversation_id"]])
     assert [r["kind"] for r in both] == ["message", "message", "dropped"]
     assert filter_records(records) == records
+
+
+def test_the_summary_leaves_idle_warm_cloud_workers_out_of_the_agents(golden):
+    """The Platform logs a warm Cloud worker in ahead of time; one never handed a run sent and received
+    nothing: named once below the agents, not listed as an agent. A Cloud Agent a cloud-spawn named
+    stays listed, even silent."""
+    t = golden[-1]["t"]
+    idle, silent = "cloud-9733a7ae98@localhost", "cloud-golden-demo-0000000000@localhost"
+    extra = [{"t": t, "kind": "agent", "pid": 1, "event": "started", "agent": idle, "cls": "CloudAgent", "origin": idle},
+             {"t": t, "kind": "structure", "pid": 2, "event": "cloud-spawn", "agent": PLATFORM, "cloud": silent,
+              "rapp": "golden-demo", "owner": DYN, "sandbox": True, "warm": True},
+             {"t": t, "kind": "agent", "pid": 3, "event": "started", "agent": silent, "cls": "CloudAgent", "origin": silent}]
+    text = summary_text(golden + extra, "golden")
+    agents = text.split("agents (")[1].split("\n\n")[0].splitlines()[1:]
+    assert not any("cloud-9733a7ae98" in line for line in agents[:-1]), text
+    assert "1 idle warm Cloud worker" in agents[-1] and "cloud-9733a7ae98" in agents[-1], text
+    listed = {line.split()[1] for line in agents[:-1]}
+    assert {"cloud-golden-demo-0000000000", "cloud-golden-demo-4630413466"} <= listed, text
+    assert "idle warm" not in summary_text(golden, "golden")
 
 
 def test_unanswered_requests_and_summary(records):
