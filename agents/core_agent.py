@@ -247,9 +247,9 @@ class CoreAgent(RappAgent):
 
     async def _command_heard(self, text: str) -> None:
         self.record_structure("command", text=text[:200])
-        if self.confirmation.take_typed(text):  # "yes" / "no" to the question waiting (s4c)
-            return
         word = text.lower().strip(" .!")
+        if word not in STOP_WORDS | CANCEL_WORDS and self.confirmation.take_typed(text):
+            return  # "yes" / "no" to the question waiting (s4c); a stop word stays a stop
         if word in STOP_WORDS | CANCEL_WORDS:
             await self.robot_commands.emergency_stop("stopped by the user")
         elif word in RESUME_WORDS:

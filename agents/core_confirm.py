@@ -56,6 +56,7 @@ class Confirmation:
         self.host, self.hearing = host, hearing
         self.answer_s, self.timeout_s = answer_s, timeout_s
         self._typed: asyncio.Future[str] | None = None
+        self.asked = 0  # questions of the exchange in hand said so far
 
     @property
     def pending(self) -> bool:
@@ -73,6 +74,7 @@ class Confirmation:
     async def ask(self, words: str) -> None:
         """Returns when the owner said yes; ScheduleDeclined (with what to tell them) otherwise."""
         question = f"Shall I {said_back(words)}?"
+        self.asked = 0
         try:
             answer = await asyncio.wait_for(self._exchange(question), self.timeout_s)
         except asyncio.TimeoutError:
@@ -82,11 +84,12 @@ class Confirmation:
         if answer == "no":
             raise ScheduleDeclined("the owner said no", "All right, I have not scheduled it.")
         if answer != "yes":
-            raise ScheduleDeclined(f"no yes or no heard, asked {ASKS} times",
+            raise ScheduleDeclined(f"no yes or no heard, asked {self.asked} time{'s' * (self.asked != 1)}",
                                    "I did not hear yes or no, so I have not scheduled it.")
 
     async def _exchange(self, question: str) -> str | None:
         for n in range(1, ASKS + 1):
+            self.asked = n
             self._typed = asyncio.get_running_loop().create_future()
             self.host.record_structure("schedule-asked", question=question[:200], ask=n)
             await self.host.tell_user(("" if n == 1 else "Sorry, I did not hear yes or no. ")

@@ -110,13 +110,18 @@ def exit_future(proc: subprocess.Popen, before_reap=None) -> asyncio.Future:
         else:  # the sweep waits for what is left to go (up to seconds): in a thread, not on the loop; the
             # reaping stays on the loop, so the future is done as the pid is freed (AgentProcess signals
             # the group only while its future is not done: the pid is still this process's)
+            def sweep_then_reap() -> None:
+                sweep()
+                try:
+                    loop.call_soon_threadsafe(lambda: resolve(proc.wait()))
+                except RuntimeError:  # its loop has closed meanwhile: reaped here, never left a zombie
+                    proc.wait()
+
             try:
-                swept = loop.run_in_executor(_sweeper_pool(), sweep)
+                _sweeper_pool().submit(sweep_then_reap)
             except RuntimeError:  # the interpreter is exiting: no new executor threads; sweep here
                 sweep()
                 resolve(proc.wait())
-            else:
-                swept.add_done_callback(lambda _: resolve(proc.wait()))
 
     loop.add_reader(fd, exited)
     return fut

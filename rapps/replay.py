@@ -548,7 +548,11 @@ async def replay(run_dir: str | Path, *, rapp_dir: str | Path | None = None, run
     try:
         if pool is not None:
             pool.start()
-        await asyncio.gather(asyncio.to_thread(unpack_package, data, work / "run" / "package"), server.astart())
+        started = await asyncio.gather(asyncio.to_thread(unpack_package, data, work / "run" / "package"),
+                                       server.astart(), return_exceptions=True)  # both ended before the clean-up
+        failed = next((r for r in started if isinstance(r, BaseException)), None)
+        if failed is not None:
+            raise failed
         settings = server.settings(trace_file=trace_file, credentials_dir=work / "credentials")
         if pool is not None and settings != pool.settings:  # the server took another port: the worker cannot reach it
             await pool.close()

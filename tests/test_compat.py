@@ -177,3 +177,15 @@ def test_the_rapp_program_loads_no_server_unless_it_is_one():
                              stdin=subprocess.DEVNULL).stdout
         said[args[-2]] = out.split()[-1]
     assert said == {"trace": "STOOD-IN", "server": "AS-SHIPPED"}, said
+
+
+def test_other_versions_than_the_pins_get_no_stand_in():
+    """An installation off its pins keeps pyjabber as it is, so `rapp doctor` and the agent patches
+    report the mismatch instead of a traceback from the stand-in's own check."""
+    import subprocess
+    import sys
+
+    probe = ("import sys\nfrom xmpp_server import compat\ncompat.PINS['pyjabber'] = '0.0.1'\n"
+             "compat.spade_without_its_server()\nprint('pyjabber' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.split() == ["False"], out.stderr

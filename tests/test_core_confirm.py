@@ -108,6 +108,7 @@ async def test_garbage_then_silence_asks_once_more_then_drops_with_the_reason():
         "Shall I check your inbox in ten minutes? Say yes or no.",
         "Sorry, I did not hear yes or no. Shall I check your inbox in ten minutes? Say yes or no."]
     assert declined.told == "I did not hear yes or no, so I have not scheduled it."
+    assert str(declined) == "no yes or no heard, asked 2 times"
     assert [(f["answer"], f["by"]) for e, f in host.records if e == "schedule-answer"] == [("", "voice"), ("", "none")]
 
 
@@ -123,3 +124,40 @@ async def test_no_drops_and_a_typed_answer_counts_as_one():
     assert confirmation.take_typed("Yes.")
     await asking
     assert [f["by"] for e, f in host.records if e == "schedule-answer"] == ["chat"]
+
+
+async def test_the_exchanges_time_out_names_the_questions_asked():
+    host = Host()
+    confirmation = Confirmation(host, CoreHearing(host, supervision={}), answer_s=5.0, timeout_s=0.3)
+    with pytest.raises(ScheduleDeclined, match="^no yes or no heard, asked 1 time$"):
+        await confirmation.ask("check my inbox in ten minutes")
+    assert not confirmation.pending
+
+
+async def test_a_typed_stop_or_cancel_during_the_question_still_stops_the_robot():
+    """'cancel' is a no-word of the answers, but typed in the chat it latches the emergency stop as
+    ever (the Core's _command_heard asks the stop words first); a typed yes answers the question."""
+    from agents.core_agent import CoreAgent
+
+    host = Host()
+    confirmation = Confirmation(host, CoreHearing(host, supervision={}), answer_s=5.0)
+    stops: list[str] = []
+    queued: list[str] = []
+
+    async def emergency_stop(reason):
+        stops.append(reason)
+
+    async def put(text):
+        queued.append(text)
+
+    core = SimpleNamespace(record_structure=lambda *a, **k: None, confirmation=confirmation,
+                           robot_commands=SimpleNamespace(emergency_stop=emergency_stop),
+                           commands=SimpleNamespace(put=put))
+    asking = asyncio.ensure_future(confirmation.ask("check my inbox in ten minutes"))
+    while not confirmation.pending:
+        await asyncio.sleep(0.01)
+    await CoreAgent._command_heard(core, "Cancel!")
+    assert stops == ["stopped by the user"] and confirmation.pending
+    await CoreAgent._command_heard(core, "yes")
+    await asking
+    assert queued == [] and stops == ["stopped by the user"]

@@ -282,6 +282,41 @@ async def test_replay_finds_no_divergence_and_is_fast(recorded):
     assert "no divergence" in res.summary()
 
 
+async def test_a_corrupt_recorded_package_fails_the_replay_and_leaves_nothing(recorded, tmp_path, monkeypatch):
+    """The package's unpacking and the replay's server start run together: a package that fails to
+    unpack ends the replay with that error only after the server has started, and the clean-up then
+    stops it and removes the work folder (nothing of the replay is left)."""
+    import tempfile
+
+    out, _ = recorded
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("frames", "system"))
+    for package in (copy / "packages").glob("*.rapp"):
+        package.write_bytes(b"not a package" * 100)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    with pytest.raises(Exception) as failed:
+        await replay(copy, mode="inprocess")
+    assert not isinstance(failed.value, RecordingError) or "package" in str(failed.value)
+    assert list((tmp_path / "tmp").iterdir()) == []
+    me = str(os.getpid())
+    servers = [d for d in Path("/proc").iterdir() if d.name.isdigit() and _ppid(d) == me
+               and b"xmpp_server" in _read(d / "cmdline")]
+    assert servers == []
+
+
+def _read(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError:
+        return b""
+
+
+def _ppid(proc: Path) -> str:
+    stat = _read(proc / "stat")
+    return stat[stat.rfind(b")") + 2:].split()[1].decode() if stat else ""
+
+
 async def test_replay_of_a_changed_rapp_names_its_first_divergence(recorded, tmp_path):
     out, _ = recorded
     changed = tmp_path / "changed"
