@@ -131,6 +131,7 @@ class RappAgent(AgentDoor, Agent):
                     self.tracer.record(RecordKind.AGENT, event="reconnected", agent=self.address,
                                        server=f"{host}:{port}")
                     self._resend_pending()
+                    self.submit(self.on_reconnected())
                     return
                 except asyncio.TimeoutError:
                     self.client.abort()
@@ -140,6 +141,11 @@ class RappAgent(AgentDoor, Agent):
                     self.client.del_event_handler("session_start", handler)
         finally:
             self._reconnecting = False
+
+    async def on_reconnected(self) -> None:
+        """A hook: the agent is logged in again after a lost connection (its pending requests are
+        being resent). A one-way message it sent as the old connection died may be lost: an agent whose
+        informs carry state (the Core's pause notice) sends that state again here."""
 
     @property
     def reconnected_at(self) -> float:

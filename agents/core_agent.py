@@ -241,6 +241,11 @@ class CoreAgent(RappAgent):
         if self.dynamic is not None:
             await self._busy_chat(word)
 
+    async def on_reconnected(self) -> None:
+        """The running task is told its pause state again (RobotCommands.retell_task)."""
+        if self.dynamic is not None:
+            await self.robot_commands.retell_task()
+
     def speaking(self) -> bool:
         """The robot's loudspeaker is busy with the Core's own sentences."""
         return self._speech is not None and not self._speech.done()

@@ -16,6 +16,7 @@ from ontology.notifications import EventTopic
 from ontology.trace import StructureEvent
 from robots.errors import MotionBlocked, MotionInterrupted, RobotError
 
+from .base import RESEND_EVERY_S
 from .errors import Failure, Refusal
 from .core_events import ESTOP_TTL_S
 from .core_fsm import build_command_fsm
@@ -273,6 +274,16 @@ class RobotCommands:
             await self.publish(EventTopic.ESTOP, ESTOP_TTL_S, latched=False, reason="resumed", by=by)
             if not quiet:
                 await self.host.tell_user("Resumed: I may move again.")
+
+    async def retell_task(self, again_after_s: float = RESEND_EVERY_S) -> None:
+        """After the Core's reconnection: the task's pause notice it sent last may have died with the
+        old connection (an inform is not resent like a request; seen: a resume lost in a link outage
+        left a RApp paused for good). The Dynamic Agent is told the state as it is now, and once more
+        `again_after_s` later, in case it comes back after the Core (a server without offline storage
+        drops what is sent to it meanwhile). It ignores a state it already has."""
+        for delay in (0.0, again_after_s):
+            await asyncio.sleep(delay)
+            await self._tell_task(self.estop_reason is not None, self.estop_reason or "resumed")
 
     async def _tell_task(self, paused: bool, reason: str) -> None:
         d = self.host.dynamic

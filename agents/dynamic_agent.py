@@ -75,6 +75,8 @@ class DynamicAgent(RappAgent):
                 note = C.TaskPaused.model_validate(parse_json(msg.body))
             except Exception:  # noqa: BLE001 - malformed: ignored like any bad notification
                 return
+            if note.paused == self.pause.paused:
+                return  # told again (the Core's re-tell after a reconnection): nothing changed
             if note.paused:
                 self.pause.pause(note.reason or "emergency stop")
             else:

@@ -133,3 +133,32 @@ async def _runs(tmp_path, step: str, kind: str, runs: int) -> None:
     assert sum(gates.executions.values()) == runs  # nothing executed twice
     kinds = Counter(r["kind"] for r in records)
     print(f"{step}: resent {kinds['resend']}, answered from store {kinds['duplicate']}")
+
+
+class Teller(RappAgent):
+    """An agent whose informs carry state: it says its state again after a reconnection."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.back = asyncio.Event()
+
+    async def on_reconnected(self) -> None:
+        self.back.set()
+
+
+async def test_an_agent_is_told_it_is_back_after_a_lost_connection(tmp_path):
+    """RappAgent.on_reconnected runs after each reconnection (the Core's hook re-tells its task's pause
+    state there: tests/test_core_retell.py); not at the first login."""
+    async with _server("embedded", tmp_path) as server:
+        agent = Teller("teller", server.settings(credentials_dir=tmp_path / "creds"))
+        await agent.start()
+        try:
+            await asyncio.sleep(0.3)
+            assert not agent.back.is_set()
+            os.killpg(server.proc.pid, signal.SIGKILL)
+            await asyncio.to_thread(server.stop)
+            await asyncio.sleep(0.2)
+            await server.astart()
+            await asyncio.wait_for(agent.back.wait(), 20)
+        finally:
+            await agent.stop()
