@@ -14,7 +14,7 @@ import yaml
 from ontology.manifest import load_manifest
 
 # the simulator's modules are imported in the tests: collecting them (the Store's build per robot type,
-# `rapp test --collect-only`) took 4 s of imports
+# a collecting run of `rapp test`) took 4 s of imports
 HERE = Path(__file__).resolve().parent.parent
 HOUSE = "house"
 # the robots the manifest declares (the Store builds it for each), or the one the build runs for now

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.asyncio  # async tests run under pytest-asyncio, in or 
 
 async def run_rapp(*args, **kw) -> dict:
     """scenarios.run_rapp's, imported when a test runs: collecting the tests (the Store's build per robot
-    type, `rapp test --collect-only`) took 4 s of the simulator's imports."""
+    type, a collecting run of `rapp test`) took 4 s of the simulator's imports."""
     from scenarios.run_rapp import run_rapp as run
     return await run(*args, **kw)
 
