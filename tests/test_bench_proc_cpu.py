@@ -46,10 +46,13 @@ def test_cpu_is_counted_from_the_mark_by_the_named_kind():
         wait_cpu(platform.pid, 0.3)  # the busy loop half done (however loaded the machine)
         at_mark = read_stat(platform.pid)[1]
         mark = sampler.mark()
-        wait_cpu(platform.pid, 0.6)
-        time.sleep(0.2)
-        usage = sampler.since(mark)
+        wait_cpu(platform.pid, 0.6)  # then it sleeps: its CPU stays where it is
         after = read_stat(platform.pid)[1] - at_mark
+        deadline = time.monotonic() + 10  # the sampler's next samples (its thread may wait for a CPU)
+        usage = sampler.since(mark)
+        while usage["cpu_s"]["platform"] < after - 0.05 and time.monotonic() < deadline:
+            time.sleep(0.1)
+            usage = sampler.since(mark)
         assert after - 0.05 <= usage["cpu_s"]["platform"] <= after + 0.05  # only what it spent after the mark
         assert usage["pss_mb_peak"]["platform"] > 1 and usage["pss_mb_peak_total"] > usage["pss_mb_peak"]["platform"]
         assert usage["processes_peak"]["platform"] == 1
