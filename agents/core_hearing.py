@@ -67,21 +67,30 @@ class Continuation:
             return None
         awaited = self._awaited = asyncio.get_running_loop().create_future()
         try:
-            heard, since = vad.heard_s, time.monotonic()
-            while not self.owner_speaking and not awaited.done():
-                if vad.heard_s - cut >= CONTINUE_WITHIN_S:
-                    return None
-                if vad.heard_s != heard:
-                    heard, since = vad.heard_s, time.monotonic()
-                elif time.monotonic() - since > STALL_S:
-                    return None
-                await asyncio.sleep(poll_s)
-            more = await asyncio.wait_for(asyncio.shield(awaited), MAX_WAIT_S)
-            return None if more.too_long else more
-        except asyncio.TimeoutError:
-            return None
+            more = await _begun_within(vad, awaited, cut, CONTINUE_WITHIN_S, STALL_S, poll_s)
+            return None if more is None or more.too_long else more
         finally:
             self._awaited = None
+
+
+async def _begun_within(vad: VoiceActivity, awaited: asyncio.Future, start_s: float, within_s: float,
+                        stall_s: float, poll_s: float) -> HeardUtterance | None:
+    """The utterance handed to `awaited` (`_hand_over`) if the owner begins it within `within_s` of the
+    detector's sound after `start_s`, else None; None too when no sound comes for `stall_s` of wall
+    time (nobody feeds the detector: a robot without a microphone stream)."""
+    try:
+        heard, since = vad.heard_s, time.monotonic()
+        while not vad.active and not awaited.done():
+            if vad.heard_s - start_s >= within_s:
+                return None
+            if vad.heard_s != heard:
+                heard, since = vad.heard_s, time.monotonic()
+            elif time.monotonic() - since > stall_s:
+                return None
+            await asyncio.sleep(poll_s)
+        return await asyncio.wait_for(asyncio.shield(awaited), MAX_WAIT_S)
+    except asyncio.TimeoutError:
+        return None
 
 
 def _hand_over(awaited: asyncio.Future | None, utterance: HeardUtterance) -> bool:
@@ -212,20 +221,8 @@ class CoreHearing:
         as Continuation's; wall-clock time where no sound comes), or None: nothing said."""
         vad = self._voices[0]
         awaited = self._answer = asyncio.get_running_loop().create_future()
-        try:
-            start = heard = vad.heard_s
-            since = quiet_since = time.monotonic()
-            while not vad.active and not awaited.done():
-                if vad.heard_s - start >= within_s:
-                    return None
-                if vad.heard_s != heard:
-                    heard, since = vad.heard_s, time.monotonic()
-                elif time.monotonic() - since > STALL_S and time.monotonic() - quiet_since > within_s:
-                    return None  # nobody feeds the detector (a robot without a microphone stream)
-                await asyncio.sleep(poll_s)
-            return await asyncio.wait_for(asyncio.shield(awaited), MAX_WAIT_S)
-        except asyncio.TimeoutError:
-            return None
+        try:  # without sound, as long as the answer's own time at least
+            return await _begun_within(vad, awaited, vad.heard_s, within_s, max(STALL_S, within_s), poll_s)
         finally:
             self._answer = None
 
