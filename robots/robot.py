@@ -174,14 +174,11 @@ class Robot:
         if not (roll or bob):
             return None
         x, y, th = self.pose
-        u = np.array([math.cos(th), math.sin(th), 0.0])  # about the heading: + roll takes the head to the left
-        a = -roll
-        K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-        R = np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
+        # about the heading, by -roll: + roll takes the head to the left
+        S = pose_matrix((0.0, 0.0, 0.0), [math.cos(th) * math.sin(-roll / 2), math.sin(th) * math.sin(-roll / 2),
+                                          0.0, math.cos(-roll / 2)])
         pivot = np.array([x, y, self.tilt_pivot_z()])
-        S = np.eye(4)
-        S[:3, :3] = R
-        S[:3, 3] = pivot - R @ pivot + [0.0, 0.0, bob]
+        S[:3, 3] = pivot - S[:3, :3] @ pivot + [0.0, 0.0, bob]
         return S
 
     def link_pose(self, link: str) -> np.ndarray:
