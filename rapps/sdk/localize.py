@@ -719,9 +719,14 @@ class Localizer:
                 self.state["turn"] = self._best_turn(exclude=found.markers)
 
     def _corroborated(self, found: Localization) -> bool:
-        """Whether a fix can be taken as it is: it rests on two codes or more (the Cloud Agent's fit leaves
-        out one that disagrees), or the filter is certain enough to check it (CHECKABLE_STD_M)."""
-        return len(found.markers) >= 2 or (self.ekf is not None and self.ekf.std_m <= CHECKABLE_STD_M)
+        """Whether the looking may stop at this fix: it rests on two codes or more (the Cloud Agent's fit
+        leaves out one that disagrees), or the filter is certain enough to check it (CHECKABLE_STD_M) and
+        it passes the filter's gate. A lone code the filter disagrees with may be a moved label or a right
+        one after the odometry slipped (a rug): a second code tells which."""
+        if len(found.markers) >= 2:
+            return True
+        ekf = self.ekf
+        return ekf is not None and ekf.std_m <= CHECKABLE_STD_M and ekf.mahalanobis2(_z(found), _R(found)) <= CHI2_3DOF_99
 
     async def _share_fix(self, pose: Pose2D, std_m: float, std_rad: float) -> None:
         """The fix to the Core too (add_pose_fix), before the RApp sets its own pose: the Core's
