@@ -276,3 +276,27 @@ async def test_when_the_map_refuses_every_chosen_view_the_homes_own_stand_is_tri
                                                                for v in views[1:]]}
     assert await task.plan(memory) == "move"
     assert goals == [(0.4, 0.3), (0.4, -0.3), (0.5, 0.0)] and memory["goal"] == DOOR.stand
+
+
+@pytest.mark.parametrize("step", ["back_off", "turn"])
+async def test_a_turn_or_back_off_stopped_by_the_safety_is_planned_again_from_where_it_stopped(step):
+    """Elektron, generated 6121 (--realism full): backing off, the differential drive turned round and its
+    collision protection stopped it; the Core fails a relative motion it will not resume (code estop), and
+    the task gave the door up. It counts as a blocked leg: re-localize and plan again, MAX_BLOCKED times."""
+    from rapps.hazard_detection.hazard_detection.task import MAX_BLOCKED
+    stopped = RequestFailed("move_to was interrupted by the emergency stop (obstacle ahead); a relative motion "
+                            "is not resumed", code=ErrorCode.ESTOP)
+    task = HazardTask(FakeRuntime(move_to=stopped))
+    memory = {**memory_at_start(), "turn": 1.0}
+    for n in range(1, MAX_BLOCKED + 1):
+        await getattr(task, step)(memory)
+        assert memory["blocked"] == n and memory["leg_outcome"] == "late" and not memory["leg_final"]
+        assert "error" not in memory
+    with pytest.raises(RequestFailed):
+        await getattr(task, step)(memory)
+    assert "interrupted by the emergency stop" in memory["error"]
+    stuck = HazardTask(FakeRuntime(move_to=RequestFailed("a wheel is stuck", code=ErrorCode.ERROR)))
+    memory = {**memory_at_start(), "turn": 1.0}
+    with pytest.raises(RequestFailed):  # any other failure gives the hazard up at once
+        await getattr(stuck, step)(memory)
+    assert memory["blocked"] == 0 and memory["error"] == "(motion failed: a wheel is stuck)"

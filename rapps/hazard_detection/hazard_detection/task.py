@@ -10,7 +10,7 @@ import math
 from ontology import robot_types
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.hazard import DoorGeometry
-from rapps.sdk import FSM, ArriveBy, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
+from rapps.sdk import FSM, ArriveBy, ErrorCode, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
 from rapps.sdk.paths import cut_path, path_length, point_at
 from rapps.sdk.paths import first_leg as sdk_first_leg
 
@@ -297,8 +297,9 @@ class HazardTask(Task):
         try:
             await self.robot.move_to(x=0.0, y=0.0, theta=memory["turn"], _timeout=60.0)
         except RequestError as e:
-            memory["error"] = f"(motion failed: {e.reason})"
-            raise
+            if not self.stopped_midway(memory, e):
+                memory["error"] = f"(motion failed: {e.reason})"
+                raise
         finally:
             self.localizer.moved(rotation=memory["turn"])
 
@@ -358,8 +359,21 @@ class HazardTask(Task):
         try:
             await self.robot.move_to(x=-float(self.params["back_off_m"]), _timeout=60.0)
         except RequestError as e:
-            memory["error"] = f"(motion failed: {e.reason})"
-            raise
+            if not self.stopped_midway(memory, e):
+                memory["error"] = f"(motion failed: {e.reason})"
+                raise
+
+    def stopped_midway(self, memory, e: RequestError) -> bool:
+        """A turn or back-off the robot's safety stopped (the Core fails a relative motion it will not
+        resume, code estop: a differential drive backs off by turning round, and may then face what its
+        protection stops for): counted as a blocked leg, and the task re-localizes and plans again from
+        where it stopped; False (give the hazard up) after MAX_BLOCKED."""
+        if e.code != ErrorCode.ESTOP or memory["blocked"] >= MAX_BLOCKED:
+            return False
+        memory["blocked"] += 1
+        memory["leg_final"], memory["leg_outcome"] = False, "late"
+        self.log.info("the motion was stopped midway (%s): planning again from here", e.reason)
+        return True
 
     async def uncertain(self, memory) -> bool:
         """Whether to re-localize now: at the standing pose (the check and the score need the best
