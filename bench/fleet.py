@@ -18,9 +18,10 @@ rounds at other sizes for docs/capacity.md.
 
 Deployed as a fleet would be (`run(apart=True)`, the default): the Store and the Platform run as
 `rapp agent store` / `rapp agent platform --warm-workers N` processes, the Platform keeping a started
-Cloud Agent process per robot that may ask for one at once; the simulated cameras' render
-processes (RENDER_SHARED, shared by the worlds) run in sessions of their own, under Linux's SCHED_IDLE with their
-scheduling group at nice 19 (they get the CPU only when no agent wants it). What that stands for:
+Cloud Agent process per robot that may ask for one at once (one per robot, idle or running: a worker
+handed a run is replaced when the run ends); the simulated cameras' render processes (RENDER_SHARED,
+shared by the worlds) run in sessions of their own, under Linux's SCHED_IDLE with their scheduling
+group at nice 19 (they get the CPU only when no agent wants it). What that stands for:
 real robots render nothing and bring their own CPUs, while here the simulations and their render
 processes share the Platform's two cores (agents/priority.py: Linux's autogroup schedules each
 session as one group, so a render in this process's session would only yield to the Cores).

@@ -533,14 +533,16 @@ class SharedRenderer:
         self.pool: RenderPool | None = None
         self._layout = None
         self._tags = itertools.count(1)
+        self._lock = threading.Lock()  # worlds are built in threads (World.from_file off the loop)
 
     def view(self, plan) -> "_SharedView":
         layout = static_layout(plan)
-        if self.pool is None:
-            self.pool, self._layout = RenderPool(plan, self.size, name=self.name), layout
-        elif layout != self._layout:
-            raise ValueError(f"house {plan.name!r} differs from the shared renderer's beyond its doors and lamps")
-        return _SharedView(self, f"w{next(self._tags)}")
+        with self._lock:
+            if self.pool is None:
+                self.pool, self._layout = RenderPool(plan, self.size, name=self.name), layout
+            elif layout != self._layout:
+                raise ValueError(f"house {plan.name!r} differs from the shared renderer's beyond its doors and lamps")
+            return _SharedView(self, f"w{next(self._tags)}")
 
     def pids(self) -> list[int]:
         return self.pool.pids() if self.pool is not None else []
