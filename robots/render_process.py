@@ -511,8 +511,6 @@ class RenderPool:
         self._finalizer.detach()
 
 
-
-
 def static_layout(plan):
     """What a mirror builds of a house once: the plan without what a frame's state sets (door angles,
     lamps on or off) and without its seed."""
