@@ -300,10 +300,11 @@ class ObstacleMarks:
             if d < free_m - 0.1 and abs(bearing) <= 0.52:
                 await self.clear(mark_id)
 
-    async def relax(self) -> int:
-        """Drop every body, keeping the cores (what the sensors saw); how many were dropped."""
+    async def relax(self, keep: Callable[[Point], bool] | None = None) -> int:
+        """Drop the bodies, keeping the cores (what the sensors saw), and the bodies of the marks whose
+        echo `keep` says (a closed door's doorway: its body is the door); how many were dropped."""
         dropped = 0
-        for mark_id in list(self.bodies):
+        for mark_id in [k for k in self.bodies if keep is None or not keep(self.marks[k][1])]:
             map_id, body_id, (x, y) = self.bodies.pop(mark_id)
             if await self._clear_at(map_id, x, y):
                 dropped += 1

@@ -292,6 +292,35 @@ async def test_marks_bodies_closing_every_route_are_dropped_first_their_echoes_k
     assert not memory.get("marks_cleared")  # the once-per-hazard clearing is still left
 
 
+async def test_a_mark_in_a_doorway_keeps_its_body_the_closed_door_is_reported():
+    """What blocked the way in a doorway is its door, closed: its mark's body is not dropped to squeeze
+    past it; the marks are cleared once, and with no way still the route is reported blocked."""
+    from ontology.services.home import DoorwaySpec
+    from ontology.services.navigation import ObstacleLayer
+
+    sent = []
+    runtime = FakeRuntime(path_planning_plan_path_2d=PlanPathReply(
+        plan_found=0, reason="the 1 temporary obstacle mark(s) on this map block every route"),
+        path_planning_clear_obstacles=ObstacleLayer(map_id="m", obstacles=[]))
+    original = runtime.request
+
+    async def request(to, content, timeout=None, **kw):
+        sent.append(content.action_name)
+        return await original(to, content, timeout, **kw)
+
+    runtime.request = request
+    task, memory = HazardTask(runtime), memory_at_start()
+    memory["home"] = HomeInfo(home_id="home", map_id="m", doors=[
+        DoorwaySpec(id="d2", door=DoorShape(hinge=[1.0, -0.5], closed_yaw_deg=90.0, width_m=1.0))])
+    memory["marked"] = [(1.02, 0.1)]
+    task.marks.marks = {"m1": ("m", (1.02, 0.1))}
+    task.marks.bodies = {"m1": ("m", "m2", (1.27, 0.1))}
+    with pytest.raises(RuntimeError, match="no path to d1"):
+        await task.plan(memory)
+    assert sent.count("path_planning_plan_path_2d") == 2 and memory["marks_cleared"]  # no plan after a relax
+    assert any(r.data["hazard"]["id"] == "route-d1" for r in runtime.reports), runtime.reports
+
+
 def test_a_long_detour_is_followed_while_each_plan_is_nearer():
     """Issue 48.6 (NAO, generated house 51832): a door left half open closed the short way to a lamp; the
     14 m detour the planner found was given up after 40 plans (counted from the hazard's start), 3.7 m

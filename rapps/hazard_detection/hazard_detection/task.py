@@ -252,11 +252,14 @@ class HazardTask(Task):
                 start=pose, goal=memory["goal"])
             if reply.plan_found != PLAN_FOUND and self.marks.bodies:
                 # the marks' bodies (each obstacle's guessed size behind its echo) close every way: a
-                # half-open door or a box beside a doorway narrowed the passage; the echoes alone may not
-                dropped = await self.marks.relax()
-                self.log.info("the obstacle marks' bodies block every route to %s: %d dropped, the echoes "
-                              "kept, planning again", hazard.id, dropped)
-                continue
+                # half-open door or a box beside a doorway narrowed the passage; the echoes alone may not.
+                # What was met in a doorway is its door, closed: that body stays
+                doors = memory["home"].doors
+                dropped = await self.marks.relax(keep=lambda p: bool(blocking_doors(doors, [p])))
+                if dropped:
+                    self.log.info("the obstacle marks' bodies block every route to %s: %d dropped, the echoes "
+                                  "kept, planning again", hazard.id, dropped)
+                    continue
             if reply.plan_found != PLAN_FOUND and self.marks.marks and not memory.get("marks_cleared"):
                 # this task's own marks close every way: placed from a drifting estimate, or round
                 # something since moved, they may be wrong; cleared once, the range sensors judge again
