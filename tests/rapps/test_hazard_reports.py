@@ -195,24 +195,30 @@ async def test_blocked_again_at_the_same_place_it_is_marked_so_the_next_plan_is_
     (its pose was off: it re-localizes); blocked again within AGAIN_M it marks it all the same, wider."""
     from ontology.services.navigation import ObstacleLayer
     from rapps.hazard_detection.hazard_detection.task import AGAIN_M, MAPPED_M
+    from rapps.sdk.monitor import ECHO_RADIUS_M
 
     sent = []
-    runtime = FakeRuntime(path_planning_add_obstacle=ObstacleLayer(map_id="m", added="", obstacles=[]))  # the wall
+    runtime = FakeRuntime()
     original = runtime.request
 
     async def request(to, content, timeout=None, **kw):
         if content.action_name == "path_planning_add_obstacle":
-            sent.append(content)
+            sent.append(content)  # the first is the wall (not added), then each is added
+            return ObstacleLayer(map_id="m", added=f"obs-{len(sent)}" if len(sent) > 1 else "", obstacles=[])
         return await original(to, content, timeout, **kw)
 
     runtime.request = request
     task, memory = HazardTask(runtime), memory_at_start()
     memory.update(blocks=[], leg_outcome="blocked")
     await task.mark_obstacle(memory, (0.5, 0.0))
-    assert sent[-1].skip_within_m == MAPPED_M and memory["leg_outcome"] == "late"  # re-localize first
+    assert len(sent) == 1 and sent[0].skip_within_m == MAPPED_M and memory["leg_outcome"] == "late"  # re-localize
     memory["leg_outcome"] = "blocked"
     await task.mark_obstacle(memory, (0.5, 0.05))  # the robot is back where it was (0, 0)
-    assert sent[-1].skip_within_m == 0.0 and sent[-1].radius_m == pytest.approx(1.5 * sent[0].radius_m)
+    core, body = sent[1:]
+    assert core.skip_within_m == 0.0 and (core.x, core.y) == (0.5, 0.05) and core.radius_m == ECHO_RADIUS_M
+    radius = 1.5 * float(runtime.params["obstacle_radius_m"])  # wider, and behind the echo seen from (0, 0)
+    assert body.radius_m == pytest.approx(radius) and math.dist((body.x, body.y), (0.5, 0.05)) == pytest.approx(radius)
+    assert math.hypot(body.x, body.y) == pytest.approx(math.hypot(0.5, 0.05) + radius)
     assert math.dist(memory["blocks"][0], memory["blocks"][1]) <= AGAIN_M
 
 
@@ -254,6 +260,91 @@ async def test_its_own_marks_blocking_every_route_are_cleared_once_and_the_plan_
     with pytest.raises(RuntimeError, match="no path to l1"):
         await task.plan(memory)
     assert sent.count("path_planning_plan_path_2d") == 2 and "path_planning_clear_obstacles" in sent
+
+
+async def test_marks_bodies_closing_every_route_are_dropped_first_their_echoes_kept():
+    """Issue 48.6 (NAO, generated house 52169): the leaf of a door left half open narrowed the office's only
+    doorway; the mark at its tip, a disc of the obstacle's guessed size, closed it, and clearing the marks
+    sent the robot into the same leaf again. Now the bodies go first and the echoes stay."""
+    from ontology.services.navigation import ObstacleLayer
+
+    sent, live = [], {"core", "body"}
+    runtime = FakeRuntime()
+    original = runtime.request
+
+    async def request(to, content, timeout=None, **kw):
+        sent.append(content.action_name)
+        if content.action_name == "path_planning_clear_obstacles":
+            live.discard("body" if (content.x, content.y) == (1.3, 0.1) else "core")
+            return ObstacleLayer(map_id="m", obstacles=[])
+        if content.action_name == "path_planning_plan_path_2d":
+            return plan("body" not in live)
+        return await original(to, content, timeout, **kw)
+
+    runtime.request = request
+    task, memory = HazardTask(runtime), memory_at_start()
+    task.marks.marks = {"m1": ("m", (1.0, 0.0))}
+    task.marks.bodies = {"m1": ("m", "m2", (1.3, 0.1))}
+    assert await task.plan(memory) == "move"
+    assert [a for a in sent if a.startswith("path_planning")] == [
+        "path_planning_plan_path_2d", "path_planning_clear_obstacles", "path_planning_plan_path_2d"]
+    assert live == {"core"} and list(task.marks.marks) == ["m1"] and task.marks.bodies == {}
+    assert not memory.get("marks_cleared")  # the once-per-hazard clearing is still left
+
+
+async def test_a_mark_in_a_doorway_keeps_its_body_the_closed_door_is_reported():
+    """What blocked the way in a doorway is its door, closed: its mark's body is not dropped to squeeze
+    past it; the marks are cleared once, and with no way still the route is reported blocked."""
+    from ontology.services.home import DoorwaySpec
+    from ontology.services.navigation import ObstacleLayer
+
+    sent = []
+    runtime = FakeRuntime(path_planning_plan_path_2d=PlanPathReply(
+        plan_found=0, reason="the 1 temporary obstacle mark(s) on this map block every route"),
+        path_planning_clear_obstacles=ObstacleLayer(map_id="m", obstacles=[]))
+    original = runtime.request
+
+    async def request(to, content, timeout=None, **kw):
+        sent.append(content.action_name)
+        return await original(to, content, timeout, **kw)
+
+    runtime.request = request
+    task, memory = HazardTask(runtime), memory_at_start()
+    memory["home"] = HomeInfo(home_id="home", map_id="m", doors=[
+        DoorwaySpec(id="d2", door=DoorShape(hinge=[1.0, -0.5], closed_yaw_deg=90.0, width_m=1.0))])
+    memory["marked"] = [(1.02, 0.1)]
+    task.marks.marks = {"m1": ("m", (1.02, 0.1))}
+    task.marks.bodies = {"m1": ("m", "m2", (1.27, 0.1))}
+    with pytest.raises(RuntimeError, match="no path to d1"):
+        await task.plan(memory)
+    assert sent.count("path_planning_plan_path_2d") == 2 and memory["marks_cleared"]  # no plan after a relax
+    assert any(r.data["hazard"]["id"] == "route-d1" for r in runtime.reports), runtime.reports
+
+
+def test_a_long_detour_is_followed_while_each_plan_is_nearer():
+    """Issue 48.6 (NAO, generated house 51832): a door left half open closed the short way to a lamp; the
+    14 m detour the planner found was given up after 40 plans (counted from the hazard's start), 3.7 m
+    from the lamp. Plans that bring the robot nearer no longer count against it."""
+    from rapps.hazard_detection.hazard_detection.task import MAX_PLANS, MAX_STALLED_PLANS, making_progress
+
+    memory = {"replans": 0, "left_m": None, "stalled": 0}
+    legs = [10.0 - 0.8 * k for k in range(8)] + [13.8 - 0.8 * k for k in range(17)]  # the way, then the detour
+    lengths = [left for left in legs for _ in range(2)]  # each leg planned twice: turned first, then walked
+    for left in lengths:
+        memory["replans"] += 1
+        assert making_progress(memory, left)
+    assert memory["replans"] > 40
+    assert memory["stalled"] == 1  # the last leg's two plans
+    allowed = 1
+    while allowed < 2 * MAX_STALLED_PLANS:  # then stuck: no plan nearer than the last
+        memory["replans"] += 1
+        if not making_progress(memory, 1.0 + 0.1 * (allowed % 2)):
+            break
+        allowed += 1
+    assert allowed == MAX_STALLED_PLANS and memory["stalled"] == MAX_STALLED_PLANS + 1
+    memory.update(replans=MAX_PLANS, left_m=None, stalled=0)  # and never more than MAX_PLANS in all
+    memory["replans"] += 1
+    assert not making_progress(memory, 0.4)
 
 
 async def test_when_the_map_refuses_every_chosen_view_the_homes_own_stand_is_tried():

@@ -35,6 +35,20 @@ FIX_STEP_M = 0.1  # how finely a leg's end is moved to where a fix is predicted
 # heading right, which the drift grows from (elsewhere legs end where a trusted fix is predicted)
 FIX_SLACK = 2.5
 AGAIN_M = 0.5  # blocked again within this of where a leg was blocked before: the same obstacle
+# a hazard is given up after this many plans in a row that left the robot no nearer (PROGRESS_M shorter
+# a path than the last), or this many plans in all: a detour round a blocked door may take 30 legs
+MAX_STALLED_PLANS = 25
+MAX_PLANS = 100
+PROGRESS_M = 0.2
+
+
+def making_progress(memory: dict, left_m: float) -> bool:
+    """Counts a plan of `left_m` metres to the goal: False when the hazard should be given up (too many
+    plans in a row no nearer than the one before, or too many in all)."""
+    last = memory.get("left_m")
+    stalled = 0 if last is not None and left_m < last - PROGRESS_M else memory.get("stalled", 0) + (last is not None)
+    memory["left_m"], memory["stalled"] = left_m, stalled
+    return stalled <= MAX_STALLED_PLANS and memory["replans"] <= MAX_PLANS
 
 
 def leg_rotation(poses, turn: float, final: bool) -> float:
@@ -186,7 +200,8 @@ class HazardTask(Task):
         # nearest first (greedy tour)
         memory["todo"].sort(key=lambda h: math.hypot(h.stand.x - pose.x, h.stand.y - pose.y))
         hazard = memory["hazard"] = memory["todo"].pop(0)
-        memory["replans"] = memory["blocked"] = 0
+        memory["replans"] = memory["blocked"] = memory["stalled"] = 0
+        memory["left_m"] = None  # the last plan's length (making_progress)
         memory["blocks"] = []  # where legs to this hazard were blocked
         memory["marks_cleared"] = False  # plan(): the task's own marks may be cleared once per hazard
         memory["looks"] = []  # (answer, where from) of each look at a door
@@ -235,6 +250,16 @@ class HazardTask(Task):
             reply = await self.platform.path_planning_plan_path_2d(
                 map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
                 start=pose, goal=memory["goal"])
+            if reply.plan_found != PLAN_FOUND and self.marks.bodies:
+                # the marks' bodies (each obstacle's guessed size behind its echo) close every way: a
+                # half-open door or a box beside a doorway narrowed the passage; the echoes alone may not.
+                # What was met in a doorway is its door, closed: that body stays
+                doors = memory["home"].doors
+                dropped = await self.marks.relax(keep=lambda p: bool(blocking_doors(doors, [p])))
+                if dropped:
+                    self.log.info("the obstacle marks' bodies block every route to %s: %d dropped, the echoes "
+                                  "kept, planning again", hazard.id, dropped)
+                    continue
             if reply.plan_found != PLAN_FOUND and self.marks.marks and not memory.get("marks_cleared"):
                 # this task's own marks close every way: placed from a drifting estimate, or round
                 # something since moved, they may be wrong; cleared once, the range sensors judge again
@@ -259,8 +284,8 @@ class HazardTask(Task):
             memory["error"] = f"(no path: {reply.reason})"  # said in the report of this hazard
             raise RuntimeError(f"no path to {hazard.id}: {reply.reason}")
         memory["replans"] += 1
-        if memory["replans"] > 40:
-            memory["error"] = "(gave up after 40 plans)"
+        if not making_progress(memory, reply.length_m):
+            memory["error"] = f"(gave up after {memory['replans']} plans, {memory['stalled']} of them no nearer)"
             raise RuntimeError(f"could not reach {hazard.id}")
         history = self.localizer.history
         localized = bool(history) and history[-1].fixed
@@ -345,7 +370,7 @@ class HazardTask(Task):
         radius = float(self.params["obstacle_radius_m"]) * (1.0 + 0.5 * again)
         added = await self.marks.enter(memory["home"].map_id, where[0], where[1], radius_m=radius,
                                        ttl_s=float(self.params["obstacle_ttl_s"]),
-                                       skip_within_m=0.0 if again else MAPPED_M,
+                                       skip_within_m=0.0 if again else MAPPED_M, seen_from=(pose.x, pose.y),
                                        note=f"blocked the way to {memory['hazard'].id}")
         if added:
             memory.setdefault("marked", []).append(tuple(where))
