@@ -290,8 +290,8 @@ class HazardFleet:
         finally:
             for w in self.worlds:
                 w.close()
-            if self.renderer is not None:
-                self.renderer.close()
+            if self.renderer is not None:  # it ends processes and waits for them: off the loop
+                await asyncio.to_thread(self.renderer.close)
             await asyncio.to_thread(self._stop_apart)
 
     def _stop_apart(self) -> None:

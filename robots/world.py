@@ -75,6 +75,8 @@ class World(Scene):
         render = render or os.environ.get("RAPP_ROBOTS_RENDER") or "process"
         if render not in RENDER_MODES:
             raise InvalidArgument(f"render must be one of {', '.join(RENDER_MODES)}, not {render!r}")
+        if renderer is not None and render != "process":
+            raise InvalidArgument(f"a shared renderer renders in its processes: render={render!r} would ignore it")
         self.render_mode = render
         self._renderer: RenderPool | None = None
         self._init_scene(plan)

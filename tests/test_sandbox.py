@@ -102,6 +102,7 @@ async def test_a_no_secret_in_environment_files_or_parent_proc(system):
         "PYTHONPATH", "PYTHONDONTWRITEBYTECODE", "PYTHONNOUSERSITE", "HOME", "TMPDIR", "MPLCONFIGDIR",
         "RAPP_XMPP_HOST", "RAPP_XMPP_PORT", "RAPP_XMPP_DOMAIN", "RAPP_XMPP_AUTO_REGISTER",
         "RAPP_XMPP_VERIFY_TLS", "RAPP_FORCE_XMPP", "RAPP_START_TIMEOUT"}, sorted(report["env"])
+    assert all(report["env"].get(k) == v for k, v in MALLOC_ENV.items())  # a frame's freed arrays unmapped
     assert all(v.startswith("ERR") for v in report["files"].values()), report["files"]
     assert report["uid"] != 0 and report["cwd"] == "/app"
     # the sandbox's /tmp is its own: at most the way to the project and Python when they live there

@@ -78,7 +78,10 @@ def refine(starts: list[tuple[float, float, float]], views: list[View]) -> tuple
 
 
 SINGLE_MAX_M = 2.5  # one code farther than this fixes the pose too poorly (tens of cm): keep odometry
-GOOD_RMS_PX = 1.0  # above this a multi-code fit drops a code and tries again (right codes fit within 0.5 px, 98 % within 1)
+# above this a multi-code fit drops a code and tries again. Replayed from the realism tables (1280x960): fits of
+# right codes only were within 1 px rms in 611 of 638 (98 % of those without worn codes), fits that kept a moved
+# code above it in 13 of 17
+GOOD_RMS_PX = 1.0
 
 
 def solve_pose(req: SolvePose) -> Localization:

@@ -23,7 +23,8 @@ abandoned) and raises PlanFailed, traced as a structure record `plan-failed`. Ex
 `ObstacleMarks` (task.marks) enters obstacles into the Platform's temporary obstacle layer and takes each
 out again when the range sensors see its place free (the Core's obstacle-clear event), or it expires.
 Entered with where the robot stood (`seen_from`), a mark is a small core at the echo and a body behind
-it; `relax()` drops the bodies when they close every route (a gap narrowed, not closed).
+it; `relax()` drops the bodies (the hazard task calls it when they close every route: a gap narrowed,
+not closed).
 Time spent paused (emergency stop) does not count against any deadline, up to the monitor's
 `pause_allowance_s` (2 minutes): a motion held for ever still fails its deadline."""
 from __future__ import annotations
@@ -274,14 +275,20 @@ class ObstacleMarks:
             return ""
         self.marks[added] = (map_id, (x, y))
         body = behind(seen_from, (x, y), radius_m) if seen_from is not None and radius_m > core else None
+        body_id = ""
         if body is not None:
-            reply = await self.task.platform.path_planning_add_obstacle(
-                map_id=map_id, x=body[0], y=body[1], radius_m=radius_m, ttl_s=ttl_s, note=note)
-            if reply.added:
-                self.bodies[added] = (map_id, reply.added, body)
+            try:  # the core is in: a body refused (its centre off the map, the layer full) leaves the core alone
+                reply = await self.task.platform.path_planning_add_obstacle(
+                    map_id=map_id, x=body[0], y=body[1], radius_m=radius_m, ttl_s=ttl_s, note=note)
+                body_id = reply.added
+            except RequestError as e:
+                self.task.log.warning("the obstacle's body at (%.2f, %.2f) was not marked: %s", body[0], body[1], e)
+            if body_id:
+                self.bodies[added] = (map_id, body_id, body)
         self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_MARKED, mark=added,  # noqa: SLF001 - the SDK's own Task
                          x=round(x, 3), y=round(y, 3), radius_m=core, note=note,
-                         **({"body": [round(body[0], 3), round(body[1], 3), radius_m]} if body else {}))
+                         **({"body": [round(body[0], 3), round(body[1], 3), radius_m], "body_mark": body_id}
+                            if body is not None and body_id else {}))
         return added
 
     def near(self, point: Point, within_m: float) -> list[str]:
@@ -304,19 +311,29 @@ class ObstacleMarks:
         """Drop the bodies, keeping the cores (what the sensors saw), and the bodies of the marks whose
         echo `keep` says (a closed door's doorway: its body is the door); how many were dropped."""
         dropped = 0
-        for mark_id in [k for k in self.bodies if keep is None or not keep(self.marks[k][1])]:
-            map_id, body_id, (x, y) = self.bodies.pop(mark_id)
-            if await self._clear_at(map_id, x, y):
+        for mark_id in [k for k in self.bodies if keep is None or k not in self.marks or not keep(self.marks[k][1])]:
+            entry = self.bodies.get(mark_id)  # an obstacle-clear event may have cleared it while this waited
+            if entry is None:
+                continue
+            map_id, body_id, (x, y) = entry
+            if await self._clear_at(map_id, x, y):  # a body the Platform did not clear is still there
+                self.bodies.pop(mark_id, None)
                 dropped += 1
                 self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=body_id,  # noqa: SLF001 - the SDK's own Task
                                  x=round(x, 3), y=round(y, 3), relaxed=mark_id)
         return dropped
 
     async def clear(self, mark_id: str) -> None:
-        map_id, (x, y) = self.marks.pop(mark_id)
+        """Take a mark (its core and body) out of the Platform's layer; nothing when it is gone already
+        (an obstacle-clear event and the task's own clearing may meet)."""
+        entry = self.marks.pop(mark_id, None)
+        if entry is None:
+            return
+        map_id, (x, y) = entry
         body = self.bodies.pop(mark_id, None)
-        if body is not None:
-            await self._clear_at(body[0], *body[2])
+        if body is not None and await self._clear_at(body[0], *body[2]):
+            self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=body[1],  # noqa: SLF001 - the SDK's own Task
+                             x=round(body[2][0], 3), y=round(body[2][1], 3), body_of=mark_id)
         if await self._clear_at(map_id, x, y):
             self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
                              x=round(x, 3), y=round(y, 3))

@@ -323,7 +323,6 @@ class HazardTask(Task):
             await self.robot.move_to(x=0.0, y=0.0, theta=memory["turn"], _timeout=60.0)
         except RequestError as e:
             if not self.stopped_midway(memory, e):
-                memory["error"] = f"(motion failed: {e.reason})"
                 raise
         finally:
             self.localizer.moved(rotation=memory["turn"])
@@ -384,18 +383,23 @@ class HazardTask(Task):
         try:
             await self.robot.move_to(x=-float(self.params["back_off_m"]), _timeout=60.0)
         except RequestError as e:
-            if not self.stopped_midway(memory, e):
-                memory["error"] = f"(motion failed: {e.reason})"
+            if not self.stopped_midway(memory, e, leg_counted=True):  # the leg that led here was counted
                 raise
 
-    def stopped_midway(self, memory, e: RequestError) -> bool:
-        """A turn or back-off the robot's safety stopped (the Core fails a relative motion it will not
-        resume, code estop: a differential drive backs off by turning round, and may then face what its
-        protection stops for): counted as a blocked leg, and the task re-localizes and plans again from
-        where it stopped; False (give the hazard up) after MAX_BLOCKED."""
-        if e.code != ErrorCode.ESTOP or memory["blocked"] >= MAX_BLOCKED:
+    def stopped_midway(self, memory, e: RequestError, leg_counted: bool = False) -> bool:
+        """A turn or back-off stopped by an emergency stop (the Core fails a relative motion it will not
+        resume, code estop: the robot's collision protection, a differential drive backing off by turning
+        round into what it stops for, or the owner): a blocked leg, unless `leg_counted` (a back-off
+        after one); the task re-localizes and plans again from where it stopped. False, with the reason
+        in memory["error"], for any other failure and after MAX_BLOCKED blocked legs (give it up)."""
+        if e.code != ErrorCode.ESTOP:
+            memory["error"] = f"(motion failed: {e.reason})"
             return False
-        memory["blocked"] += 1
+        if not leg_counted:
+            if memory["blocked"] >= MAX_BLOCKED:
+                memory["error"] = f"(gave up: the way was blocked ({e.reason}))"
+                return False
+            memory["blocked"] += 1
         memory["leg_final"], memory["leg_outcome"] = False, "late"
         self.log.info("the motion was stopped midway (%s): planning again from here", e.reason)
         return True
