@@ -178,8 +178,10 @@ class CoreAgent(RappAgent):
         self._heard_apologies = 0  # apologies in a row for heard sound not understood (see apology_aloud)
         check_spawn_mode(o.dynamic_mode, "dynamic_mode")
         self.dynamic_mode = o.dynamic_mode
+        # one RApp at a time: the worker handed a run is the pool's until the run ends (no refill
+        # waiting out the whole run beside it)
         self.warm_pool = WarmPool(self.workdir, self.settings, size=o.warm_workers, limits=o.limits,
-                                  sandbox=self.sandbox, preload=o.warm_imports)
+                                  sandbox=self.sandbox, preload=o.warm_imports, hold_running=True)
         self.task_watchers: set[str] = set()  # the owner's clients told of reports and ends (ontology/results.py)
         self._command_told: tuple[str, int] | None = None  # the command in hand and len(told) when it came
         self.safety_period = o.safety_period

@@ -100,7 +100,7 @@ class PlatformAgent(RappAgent):
                  data_dir: str | Path | None = None, sandbox: Sandbox | None = None,
                  cloud_mode: str = "process", warm_workers: int = 1, service_workers: int | None = None,
                  primary: str | None = None, replicas=(), warm_imports: tuple[str, ...] = WARM_EXTRA_IMPORTS,
-                 cloud_nice: int = CLOUD_NICE):
+                 cloud_nice: int = CLOUD_NICE, warm_hold_running: bool = False):
         super().__init__(name, settings)
         self.cloud_mode = check_spawn_mode(cloud_mode, "cloud_mode")
         if not isinstance(cloud_nice, int) or not 0 <= cloud_nice <= 19:
@@ -139,7 +139,8 @@ class PlatformAgent(RappAgent):
         # start costs no login
         self.warm_pool = WarmPool(self.workdir, self.settings, size=warm_workers, limits=limits, sandbox=self.sandbox,
                                   preload=warm_imports, login=self._worker_account,
-                                  forget=lambda ident: self.accounts.delete(ident.name, ident.password))
+                                  forget=lambda ident: self.accounts.delete(ident.name, ident.password),
+                                  hold_running=warm_hold_running)
         self._pool_started = False
         self.served = 0
         self._serial = itertools.count(1)

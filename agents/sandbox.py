@@ -43,6 +43,10 @@ DEVICES = ("null", "zero", "random", "urandom")
 SYSTEM = ("/usr", "/etc")
 PROJECT_PACKAGES = ("agents", "behaviours", "ontology", "robots", "rapps", "xmpp_server")
 ENV_ALLOWED = ("PATH", "LANG", "LC_ALL", "LC_CTYPE", "TZ")
+# glibc's malloc maps allocations from 128 kB up on their own, unmapped when freed: by default it raises
+# that threshold to each large block freed, after which a Cloud Agent's decoded frames come from the
+# heap, which keeps them (robots/render_process.py does the same for the renders, bench/RESULTS.md)
+MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": str(128 * 1024)}
 INNER_HOST = "127.0.0.1"  # where the run's XMPP server is, inside its network namespace
 MODES = ("root", "user", "off")
 ALLOW_UNSANDBOXED_ENV = "RAPP_ALLOW_UNSANDBOXED"
@@ -250,7 +254,7 @@ class Sandbox:
         the XMPP server is reached on loopback inside the run's network namespace."""
         env = {k: os.environ[k] for k in ENV_ALLOWED if k in os.environ}
         env.setdefault("PATH", "/usr/local/bin:/usr/bin:/bin")
-        env.update(PYTHONPATH=str(_project_root()), PYTHONDONTWRITEBYTECODE="1", PYTHONNOUSERSITE="1")
+        env.update(PYTHONPATH=str(_project_root()), PYTHONDONTWRITEBYTECODE="1", PYTHONNOUSERSITE="1", **MALLOC_ENV)
         if self.enabled:
             env.update(HOME=APP_DIR, TMPDIR=f"{APP_DIR}/tmp", MPLCONFIGDIR=f"{APP_DIR}/tmp")
         env.update(settings.to_env(fields=("host", "port", "fallback", "domain", "auto_register",

@@ -13,6 +13,12 @@ lower priority until its own hand-off gives it its parent's (REFILL_NICE). A wor
 reaped and replaced (after a back-off, should workers keep dying), never handed a RApp. `close()`
 kills and reaps the idle workers and removes their directories.
 
+With `hold_running=True` a worker handed a run still counts against `size` until its run ends, and
+the pool refills then: the pool's processes, idle or running, are never more than `size`. A Core,
+which runs one RApp at a time, keeps so one process instead of two while a RApp runs (a warm
+refill there would wait out the whole run; 60-75 MB Pss each, bench/RESULTS.md "fleet memory");
+a Platform sized to its robots holds one Cloud process per robot, not two, through a burst.
+
 With `login=` (the Platform's Cloud workers) each worker also gets an account of its own before it
 starts (`await login()`, an agents/identity.py Identity) and logs in while idle: the run it is
 handed (`AgentProcess.start(worker=...)`, its spec naming that account) costs no login. In a fleet's
@@ -52,7 +58,7 @@ REFILL_NICE = 19
 class WarmPool:
     def __init__(self, workdir: str | Path, settings, *, size: int = 1, limits: Limits = Limits(),
                  sandbox: Sandbox | None = None, preload: tuple[str, ...] = (), refill_nice: int = REFILL_NICE,
-                 login=None, forget=None):
+                 login=None, forget=None, hold_running: bool = False):
         if not isinstance(size, int) or size < 0:
             raise ValueError(f"warm_workers must be a whole number >= 0, not {size!r}")
         self.workdir, self.settings, self.size = Path(workdir), settings, size
@@ -62,6 +68,8 @@ class WarmPool:
         # only where the hand-off can raise it back (root, as the sandbox needs, or RLIMIT_NICE)
         self.refill_nice = refill_nice if refill_nice and may_raise_priority() else 0
         self._idle: deque[AgentProcess] = deque()
+        self.hold_running = hold_running
+        self._running: set[AgentProcess] = set()  # handed a run that has not ended (hold_running only)
         self._serial = itertools.count(1)
         self._filler: asyncio.Task | None = None
         self._soon: asyncio.TimerHandle | None = None
@@ -83,12 +91,20 @@ class WarmPool:
             worker = self._idle.popleft()
             if worker.alive():
                 self._failures = 0
-                if self._soon is None:
+                if self.hold_running:
+                    self._running.add(worker)
+                    worker.exited().add_done_callback(lambda _f, w=worker: self._run_ended(w))
+                elif self._soon is None:
                     self._soon = asyncio.get_running_loop().call_later(REFILL_AFTER_S, self._refill)
                 return worker
             self._lost(worker, idle=False)
         self._refill()
         return None
+
+    def _run_ended(self, worker: AgentProcess) -> None:
+        self._running.discard(worker)
+        if self._soon is None and not self._closing.is_set():
+            self._soon = asyncio.get_running_loop().call_later(REFILL_AFTER_S, self._refill)
 
     async def discard(self, worker: AgentProcess) -> None:
         """A worker taken and not handed a run after all: stopped, its account removed."""
@@ -126,7 +142,7 @@ class WarmPool:
         self._filler = asyncio.create_task(self._fill())
 
     async def _fill(self) -> None:
-        while not self._closing.is_set() and len(self._idle) < self.size:
+        while not self._closing.is_set() and len(self._idle) + len(self._running) < self.size:
             if self._failures and await self._backed_off():
                 return
             refill = self.started >= self.size

@@ -1,6 +1,6 @@
 """The cost of one robot-task at growing fleet sizes, for the capacity model (docs/capacity.md).
 
-    python -m bench.capacity [--sizes 1,1,1,5,10,20,50] [--json FILE]
+    python -m bench.capacity [--sizes 1,1,1,5,10,20,50] [--json FILE] [--render-shared N]
 
 Runs the fleet benchmark's rounds (bench/fleet.py: each robot runs the hazard-detection RApp in its
 own small house, all at once, on one Platform, Store and XMPP server) at each size in turn, and
@@ -63,7 +63,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.capacity", description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default=",".join(map(str, DEFAULT_SIZES)), help="robots per round, in order")
     ap.add_argument("--json", metavar="FILE", help="write the rounds (all fields) and the summary as JSON")
+    ap.add_argument("--render-shared", type=int, default=fleet.RENDER_SHARED, metavar="N",
+                    help=f"render processes the worlds share (default {fleet.RENDER_SHARED}; 0: one per world, "
+                         "as before 2026-11-28)")
     a = ap.parse_args(argv)
+    if a.render_shared < 0:
+        ap.error("--render-shared must be 0 or more")
+    fleet.RENDER_SHARED = a.render_shared
     sizes = [int(x) for x in a.sizes.split(",")]
     started, load = time.strftime("%Y-%m-%d %H:%M:%S"), os.getloadavg()
     rounds = asyncio.run(fleet.run_rounds(sizes))
@@ -72,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     table = rows(rounds)
     print(markdown(table))
     if a.json:
-        Path(a.json).write_text(json.dumps({"started": started, "load_at_start": load, "ended": time.strftime("%Y-%m-%d %H:%M:%S"),
+        Path(a.json).write_text(json.dumps({"started": started, "load_at_start": load, "render_shared": a.render_shared, "ended": time.strftime("%Y-%m-%d %H:%M:%S"),
                                             "nproc": os.cpu_count(), "kinds": fleet.KINDS, "summary": table,
                                             "rounds": rounds}, indent=1, default=str))
     return 0 if all(r["ok"] for r in rounds) else 1

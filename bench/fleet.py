@@ -18,9 +18,10 @@ rounds at other sizes for docs/capacity.md.
 
 Deployed as a fleet would be (`run(apart=True)`, the default): the Store and the Platform run as
 `rapp agent store` / `rapp agent platform --warm-workers N` processes, the Platform keeping a started
-Cloud Agent process per robot that may ask for one at once; the simulated cameras' render
-processes (one per world) run in sessions of their own, under Linux's SCHED_IDLE with their
-scheduling group at nice 19 (they get the CPU only when no agent wants it). What that stands for:
+Cloud Agent process per robot that may ask for one at once (one per robot, idle or running: a worker
+handed a run is replaced when the run ends); the simulated cameras' render processes (RENDER_SHARED,
+shared by the worlds) run in sessions of their own, under Linux's SCHED_IDLE with their scheduling
+group at nice 19 (they get the CPU only when no agent wants it). What that stands for:
 real robots render nothing and bring their own CPUs, while here the simulations and their render
 processes share the Platform's two cores (agents/priority.py: Linux's autogroup schedules each
 session as one group, so a render in this process's session would only yield to the Cores).
@@ -50,7 +51,11 @@ HOUSE = "small"
 # a fleet too large for the machine's memory ends its round, said so, before the kernel's OOM killer
 # picks a process (of this run or of anyone else's on the machine)
 MIN_AVAILABLE_MB = 2048
-RENDER_WORKERS = 1
+RENDER_WORKERS = 1  # per world, when the worlds do not share (RENDER_SHARED = 0)
+# render processes all the worlds share (robots/render_process.py SharedRenderer: the same house, each
+# world's state set before its frame): one per core. One per world held ~140 MB (Pss) a robot, the
+# most of any kind (bench/RESULTS.md "fleet memory")
+RENDER_SHARED = 2
 # what each process kind of the measured tree stands for (bench/proc_cpu.py classifies them)
 KINDS = {"cores": "this process: the Cores, their simulations (World steps) and the owners' chat clients",
          "dynamic": "Dynamic Agents and the Cores' warm Dynamic workers (agents.runtime under this process)",
@@ -166,6 +171,8 @@ class HazardFleet:
         self.worlds, self.robots = [], []
         self.kinds = ProcessKinds(os.getpid(), "cores", runtime_kind={"cores": "dynamic", "platform": "cloud"})
         self.sampler: ProcessSampler | None = None  # CPU and memory by process kind (bench/proc_cpu.py)
+        self.renderer = None  # the worlds' shared render processes (RENDER_SHARED)
+        self._idle_renders: set[int] = set()  # render processes already named and set to SCHED_IDLE
 
     async def __aenter__(self) -> "HazardFleet":
         from agents.services.context import ServiceState
@@ -214,6 +221,7 @@ class HazardFleet:
 
     async def add_robots(self, count: int) -> None:
         from robots import OdometryNoise, RobotAPI, World
+        from robots.render_process import SharedRenderer
         from scenarios.home_setup import hazard_overrides, home_description, upload_home, upload_home_over_xmpp
         from scenarios.runner import listening
         from scenarios.system import wait_until
@@ -225,14 +233,17 @@ class HazardFleet:
                 raise MemoryError(f"robot {i + 1} not added: {mem_available_mb():.0f} MB available "
                                   f"(< {MIN_AVAILABLE_MB} MB) with {i} robots")
             kind, seed = ("nao", "elektron")[i % 2], i + 1
-            # one render process per world (a World's default is two): its one robot renders a frame at
-            # a time, and a render process holds ~170 MB (Pss), the most of any kind per robot here
+            if RENDER_SHARED and self.renderer is None:
+                self.renderer = SharedRenderer(RENDER_SHARED, name="fleet")
+            # without sharing, one render process per world (a World's default is two): its one robot
+            # renders a frame at a time
             world = await asyncio.to_thread(World.from_file, HOUSE, seed=seed, overrides=hazard_overrides(HOUSE, seed),
-                                            render_workers=RENDER_WORKERS)
+                                            render_workers=RENDER_WORKERS, renderer=self.renderer)
             self.worlds.append(world)
             if self.apart:  # the simulation's camera renders, which real robots do not need, yield
                 await asyncio.to_thread(world.start_renderer, own_session=True)
-                for pid in world.render_pids():
+                for pid in set(world.render_pids()) - self._idle_renders:
+                    self._idle_renders.add(pid)
                     self.kinds.name(pid, "render")
                     await asyncio.to_thread(run_when_idle, pid)
             robot = await asyncio.to_thread(world.add_robot, kind, odometry_noise=OdometryNoise.typical())
@@ -279,6 +290,8 @@ class HazardFleet:
         finally:
             for w in self.worlds:
                 w.close()
+            if self.renderer is not None:  # it ends processes and waits for them: off the loop
+                await asyncio.to_thread(self.renderer.close)
             await asyncio.to_thread(self._stop_apart)
 
     def _stop_apart(self) -> None:

@@ -7,8 +7,9 @@ their ratio. Each benchmark runs in a child process of its own (a fresh XMPP ser
 PyBullet state per benchmark; pyjabber and SPADE keep process-wide state). --quick took 5 1/2 minutes
 on a quiet 2-core machine (2026-11-23) with a fleet of 4: speech (its commands are spoken in real
 time) ~2 min, the fleet ~1 min (of 8 since issue 46: ~3 min), platform_load ~1 min; the full run ~15
-minutes, whose fleet of 50 needs more memory than this 24 GB machine has (bench/RESULTS.md). Names for --only: handoff, rtt, messages, fleet, planning, sim_rtf, recovery,
-speech, estop, platform_load, mainjob (metric names such as robot_rtt or plan_astar select their benchmark).
+minutes, whose fleet of 50 needs ~14 GB of memory (estimated from 1-20 robots, bench/RESULTS.md
+"Fleet memory"; ~40 GB before the shared renders). Names for --only: handoff, rtt, messages, fleet,
+planning, sim_rtf, recovery, speech, estop, platform_load, mainjob (metric names such as robot_rtt or plan_astar select their benchmark).
 """
 from __future__ import annotations
 

@@ -17,11 +17,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.signal import get_window, istft, oaconvolve, stft
 
+from .acoustics import SPEED_OF_SOUND
+from .wav import SAMPLE_RATE as RATE
+
 if TYPE_CHECKING:
     from .vad import HeardUtterance, VoiceActivity
 
-SPEED_OF_SOUND = 343.0
-RATE = 16000
 NFFT, HOP = 512, 128
 # the detector's filter: centred this many samples in (its stream's lag), a whole number of the voice
 # detector's 10 ms frames, so that they fall on the sound where they did on the first microphone

@@ -17,7 +17,8 @@ import math
 
 import numpy as np
 
-from hearing.steering import RATE, SPEED_OF_SOUND
+from hearing.acoustics import SPEED_OF_SOUND
+from hearing.wav import SAMPLE_RATE as RATE
 
 # (forward, left, up) m from the head's centre, where robots/microphones.py AudioInput puts its one microphone
 NAO_MICS = ((0.040, 0.030, 0.0), (0.040, -0.030, 0.0), (-0.040, 0.050, 0.0), (-0.040, -0.050, 0.0))

@@ -16,12 +16,19 @@ while the first is busy), are restarted once if they die, and are stopped by Ren
 (EOF on their request pipe). They are plain `python -c` children (subprocess), not multiprocessing
 children, so the parent's __main__ is never re-imported.
 
+Several Worlds of one house may share one pool (SharedRenderer: a fleet, each robot in its own copy
+of the house): before each frame the mirror takes the requesting world's doors, lamps, robots and
+moving bodies, and parks what belongs to none of them out of view. A render process holds ~140 MB
+(Pss) once it has rendered a 1280x960 frame; one per world was most of a fleet robot's memory.
+
 Protocol (multiprocessing.connection framing, pickle): parent -> child ("init", plan) then
 ("render", RenderJob) ... ("close",); child -> parent ("ready",) / ("ok", image) / ("error", traceback).
 """
 from __future__ import annotations
 
 import asyncio
+import dataclasses
+import itertools
 import os
 import subprocess
 import sys
@@ -45,6 +52,9 @@ from .errors import RobotError, WorldClosed
 START_TIMEOUT = 60.0  # s for a render process to build its scene
 RENDER_TIMEOUT = 300.0  # s for one frame (1280x960 takes ~2 s on a loaded machine)
 SPLIT_MIN_PIXELS = 1280 * 960  # with bands, frames this large are rendered in bands, by the idle processes at once
+# where a shared mirror keeps a robot or a moving body the rendering world does not have: far beyond
+# any camera's far plane (TinyRenderer clips it)
+PARKED = (1.0e4, 1.0e4, 0.0)
 
 
 @dataclass
@@ -142,6 +152,7 @@ def _mirror_scene_class():
 def serve(fd_in: int, fd_out: int) -> None:
     """Render-process main loop (runs in the child)."""
     _exit_with_parent()
+    unmap_large_allocations()
     conn_in, conn_out = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
     scene = None
     try:
@@ -169,6 +180,24 @@ def serve(fd_in: int, fd_out: int) -> None:
     finally:
         conn_in.close()
         conn_out.close()
+
+
+MMAP_THRESHOLD = 128 * 1024  # glibc's initial threshold, kept
+_M_MMAP_THRESHOLD = -3  # mallopt's parameter (malloc.h)
+
+
+def unmap_large_allocations(threshold: int = MMAP_THRESHOLD) -> bool:
+    """Keep glibc's malloc from holding a frame's freed buffers: allocations from `threshold` bytes up
+    are mapped on their own and unmapped when freed. glibc raises its threshold to the size of each
+    large block freed (up to 32 MB), after which a frame's arrays (15-20 MB at 1280x960) come from the
+    heap, which keeps them when freed: ~60 MB of a render process's Pss, measured (bench/RESULTS.md).
+    False where the C library has no mallopt (not glibc)."""
+    import ctypes
+
+    try:
+        return bool(ctypes.CDLL(None).mallopt(_M_MMAP_THRESHOLD, threshold))
+    except (AttributeError, OSError):
+        return False
 
 
 def _exit_with_parent() -> None:
@@ -241,9 +270,12 @@ class _Worker:
         return self.recv_conn.recv()
 
     def job_for(self, state: SceneState, **kw) -> RenderJob:
-        """A RenderJob carrying only what changed since this process's last request."""
+        """A RenderJob carrying only what changed since this process's last request; robots and
+        moving bodies the process shows that `state` lacks (another world's, in a shared pool) are
+        parked out of view."""
         job = RenderJob(**kw, light_scale=state.light_scale)
         known = self.known
+        state = _with_parked(state, known)
         for name, (kind, pose, q) in state.robots.items():
             old = known.robots.get(name)
             if old is None:
@@ -264,7 +296,7 @@ class _Worker:
     def send(self, state: SceneState, **kw) -> None:
         job = self.job_for(state, **kw)
         self.send_conn.send(("render", job))
-        self.known = state  # sent: the process applies it even if rendering then fails
+        self.known = _with_parked(state, self.known)  # sent: the process applies it even if rendering then fails
 
     def receive(self) -> np.ndarray:
         reply = self._reply(RENDER_TIMEOUT)
@@ -305,6 +337,15 @@ class _Worker:
                 except OSError:
                     pass
         self.send_conn = self.recv_conn = None
+
+
+def _with_parked(state: SceneState, known: SceneState) -> SceneState:
+    """`state` plus, parked, the robots and moving bodies `known` has and `state` lacks."""
+    robots = {n: (kind, PARKED, q) for n, (kind, _, q) in known.robots.items() if n not in state.robots}
+    bodies = {n: (b[0], (*PARKED[:2], 0.0), *b[2:]) for n, b in known.bodies.items() if n not in state.bodies}
+    if not robots and not bodies:
+        return state
+    return dataclasses.replace(state, robots={**robots, **state.robots}, bodies={**bodies, **state.bodies})
 
 
 class RenderError(RobotError):
@@ -470,3 +511,83 @@ class RenderPool:
         self._finalizer.detach()
 
 
+def static_layout(plan):
+    """What a mirror builds of a house once: the plan without what a frame's state sets (door angles,
+    lamps on or off) and without its seed."""
+    return dataclasses.replace(plan, seed=0, doors=[dataclasses.replace(d, angle=0.0) for d in plan.doors],
+                               lamps=[dataclasses.replace(lp, on=False) for lp in plan.lamps])
+
+
+class SharedRenderer:
+    """One RenderPool for several Worlds of the same house (`World(renderer=...)`). A world's robots
+    are mirrored by kind (its first NAO is the mirror's "nao-0" whichever world asks), so the mirror
+    holds as many robot bodies as one world has, not as all of them: TinyRenderer transforms every
+    body's triangles for every frame, in view or not. Moving bodies are the world's own (named by it).
+    The pool's processes start with the first world's plan; a world whose house differs beyond door
+    angles and lamps gets a ValueError. Frames queue for the pool's `size` processes."""
+
+    def __init__(self, size: int = 2, name: str = "shared"):
+        self.size, self.name = size, name
+        self.pool: RenderPool | None = None
+        self._layout = None
+        self._tags = itertools.count(1)
+        self._lock = threading.Lock()  # worlds are built in threads (World.from_file off the loop)
+
+    def view(self, plan) -> "_SharedView":
+        layout = static_layout(plan)
+        with self._lock:
+            if self.pool is None:
+                self.pool, self._layout = RenderPool(plan, self.size, name=self.name), layout
+            elif layout != self._layout:
+                raise ValueError(f"house {plan.name!r} differs from the shared renderer's beyond its doors and lamps")
+            return _SharedView(self, f"w{next(self._tags)}")
+
+    def pids(self) -> list[int]:
+        return self.pool.pids() if self.pool is not None else []
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+
+
+class _SharedView:
+    """What a World holds of a SharedRenderer: RenderPool's calls, its state named for the mirror."""
+
+    def __init__(self, shared: SharedRenderer, tag: str):
+        self.shared, self.tag = shared, tag
+
+    @property
+    def pool(self) -> RenderPool:
+        return self.shared.pool
+
+    @property
+    def own_session(self) -> bool:
+        return self.pool.own_session
+
+    @own_session.setter
+    def own_session(self, value: bool) -> None:
+        self.pool.own_session = value
+
+    def named(self, state: SceneState) -> SceneState:
+        count: dict[str, int] = {}
+        robots = {}
+        for name in sorted(state.robots):
+            kind = state.robots[name][0]
+            robots[f"{kind}-{count.setdefault(kind, 0)}"] = state.robots[name]
+            count[kind] += 1
+        return dataclasses.replace(state, robots=robots, bodies={f"{self.tag}/{n}": b for n, b in state.bodies.items()})
+
+    def render(self, state: SceneState, *args) -> np.ndarray:
+        return self.pool.render(self.named(state), *args)
+
+    async def render_async(self, state: SceneState, *args) -> np.ndarray:
+        return await self.pool.render_async(self.named(state), *args)
+
+    def warm_up(self, processes: int | None = None) -> None:
+        self.pool.warm_up(processes)
+
+    def pids(self) -> list[int]:
+        return self.pool.pids()
+
+    def close(self) -> None:
+        """Nothing: the pool is its SharedRenderer's, closed by whoever made it."""

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.signal import fftconvolve, resample_poly
 
+from hearing.acoustics import SPEED_OF_SOUND
 from hearing.errors import BadAudio
 from hearing.wav import SAMPLE_RATE
 from ontology.errors import ErrorCode
@@ -40,7 +41,6 @@ from .reverb import tail
 if TYPE_CHECKING:
     from .floorplan import Box, Plan
 
-SPEED_OF_SOUND = 343.0  # m/s
 REF_PA = 20e-6  # 0 dB SPL
 FULL_SCALE_DB_SPL = 100.0  # the microphone's int16 full scale (a close shout; speech at 1 m is ~60)
 MIC_NOISE_DB_SPL = 28.0  # self-noise of a small robot microphone

@@ -38,7 +38,7 @@ from .house_gen import GENERATED, generate
 from .lighting import Daylight, with_daylight
 from .odometry import OdometryNoise
 from .receptors import Camera
-from .render_process import RenderPool, SceneState
+from .render_process import RenderPool, SceneState, SharedRenderer
 from .robot import Robot
 from .scene import Scene
 from .simclock import STEP_S, SimClock
@@ -64,14 +64,19 @@ class World(Scene):
     up to `render_workers` separate processes mirroring the scene (robots/render_process.py), so a frame
     neither holds this process's GIL nor waits for / delays physics stepping; "inline" renders in the
     pybullet thread of this process. `render_bands`: a 1280x960 frame in that many bands at once, on idle
-    render processes (a world of one robot, whose other core waits while a frame renders)."""
+    render processes (a world of one robot, whose other core waits while a frame renders). `renderer`:
+    a SharedRenderer (robots/render_process.py) whose processes this world renders in, with other
+    worlds of the same house (a fleet), instead of processes of its own."""
 
     def __init__(self, plan: Plan, rtf: float = 0.0, time_step: float = STEP_S, render: str | None = None,
                  render_workers: int | None = None, render_bands: int = 1,
-                 disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None):
+                 disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None,
+                 renderer: SharedRenderer | None = None):
         render = render or os.environ.get("RAPP_ROBOTS_RENDER") or "process"
         if render not in RENDER_MODES:
             raise InvalidArgument(f"render must be one of {', '.join(RENDER_MODES)}, not {render!r}")
+        if renderer is not None and render != "process":
+            raise InvalidArgument(f"a shared renderer renders in its processes: render={render!r} would ignore it")
         self.render_mode = render
         self._renderer: RenderPool | None = None
         self._init_scene(plan)
@@ -90,7 +95,9 @@ class World(Scene):
         # a validation's dim or bright room (scenarios/hazard_validation.py)
         self.light_scale = 1.0
         self.run_sync(self._build)
-        if render == "process":
+        if render == "process" and renderer is not None:
+            self._renderer = renderer.view(plan)
+        elif render == "process":
             self._renderer = RenderPool(plan, render_workers or min(2, os.cpu_count() or 1), name=plan.name,
                                         bands=render_bands)
         if disturbances is not None:
@@ -105,7 +112,7 @@ class World(Scene):
                   time_step: float = STEP_S, render: str | None = None, render_workers: int | None = None,
                   render_bands: int = 1, disturbances: "str | Path | dict | list | DisturbanceSpec | None" = None,
                   lived_in: "Callable[[Plan], tuple[Plan, dict]] | None" = None,
-                  daylight: Daylight | None = None) -> "World":
+                  daylight: Daylight | None = None, renderer: SharedRenderer | None = None) -> "World":
         """Build from a YAML house description; `path` may also be a bare name in robots/houses, or
         "generated": the house robots/house_gen.py generates from `seed` (which also seeds the rest).
         `disturbances`: a disturbance file (or bare name in robots/houses) or spec, see attach_disturbances.
@@ -126,7 +133,7 @@ class World(Scene):
         plan, changes = lived_in(mapped) if lived_in is not None else (mapped, None)
         plan, light = with_daylight(plan, daylight) if daylight is not None else (plan, None)
         world = cls(plan, rtf=rtf, time_step=time_step, render=render, render_workers=render_workers,
-                    render_bands=render_bands, disturbances=disturbances)
+                    render_bands=render_bands, disturbances=disturbances, renderer=renderer)
         world.mapped_plan, world.lived_in, world.daylight = mapped, changes, light
         return world
 

@@ -75,7 +75,8 @@ async def _platform(a, settings) -> None:
                              data_dir=home, workdir=a.workdir or home / "work", sandbox=sandbox(a),
                              primary=a.primary, replicas=a.replica, service_workers=a.service_workers,
                              warm_imports=CLOUD_WARM_IMPORTS,
-                             **({"warm_workers": a.warm_workers} if a.warm_workers is not None else {}))
+                             **({"warm_workers": a.warm_workers, "warm_hold_running": True}
+                                if a.warm_workers is not None else {}))
     async def fill_pool() -> None:  # asked for: filled from the start, not at the first Cloud Agent
         if a.warm_workers:
             platform.start_cloud_workers()
@@ -205,7 +206,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="platform: processes for the CPU-bound services (default: one per core; 0: threads)")
     p.add_argument("--warm-workers", type=int, default=None, metavar="N",
                    help="platform: Cloud Agent processes kept started ahead of time (default: 1, from the "
-                        "first Cloud Agent on; N: filled at start, for N robots starting Cloud Agents at once)")
+                        "first Cloud Agent on; N: filled at start, for N robots starting Cloud Agents at once, "
+                        "and never more than N Cloud Agent processes, idle or running: a worker handed a run "
+                        "is replaced when that run ends)")
     p.add_argument("--robot", choices=robot_types.names(), default="nao", help="core: robot type")
     p.add_argument("--robot-id", help="core: the robot's id (default: the type and 1, e.g. nao1)")
     p.add_argument("--owner", default="owner", help="core: the user whose chat it listens to")

@@ -11,6 +11,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -218,15 +219,16 @@ async def test_store_serve_serves_the_developers_page_from_the_running_store(run
             return reply.read()
 
     try:
-        for _ in range(150):
+        deadline = time.monotonic() + 30.0  # a request that hangs (10 s each) counts against it too
+        while True:
             try:
                 builds = json.loads(await asyncio.to_thread(get, "/builds.json"))
                 break
             except OSError:
                 assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+                if time.monotonic() > deadline:
+                    raise AssertionError("rapp store serve did not answer within 30 s") from None
                 await asyncio.sleep(0.2)
-        else:
-            raise AssertionError("rapp store serve did not answer within 30 s")
         assert "echo-app" in json.dumps(builds), builds
         assert b"RAPP Store: packages and builds" in await asyncio.to_thread(get, "/")
     finally:

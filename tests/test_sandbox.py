@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from agents.sandbox import ENV_ALLOWED, available
+from agents.sandbox import ENV_ALLOWED, MALLOC_ENV, available
 from agents.tracing import read_trace
 from robots import RobotAPI, World
 from scenarios.system import RappSystem
@@ -98,10 +98,11 @@ async def test_a_no_secret_in_environment_files_or_parent_proc(system):
     text = json.dumps(report)
     for secret in secrets_of(system):
         assert secret not in text, "a secret reached the RApp"
-    assert set(report["env"]) <= set(ENV_ALLOWED) | {
+    assert set(report["env"]) <= set(ENV_ALLOWED) | set(MALLOC_ENV) | {
         "PYTHONPATH", "PYTHONDONTWRITEBYTECODE", "PYTHONNOUSERSITE", "HOME", "TMPDIR", "MPLCONFIGDIR",
         "RAPP_XMPP_HOST", "RAPP_XMPP_PORT", "RAPP_XMPP_DOMAIN", "RAPP_XMPP_AUTO_REGISTER",
         "RAPP_XMPP_VERIFY_TLS", "RAPP_FORCE_XMPP", "RAPP_START_TIMEOUT"}, sorted(report["env"])
+    assert all(report["env"].get(k) == v for k, v in MALLOC_ENV.items())  # a frame's freed arrays unmapped
     assert all(v.startswith("ERR") for v in report["files"].values()), report["files"]
     assert report["uid"] != 0 and report["cwd"] == "/app"
     # the sandbox's /tmp is its own: at most the way to the project and Python when they live there

@@ -17,7 +17,7 @@ import pytest
 
 from agents.process import spawn_agent, sweep_run_dirs
 from agents.tracing import read_trace
-from agents.warm_pool import REFILL_NICE, WarmPool
+from agents.warm_pool import REFILL_AFTER_S, REFILL_NICE, WarmPool
 from ontology.spawn import SpawnSpec
 
 ECHO_APP = Path(__file__).parent / "fixtures" / "echo_app"
@@ -110,6 +110,26 @@ async def test_a_hand_off_goes_to_the_prestarted_worker_and_the_pool_refills(set
         await pool.close()
     assert pool.idle == [] and fresh.returncode is not None and gone(fresh.pid)  # idle: killed, reaped
     assert not fresh.workdir.exists()
+
+
+async def test_a_pool_holding_its_running_workers_refills_when_the_run_ends(settings, tmp_path, unique):
+    """hold_running (a Core's pool: one RApp at a time): no refill beside the run, one when it ends."""
+    pool = WarmPool(tmp_path, settings, size=1, hold_running=True)
+    pool.start()
+    try:
+        await pool.wait_ready(60)
+        [worker] = pool.idle
+        agent = spawn_agent(cloud_spec(settings, unique), run_dir(tmp_path, 1), settings, pool=pool)
+        await agent.start()
+        assert agent.warm and agent.pid == worker.pid
+        await asyncio.sleep(REFILL_AFTER_S + 1.0)  # a refill would have been launched by now
+        assert pool.idle == [] and pool.started == 1
+        assert await agent.stop(grace=0.5) is not None
+        await pool.wait_ready(240)
+        [fresh] = pool.idle
+        assert fresh.pid != worker.pid and pool.started == 2
+    finally:
+        await pool.close()
 
 
 @contextlib.asynccontextmanager

@@ -78,7 +78,10 @@ def refine(starts: list[tuple[float, float, float]], views: list[View]) -> tuple
 
 
 SINGLE_MAX_M = 2.5  # one code farther than this fixes the pose too poorly (tens of cm): keep odometry
-GOOD_RMS_PX = 2.0  # above this a multi-code fit drops its worst code and tries again
+# above this a multi-code fit drops a code and tries again. Replayed from the realism tables (1280x960): fits of
+# right codes only were within 1 px rms in 611 of 638 (98 % of those without worn codes), fits that kept a moved
+# code above it in 13 of 17
+GOOD_RMS_PX = 1.0
 
 
 def solve_pose(req: SolvePose) -> Localization:
@@ -86,10 +89,21 @@ def solve_pose(req: SolvePose) -> Localization:
     while loc.found and len(loc.markers) > 1 and (loc.rms_px is None or loc.rms_px > GOOD_RMS_PX):
         # one code disagrees (partly hidden, seen too obliquely, moved since the map was made); a fit that
         # did not converge at all (no rms) is the same, only worse
+        if len(loc.markers) >= 3:  # the code whose leaving out fits the rest best: a moved code pulls the
+            # fit toward itself, and the worst residual at that fit can be a code that was right
+            fits = [(_without(req, t), t) for t in loc.markers]
+            fits = [(f, t) for f, t in fits if f[1].found]
+            if fits:
+                (req, loc), _ = min(fits, key=lambda ft: math.inf if ft[0][1].rms_px is None else ft[0][1].rms_px)
+                continue
         worst = _worst_marker(req, loc)
-        req = req.model_copy(update={"observations": [o for o in req.observations if o.text != worst]})
-        loc = _solve(req)
+        req, loc = _without(req, worst)
     return loc
+
+
+def _without(req: SolvePose, text: str) -> tuple[SolvePose, Localization]:
+    req = req.model_copy(update={"observations": [o for o in req.observations if o.text != text]})
+    return req, _solve(req)
 
 
 def _worst_marker(req: SolvePose, loc: Localization) -> str:

@@ -92,6 +92,9 @@ FUSE_MAX_STD_M, FUSE_MAX_STD_RAD = 0.10, 0.05  # a fix less certain than this is
 # filter's position is this many times less certain than it, and its heading less certain at all (a start
 # pose hardly trusted, a robot lost)
 LOST_FACTOR = 3.0
+# a filter less certain than this cannot tell a label moved since the map was made (0.1-0.3 m along its wall)
+# from a right one by its gate: a fix it is to take must rest on two codes that agree, or be looked for further
+CHECKABLE_STD_M = 0.1
 YAW_STEP = 0.05  # rad between the head angles considered
 TURNS_DEG = (45, -45, 90, -90, 135, -135, 180)  # body turns tried when the head cannot reach a code
 
@@ -372,6 +375,14 @@ def _usable(found: Localization) -> bool:
     return _within(found, FUSE_MAX_STD_M, FUSE_MAX_STD_RAD)
 
 
+def _fixes_agree(a: Localization, b: Localization) -> bool:
+    """Whether two fixes of the same moment agree within their (floored) uncertainties (99 %)."""
+    za, zb = np.asarray(_z(a)), np.asarray(_z(b))
+    d = za - zb
+    d[2] = math.remainder(float(d[2]), math.tau)
+    return float(d @ np.linalg.solve(_R(a) + _R(b), d)) <= CHI2_3DOF_99
+
+
 def _floored(found: Localization) -> tuple[float, float]:
     return max(cast(float, found.std_m), FIX_FLOOR_M), max(cast(float, found.std_theta_rad), FIX_FLOOR_RAD)
 
@@ -579,16 +590,16 @@ class Localizer:
                           seen=seen_info, seen_codes={o.text for o in seen}, current_yaw=self.state.get("yaw", 0.0),
                           doors=home.doors, missed=self.state["missed"])
 
-    def _best_turn(self) -> float | None:
+    def _best_turn(self, exclude: Collection[str] = ()) -> float | None:
         """The smallest body turn after which the head could fix the pose (or the best fix, when none
-        can make it certain); None when no turn shows a code."""
+        can make it certain) by codes other than `exclude`; None when no turn shows a code."""
         (x, y, th), std_m, std_rad = self._belief()
         home, camera = cast(HomeInfo, self.home), cast(HeadCamera, self.camera)  # prepare()'s
         best: tuple[float, float] | None = None
         for deg in TURNS_DEG:
             plan = plan_looks((x, y, th + math.radians(deg)), std_m, std_rad + 0.05, home.landmarks,
                               home.rooms, camera, self.settings, doors=home.doors,
-                              missed=self.state["missed"])
+                              missed=set(self.state["missed"]) | set(exclude))
             s = predicted(plan)
             if not plan:
                 continue
@@ -680,7 +691,7 @@ class Localizer:
             self.state["prior"] = await self.task.robot.get_global_pose()
         found = await self._solve(self.state["observations"])
         self.state["localization"] = found
-        if _within(found, self.settings.std_m, self.settings.std_rad):
+        if _within(found, self.settings.std_m, self.settings.std_rad) and self._corroborated(found):
             return True
         await asyncio.to_thread(self._replan)
         return False
@@ -701,9 +712,21 @@ class Localizer:
         self.state["looks"] = self._plan()
         if (not self.state["looks"] and self.settings.turn_body and not self.state["turn_done"]
                 and self.state["frames"] < self.settings.max_frames):
-            found = self.state.get("localization")
-            if not _within(found, self.settings.max_std_m, self.settings.max_std_rad):
+            found: Localization | None = self.state.get("localization")
+            if found is None or not _within(found, self.settings.max_std_m, self.settings.max_std_rad):
                 self.state["turn"] = self._best_turn()
+            elif not self._corroborated(found):  # one code, nothing to check it by: look for others, once
+                self.state["turn"] = self._best_turn(exclude=found.markers)
+
+    def _corroborated(self, found: Localization) -> bool:
+        """Whether the looking may stop at this fix: it rests on two codes or more (the Cloud Agent's fit
+        leaves out one that disagrees), or the filter is certain enough to check it (CHECKABLE_STD_M) and
+        it passes the filter's gate. A lone code the filter disagrees with may be a moved label or a right
+        one after the odometry slipped (a rug): a second code tells which."""
+        if len(found.markers) >= 2:
+            return True
+        ekf = self.ekf
+        return ekf is not None and ekf.std_m <= CHECKABLE_STD_M and ekf.mahalanobis2(_z(found), _R(found)) <= CHI2_3DOF_99
 
     async def _share_fix(self, pose: Pose2D, std_m: float, std_rad: float) -> None:
         """The fix to the Core too (add_pose_fix), before the RApp sets its own pose: the Core's
@@ -727,7 +750,9 @@ class Localizer:
         moved alike agree with each other). A fix from one code, or one the Cloud Agent had to leave codes
         out of (they disagree: a label moved since the map was made, a bad corner), must agree with the
         prediction (Mahalanobis gate); otherwise the codes left out are solved on their own and their
-        fix is taken if it agrees instead. No fix agreeing, or the kept and the left-out codes both
+        fix is taken if it agrees instead. A fix leaning on doubted codes that passes the gate is solved
+        again without them: when that agrees with the prediction but not with the first, it is taken (a
+        label moved a little still pulls a fix). No fix agreeing, or the kept and the left-out codes both
         agreeing but not with each other: unsure, nothing is fused (the pose does not jump)."""
         seen = list(dict.fromkeys(o.text for o in self.state["observations"]))
         left_out = [t for t in seen if t not in found.markers]
@@ -740,6 +765,15 @@ class Localizer:
             if _usable(alone):
                 options.append(alone)
         agree = [o for o in options if _usable(o) and ekf.mahalanobis2(_z(o), _R(o)) <= CHI2_3DOF_99]
+        if doubted and len(doubted) < len(found.markers) and found in agree:
+            # the doubted codes may pass the gate and still pull the fix (a label moved a few cm): the fix
+            # without them, when it agrees with the prediction but not with the fix that has them, is taken
+            # and they stay doubted; when both fixes agree, the doubted codes were right after all
+            rest = await self._solve([o for o in self.state["observations"]
+                                      if o.text in found.markers and o.text not in doubted])
+            if (_usable(rest) and ekf.mahalanobis2(_z(rest), _R(rest)) <= CHI2_3DOF_99
+                    and not _fixes_agree(found, rest)):
+                return Verdict(rest, gate=CHI2_3DOF_99, dropped=[t for t in seen if t not in rest.markers])
         if len(agree) == 1:
             fix = agree[0]
             return Verdict(fix, gate=CHI2_3DOF_99, dropped=[t for t in seen if t not in fix.markers])

@@ -309,34 +309,56 @@ class ObstacleMarks:
     async def relax(self, keep: Callable[[Point], bool] | None = None, ttl_s: float = 120.0) -> int:
         """Each relaxable mark one step smaller: its disc shrunk to a core at the echo with the body
         moved behind it, or that body dropped; the marks whose echo `keep` says stay (a closed door's
-        doorway: the disc is the door). How many marks changed."""
+        doorway: the disc is the door). How many marks changed. An obstacle-clear event may clear a mark
+        while this waits on the Platform; a part the Platform refuses leaves the rest as it is."""
         changed = 0
-        for mark_id in [k for k in self.bodies if keep is None or not keep(self.marks[k][1])]:
-            map_id, (x, y) = self.marks[mark_id]
-            body = self.bodies.pop(mark_id)
+        for mark_id in [k for k in self.bodies if k in self.marks and (keep is None or not keep(self.marks[k][1]))]:
+            body, entry = self.bodies.get(mark_id), self.marks.get(mark_id)
+            if body is None or entry is None:  # cleared meanwhile
+                continue
+            map_id, (x, y) = entry
             if body.centre is not None:  # behind the echo already: dropped
                 if await self._clear_at(map_id, *body.centre):
+                    self.bodies.pop(mark_id, None)
                     changed += 1
                     self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_RELAXED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
                                      x=round(x, 3), y=round(y, 3), body=None)
                 continue
             if body.behind is None or not await self._clear_at(map_id, x, y):
                 continue
-            add = self.task.platform.path_planning_add_obstacle
-            await add(map_id=map_id, x=x, y=y, radius_m=ECHO_RADIUS_M, ttl_s=ttl_s)
-            await add(map_id=map_id, x=body.behind[0], y=body.behind[1], radius_m=body.radius_m, ttl_s=ttl_s)
-            self.bodies[mark_id] = replace(body, centre=body.behind)
+            self.bodies.pop(mark_id, None)
             changed += 1
+            try:
+                add = self.task.platform.path_planning_add_obstacle
+                await add(map_id=map_id, x=x, y=y, radius_m=ECHO_RADIUS_M, ttl_s=ttl_s)
+                if mark_id not in self.marks:  # cleared meanwhile: its core goes too
+                    await self._clear_at(map_id, x, y)
+                    continue
+                await add(map_id=map_id, x=body.behind[0], y=body.behind[1], radius_m=body.radius_m, ttl_s=ttl_s)
+            except RequestError as e:  # the body's centre off the map, the layer full: the core alone
+                self.task.log.warning("the obstacle mark %s was not relaxed whole: %s", mark_id, e)
+                continue
+            if mark_id in self.marks:
+                self.bodies[mark_id] = replace(body, centre=body.behind)
+            else:
+                await self._clear_at(map_id, *body.behind)
+                continue
             self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_RELAXED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
                              x=round(x, 3), y=round(y, 3), radius_m=ECHO_RADIUS_M,
                              body=[round(body.behind[0], 3), round(body.behind[1], 3), body.radius_m])
         return changed
 
     async def clear(self, mark_id: str) -> None:
-        map_id, (x, y) = self.marks.pop(mark_id)
+        """Take a mark (and its body behind the echo) out of the Platform's layer; nothing when it is gone
+        already (an obstacle-clear event and the task's own clearing may meet)."""
+        entry = self.marks.pop(mark_id, None)
+        if entry is None:
+            return
+        map_id, (x, y) = entry
         body = self.bodies.pop(mark_id, None)
-        if body is not None and body.centre is not None:
-            await self._clear_at(map_id, *body.centre)
+        if body is not None and body.centre is not None and await self._clear_at(map_id, *body.centre):
+            self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
+                             x=round(body.centre[0], 3), y=round(body.centre[1], 3), body_of=mark_id)
         if await self._clear_at(map_id, x, y):
             self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
                              x=round(x, 3), y=round(y, 3))

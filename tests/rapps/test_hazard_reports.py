@@ -367,3 +367,46 @@ async def test_when_the_map_refuses_every_chosen_view_the_homes_own_stand_is_tri
                                                                for v in views[1:]]}
     assert await task.plan(memory) == "move"
     assert goals == [(0.4, 0.3), (0.4, -0.3), (0.5, 0.0)] and memory["goal"] == DOOR.stand
+
+
+def estop_stopped() -> RequestFailed:
+    return RequestFailed("move_to was interrupted by the emergency stop (obstacle ahead); a relative motion "
+                         "is not resumed", code=ErrorCode.ESTOP)
+
+
+async def test_a_turn_stopped_by_the_safety_is_a_blocked_leg_planned_again_from_where_it_stopped():
+    """Elektron, generated 6121 (--realism full): backing off, the differential drive turned round and its
+    collision protection stopped it; the Core fails a relative motion it will not resume (code estop), and
+    the task gave the door up. A stopped turn counts as a blocked leg: re-localize and plan again, up to
+    MAX_BLOCKED; any other failure gives the hazard up at once."""
+    from rapps.hazard_detection.hazard_detection.task import MAX_BLOCKED
+    task = HazardTask(FakeRuntime(move_to=estop_stopped()))
+    memory = {**memory_at_start(), "turn": 1.0}
+    for n in range(1, MAX_BLOCKED + 1):
+        await task.turn(memory)
+        assert memory["blocked"] == n and memory["leg_outcome"] == "late" and not memory["leg_final"]
+        assert "error" not in memory
+    with pytest.raises(RequestFailed):
+        await task.turn(memory)
+    assert memory["error"].startswith("(gave up: the way was blocked (move_to was interrupted")
+    stuck = HazardTask(FakeRuntime(move_to=RequestFailed("a wheel is stuck", code=ErrorCode.ERROR)))
+    memory = {**memory_at_start(), "turn": 1.0}
+    with pytest.raises(RequestFailed):
+        await stuck.turn(memory)
+    assert memory["blocked"] == 0 and memory["error"] == "(motion failed: a wheel is stuck)"
+
+
+async def test_a_back_off_stopped_by_the_safety_is_not_counted_twice():
+    """The blocked leg before the back-off was counted (move_leg): its stopped back-off is not a second
+    block of the same obstacle, and the task plans again from where it stopped."""
+    from ontology.services.navigation import ObstacleLayer
+    runtime = FakeRuntime(path_planning_plan_path_2d=plan(), move_to=estop_stopped(),
+                          move_along_path=RequestFailed("the way ahead is blocked", code=ErrorCode.BLOCKED),
+                          path_planning_add_obstacle=ObstacleLayer(map_id="m", added="obs-1", obstacles=[]))
+    task = HazardTask(runtime)
+    memory = memory_at_start()
+    task.localizer.home = memory["home"]
+    memory.update(leg=[Pose2D(x=0.0, y=0.0, theta=0.0), Pose2D(x=0.5, y=0.0, theta=0.0)], leg_final=False, turn=0.0)
+    assert await task.move_leg(memory) == "back off" and memory["blocked"] == 1
+    await task.back_off(memory)
+    assert memory["blocked"] == 1 and memory["leg_outcome"] == "late" and "error" not in memory

@@ -21,7 +21,7 @@ from ontology.services.home import HomeInfo, LandmarkSpec
 from rapps.sdk.ekf import PoseEKF, compose, relative
 from rapps.sdk.landmark_cloud import solve_pose
 from rapps.sdk.landmarks import View, corners_world, planar_transform, project
-from rapps.sdk.localize import HEADS, Localizer, LocalizeSettings
+from rapps.sdk.localize import HEADS, Localizer, LocalizeSettings, Look
 
 from .test_localize_plan import CAMERAS
 
@@ -184,3 +184,76 @@ async def test_a_label_left_out_once_is_doubted_when_it_agrees_with_another_move
     loc.ekf = PoseEKF(TRUTH, 0.03, 0.02)
     again = await localize([seen("A"), seen("B"), seen("C")])  # B where the map has it after all (a bad frame)
     assert again.fixed and "B" in again.markers and loc.suspect == set()
+
+
+SLIPPED = (TRUTH[0] + 0.12, TRUTH[1], TRUTH[2])  # where a filter believes the robot after a slip on a rug
+
+
+@pytest.mark.parametrize("moved, believed, std_m, stops", [(0.24, TRUTH, 0.5, False), (0.0, TRUTH, 0.03, True),
+                                                           (0.24, TRUTH, 0.03, False), (0.0, SLIPPED, 0.03, False)])
+async def test_a_lone_code_the_filter_cannot_confirm_is_corroborated_before_the_looking_stops(moved, believed, std_m,
+                                                                                               stops):
+    """At the start (the given pose hardly trusted) one near code gave a certain fix and the looking
+    stopped; the code had been moved 0.24 m and the pose jumped with it (Elektron, generated 28893, 24 cm).
+    A filter that cannot check a fix looks for a second code first; one that can and agrees, stops; one
+    that disagrees (the moved code, 0.24 m) looks on too. A
+    right code after the odometry slipped 12 cm (Elektron, generated 86517, on a rug) disagrees with the
+    filter: the localization was unsure, and the next leg went 15 cm off its path; now it looks on for a
+    second code, which tells a moved label from a slipped robot."""
+    task = Task()
+
+    class Cloud:
+        async def call(self, action, _timeout=60.0, _ontology=None, **fields):
+            if action == "observe":
+                return SimpleNamespace(items=[seen("D", moved_m=moved)])
+            return solve_pose(SolvePose(**fields))
+
+    task.cloud = Cloud()
+    settings = LocalizeSettings(std_rad=0.01)  # the lone code's fix is certain enough to stop looking
+    loc = Localizer(task, settings, home=HomeInfo(home_id="h", map_id="m", landmarks=MAP))  # type: ignore[arg-type]
+    loc.head, loc.camera, loc.intrinsics = HEADS["HeadYaw"], CAMERA, {}
+    loc.ekf, loc.odom_ref = PoseEKF(believed, std_m, 0.3 if std_m > 0.1 else 0.02), TRUTH
+    look = Look(0.0, ["D"], 0.005, 0.002)
+    loc.state = dict(observations=[], localization=None, prior=None, frames=1, empty=0, turned=0.0, yaw=0.0,
+                     turn=None, turn_done=False, missed=set(), look=look, looks=[], frame=SimpleNamespace(data_b64=""),
+                     camera_to_robot=np.eye(4).tolist())
+    assert await loc.detect({}) is stops
+    found = loc.state["localization"]
+    assert found.markers == ["D"] and found.std_m < settings.std_m and found.std_theta_rad < settings.std_rad
+    if not stops:  # more to look at: the other codes on the wall
+        assert loc.state["looks"] and any(set(lk.codes) - {"D"} for lk in loc.state["looks"])
+
+
+@pytest.mark.parametrize("codes, moved, by_m", [("ADE", "E", 0.25), ("BCD", "C", 0.15), ("ADE", "D", 0.1)])
+def test_the_code_left_out_is_the_one_whose_absence_fits_the_rest(codes, moved, by_m):
+    """A moved code pulls the fit toward itself, so the worst residual at that fit can be a right code:
+    leaving out the worst each time kept the moved code alone (BCD: C; ADE: E) or with one right code
+    (ADE, D 0.1 m: rms 1.45 px passed the old 2 px bar). The solver leaves out the code without which
+    the rest fit best, and right codes fit within 1 px."""
+    observations = [seen(t, moved_m=by_m if t == moved else 0.0) for t in codes]
+    found = solve_pose(SolvePose(observations=observations, landmarks=MAP,
+                                 prior=Pose2D(x=TRUTH[0], y=TRUTH[1], theta=TRUTH[2])))
+    assert found.found and sorted(found.markers) == sorted(set(codes) - {moved})
+    assert math.hypot(found.pose.x - TRUTH[0], found.pose.y - TRUTH[1]) < 0.01
+
+
+async def test_a_doubted_code_that_passes_the_gate_does_not_pull_the_fix():
+    """Elektron, generated 75124: a label moved 0.11 m had been left out once (doubted); later it fitted
+    with a right code well enough to pass the gate, and the fix, 8 cm off, was taken as it was. Here the
+    far code E, moved 3 cm, pulls the fit of three codes 6 cm within 1 px. The fix without the doubted
+    code agrees with the prediction and not with the fix that has it: it is taken, E stays doubted."""
+    task = Task()
+    loc = Localizer(task, LocalizeSettings(), home=HomeInfo(home_id="h", map_id="m", landmarks=MAP))  # type: ignore[arg-type]
+    loc.head = HEADS["HeadYaw"]
+    loc.ekf, loc.odom_ref = PoseEKF(TRUTH, 0.04, 0.02), TRUTH
+    loc.suspect = {"E"}
+    prior = Pose2D(x=TRUTH[0], y=TRUTH[1], theta=TRUTH[2])
+    observations = [seen("B"), seen("C"), seen("E", moved_m=0.03)]
+    found = solve_pose(SolvePose(observations=observations, landmarks=MAP, prior=prior))
+    assert sorted(found.markers) == ["B", "C", "E"] and off(found.pose) > 0.04  # the solver kept E: pulled
+    loc.state = dict(observations=observations, localization=found, prior=prior, frames=1, empty=0, turned=0.0)
+    memory: dict = {}
+    await loc.set_pose(memory)
+    estimate = memory["estimate"]
+    assert estimate.fixed and sorted(estimate.markers) == ["B", "C"] and estimate.dropped == ["E"]
+    assert loc.suspect == {"E"} and off(estimate) < 0.01

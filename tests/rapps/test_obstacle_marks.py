@@ -10,8 +10,10 @@ import math
 import numpy as np
 import pytest
 
+from agents.errors import RequestFailed
 from agents.services import navigation, obstacles
 from agents.services.context import ServiceContext, ServiceState
+from agents.services.errors import ServiceError
 from agents.services.maps import GridMap
 from ontology.robot_types import ROBOT_TYPES
 from ontology.services.common import Pose2D
@@ -42,13 +44,17 @@ def one_doorway() -> GridMap:
 
 
 class Platform:
-    """The Platform's obstacle and planning services as the task's proxy calls them."""
+    """The Platform's obstacle and planning services as the task's proxy calls them (a refusal comes
+    back as the proxy raises it)."""
 
     def __init__(self, ctx: ServiceContext):
         self.ctx = ctx
 
     async def path_planning_add_obstacle(self, **kw):
-        return obstacles.add_obstacle(AddObstacle(**kw), self.ctx)
+        try:
+            return obstacles.add_obstacle(AddObstacle(**kw), self.ctx)
+        except ServiceError as e:
+            raise RequestFailed(e.reason, code=e.code) from None
 
     async def path_planning_clear_obstacles(self, **kw):
         return obstacles.clear_obstacles(ClearObstacles(**kw), self.ctx)
@@ -135,3 +141,29 @@ async def test_clearing_a_relaxed_mark_takes_its_body_with_it_and_a_wall_echo_en
     assert (1.0, 3.0, 0.25) in layer(ctx)
     await marks.clear(mark)
     assert layer(ctx) == [(1.0, 3.0, 0.25)] and marks.bodies == {} and list(marks.marks) == [other]
+
+
+async def test_an_event_clearing_a_mark_while_the_marks_are_relaxed_or_a_refused_body_breaks_nothing(ctx):
+    """The obstacle-clear event's handler runs as a task of its own: it may clear a mark while relax()
+    waits on the Platform (a KeyError ended the hazard), or clear one the task clears too. A body the
+    Platform refuses (its centre off the map) leaves the core marked and the task going."""
+    task = Task(ctx)
+    marks = ObstacleMarks(task)
+    first = await marks.enter("home", *TIP, radius_m=0.25, seen_from=SEEN_FROM)
+    second = await marks.enter("home", TIP[0], TIP[1] - 0.6, radius_m=0.25, seen_from=SEEN_FROM)
+    clear_at = task.platform.path_planning_clear_obstacles
+
+    async def clearing_meanwhile(**kw):  # the event clears the other mark while the first is relaxed
+        if second in marks.marks:
+            await marks.clear(second)
+        return await clear_at(**kw)
+
+    task.platform.path_planning_clear_obstacles = clearing_meanwhile
+    assert await marks.relax() == 1 and list(marks.bodies) == [first] and list(marks.marks) == [first]
+    task.platform.path_planning_clear_obstacles = clear_at
+    await marks.clear(first)
+    await marks.clear(first)  # twice: the event and the task
+    assert layer(ctx) == []
+    edge = await marks.enter("home", 0.3, 2.0, radius_m=0.6, seen_from=(1.0, 2.0))  # the body behind: x < 0
+    assert edge and await marks.relax() == 1 and edge in marks.marks and marks.bodies == {}
+    assert layer(ctx) == [(0.3, 2.0, ECHO_RADIUS_M)]

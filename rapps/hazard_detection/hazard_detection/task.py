@@ -10,7 +10,7 @@ import math
 from ontology import robot_types
 from ontology.services.common import CameraIntrinsics, Pose2D
 from ontology.services.hazard import DoorGeometry
-from rapps.sdk import FSM, ArriveBy, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
+from rapps.sdk import FSM, ArriveBy, ErrorCode, Localized, PathFree, PlanFailed, PlanMonitor, RequestError, Step, Task
 from rapps.sdk.paths import cut_path, path_length, point_at
 from rapps.sdk.paths import first_leg as sdk_first_leg
 
@@ -323,8 +323,8 @@ class HazardTask(Task):
         try:
             await self.robot.move_to(x=0.0, y=0.0, theta=memory["turn"], _timeout=60.0)
         except RequestError as e:
-            memory["error"] = f"(motion failed: {e.reason})"
-            raise
+            if not self.stopped_midway(memory, e):
+                raise
         finally:
             self.localizer.moved(rotation=memory["turn"])
 
@@ -384,8 +384,26 @@ class HazardTask(Task):
         try:
             await self.robot.move_to(x=-float(self.params["back_off_m"]), _timeout=60.0)
         except RequestError as e:
+            if not self.stopped_midway(memory, e, leg_counted=True):  # the leg that led here was counted
+                raise
+
+    def stopped_midway(self, memory, e: RequestError, leg_counted: bool = False) -> bool:
+        """A turn or back-off stopped by an emergency stop (the Core fails a relative motion it will not
+        resume, code estop: the robot's collision protection, a differential drive backing off by turning
+        round into what it stops for, or the owner): a blocked leg, unless `leg_counted` (a back-off
+        after one); the task re-localizes and plans again from where it stopped. False, with the reason
+        in memory["error"], for any other failure and after MAX_BLOCKED blocked legs (give it up)."""
+        if e.code != ErrorCode.ESTOP:
             memory["error"] = f"(motion failed: {e.reason})"
-            raise
+            return False
+        if not leg_counted:
+            if memory["blocked"] >= MAX_BLOCKED:
+                memory["error"] = f"(gave up: the way was blocked ({e.reason}))"
+                return False
+            memory["blocked"] += 1
+        memory["leg_final"], memory["leg_outcome"] = False, "late"
+        self.log.info("the motion was stopped midway (%s): planning again from here", e.reason)
+        return True
 
     async def uncertain(self, memory) -> bool:
         """Whether to re-localize now: at the standing pose (the check and the score need the best
