@@ -100,7 +100,6 @@ class StructureEvent(StrEnum):
     PLAN_FAILED = "plan-failed"  # an expectation of the running plan failed: the task re-plans
     OBSTACLE_MARKED = "obstacle-marked"  # an obstacle entered into the Platform's temporary layer
     OBSTACLE_CLEARED = "obstacle-cleared"  # ... and taken out, seen free again
-    OBSTACLE_RELAXED = "obstacle-relaxed"  # ... or made smaller: the marks closed every route (ObstacleMarks.relax)
     # the Store
     PUBLISH = "publish"  # a package published
     BUILD = "build"  # a published version's build for one robot type began or ended (agents/store_build.py)

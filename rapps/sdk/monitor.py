@@ -22,16 +22,15 @@ abandoned) and raises PlanFailed, traced as a structure record `plan-failed`. Ex
 
 `ObstacleMarks` (task.marks) enters obstacles into the Platform's temporary obstacle layer and takes each
 out again when the range sensors see its place free (the Core's obstacle-clear event), or it expires.
-Entered with where the robot stood (`seen_from`), a mark can be relaxed when the marks close every
-route: `relax()` shrinks it to a core at the echo with its body behind, then drops the body (a gap
-narrowed, not closed).
+Entered with where the robot stood (`seen_from`), a mark is a small core at the echo and a body behind
+it; `relax()` drops the bodies (the hazard task calls it when they close every route: a gap narrowed,
+not closed).
 Time spent paused (emergency stop) does not count against any deadline, up to the monitor's
 `pause_allowance_s` (2 minutes): a motion held for ever still fails its deadline."""
 from __future__ import annotations
 
 import asyncio
 import math
-from dataclasses import dataclass, replace
 from typing import Any, Awaitable, Callable, Iterable, NoReturn
 
 from agents.errors import RequestError, RequestFailed
@@ -245,49 +244,51 @@ class PlanMonitor:
 ECHO_RADIUS_M = 0.08  # a mark's core: the echo itself, within the range sensors' bearing and the pose's error
 
 
-@dataclass
-class Body:
-    """What a mark entered with `seen_from` claims beyond its echo: a disc of `radius_m`, round the echo
-    (`centre` None: the mark's own disc) or, once relaxed, behind it (`centre`: the body's disc, the echo
-    left with a core); `behind` is where relax() moves it."""
-
-    map_id: str
-    radius_m: float
-    behind: Point | None
-    centre: Point | None = None
-
-
 class ObstacleMarks:
     """The obstacles this task entered into the Platform's temporary layer (`task.marks`).
 
-    A mark is a disc round what blocked the way. Entered with `seen_from` (where the robot stood) it can
-    be relaxed when the marks close every route: `relax()` shrinks it to a small core at the echo (what
-    the range sensors saw) with the body moved behind it (its near edge at the echo: the space in front
-    was seen free), and a second `relax()` drops the body: a half-open door's leaf or a box beside a
-    doorway leaves a gap that the guessed discs close and the cores alone do not. `marks` holds id ->
-    (map id, the echo); `bodies` id -> Body, for the marks that can be relaxed."""
+    A mark entered with `seen_from` (where the robot stood) is what the range sensors can say: a small
+    core disc at the echo, and a body disc behind it, its near edge at the echo (never over the space in
+    front, which the sensors saw free). `relax()` drops the bodies: a half-open door's leaf or a box
+    beside a doorway leaves a gap that a disc of the obstacle's guessed size closes, the cores alone
+    do not. `marks` holds the cores (id -> (map id, the echo)); `bodies` core id -> (map id, body id,
+    its centre)."""
 
     def __init__(self, task: Any) -> None:
         self.task = task
         self.marks: dict[str, tuple[str, Point]] = {}  # mark id -> (map id, where)
-        self.bodies: dict[str, Body] = {}
+        self.bodies: dict[str, tuple[str, str, Point]] = {}
 
     async def enter(self, map_id: str, x: float, y: float, radius_m: float = 0.25, ttl_s: float = 120.0,
-                    note: str = "", skip_within_m: float = 0.0, seen_from: Point | None = None) -> str:
-        """Enter an obstacle: a disc of `radius_m` centred at (x, y); its mark's id, or "" when the
-        Platform did not add it (the map's own walls lie within `skip_within_m` of it: what the robot met
-        is mapped already). `seen_from`: where the robot stood when it met it (relax() needs it)."""
+                    note: str = "", skip_within_m: float = 0.0, seen_from: Point | None = None,
+                    echo_radius_m: float = ECHO_RADIUS_M) -> str:
+        """Enter an obstacle; its mark's id, or "" when the Platform did not add it (the map's own walls
+        lie within `skip_within_m` of it: what the robot met is mapped already). Without `seen_from` a
+        disc of `radius_m` centred at (x, y); with it, a core of `echo_radius_m` there and a body of
+        `radius_m` beyond it, seen from `seen_from`."""
         await events_hub(self.task)  # so that a place seen free again clears its mark
+        core = radius_m if seen_from is None else min(radius_m, echo_radius_m)
         layer = await self.task.platform.path_planning_add_obstacle(
-            map_id=map_id, x=x, y=y, radius_m=radius_m, ttl_s=ttl_s, note=note, skip_within_m=skip_within_m)
+            map_id=map_id, x=x, y=y, radius_m=core, ttl_s=ttl_s, note=note, skip_within_m=skip_within_m)
         added: str = layer.added
         if not added:
             return ""
         self.marks[added] = (map_id, (x, y))
-        if seen_from is not None and radius_m > ECHO_RADIUS_M:
-            self.bodies[added] = Body(map_id, radius_m, behind(seen_from, (x, y), radius_m))
+        body = behind(seen_from, (x, y), radius_m) if seen_from is not None and radius_m > core else None
+        body_id = ""
+        if body is not None:
+            try:  # the core is in: a body refused (its centre off the map, the layer full) leaves the core alone
+                reply = await self.task.platform.path_planning_add_obstacle(
+                    map_id=map_id, x=body[0], y=body[1], radius_m=radius_m, ttl_s=ttl_s, note=note)
+                body_id = reply.added
+            except RequestError as e:
+                self.task.log.warning("the obstacle's body at (%.2f, %.2f) was not marked: %s", body[0], body[1], e)
+            if body_id:
+                self.bodies[added] = (map_id, body_id, body)
         self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_MARKED, mark=added,  # noqa: SLF001 - the SDK's own Task
-                         x=round(x, 3), y=round(y, 3), radius_m=radius_m, note=note)
+                         x=round(x, 3), y=round(y, 3), radius_m=core, note=note,
+                         **({"body": [round(body[0], 3), round(body[1], 3), radius_m], "body_mark": body_id}
+                            if body is not None and body_id else {}))
         return added
 
     def near(self, point: Point, within_m: float) -> list[str]:
@@ -306,59 +307,33 @@ class ObstacleMarks:
             if d < free_m - 0.1 and abs(bearing) <= 0.52:
                 await self.clear(mark_id)
 
-    async def relax(self, keep: Callable[[Point], bool] | None = None, ttl_s: float = 120.0) -> int:
-        """Each relaxable mark one step smaller: its disc shrunk to a core at the echo with the body
-        moved behind it, or that body dropped; the marks whose echo `keep` says stay (a closed door's
-        doorway: the disc is the door). How many marks changed. An obstacle-clear event may clear a mark
-        while this waits on the Platform; a part the Platform refuses leaves the rest as it is."""
-        changed = 0
-        for mark_id in [k for k in self.bodies if k in self.marks and (keep is None or not keep(self.marks[k][1]))]:
-            body, entry = self.bodies.get(mark_id), self.marks.get(mark_id)
-            if body is None or entry is None:  # cleared meanwhile
+    async def relax(self, keep: Callable[[Point], bool] | None = None) -> int:
+        """Drop the bodies, keeping the cores (what the sensors saw), and the bodies of the marks whose
+        echo `keep` says (a closed door's doorway: its body is the door); how many were dropped."""
+        dropped = 0
+        for mark_id in [k for k in self.bodies if keep is None or k not in self.marks or not keep(self.marks[k][1])]:
+            entry = self.bodies.get(mark_id)  # an obstacle-clear event may have cleared it while this waited
+            if entry is None:
                 continue
-            map_id, (x, y) = entry
-            if body.centre is not None:  # behind the echo already: dropped
-                if await self._clear_at(map_id, *body.centre):
-                    self.bodies.pop(mark_id, None)
-                    changed += 1
-                    self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_RELAXED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
-                                     x=round(x, 3), y=round(y, 3), body=None)
-                continue
-            if body.behind is None or not await self._clear_at(map_id, x, y):
-                continue
-            self.bodies.pop(mark_id, None)
-            changed += 1
-            try:
-                add = self.task.platform.path_planning_add_obstacle
-                await add(map_id=map_id, x=x, y=y, radius_m=ECHO_RADIUS_M, ttl_s=ttl_s)
-                if mark_id not in self.marks:  # cleared meanwhile: its core goes too
-                    await self._clear_at(map_id, x, y)
-                    continue
-                await add(map_id=map_id, x=body.behind[0], y=body.behind[1], radius_m=body.radius_m, ttl_s=ttl_s)
-            except RequestError as e:  # the body's centre off the map, the layer full: the core alone
-                self.task.log.warning("the obstacle mark %s was not relaxed whole: %s", mark_id, e)
-                continue
-            if mark_id in self.marks:
-                self.bodies[mark_id] = replace(body, centre=body.behind)
-            else:
-                await self._clear_at(map_id, *body.behind)
-                continue
-            self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_RELAXED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
-                             x=round(x, 3), y=round(y, 3), radius_m=ECHO_RADIUS_M,
-                             body=[round(body.behind[0], 3), round(body.behind[1], 3), body.radius_m])
-        return changed
+            map_id, body_id, (x, y) = entry
+            if await self._clear_at(map_id, x, y):  # a body the Platform did not clear is still there
+                self.bodies.pop(mark_id, None)
+                dropped += 1
+                self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=body_id,  # noqa: SLF001 - the SDK's own Task
+                                 x=round(x, 3), y=round(y, 3), relaxed=mark_id)
+        return dropped
 
     async def clear(self, mark_id: str) -> None:
-        """Take a mark (and its body behind the echo) out of the Platform's layer; nothing when it is gone
-        already (an obstacle-clear event and the task's own clearing may meet)."""
+        """Take a mark (its core and body) out of the Platform's layer; nothing when it is gone already
+        (an obstacle-clear event and the task's own clearing may meet)."""
         entry = self.marks.pop(mark_id, None)
         if entry is None:
             return
         map_id, (x, y) = entry
         body = self.bodies.pop(mark_id, None)
-        if body is not None and body.centre is not None and await self._clear_at(map_id, *body.centre):
-            self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
-                             x=round(body.centre[0], 3), y=round(body.centre[1], 3), body_of=mark_id)
+        if body is not None and await self._clear_at(body[0], *body[2]):
+            self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=body[1],  # noqa: SLF001 - the SDK's own Task
+                             x=round(body[2][0], 3), y=round(body[2][1], 3), body_of=mark_id)
         if await self._clear_at(map_id, x, y):
             self.task._trace(RecordKind.STRUCTURE, event=StructureEvent.OBSTACLE_CLEARED, mark=mark_id,  # noqa: SLF001 - the SDK's own Task
                              x=round(x, 3), y=round(y, 3))

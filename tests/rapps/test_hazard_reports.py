@@ -21,7 +21,6 @@ from ontology.services.navigation import PlanPathReply
 from ontology.spawn import RobotInfo
 from rapps.hazard_detection.hazard_detection.models import HazardReport
 from rapps.hazard_detection.hazard_detection.task import HazardTask, describe
-from rapps.sdk.monitor import Body
 
 RAPP = Path(__file__).resolve().parents[2] / "rapps" / "hazard_detection"
 DOOR = HazardSpec(id="d1", type="door", stand=Pose2D(x=0.5, y=0.0, theta=0.0), look_at=[1.0, 0.0, 0.5],
@@ -196,6 +195,7 @@ async def test_blocked_again_at_the_same_place_it_is_marked_so_the_next_plan_is_
     (its pose was off: it re-localizes); blocked again within AGAIN_M it marks it all the same, wider."""
     from ontology.services.navigation import ObstacleLayer
     from rapps.hazard_detection.hazard_detection.task import AGAIN_M, MAPPED_M
+    from rapps.sdk.monitor import ECHO_RADIUS_M
 
     sent = []
     runtime = FakeRuntime()
@@ -214,11 +214,11 @@ async def test_blocked_again_at_the_same_place_it_is_marked_so_the_next_plan_is_
     assert len(sent) == 1 and sent[0].skip_within_m == MAPPED_M and memory["leg_outcome"] == "late"  # re-localize
     memory["leg_outcome"] = "blocked"
     await task.mark_obstacle(memory, (0.5, 0.05))  # the robot is back where it was (0, 0)
-    (again,) = sent[1:]
-    radius = 1.5 * float(runtime.params["obstacle_radius_m"])  # wider, round the echo
-    assert again.skip_within_m == 0.0 and (again.x, again.y) == (0.5, 0.05) and again.radius_m == pytest.approx(radius)
-    behind = task.marks.bodies["obs-2"].behind  # where relax() moves it: behind the echo seen from (0, 0)
-    assert math.hypot(*behind) == pytest.approx(math.hypot(0.5, 0.05) + radius)
+    core, body = sent[1:]
+    assert core.skip_within_m == 0.0 and (core.x, core.y) == (0.5, 0.05) and core.radius_m == ECHO_RADIUS_M
+    radius = 1.5 * float(runtime.params["obstacle_radius_m"])  # wider, and behind the echo seen from (0, 0)
+    assert body.radius_m == pytest.approx(radius) and math.dist((body.x, body.y), (0.5, 0.05)) == pytest.approx(radius)
+    assert math.hypot(body.x, body.y) == pytest.approx(math.hypot(0.5, 0.05) + radius)
     assert math.dist(memory["blocks"][0], memory["blocks"][1]) <= AGAIN_M
 
 
@@ -284,7 +284,7 @@ async def test_marks_bodies_closing_every_route_are_dropped_first_their_echoes_k
     runtime.request = request
     task, memory = HazardTask(runtime), memory_at_start()
     task.marks.marks = {"m1": ("m", (1.0, 0.0))}
-    task.marks.bodies = {"m1": Body("m", 0.25, (1.3, 0.1), centre=(1.3, 0.1))}  # behind its echo already
+    task.marks.bodies = {"m1": ("m", "m2", (1.3, 0.1))}
     assert await task.plan(memory) == "move"
     assert [a for a in sent if a.startswith("path_planning")] == [
         "path_planning_plan_path_2d", "path_planning_clear_obstacles", "path_planning_plan_path_2d"]
@@ -314,7 +314,7 @@ async def test_a_mark_in_a_doorway_keeps_its_body_the_closed_door_is_reported():
         DoorwaySpec(id="d2", door=DoorShape(hinge=[1.0, -0.5], closed_yaw_deg=90.0, width_m=1.0))])
     memory["marked"] = [(1.02, 0.1)]
     task.marks.marks = {"m1": ("m", (1.02, 0.1))}
-    task.marks.bodies = {"m1": Body("m", 0.25, (1.27, 0.1))}
+    task.marks.bodies = {"m1": ("m", "m2", (1.27, 0.1))}
     with pytest.raises(RuntimeError, match="no path to d1"):
         await task.plan(memory)
     assert sent.count("path_planning_plan_path_2d") == 2 and memory["marks_cleared"]  # no plan after a relax

@@ -251,15 +251,14 @@ class HazardTask(Task):
                 map_id=memory["home"].map_id, robot_type=self.robot_type(), algorithm=self.params["algorithm"],
                 start=pose, goal=memory["goal"])
             if reply.plan_found != PLAN_FOUND and self.marks.bodies:
-                # the marks' bodies (each obstacle's guessed size round its echo) close every way: a
-                # half-open door or a box beside a doorway narrowed the passage; moved behind the echoes,
-                # then dropped, they may not. What was met in a doorway is its door, closed: that body stays
+                # the marks' bodies (each obstacle's guessed size behind its echo) close every way: a
+                # half-open door or a box beside a doorway narrowed the passage; the echoes alone may not.
+                # What was met in a doorway is its door, closed: that body stays
                 doors = memory["home"].doors
-                changed = await self.marks.relax(keep=lambda p: bool(blocking_doors(doors, [p])),
-                                                 ttl_s=float(self.params["obstacle_ttl_s"]))
-                if changed:
-                    self.log.info("the obstacle marks' bodies block every route to %s: %d moved behind their "
-                                  "echoes or dropped, planning again", hazard.id, changed)
+                dropped = await self.marks.relax(keep=lambda p: bool(blocking_doors(doors, [p])))
+                if dropped:
+                    self.log.info("the obstacle marks' bodies block every route to %s: %d dropped, the echoes "
+                                  "kept, planning again", hazard.id, dropped)
                     continue
             if reply.plan_found != PLAN_FOUND and self.marks.marks and not memory.get("marks_cleared"):
                 # this task's own marks close every way: placed from a drifting estimate, or round
