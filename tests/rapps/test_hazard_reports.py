@@ -222,16 +222,13 @@ async def test_blocked_again_at_the_same_place_it_is_marked_so_the_next_plan_is_
     assert math.dist(memory["blocks"][0], memory["blocks"][1]) <= AGAIN_M
 
 
-async def test_its_own_marks_blocking_every_route_are_cleared_once_and_the_plan_tried_again():
-    """Issue 48 (lived in, NAO, generated house 85809): two marks, entered from a drifting estimate,
-    closed every way to a lamp, which was reported unknown. The task clears its own marks once and
-    plans again; only then, still no path, does it say so."""
-    sent = []
+def no_path_runtime(reason: str) -> tuple[FakeRuntime, list[str]]:
+    """A runtime whose planner finds no path (`reason`), with the action of every request it is sent."""
     from ontology.services.navigation import ObstacleLayer
 
-    runtime = FakeRuntime(path_planning_plan_path_2d=PlanPathReply(
-        plan_found=0, reason="the 2 temporary obstacle mark(s) on this map block every route"),
-        path_planning_clear_obstacles=ObstacleLayer(map_id="m", obstacles=[]))
+    sent: list[str] = []
+    runtime = FakeRuntime(path_planning_plan_path_2d=PlanPathReply(plan_found=0, reason=reason),
+                          path_planning_clear_obstacles=ObstacleLayer(map_id="m", obstacles=[]))
     original = runtime.request
 
     async def request(to, content, timeout=None, **kw):
@@ -239,6 +236,14 @@ async def test_its_own_marks_blocking_every_route_are_cleared_once_and_the_plan_
         return await original(to, content, timeout, **kw)
 
     runtime.request = request
+    return runtime, sent
+
+
+async def test_its_own_marks_blocking_every_route_are_cleared_once_and_the_plan_tried_again():
+    """Issue 48 (lived in, NAO, generated house 85809): two marks, entered from a drifting estimate,
+    closed every way to a lamp, which was reported unknown. The task clears its own marks once and
+    plans again; only then, still no path, does it say so."""
+    runtime, sent = no_path_runtime("the 2 temporary obstacle mark(s) on this map block every route")
     task, memory = HazardTask(runtime), memory_at_start()
     task.marks.marks = {"m1": ("m", (1.0, 0.0)), "m2": ("m", (1.2, 0.3))}
     with pytest.raises(RuntimeError, match="no path to d1"):
@@ -296,19 +301,8 @@ async def test_a_mark_in_a_doorway_keeps_its_body_the_closed_door_is_reported():
     """What blocked the way in a doorway is its door, closed: its mark's body is not dropped to squeeze
     past it; the marks are cleared once, and with no way still the route is reported blocked."""
     from ontology.services.home import DoorwaySpec
-    from ontology.services.navigation import ObstacleLayer
 
-    sent = []
-    runtime = FakeRuntime(path_planning_plan_path_2d=PlanPathReply(
-        plan_found=0, reason="the 1 temporary obstacle mark(s) on this map block every route"),
-        path_planning_clear_obstacles=ObstacleLayer(map_id="m", obstacles=[]))
-    original = runtime.request
-
-    async def request(to, content, timeout=None, **kw):
-        sent.append(content.action_name)
-        return await original(to, content, timeout, **kw)
-
-    runtime.request = request
+    runtime, sent = no_path_runtime("the 1 temporary obstacle mark(s) on this map block every route")
     task, memory = HazardTask(runtime), memory_at_start()
     memory["home"] = HomeInfo(home_id="home", map_id="m", doors=[
         DoorwaySpec(id="d2", door=DoorShape(hinge=[1.0, -0.5], closed_yaw_deg=90.0, width_m=1.0))])
