@@ -342,7 +342,7 @@ class _Worker:
 def _with_parked(state: SceneState, known: SceneState) -> SceneState:
     """`state` plus, parked, the robots and moving bodies `known` has and `state` lacks."""
     robots = {n: (kind, PARKED, q) for n, (kind, _, q) in known.robots.items() if n not in state.robots}
-    bodies = {n: (b[0], (*PARKED[:2], 0.0), *b[2:]) for n, b in known.bodies.items() if n not in state.bodies}
+    bodies = {n: (b[0], PARKED, *b[2:]) for n, b in known.bodies.items() if n not in state.bodies}
     if not robots and not bodies:
         return state
     return dataclasses.replace(state, robots={**robots, **state.robots}, bodies={**bodies, **state.bodies})
